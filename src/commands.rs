@@ -1,0 +1,516 @@
+//! The CLI's commands as library functions (so tests call them directly); `main.rs`
+//! only parses arguments, dispatches here and maps errors to exit codes.
+
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use polars::prelude::*;
+
+use crate::job::{InputSource, JobProblems, Plan};
+use crate::robot::{Robot, RobotSpec};
+use crate::runner::{self, RunError, RunOptions, progress::Reporter};
+use crate::stages::{self, InputTable, NoProgress, StageContext, StageError};
+use crate::table::{self, Provenance, TableError};
+
+/// A failed command, with the exit code the binary returns.
+#[derive(Debug, thiserror::Error)]
+pub enum CommandError {
+    #[error("{0}")]
+    Usage(String),
+    #[error(transparent)]
+    Job(#[from] JobProblems),
+    #[error(transparent)]
+    Table(#[from] TableError),
+    #[error(transparent)]
+    Run(#[from] RunError),
+    #[error(transparent)]
+    Robot(#[from] crate::robot::file::RobotFileError),
+    #[error("stage `{kind}` failed: {source}")]
+    Stage { kind: String, source: StageError },
+}
+
+/// Exit codes (documented in the README).
+pub mod exit {
+    pub const OK: u8 = 0;
+    pub const INTERNAL: u8 = 1;
+    /// Bad job file, robot file, table or arguments: fix the input.
+    pub const BAD_INPUT: u8 = 2;
+    /// A stage failed while running.
+    pub const STAGE_FAILED: u8 = 3;
+    /// Another run holds the output folder's lock.
+    pub const LOCKED: u8 = 5;
+}
+
+impl CommandError {
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            CommandError::Usage(_)
+            | CommandError::Job(_)
+            | CommandError::Table(_)
+            | CommandError::Robot(_) => exit::BAD_INPUT,
+            CommandError::Stage { source, .. } => stage_code(source),
+            CommandError::Run(e) => match e {
+                RunError::Lock(runner::lock::LockError::Held { .. }) => exit::LOCKED,
+                RunError::Lock(_) | RunError::Io { .. } => exit::INTERNAL,
+                RunError::UnknownStage(..)
+                | RunError::MissingUpstream { .. }
+                | RunError::Table { .. } => exit::BAD_INPUT,
+                RunError::InputChanged { .. } => exit::STAGE_FAILED,
+                RunError::Stage { source, .. } => stage_code(source),
+            },
+        }
+    }
+}
+
+fn stage_code(e: &StageError) -> u8 {
+    match e {
+        StageError::Table(_) | StageError::Invalid(_) => exit::BAD_INPUT,
+        StageError::Failed(_) => exit::STAGE_FAILED,
+    }
+}
+
+/// `egcal run`.
+pub fn run(job: &Path, options: &RunOptions, quiet: bool) -> Result<String, CommandError> {
+    let plan = Plan::load(job)?;
+    let reporter = Reporter::new(quiet);
+    let outcomes = runner::run(&plan, options, &reporter)?;
+    let ran = outcomes
+        .iter()
+        .filter(|(_, o)| matches!(o, runner::Outcome::Ran { .. }))
+        .count();
+    Ok(format!(
+        "{}: {} stage(s), {ran} ran, {} cached; outputs in {}",
+        plan.name,
+        outcomes.len(),
+        outcomes.len() - ran,
+        plan.output_dir.display()
+    ))
+}
+
+/// `egcal status`.
+pub fn status(job: &Path) -> Result<String, CommandError> {
+    let plan = Plan::load(job)?;
+    let mut out = String::new();
+    for s in runner::status(&plan)? {
+        if s.cached {
+            writeln!(out, "{:<20} cached", s.stage).expect("write to string");
+        } else {
+            writeln!(out, "{:<20} stale: {}", s.stage, s.reasons.join("; "))
+                .expect("write to string");
+        }
+    }
+    Ok(out)
+}
+
+/// `egcal check`: the plan, and each external input's data checked against its schema.
+pub fn check(job: &Path) -> Result<String, CommandError> {
+    let plan = Plan::load(job)?;
+    let mut out = format!(
+        "{}: {} stage(s) ok; robot {}; output {}\n",
+        plan.name,
+        plan.stages.len(),
+        plan.robot_file.display(),
+        plan.output_dir.display()
+    );
+    for stage in &plan.stages {
+        for (name, source) in &stage.inputs {
+            if let InputSource::Files { paths, .. } = source {
+                let slot = stage
+                    .kind
+                    .info()
+                    .inputs
+                    .iter()
+                    .find(|s| s.name == name)
+                    .expect("declared input");
+                for path in paths {
+                    let df = table::read_checked(path, &(slot.schema)())?;
+                    writeln!(
+                        out,
+                        "  {}.{name}: {} ({} rows) ok",
+                        stage.id,
+                        path.display(),
+                        df.height()
+                    )
+                    .expect("write to string");
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// `egcal dag`: Mermaid (default) or Graphviz DOT.
+pub fn dag(job: &Path, dot: bool) -> Result<String, CommandError> {
+    let plan = Plan::load(job)?;
+    let mut out = String::new();
+    if dot {
+        out.push_str("digraph job {\n  rankdir=LR;\n");
+    } else {
+        out.push_str("flowchart LR\n");
+    }
+    for stage in &plan.stages {
+        let label = format!("{} ({})", stage.id, stage.kind.info().kind);
+        if dot {
+            writeln!(out, "  \"{}\" [label=\"{label}\", shape=box];", stage.id).expect("write");
+        } else {
+            writeln!(out, "  {}[\"{label}\"]", stage.id).expect("write");
+        }
+        for (name, source) in &stage.inputs {
+            match source {
+                InputSource::Stage { stage: up, table } => {
+                    if dot {
+                        writeln!(
+                            out,
+                            "  \"{up}\" -> \"{}\" [label=\"{table} -> {name}\"];",
+                            stage.id
+                        )
+                        .expect("write");
+                    } else {
+                        writeln!(out, "  {up} -->|{table}| {}", stage.id).expect("write");
+                    }
+                }
+                InputSource::Files { pattern, .. } => {
+                    let node = format!("{}__{name}", stage.id);
+                    if dot {
+                        writeln!(out, "  \"{node}\" [label=\"{pattern}\", shape=note];\n  \"{node}\" -> \"{}\";", stage.id)
+                            .expect("write");
+                    } else {
+                        writeln!(out, "  {node}[/\"{pattern}\"/] --> {}", stage.id).expect("write");
+                    }
+                }
+            }
+        }
+    }
+    if dot {
+        out.push_str("}\n");
+    }
+    Ok(out)
+}
+
+/// `egcal show`: schema, provenance and the first rows of a Parquet file.
+pub fn show(path: &Path, rows: usize) -> Result<String, CommandError> {
+    let footer = table::read_footer(path)?;
+    let mut out = format!("{}: {} rows\n\ncolumns:\n", path.display(), footer.rows);
+    for (name, dtype) in &footer.columns {
+        writeln!(out, "  {name:<16} {dtype}").expect("write");
+    }
+    match table::read_provenance(path)? {
+        Some(p) => {
+            writeln!(out, "\nprovenance:").expect("write");
+            let json = serde_json::to_string_pretty(&p).expect("provenance serialises");
+            for line in json.lines() {
+                writeln!(out, "  {line}").expect("write");
+            }
+        }
+        None => writeln!(out, "\nprovenance: none (not written by egcal)").expect("write"),
+    }
+    let file = std::fs::File::open(path).map_err(|e| table::schema::io_error(path, e))?;
+    let head = ParquetReader::new(file)
+        .with_slice(Some((0, rows)))
+        .finish()
+        .map_err(|e| table::schema::io_error(path, e))?;
+    writeln!(
+        out,
+        "\nfirst {} rows:\n{}",
+        head.height(),
+        format_rows(&head)
+    )
+    .expect("write");
+    Ok(out)
+}
+
+/// A plain aligned text rendering of a small frame.
+fn format_rows(df: &DataFrame) -> String {
+    let mut cells: Vec<Vec<String>> = Vec::new();
+    for column in df.columns() {
+        let mut col = vec![column.name().to_string()];
+        let text = column.cast(&DataType::String).ok();
+        for row in 0..df.height() {
+            let value = text
+                .as_ref()
+                .and_then(|t| t.str().ok().and_then(|s| s.get(row).map(str::to_string)))
+                .unwrap_or_else(|| "null".into());
+            col.push(value);
+        }
+        cells.push(col);
+    }
+    let widths: Vec<usize> = cells
+        .iter()
+        .map(|c| c.iter().map(|s| s.chars().count()).max().unwrap_or(0))
+        .collect();
+    let mut out = String::new();
+    for row in 0..=df.height() {
+        let line: Vec<String> = cells
+            .iter()
+            .zip(&widths)
+            .map(|(c, w)| format!("{:>w$}", c[row], w = *w))
+            .collect();
+        writeln!(out, "{}", line.join("  ")).expect("write");
+    }
+    out
+}
+
+/// `egcal stage`: one stage kind on files, outputs to `DIR/<table>.parquet`.
+pub fn stage(
+    kind: &str,
+    robot_file: &Path,
+    inputs: &[(String, PathBuf)],
+    settings_file: Option<&Path>,
+    out_dir: &Path,
+    seed: u64,
+) -> Result<String, CommandError> {
+    let raw_settings: toml::Table = match settings_file {
+        None => toml::Table::new(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path).map_err(|e| {
+                CommandError::Usage(format!("cannot read settings {}: {e}", path.display()))
+            })?;
+            toml::from_str(&text).map_err(|e| {
+                CommandError::Usage(format!(
+                    "{}: {}",
+                    path.display(),
+                    crate::toml_error::describe(&e, &text)
+                ))
+            })?
+        }
+    };
+    let settings_name = settings_file.map_or("settings".to_string(), |p| p.display().to_string());
+    let work_dir = out_dir.join(".work");
+    let (mut tables, provenance) = run_on_files(
+        kind,
+        robot_file,
+        inputs,
+        &raw_settings,
+        &settings_name,
+        &work_dir,
+        seed,
+    )?;
+    let mut written = Vec::new();
+    for (name, df) in tables.iter_mut() {
+        let path = out_dir.join(format!("{name}.parquet"));
+        table::write_parquet(df, &path, Some(&provenance))?;
+        written.push(format!("{} ({} rows)", path.display(), df.height()));
+    }
+    Ok(format!("{kind}: wrote {}", written.join(", ")))
+}
+
+/// `egcal predict`: the `predict` stage on one input file, written to `output`.
+pub fn predict(
+    robot_file: &Path,
+    params: Option<&Path>,
+    model: &str,
+    input: &Path,
+    output: &Path,
+) -> Result<String, CommandError> {
+    let mut inputs = vec![("conf_wrenches".to_string(), input.to_path_buf())];
+    if let Some(params) = params {
+        inputs.push(("parameters".to_string(), params.to_path_buf()));
+    }
+    let mut settings = toml::Table::new();
+    settings.insert("model".into(), toml::Value::String(model.to_string()));
+    let work_dir = std::env::temp_dir().join(format!("egcal-predict-{}", std::process::id()));
+    let (mut tables, provenance) = run_on_files(
+        "predict", robot_file, &inputs, &settings, "--model", &work_dir, 0,
+    )?;
+    let _ = std::fs::remove_dir_all(&work_dir);
+    let df = tables
+        .get_mut("predictions")
+        .expect("predict writes predictions");
+    table::write_parquet(df, output, Some(&provenance))?;
+    Ok(format!(
+        "predict: wrote {} ({} rows)",
+        output.display(),
+        df.height()
+    ))
+}
+
+/// Runs one stage kind on files outside any job: checks inputs against the kind's
+/// schemas, runs it, and returns its tables with provenance for writing.
+fn run_on_files(
+    kind: &str,
+    robot_file: &Path,
+    inputs: &[(String, PathBuf)],
+    raw_settings: &toml::Table,
+    settings_name: &str,
+    work_dir: &Path,
+    seed: u64,
+) -> Result<(BTreeMap<String, DataFrame>, Provenance), CommandError> {
+    let stage_kind = stages::lookup(kind).ok_or_else(|| {
+        let known: Vec<&str> = stages::registry().iter().map(|k| k.info().kind).collect();
+        CommandError::Usage(format!(
+            "unknown stage kind `{kind}`{}; known kinds: {}",
+            crate::suggest::did_you_mean(kind, known.iter().copied()),
+            known.join(", ")
+        ))
+    })?;
+    let info = stage_kind.info();
+    let settings = stage_kind
+        .canonical_settings(raw_settings)
+        .map_err(|problems| {
+            CommandError::Usage(
+                problems
+                    .iter()
+                    .map(|p| format!("{settings_name}: {}: {}", p.key, p.message))
+                    .collect::<Vec<_>>()
+                    .join("\n"),
+            )
+        })?;
+    let robot = Robot::new(RobotSpec::load(robot_file)?);
+    let mut tables = BTreeMap::new();
+    for (name, path) in inputs {
+        let slot = info.inputs.iter().find(|s| s.name == name).ok_or_else(|| {
+            CommandError::Usage(format!(
+                "stage kind `{kind}` has no input `{name}`{}; its inputs: {}",
+                crate::suggest::did_you_mean(name, info.inputs.iter().map(|s| s.name)),
+                info.inputs
+                    .iter()
+                    .map(|s| s.name)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ))
+        })?;
+        let df = table::read_checked(path, &(slot.schema)())?;
+        tables.insert(
+            name.clone(),
+            InputTable {
+                path: path.clone(),
+                df,
+            },
+        );
+    }
+    for slot in info.inputs.iter().filter(|s| s.required) {
+        if !tables.contains_key(slot.name) {
+            return Err(CommandError::Usage(format!(
+                "missing required input `{}` ({}): pass --input {}=PATH",
+                slot.name, slot.meaning, slot.name
+            )));
+        }
+    }
+    std::fs::create_dir_all(work_dir).map_err(|e| table::schema::io_error(work_dir, e))?;
+    let ctx = StageContext {
+        robot: &robot,
+        seed,
+        inputs: &tables,
+        work_dir,
+        progress: &NoProgress,
+    };
+    let outputs = stage_kind
+        .run(&ctx, &settings)
+        .map_err(|source| CommandError::Stage {
+            kind: kind.to_string(),
+            source,
+        })?;
+    let provenance = Provenance {
+        job: "(egcal stage)".into(),
+        stage_id: kind.into(),
+        stage_kind: kind.into(),
+        cache_key: String::new(),
+        input_hashes: inputs
+            .iter()
+            .map(|(n, p)| (n.clone(), crate::fsio::hash_file(p).unwrap_or_default()))
+            .collect(),
+        tool_version: env!("CARGO_PKG_VERSION").into(),
+        created_at: table::now_rfc3339(),
+        extra: outputs.facts.clone(),
+    };
+    Ok((outputs.tables, provenance))
+}
+
+/// `egcal list-stages`: every kind with inputs, outputs and settings with defaults.
+pub fn list_stages() -> String {
+    let mut out = String::new();
+    for kind in stages::registry() {
+        let info = kind.info();
+        writeln!(
+            out,
+            "{} (code version {}): {}",
+            info.kind, info.code_version, info.summary
+        )
+        .expect("write");
+        for slot in info.inputs {
+            let req = if slot.required {
+                "required"
+            } else {
+                "optional"
+            };
+            writeln!(
+                out,
+                "  input  {:<16} {} table, {req}: {}",
+                slot.name,
+                (slot.schema)().kind,
+                slot.meaning
+            )
+            .expect("write");
+        }
+        for slot in info.outputs {
+            writeln!(
+                out,
+                "  output {:<16} {} table: {}",
+                slot.name,
+                (slot.schema)().kind,
+                slot.meaning
+            )
+            .expect("write");
+        }
+        let schema = kind.settings_schema();
+        let defaults = kind.defaults();
+        if let Some(props) = schema["properties"].as_object() {
+            for (name, prop) in props {
+                let description = prop["description"]
+                    .as_str()
+                    .unwrap_or("")
+                    .replace('\n', " ");
+                writeln!(
+                    out,
+                    "  set    {name:<16} = {:<12} {description}",
+                    defaults[name]
+                )
+                .expect("write");
+            }
+        }
+        out.push('\n');
+    }
+    out
+}
+
+/// `egcal cache gc`.
+pub fn cache_gc(job: &Path) -> Result<String, CommandError> {
+    let plan = Plan::load(job)?;
+    let (entries, bytes) = runner::gc(&plan)?;
+    Ok(format!(
+        "removed {entries} cache entries ({:.1} MiB)",
+        bytes as f64 / 1048576.0
+    ))
+}
+
+/// `egcal schemas`: (re)writes the generated schema files into `dir`.
+pub fn write_schemas(dir: &Path) -> Result<String, CommandError> {
+    let files = generated_schemas();
+    for (name, text) in &files {
+        let path = dir.join(name);
+        crate::fsio::write_bytes_atomic(&path, text.as_bytes())
+            .map_err(|e| table::schema::io_error(&path, e))?;
+    }
+    Ok(format!(
+        "wrote {} schema files to {}",
+        files.len(),
+        dir.display()
+    ))
+}
+
+/// Every generated schema file: (path relative to `schemas/`, content).
+pub fn generated_schemas() -> Vec<(String, String)> {
+    let mut files = vec![(
+        "job.schema.json".to_string(),
+        crate::job::schema::job_schema_json(),
+    )];
+    let robot =
+        serde_json::to_string_pretty(&schemars::schema_for!(RobotSpec)).expect("schema serialises");
+    files.push(("robot.schema.json".into(), robot + "\n"));
+    for schema in table::schema::all() {
+        let text = serde_json::to_string_pretty(&schema).expect("schema serialises");
+        files.push((format!("tables/{}.json", schema.kind), text + "\n"));
+    }
+    files
+}

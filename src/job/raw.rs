@@ -1,0 +1,340 @@
+//! Phase 1 of job-file parsing: TOML text → plain structs, no I/O besides the text.
+//!
+//! Collects every problem instead of stopping at the first, each with the line of
+//! the offending key (from the TOML parser's spans) and a "did you mean" hint.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+use toml::de::{DeTable, DeValue};
+
+use super::{JobProblem, JobProblems};
+
+/// The `[job]` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct JobHeader {
+    /// Name used in provenance and the default output folder.
+    pub name: String,
+    /// Seed of every random draw in the job; stages mix in their id.
+    #[serde(default)]
+    pub seed: u64,
+    /// Output folder, relative to the job file. Default: `out/<name>` beside the job file.
+    #[serde(default)]
+    pub output: Option<String>,
+    /// Robot file, relative to the job file.
+    pub robot: String,
+}
+
+/// One `[[stages]]` entry before validation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RawStage {
+    pub id: String,
+    pub kind: String,
+    /// Input name → reference: `stage`, `stage.table`, or a path/glob ending in `.parquet`.
+    pub inputs: BTreeMap<String, String>,
+    /// Every other key of the stage table: the kind's settings.
+    pub settings: toml::Table,
+    /// Key path prefix for messages, e.g. `stages[2]`.
+    pub key: String,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct RawJob {
+    pub header: JobHeader,
+    pub stages: Vec<RawStage>,
+    pub lines: LineIndex,
+}
+
+/// Key path → line number of that key in the file.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct LineIndex(BTreeMap<String, usize>);
+
+impl LineIndex {
+    fn build(text: &str, table: &DeTable, prefix: &str, index: &mut BTreeMap<String, usize>) {
+        for (key, value) in table {
+            let path = if prefix.is_empty() {
+                key.get_ref().to_string()
+            } else {
+                format!("{prefix}.{}", key.get_ref())
+            };
+            index.insert(
+                path.clone(),
+                crate::toml_error::line_column(text, key.span().start).0,
+            );
+            match value.get_ref() {
+                DeValue::Table(inner) => Self::build(text, inner, &path, index),
+                DeValue::Array(items) => {
+                    for (i, item) in items.iter().enumerate() {
+                        let item_path = format!("{path}[{i}]");
+                        index.insert(
+                            item_path.clone(),
+                            crate::toml_error::line_column(text, item.span().start).0,
+                        );
+                        if let DeValue::Table(inner) = item.get_ref() {
+                            Self::build(text, inner, &item_path, index);
+                        }
+                    }
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Line of `key`, or of its closest enclosing key that has one.
+    pub fn line_of(&self, key: &str) -> Option<usize> {
+        let mut key = key;
+        loop {
+            if let Some(line) = self.0.get(key) {
+                return Some(*line);
+            }
+            let cut = key.rfind(['.', '['])?;
+            key = &key[..cut];
+        }
+    }
+}
+
+const STAGE_KEYS: [&str; 3] = ["id", "kind", "inputs"];
+
+/// Parses job-file text; `path` only names the file in messages.
+pub fn parse(text: &str, path: &Path) -> Result<RawJob, JobProblems> {
+    let problem = |line: Option<usize>, key: &str, message: String| JobProblem {
+        file: path.to_path_buf(),
+        line,
+        key: key.to_string(),
+        message,
+    };
+    let spanned = DeTable::parse(text).map_err(|e| {
+        let line = e
+            .span()
+            .map(|s| crate::toml_error::line_column(text, s.start).0);
+        JobProblems(vec![problem(
+            line,
+            "",
+            format!("invalid TOML: {}", e.message().trim()),
+        )])
+    })?;
+    let mut index = BTreeMap::new();
+    LineIndex::build(text, spanned.get_ref(), "", &mut index);
+    let lines = LineIndex(index);
+    let root: toml::Table = toml::from_str(text).map_err(|e| {
+        JobProblems(vec![problem(
+            None,
+            "",
+            format!("invalid TOML: {}", e.message().trim()),
+        )])
+    })?;
+    let mut problems = Vec::new();
+    let at = |key: &str, message: String| problem(lines.line_of(key), key, message);
+
+    for key in root.keys().filter(|k| *k != "job" && *k != "stages") {
+        problems.push(at(
+            key,
+            format!(
+                "unknown top-level key `{key}`, expected `job` or `stages`{}",
+                crate::suggest::did_you_mean(key, ["job", "stages"])
+            ),
+        ));
+    }
+
+    let header = match root.get("job") {
+        None => {
+            problems.push(problem(
+                Some(1),
+                "job",
+                "missing `[job]` table (name, robot, seed, output)".into(),
+            ));
+            None
+        }
+        Some(value) => match serde_path_to_error::deserialize::<_, JobHeader>(value.clone()) {
+            Ok(h) => Some(h),
+            Err(e) => {
+                let key = if e.path().to_string() == "." {
+                    "job".to_string()
+                } else {
+                    format!("job.{}", e.path())
+                };
+                let message = e.inner().message().to_string();
+                let hint = unknown_field_hint(&message, &["name", "seed", "output", "robot"]);
+                problems.push(at(&key, format!("{message}{hint}")));
+                None
+            }
+        },
+    };
+
+    let mut stages = Vec::new();
+    match root.get("stages") {
+        None => problems.push(problem(None, "stages", "no `[[stages]]` declared".into())),
+        Some(toml::Value::Array(items)) => {
+            for (i, item) in items.iter().enumerate() {
+                let key = format!("stages[{i}]");
+                match parse_stage(item, &key) {
+                    Ok(stage) => stages.push(stage),
+                    Err(messages) => problems.extend(messages.into_iter().map(|(k, m)| at(&k, m))),
+                }
+            }
+        }
+        Some(other) => problems.push(at(
+            "stages",
+            format!(
+                "expected an array of tables `[[stages]]`, found {}",
+                other.type_str()
+            ),
+        )),
+    }
+
+    match header {
+        Some(header) if problems.is_empty() => Ok(RawJob {
+            header,
+            stages,
+            lines,
+        }),
+        _ => Err(JobProblems(problems)),
+    }
+}
+
+fn unknown_field_hint(message: &str, fields: &[&str]) -> String {
+    message
+        .strip_prefix("unknown field `")
+        .and_then(|rest| rest.split('`').next())
+        .map(|field| crate::suggest::did_you_mean(field, fields.iter().copied()))
+        .unwrap_or_default()
+}
+
+/// One stage table → (id, kind, inputs, settings); problems as (key, message).
+fn parse_stage(item: &toml::Value, key: &str) -> Result<RawStage, Vec<(String, String)>> {
+    let Some(table) = item.as_table() else {
+        return Err(vec![(key.to_string(), "expected a table".into())]);
+    };
+    let mut problems = Vec::new();
+    let mut text_field = |name: &str| match table.get(name) {
+        Some(toml::Value::String(s)) if !s.is_empty() => Some(s.clone()),
+        Some(other) => {
+            problems.push((
+                format!("{key}.{name}"),
+                format!("expected a non-empty string, found {}", describe(other)),
+            ));
+            None
+        }
+        None => {
+            problems.push((format!("{key}.{name}"), format!("missing `{name}`")));
+            None
+        }
+    };
+    let id = text_field("id");
+    let kind = text_field("kind");
+    let mut inputs = BTreeMap::new();
+    match table.get("inputs") {
+        None => {}
+        Some(toml::Value::Table(map)) => {
+            for (name, reference) in map {
+                match reference {
+                    toml::Value::String(s) => {
+                        inputs.insert(name.clone(), s.clone());
+                    }
+                    other => problems.push((
+                        format!("{key}.inputs.{name}"),
+                        format!(
+                            "expected a string (`stage`, `stage.table` or a .parquet path/glob), found {}",
+                            other.type_str()
+                        ),
+                    )),
+                }
+            }
+        }
+        Some(other) => problems.push((
+            format!("{key}.inputs"),
+            format!(
+                "expected a table of name = reference, found {}",
+                other.type_str()
+            ),
+        )),
+    }
+    if let Some(id) = &id
+        && !id
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')
+    {
+        problems.push((
+            format!("{key}.id"),
+            format!("stage id `{id}` may only use letters, digits, `_` and `-`"),
+        ));
+    }
+    let settings: toml::Table = table
+        .iter()
+        .filter(|(k, _)| !STAGE_KEYS.contains(&k.as_str()))
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .collect();
+    match (id, kind) {
+        (Some(id), Some(kind)) if problems.is_empty() => Ok(RawStage {
+            id,
+            kind,
+            inputs,
+            settings,
+            key: key.to_string(),
+        }),
+        _ => Err(problems),
+    }
+}
+
+fn describe(value: &toml::Value) -> String {
+    match value {
+        toml::Value::String(_) => "an empty string".into(),
+        other => other.type_str().to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+[job]
+name = "t"
+seed = 3
+robot = "robots/irb1600_145.toml"
+
+[[stages]]
+id = "p"
+kind = "predict"
+inputs = { conf_wrenches = "data/in.parquet" }
+model = "nominal"
+"#;
+
+    #[test]
+    fn parses_header_stages_inputs_and_settings() {
+        let job = parse(GOOD, Path::new("j.toml")).unwrap();
+        assert_eq!(job.header.seed, 3);
+        assert_eq!(job.stages[0].inputs["conf_wrenches"], "data/in.parquet");
+        assert_eq!(job.stages[0].settings["model"].as_str(), Some("nominal"));
+        assert_eq!(job.lines.line_of("stages[0].model"), Some(11));
+        assert_eq!(
+            job.lines.line_of("stages[0].inputs.conf_wrenches"),
+            Some(10)
+        );
+    }
+
+    #[test]
+    fn collects_every_problem_with_lines_and_hints() {
+        let text = GOOD
+            .replace("seed = 3", "sed = 3")
+            .replace("kind = \"predict\"\n", "");
+        let problems = parse(&text, Path::new("j.toml")).unwrap_err();
+        let rendered = problems.to_string();
+        assert_eq!(problems.0.len(), 2, "{rendered}");
+        assert!(rendered.contains("j.toml:4: job.sed"), "{rendered}");
+        assert!(rendered.contains("did you mean `seed`"), "{rendered}");
+        assert!(
+            rendered.contains("stages[0].kind: missing `kind`"),
+            "{rendered}"
+        );
+    }
+
+    #[test]
+    fn syntax_error_names_the_line() {
+        let problems = parse("[job]\nname = \n", Path::new("j.toml")).unwrap_err();
+        assert!(problems.to_string().starts_with("j.toml:2:"), "{problems}");
+    }
+}

@@ -1,0 +1,181 @@
+//! The `egcal` binary: parses arguments, dispatches to [`egcal::commands`], prints
+//! the result or the error, and exits with the documented code.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use egcal::commands::{self, CommandError, exit};
+use egcal::runner::RunOptions;
+
+#[derive(Parser)]
+#[command(
+    name = "egcal",
+    version,
+    about = "Elasto-geometric robot calibration as reproducible batch jobs"
+)]
+struct Cli {
+    /// No progress bars or log lines; only results and errors.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a job: every stale stage, independent stages in parallel.
+    Run {
+        job: PathBuf,
+        /// Run only this stage (its inputs must be cached).
+        #[arg(long)]
+        only: Option<String>,
+        /// Recompute this stage and everything downstream.
+        #[arg(long)]
+        from: Option<String>,
+        /// Recompute every stage.
+        #[arg(long)]
+        force: bool,
+        /// Stages run at once (default: the number of cores).
+        #[arg(long, short)]
+        jobs: Option<usize>,
+    },
+    /// Dry run: each stage cached or stale, and why.
+    Status { job: PathBuf },
+    /// Print the stage graph (Mermaid, or DOT with --dot).
+    Dag {
+        job: PathBuf,
+        #[arg(long)]
+        dot: bool,
+    },
+    /// Validate the job file and its external inputs; run nothing.
+    Check { job: PathBuf },
+    /// Schema, provenance and first rows of a Parquet table.
+    Show {
+        table: PathBuf,
+        #[arg(long, default_value_t = 10)]
+        rows: usize,
+    },
+    /// Run one stage kind on files (fixture tests, debugging).
+    Stage {
+        kind: String,
+        #[arg(long)]
+        robot: PathBuf,
+        /// NAME=PATH, repeatable.
+        #[arg(long = "input", value_parser = parse_input)]
+        inputs: Vec<(String, PathBuf)>,
+        /// TOML file with the stage's settings (as in a job's stage table).
+        #[arg(long)]
+        settings: Option<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
+    /// Predict positions, load torques and deflections for conf-wrench rows.
+    Predict {
+        #[arg(long)]
+        robot: PathBuf,
+        /// Parameters table; nominal values when absent.
+        #[arg(long)]
+        params: Option<PathBuf>,
+        /// Model of the parameters table to use.
+        #[arg(long, default_value = "elastogeometric")]
+        model: String,
+        #[arg(long)]
+        input: PathBuf,
+        #[arg(long)]
+        output: PathBuf,
+    },
+    /// Stage kinds with their inputs, outputs and settings (with defaults).
+    ListStages,
+    /// Cache maintenance.
+    Cache {
+        #[command(subcommand)]
+        action: CacheAction,
+    },
+    /// Regenerate the JSON schemas (job file, robot file, tables) into a folder.
+    Schemas {
+        #[arg(long, default_value = "schemas")]
+        out: PathBuf,
+    },
+}
+
+#[derive(Subcommand)]
+enum CacheAction {
+    /// Remove cache entries that no stage of the job uses any more.
+    Gc { job: PathBuf },
+}
+
+fn parse_input(text: &str) -> Result<(String, PathBuf), String> {
+    let (name, path) = text
+        .split_once('=')
+        .ok_or_else(|| format!("expected NAME=PATH, found `{text}`"))?;
+    Ok((name.to_string(), PathBuf::from(path)))
+}
+
+fn dispatch(cli: Cli) -> Result<String, CommandError> {
+    match cli.command {
+        Command::Run {
+            job,
+            only,
+            from,
+            force,
+            jobs,
+        } => {
+            let jobs =
+                jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+            commands::run(
+                &job,
+                &RunOptions {
+                    only,
+                    from,
+                    force,
+                    jobs,
+                },
+                cli.quiet,
+            )
+        }
+        Command::Status { job } => commands::status(&job),
+        Command::Dag { job, dot } => commands::dag(&job, dot),
+        Command::Check { job } => commands::check(&job),
+        Command::Show { table, rows } => commands::show(&table, rows),
+        Command::Stage {
+            kind,
+            robot,
+            inputs,
+            settings,
+            out,
+            seed,
+        } => commands::stage(&kind, &robot, &inputs, settings.as_deref(), &out, seed),
+        Command::Predict {
+            robot,
+            params,
+            model,
+            input,
+            output,
+        } => commands::predict(&robot, params.as_deref(), &model, &input, &output),
+        Command::ListStages => Ok(commands::list_stages()),
+        Command::Cache {
+            action: CacheAction::Gc { job },
+        } => commands::cache_gc(&job),
+        Command::Schemas { out } => commands::write_schemas(&out),
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match dispatch(cli) {
+        Ok(message) => {
+            let message = message.trim_end();
+            if !message.is_empty() {
+                println!("{message}");
+            }
+            ExitCode::from(exit::OK)
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::from(e.exit_code())
+        }
+    }
+}

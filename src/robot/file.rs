@@ -1,0 +1,262 @@
+//! The robot file: a TOML description of one serial arm (nominal geometry, joint
+//! limits, link inertia, payload, nominal world and tool transforms, optional
+//! collision capsules).
+//!
+//! Parsing is strict: unknown keys are errors and every error names the key path
+//! (`joints[2].a_mm`) and what was expected, because a silently ignored typo in a
+//! robot file spoils a whole calibration. Values are in the units their names carry;
+//! conversion to radians and metres happens in [`super::model`], nowhere else.
+
+use std::path::{Path, PathBuf};
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+/// One revolute joint (Craig's modified DH, `../shared/spec/model.md` §1) and the
+/// link it moves.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct JointSpec {
+    /// Twist about the previous x axis, degrees.
+    pub alpha_deg: f64,
+    /// Length along the previous x axis, millimetres.
+    pub a_mm: f64,
+    /// Constant added to the joint command to get the MDH angle, degrees.
+    pub theta_offset_deg: f64,
+    /// Offset along the joint's z axis, millimetres.
+    pub d_mm: f64,
+    /// Software joint limits `[min, max]`, degrees.
+    pub limits_deg: [f64; 2],
+    /// Mass of the link this joint moves, kilograms.
+    pub link_mass_kg: f64,
+    /// Centre of gravity of that link in the joint's own frame, millimetres.
+    pub link_cog_mm: [f64; 3],
+    /// Collision shape of the link in the joint's frame (for pose generation).
+    #[serde(default)]
+    pub capsule: Option<CapsuleSpec>,
+}
+
+/// A capsule: the set of points within `radius_mm` of the segment `from_mm`–`to_mm`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct CapsuleSpec {
+    pub from_mm: [f64; 3],
+    pub to_mm: [f64; 3],
+    pub radius_mm: f64,
+}
+
+/// A rigid transform written as the paper's eq. (3)/(4): `Rot(x,α)·Rot(y,β)·Rot(z,γ)·Trans(x,y,z)`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct TransformSpec {
+    pub x_mm: f64,
+    pub y_mm: f64,
+    pub z_mm: f64,
+    pub alpha_deg: f64,
+    pub beta_deg: f64,
+    pub gamma_deg: f64,
+}
+
+/// A load carried by the tool, with its centre of gravity in the tool frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PayloadSpec {
+    pub mass_kg: f64,
+    pub cog_mm: [f64; 3],
+}
+
+/// The whole robot file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct RobotSpec {
+    /// Human-readable model name, e.g. "ABB IRB 1600-6/1.45".
+    pub name: String,
+    /// Gravity in the base frame, m/s².
+    #[serde(default = "default_gravity")]
+    pub gravity_mps2: [f64; 3],
+    /// Exactly six joints, base to flange.
+    pub joints: Vec<JointSpec>,
+    /// Nominal world (tracker) ← base transform.
+    pub world: TransformSpec,
+    /// Nominal flange → tool (SMR) transform.
+    pub tool: TransformSpec,
+    #[serde(default = "no_payload")]
+    pub payload: PayloadSpec,
+}
+
+fn default_gravity() -> [f64; 3] {
+    [0.0, 0.0, -9.81]
+}
+
+fn no_payload() -> PayloadSpec {
+    PayloadSpec {
+        mass_kg: 0.0,
+        cog_mm: [0.0; 3],
+    }
+}
+
+/// Why a robot file was rejected.
+#[derive(Debug, thiserror::Error)]
+pub enum RobotFileError {
+    #[error("cannot read robot file {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("robot file {path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("robot file {path}: key `{key}`: {message}")]
+    Invalid {
+        path: PathBuf,
+        key: String,
+        message: String,
+    },
+}
+
+impl RobotSpec {
+    /// Reads and validates a robot file.
+    pub fn load(path: &Path) -> Result<Self, RobotFileError> {
+        let text = std::fs::read_to_string(path).map_err(|source| RobotFileError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses robot-file text; `path` is only used in error messages.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, RobotFileError> {
+        let de = toml::de::Deserializer::parse(text).map_err(|e| RobotFileError::Parse {
+            path: path.to_path_buf(),
+            message: crate::toml_error::describe(&e, text),
+        })?;
+        let spec: RobotSpec = serde_path_to_error::deserialize(de).map_err(|e| {
+            let key = e.path().to_string();
+            let inner = e.into_inner();
+            RobotFileError::Invalid {
+                path: path.to_path_buf(),
+                message: format!(
+                    "{} ({})",
+                    inner.message(),
+                    crate::toml_error::location(&inner, text)
+                ),
+                key,
+            }
+        })?;
+        spec.validate(path)?;
+        Ok(spec)
+    }
+
+    fn validate(&self, path: &Path) -> Result<(), RobotFileError> {
+        let invalid = |key: String, message: String| RobotFileError::Invalid {
+            path: path.to_path_buf(),
+            key,
+            message,
+        };
+        if self.joints.len() != 6 {
+            return Err(invalid(
+                "joints".into(),
+                format!("expected exactly 6 joints, found {}", self.joints.len()),
+            ));
+        }
+        for (i, joint) in self.joints.iter().enumerate() {
+            let numbers = [
+                ("alpha_deg", joint.alpha_deg),
+                ("a_mm", joint.a_mm),
+                ("theta_offset_deg", joint.theta_offset_deg),
+                ("d_mm", joint.d_mm),
+                ("link_mass_kg", joint.link_mass_kg),
+            ];
+            for (name, value) in numbers {
+                if !value.is_finite() {
+                    return Err(invalid(
+                        format!("joints[{i}].{name}"),
+                        "expected a finite number".into(),
+                    ));
+                }
+            }
+            let [lo, hi] = joint.limits_deg;
+            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+                return Err(invalid(
+                    format!("joints[{i}].limits_deg"),
+                    format!("expected [min, max] with min < max, found [{lo}, {hi}]"),
+                ));
+            }
+            if joint.link_mass_kg < 0.0 {
+                return Err(invalid(
+                    format!("joints[{i}].link_mass_kg"),
+                    "expected a mass >= 0".into(),
+                ));
+            }
+            if let Some(capsule) = &joint.capsule
+                && !(capsule.radius_mm > 0.0)
+            {
+                return Err(invalid(
+                    format!("joints[{i}].capsule.radius_mm"),
+                    "expected a radius > 0".into(),
+                ));
+            }
+        }
+        if !(self.payload.mass_kg >= 0.0) {
+            return Err(invalid(
+                "payload.mass_kg".into(),
+                "expected a mass >= 0".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Blake3 hash of the canonical form (so whitespace or comment edits do not
+    /// invalidate caches, but any value change does).
+    pub fn content_hash(&self) -> String {
+        let canonical = serde_json::to_vec(self).expect("robot spec serialises to JSON");
+        blake3::hash(&canonical).to_hex().to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const IRB1600: &str = include_str!("../../jobs/robots/irb1600_145.toml");
+
+    #[test]
+    fn shipped_robot_file_parses() {
+        let spec = RobotSpec::parse(IRB1600, Path::new("irb1600_145.toml")).unwrap();
+        assert_eq!(spec.joints.len(), 6);
+        assert_eq!(spec.joints[0].d_mm, 486.5);
+        assert_eq!(spec.world.x_mm, 1326.0);
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let text = IRB1600.replacen("a_mm = 150.0", "a_mn = 150.0", 1);
+        let err = RobotSpec::parse(&text, Path::new("r.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("joints[1]"), "{err}");
+        assert!(err.contains("a_mn"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_is_named_with_key_path() {
+        let text = IRB1600.replacen("d_mm = 486.5", "d_mm = \"tall\"", 1);
+        let err = RobotSpec::parse(&text, Path::new("r.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("joints[0].d_mm"), "{err}");
+        assert!(err.contains("line"), "{err}");
+    }
+
+    #[test]
+    fn bad_limits_are_named() {
+        let text = IRB1600.replacen(
+            "limits_deg = [-180.0, 180.0]",
+            "limits_deg = [10.0, -10.0]",
+            1,
+        );
+        let err = RobotSpec::parse(&text, Path::new("r.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("joints[0].limits_deg"), "{err}");
+    }
+}

@@ -1,0 +1,542 @@
+//! Inverse kinematics.
+//!
+//! * [`closed_form`]: every solution (up to 8, plus extra turns of joints whose
+//!   range exceeds 360°) of the nominal arm with a spherical wrist, for a flange
+//!   pose in the base frame. Used to enumerate configurations in pose generation.
+//! * [`solve_loaded`]: damped least squares on the full model (identified
+//!   parameters, world and tool frames, compliance deflection under a wrench),
+//!   seeded by a closed-form solution: the joint command that puts the tool at a
+//!   target while loaded.
+//!
+//! Singular and unreachable poses return an [`IkError`], never NaN.
+//!
+//! The closed form is written for the MDH structure of the ABB/KUKA/Fanuc family
+//! (`alpha = 0, -90, 0, -90, 90, -90`, parallel axes 2 and 3, a spherical wrist);
+//! other robot files get [`IkError::UnsupportedGeometry`] naming the first
+//! mismatch. It is hand-written rather than taken from an OPW crate because it must
+//! work directly on the robot file's MDH values and offsets and label branches.
+
+use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
+
+use super::frame::{Frame, rot_x, rot_z, rotation_vector};
+use super::jacobian::deflected_tool_and_joints;
+use super::model::{JOINTS, Robot, Wrench};
+use super::params::ParamValues;
+
+const DEG: f64 = std::f64::consts::PI / 180.0;
+
+/// Why no joint vector was found.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum IkError {
+    #[error("unreachable: {0}")]
+    Unreachable(String),
+    #[error("singular: {0}")]
+    Singular(String),
+    #[error("closed-form inverse kinematics needs a spherical-wrist arm: {0}")]
+    UnsupportedGeometry(String),
+    #[error(
+        "numeric inverse kinematics did not converge after {iterations} iterations (position error {position_error_mm:.3e} mm, orientation error {orientation_error_rad:.3e} rad)"
+    )]
+    NotConverged {
+        iterations: usize,
+        position_error_mm: f64,
+        orientation_error_rad: f64,
+    },
+}
+
+/// One closed-form solution.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IkSolution {
+    pub q_deg: [f64; JOINTS],
+    /// Bit 0: shoulder back (joint 1 turned away from the wrist centre), bit 1:
+    /// elbow down, bit 2: wrist flipped (the θ5 < 0 branch).
+    pub branch: u8,
+}
+
+/// Distance (mm) of the wrist centre from axis 1, and |sin θ5|, below which a pose
+/// is singular and the closed form does not pick angles arbitrarily.
+const SHOULDER_SINGULAR_MM: f64 = 1e-9;
+const WRIST_SINGULAR_SIN: f64 = 1e-12;
+
+struct Geometry {
+    d1: f64,
+    a2: f64,
+    a3: f64,
+    /// Forearm: length and angle of the vector from axis 3 to the wrist centre.
+    forearm_mm: f64,
+    forearm_angle: f64,
+    d6: f64,
+    offsets: [f64; JOINTS],
+}
+
+fn geometry(robot: &Robot) -> Result<Geometry, IkError> {
+    let expected_alpha = [0.0, -90.0, 0.0, -90.0, 90.0, -90.0];
+    for (i, expected) in expected_alpha.iter().enumerate() {
+        let (alpha, ..) = robot.nominal_mdh(i);
+        if (alpha - expected * DEG).abs() > 1e-12 {
+            return Err(IkError::UnsupportedGeometry(format!(
+                "joint {} alpha is {:.6} deg, expected {expected}",
+                i + 1,
+                alpha / DEG
+            )));
+        }
+    }
+    let zero = |what: &str, value: f64| {
+        if value.abs() > 1e-12 {
+            Err(IkError::UnsupportedGeometry(format!(
+                "{what} is {value}, expected 0"
+            )))
+        } else {
+            Ok(())
+        }
+    };
+    zero("joint 1 a_mm", robot.nominal_mdh(0).1)?;
+    zero("joint 2 d_mm", robot.nominal_mdh(1).3)?;
+    zero("joint 3 d_mm", robot.nominal_mdh(2).3)?;
+    zero("joint 5 a_mm", robot.nominal_mdh(4).1)?;
+    zero("joint 5 d_mm", robot.nominal_mdh(4).3)?;
+    zero("joint 6 a_mm", robot.nominal_mdh(5).1)?;
+    let a4 = robot.nominal_mdh(3).1;
+    let d4 = robot.nominal_mdh(3).3;
+    Ok(Geometry {
+        d1: robot.nominal_mdh(0).3,
+        a2: robot.nominal_mdh(1).1,
+        a3: robot.nominal_mdh(2).1,
+        forearm_mm: a4.hypot(d4),
+        forearm_angle: d4.atan2(a4),
+        d6: robot.nominal_mdh(5).3,
+        offsets: std::array::from_fn(|i| robot.nominal_mdh(i).2),
+    })
+}
+
+/// All closed-form solutions for a flange pose in the base frame, within joint
+/// limits, distinct, with extra turns enumerated.
+pub fn closed_form(robot: &Robot, flange_in_base: &Frame) -> Result<Vec<IkSolution>, IkError> {
+    let g = geometry(robot)?;
+    let wrist = flange_in_base.origin_mm - flange_in_base.axis(2) * g.d6;
+    let radial = wrist.x.hypot(wrist.y);
+    if radial < SHOULDER_SINGULAR_MM {
+        return Err(IkError::Singular(format!(
+            "wrist centre on axis 1 ({radial:.2e} mm away)"
+        )));
+    }
+    let w = g.d1 - wrist.z;
+    let mut raw = Vec::with_capacity(8);
+    let mut reach_error = None;
+    for shoulder_back in [false, true] {
+        let theta1 = wrist.y.atan2(wrist.x)
+            + if shoulder_back {
+                std::f64::consts::PI
+            } else {
+                0.0
+            };
+        let u = if shoulder_back { -radial } else { radial } - g.a2;
+        let cos_beta = (u * u + w * w - g.a3 * g.a3 - g.forearm_mm * g.forearm_mm)
+            / (2.0 * g.a3 * g.forearm_mm);
+        if cos_beta.abs() > 1.0 + 1e-12 {
+            reach_error = Some(format!(
+                "wrist centre {:.1} mm from axis 2, arm reaches {:.1}..{:.1} mm",
+                u.hypot(w),
+                (g.a3 - g.forearm_mm).abs(),
+                g.a3 + g.forearm_mm
+            ));
+            continue;
+        }
+        let beta_abs = cos_beta.clamp(-1.0, 1.0).acos();
+        for elbow_down in [false, true] {
+            let beta = if elbow_down { -beta_abs } else { beta_abs };
+            let theta2 =
+                w.atan2(u) - (g.forearm_mm * beta.sin()).atan2(g.a3 + g.forearm_mm * beta.cos());
+            let theta3 = beta - g.forearm_angle;
+            // Frame 3 orientation in the base, then the wrist as ZYZ Euler angles:
+            // Rx(90)·R36 = Rz(θ4)·Ry(-θ5)·Rz(θ6).
+            let r3 = rot_z(theta1) * rot_x(-90.0 * DEG) * rot_z(theta2) * rot_z(theta3);
+            let n = rot_x(90.0 * DEG) * r3.transpose() * flange_in_base.rotation;
+            let sin_b = n[(0, 2)].hypot(n[(1, 2)]);
+            if sin_b < WRIST_SINGULAR_SIN {
+                return Err(IkError::Singular(format!(
+                    "wrist singularity (axes 4 and 6 aligned, |sin q5| = {sin_b:.1e})"
+                )));
+            }
+            for wrist_flip in [false, true] {
+                // b = -θ5: the unflipped branch has θ5 > 0.
+                let sign = if wrist_flip { 1.0 } else { -1.0 };
+                let b = (sign * sin_b).atan2(n[(2, 2)]);
+                let a = (sign * n[(1, 2)]).atan2(sign * n[(0, 2)]);
+                let c = (sign * n[(2, 1)]).atan2(-sign * n[(2, 0)]);
+                let thetas = [theta1, theta2, theta3, a, -b, c];
+                let q_deg = std::array::from_fn(|i| wrap_deg((thetas[i] - g.offsets[i]) / DEG));
+                let branch =
+                    shoulder_back as u8 | (elbow_down as u8) << 1 | (wrist_flip as u8) << 2;
+                raw.push(IkSolution { q_deg, branch });
+            }
+        }
+    }
+    if raw.is_empty() {
+        return Err(IkError::Unreachable(reach_error.unwrap_or_default()));
+    }
+    let mut solutions: Vec<IkSolution> = Vec::new();
+    for solution in raw {
+        for q_deg in turns_within_limits(robot, &solution.q_deg) {
+            let distinct = solutions.iter().all(|s| {
+                s.q_deg
+                    .iter()
+                    .zip(&q_deg)
+                    .any(|(a, b)| (a - b).abs() > 1e-9)
+            });
+            if distinct {
+                solutions.push(IkSolution {
+                    q_deg,
+                    branch: solution.branch,
+                });
+            }
+        }
+    }
+    if solutions.is_empty() {
+        return Err(IkError::Unreachable(
+            "every solution violates a joint limit".into(),
+        ));
+    }
+    Ok(solutions)
+}
+
+fn wrap_deg(angle: f64) -> f64 {
+    let wrapped = (angle + 180.0).rem_euclid(360.0) - 180.0;
+    if wrapped == -180.0 { 180.0 } else { wrapped }
+}
+
+/// Every `q + 360·k` per joint that lies within the limits, as a cartesian product.
+fn turns_within_limits(robot: &Robot, q_deg: &[f64; JOINTS]) -> Vec<[f64; JOINTS]> {
+    let mut combos = vec![*q_deg];
+    for i in 0..JOINTS {
+        let [lo, hi] = robot.limits_deg(i);
+        let mut turns = Vec::new();
+        let mut angle = q_deg[i] - 360.0 * ((q_deg[i] - lo) / 360.0).floor();
+        while angle <= hi + 1e-9 {
+            if angle >= lo - 1e-9 {
+                turns.push(angle.clamp(lo, hi));
+            }
+            angle += 360.0;
+        }
+        combos = combos
+            .iter()
+            .flat_map(|combo| {
+                turns.iter().map(move |&t| {
+                    let mut c = *combo;
+                    c[i] = t;
+                    c
+                })
+            })
+            .collect();
+    }
+    combos
+}
+
+/// Tolerances and limits of the numeric solver.
+#[derive(Debug, Clone, Copy)]
+pub struct NumericOptions {
+    pub max_iterations: usize,
+    pub position_tolerance_mm: f64,
+    pub orientation_tolerance_rad: f64,
+    /// Initial Levenberg–Marquardt damping (relative to the Jacobian's diagonal).
+    pub damping: f64,
+}
+
+impl Default for NumericOptions {
+    fn default() -> Self {
+        NumericOptions {
+            max_iterations: 100,
+            position_tolerance_mm: 1e-10,
+            orientation_tolerance_rad: 1e-12,
+            damping: 1e-3,
+        }
+    }
+}
+
+/// Joint command (deg) that puts the tool at `tool_in_world` on the full loaded
+/// model, by Levenberg–Marquardt from `seed_deg`.
+///
+/// The step uses the geometric Jacobian of the deflected chain and neglects how the
+/// deflection changes with q; the deflection is re-evaluated at every trial point,
+/// so the fixed point is exact and convergence stays fast because `k·dτ/dq` is
+/// small. A step is accepted only when it lowers the error, so the solver stays on
+/// the seed's branch instead of wandering to another solution near singularities.
+pub fn solve_loaded(
+    robot: &Robot,
+    p: &ParamValues,
+    wrench: &Wrench,
+    tool_in_world: &Frame,
+    seed_deg: &[f64; JOINTS],
+    options: &NumericOptions,
+) -> Result<[f64; JOINTS], IkError> {
+    let residual = |q: &[f64; JOINTS]| {
+        let (tool, joints) = deflected_tool_and_joints(robot, p, q, wrench);
+        let position = tool_in_world.origin_mm - tool.origin_mm;
+        let orientation = rotation_vector(&(tool_in_world.rotation * tool.rotation.transpose()));
+        (tool, joints, position, orientation)
+    };
+    // Orientation in mm-equivalent (1 rad ~ 1000 mm) so both errors count.
+    const RAD_AS_MM: f64 = 1000.0;
+    let stacked = |position: &Vector3<f64>, orientation: &Vector3<f64>| {
+        let mut e = Vector6::zeros();
+        e.fixed_rows_mut::<3>(0).copy_from(position);
+        e.fixed_rows_mut::<3>(3)
+            .copy_from(&(orientation * RAD_AS_MM));
+        e
+    };
+    let mut q = *seed_deg;
+    let (mut tool, mut joints, mut position, mut orientation) = residual(&q);
+    let mut lambda = options.damping;
+    for _ in 0..options.max_iterations {
+        if !(position.norm().is_finite() && orientation.norm().is_finite()) {
+            break;
+        }
+        if position.norm() < options.position_tolerance_mm
+            && orientation.norm() < options.orientation_tolerance_rad
+        {
+            // The same configuration, in the turn of each joint nearest the seed.
+            for i in 0..JOINTS {
+                q[i] -= 360.0 * ((q[i] - seed_deg[i]) / 360.0).round();
+            }
+            return Ok(q);
+        }
+        let mut jacobian = Matrix6::zeros();
+        for i in 0..JOINTS {
+            let z = joints[i + 1].axis(2);
+            let linear = z.cross(&(tool.origin_mm - joints[i + 1].origin_mm));
+            jacobian.fixed_view_mut::<3, 1>(0, i).copy_from(&linear);
+            jacobian
+                .fixed_view_mut::<3, 1>(3, i)
+                .copy_from(&(z * RAD_AS_MM));
+        }
+        let error = stacked(&position, &orientation);
+        let jtj = jacobian.transpose() * jacobian;
+        let jte = jacobian.transpose() * error;
+        let mut accepted = false;
+        for _ in 0..30 {
+            let damped = jtj
+                + Matrix6::from_diagonal(&jtj.diagonal()) * lambda
+                + Matrix6::identity() * 1e-12;
+            let Some(step) = damped.cholesky().map(|c| c.solve(&jte)) else {
+                lambda = lambda * 10.0 + 1e-6;
+                continue;
+            };
+            let mut trial = q;
+            for i in 0..JOINTS {
+                trial[i] += step[i] / DEG;
+            }
+            let candidate = residual(&trial);
+            if stacked(&candidate.2, &candidate.3).norm() < error.norm() {
+                q = trial;
+                (tool, joints, position, orientation) = candidate;
+                lambda = (lambda / 10.0).max(1e-15);
+                accepted = true;
+                break;
+            }
+            lambda = lambda * 10.0 + 1e-9;
+        }
+        if !accepted {
+            break;
+        }
+    }
+    Err(IkError::NotConverged {
+        iterations: options.max_iterations,
+        position_error_mm: position.norm(),
+        orientation_error_rad: orientation.norm(),
+    })
+}
+
+/// Flange pose in the base frame that puts the tool at `tool_in_world` for the
+/// nominal world and tool frames of `p`.
+pub fn flange_target_in_base(robot: &Robot, p: &ParamValues, tool_in_world: &Frame) -> Frame {
+    let v = &p.0;
+    let flange_from_tool = Frame::from_xyz_euler_then_translation(
+        [v[9] * DEG, v[10] * DEG, v[11] * DEG],
+        Vector3::new(v[6], v[7], v[8]),
+    );
+    robot
+        .world_from_base(p)
+        .inverse()
+        .compose(tool_in_world)
+        .compose(&flange_from_tool.inverse())
+}
+
+/// Rotation that points the tool's z axis along `direction` (unit), with the
+/// remaining roll given in radians; used to aim the SMR at the tracker.
+pub fn frame_with_z_along(
+    direction: &Vector3<f64>,
+    roll_rad: f64,
+    origin_mm: Vector3<f64>,
+) -> Frame {
+    let z = direction.normalize();
+    let helper = if z.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let x = helper.cross(&z).normalize();
+    let y = z.cross(&x);
+    Frame {
+        rotation: Matrix3::from_columns(&[x, y, z]) * rot_z(roll_rad),
+        origin_mm,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::test_support::{irb1600, random_q, random_wrench, truth_params};
+    use rand::SeedableRng;
+    use rand::rngs::StdRng;
+
+    #[test]
+    fn fk_of_every_closed_form_solution_is_the_pose() {
+        let robot = irb1600();
+        let mut rng = StdRng::seed_from_u64(11);
+        let mut checked = 0;
+        let mut singular = 0;
+        for _ in 0..3000 {
+            let q = random_q(&robot, &mut rng);
+            let pose = robot.nominal_flange_in_base(&q);
+            let solutions = match closed_form(&robot, &pose) {
+                Ok(s) => s,
+                Err(IkError::Singular(_)) => {
+                    singular += 1;
+                    continue;
+                }
+                Err(e) => panic!("{q:?}: {e}"),
+            };
+            // The generating configuration is among the solutions.
+            assert!(
+                solutions
+                    .iter()
+                    .any(|s| s.q_deg.iter().zip(&q).all(|(a, b)| (a - b).abs() < 1e-6)),
+                "{q:?} not in {solutions:?}"
+            );
+            for (k, s) in solutions.iter().enumerate() {
+                assert!(robot.within_limits(&s.q_deg), "{s:?}");
+                let fk = robot.nominal_flange_in_base(&s.q_deg);
+                let (dp, da) = ((fk.origin_mm - pose.origin_mm).norm(), fk.angle_to(&pose));
+                assert!(
+                    dp < 1e-9 && da < 1e-9,
+                    "{q:?} -> {s:?}: {dp:e} mm, {da:e} rad"
+                );
+                for other in &solutions[k + 1..] {
+                    assert!(
+                        s.q_deg
+                            .iter()
+                            .zip(&other.q_deg)
+                            .any(|(a, b)| (a - b).abs() > 1e-9)
+                    );
+                }
+                checked += 1;
+            }
+        }
+        assert!(singular < 10, "{singular} singular of 3000");
+        assert!(checked > 6000, "{checked}");
+    }
+
+    #[test]
+    fn singular_and_unreachable_poses_are_reported_not_nan() {
+        let robot = irb1600();
+        // Wrist singularity: q5 = 0.
+        let pose = robot.nominal_flange_in_base(&[10.0, 20.0, -10.0, 30.0, 0.0, 40.0]);
+        assert!(matches!(
+            closed_form(&robot, &pose),
+            Err(IkError::Singular(_))
+        ));
+        // Shoulder singularity: wrist centre on axis 1.
+        let mut on_axis = Frame::identity();
+        on_axis.origin_mm = Vector3::new(0.0, 0.0, 1200.0 + 65.0);
+        assert!(matches!(
+            closed_form(&robot, &on_axis),
+            Err(IkError::Singular(_))
+        ));
+        // Far away.
+        let mut far = Frame::identity();
+        far.origin_mm = Vector3::new(5000.0, 0.0, 500.0);
+        assert!(matches!(
+            closed_form(&robot, &far),
+            Err(IkError::Unreachable(_))
+        ));
+    }
+
+    #[test]
+    fn joint_6_extra_turns_are_enumerated() {
+        let robot = irb1600();
+        let q = [0.0, 10.0, 10.0, 0.0, 45.0, 20.0];
+        let solutions = closed_form(&robot, &robot.nominal_flange_in_base(&q)).unwrap();
+        let mut turns: Vec<f64> = solutions
+            .iter()
+            .filter(|s| {
+                s.q_deg[..5]
+                    .iter()
+                    .zip(&q)
+                    .all(|(a, b)| (a - b).abs() < 1e-9)
+            })
+            .map(|s| s.q_deg[5])
+            .collect();
+        turns.sort_by(f64::total_cmp);
+        assert_eq!(turns.len(), 3, "{turns:?}");
+        for (got, want) in turns.iter().zip([-340.0, 20.0, 380.0]) {
+            assert!((got - want).abs() < 1e-9, "{turns:?}");
+        }
+        // The unflipped wrist of an elbow-up, shoulder-front pose is branch 0.
+        assert!(
+            solutions
+                .iter()
+                .any(|s| s.branch == 0 && (s.q_deg[4] - 45.0).abs() < 1e-9)
+        );
+    }
+
+    #[test]
+    fn numeric_solver_converges_on_a_loaded_calibrated_model() {
+        let robot = irb1600();
+        let truth = truth_params(&robot);
+        let mut rng = StdRng::seed_from_u64(5);
+        let mut well_conditioned = 0;
+        for _ in 0..100 {
+            let q_true = random_q(&robot, &mut rng);
+            let wrench = random_wrench(&mut rng);
+            let target = robot.tool_in_world(&truth, &q_true, &wrench);
+            // Seed from the closed form of the nominal arm placed with the model's
+            // world and tool frames, as a stage that commands a calibrated robot does.
+            let flange = flange_target_in_base(&robot, &truth, &target);
+            let Ok(solutions) = closed_form(&robot, &flange) else {
+                continue;
+            };
+            let seed = solutions
+                .iter()
+                .min_by(|a, b| distance(&a.q_deg, &q_true).total_cmp(&distance(&b.q_deg, &q_true)))
+                .unwrap();
+            let q = solve_loaded(
+                &robot,
+                &truth,
+                &wrench,
+                &target,
+                &seed.q_deg,
+                &NumericOptions::default(),
+            )
+            .unwrap();
+            let reached = robot.tool_in_world(&truth, &q, &wrench);
+            assert!((reached.origin_mm - target.origin_mm).norm() < 1e-9);
+            assert!(reached.angle_to(&target) < 1e-9);
+            // Where the nominal seed is near the generating configuration the loaded
+            // solution is that configuration; near a singularity the seed may sit on
+            // another branch, which reaches the same pose.
+            if distance(&seed.q_deg, &q_true) < 2.0 {
+                assert!(distance(&q, &q_true) < 1e-6, "{q:?} vs {q_true:?}");
+                well_conditioned += 1;
+            }
+        }
+        assert!(well_conditioned > 80, "{well_conditioned}");
+    }
+
+    fn distance(a: &[f64; 6], b: &[f64; 6]) -> f64 {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    }
+}

@@ -1,0 +1,50 @@
+//! The robot model: robot file, the 42 parameters, the elasto-geometric forward
+//! model, the analytic identification Jacobian and inverse kinematics. Pure maths on
+//! small fixed-size types (nalgebra); no I/O besides reading the robot file, no tables.
+
+pub mod file;
+pub mod frame;
+pub mod ik;
+pub mod jacobian;
+pub mod model;
+pub mod params;
+
+pub use file::RobotSpec;
+pub use frame::Frame;
+pub use jacobian::{BatchJacobian, ConfWrench, batch_jacobian, batch_predict, jacobian_row};
+pub use model::{JOINTS, Prediction, Robot, Wrench};
+pub use params::{PARAM_COUNT, ParamId, ParamValues, Selection};
+
+#[cfg(test)]
+pub(crate) mod test_support {
+    //! Shared fixtures for the model's unit tests: the shipped IRB 1600 file, the
+    //! spec's truth parameters and random conf-wrench rows.
+    use super::*;
+    use rand::Rng;
+    use std::path::Path;
+
+    pub fn irb1600() -> Robot {
+        let text = include_str!("../../jobs/robots/irb1600_145.toml");
+        Robot::new(RobotSpec::parse(text, Path::new("irb1600_145.toml")).unwrap())
+    }
+
+    pub fn truth_params(robot: &Robot) -> ParamValues {
+        let text = include_str!("../../jobs/truth/irb1600_paper.toml");
+        ParamValues::with_overrides(robot.spec(), text, Path::new("irb1600_paper.toml")).unwrap()
+    }
+
+    pub fn random_q(robot: &Robot, rng: &mut impl Rng) -> [f64; JOINTS] {
+        std::array::from_fn(|i| {
+            let [lo, hi] = robot.limits_deg(i);
+            rng.random_range(lo..hi)
+        })
+    }
+
+    /// Forces within ±120 N and moments within ±10 N·m, as in the paper.
+    pub fn random_wrench(rng: &mut impl Rng) -> Wrench {
+        Wrench::from_array(std::array::from_fn(|i| {
+            let bound = if i < 3 { 120.0 } else { 10.0 };
+            rng.random_range(-bound..bound)
+        }))
+    }
+}

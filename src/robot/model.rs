@@ -1,0 +1,404 @@
+//! The elasto-geometric forward model (`../shared/spec/model.md` §1 and §3; paper
+//! eqs. (1)–(17)): SMR position in the world frame for a parameter set, a joint
+//! vector and an external wrench, with the load torques and the compliance
+//! deflections they cause.
+//!
+//! Units cross here: robot-file and parameter values come in mm and degrees,
+//! torques are computed with positions in metres (N·m), and compliances are
+//! deg/(N·m), so a deflection is in degrees like every other joint angle.
+//!
+//! Torques are evaluated on the undeflected chain with the current geometric
+//! parameters (first order, as in the paper); the position is evaluated on the
+//! deflected chain.
+
+use nalgebra::Vector3;
+
+use super::file::RobotSpec;
+use super::frame::{Frame, rot_x, rot_z};
+use super::params::{PARAM_COUNT, ParamValues};
+
+/// Number of joints; the model is for six-axis arms only.
+pub const JOINTS: usize = 6;
+
+/// A wrench applied **to** the robot, in tool-frame axes, reduced to the tool origin.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Wrench {
+    pub force_n: Vector3<f64>,
+    pub moment_nm: Vector3<f64>,
+}
+
+impl Wrench {
+    pub fn zero() -> Self {
+        Self::default()
+    }
+
+    /// From the table columns `fx_n, fy_n, fz_n, mx_nm, my_nm, mz_nm`.
+    pub fn from_array(w: [f64; 6]) -> Self {
+        Wrench {
+            force_n: Vector3::new(w[0], w[1], w[2]),
+            moment_nm: Vector3::new(w[3], w[4], w[5]),
+        }
+    }
+}
+
+/// What the forward model predicts for one conf-wrench combination.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Prediction {
+    /// SMR (tool origin) in the world (tracker) frame, mm.
+    pub position_mm: Vector3<f64>,
+    /// Load torque on each joint (gravity + external wrench), N·m.
+    pub torques_nm: [f64; JOINTS],
+    /// Compliance deflection `k_i·τ_i` of each joint, deg.
+    pub deflections_deg: [f64; JOINTS],
+}
+
+/// A robot model built from a robot file: nominal MDH values in radians and
+/// millimetres, and the link inertia in SI units.
+#[derive(Debug, Clone)]
+pub struct Robot {
+    spec: RobotSpec,
+    alpha_rad: [f64; JOINTS],
+    a_mm: [f64; JOINTS],
+    theta_offset_rad: [f64; JOINTS],
+    d_mm: [f64; JOINTS],
+    /// Link masses 1..6, then the payload.
+    masses_kg: [f64; JOINTS + 1],
+    /// Centres of gravity of links 1..6 in their own frames, then the payload in the tool frame, mm.
+    cogs_mm: [Vector3<f64>; JOINTS + 1],
+    gravity_mps2: Vector3<f64>,
+}
+
+/// Frames of one evaluation of the chain, all in the base frame.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Chain {
+    /// `joints[0]` is the base itself, `joints[i]` is MDH frame i.
+    pub joints: [Frame; JOINTS + 1],
+    pub tool: Frame,
+    /// Tool-frame rotation about x, then about y, of eq. (4) (before the z rotation),
+    /// in the flange frame: the axes of the tool's beta and gamma parameters.
+    pub tool_rx: nalgebra::Matrix3<f64>,
+    pub tool_rxy: nalgebra::Matrix3<f64>,
+}
+
+/// Load state on the undeflected chain: what the Jacobian needs besides the torques.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Loads {
+    pub torques_nm: [f64; JOINTS],
+    /// Suffix sums over bodies s..7 (links s..6 and the payload), 1-based `s`:
+    /// total mass and first mass moment (kg·m) in the base frame. Index 7 is the payload alone.
+    pub suffix_mass_kg: [f64; JOINTS + 2],
+    pub suffix_moment_kgm: [Vector3<f64>; JOINTS + 2],
+    /// External force and moment in base axes, N and N·m.
+    pub force_base_n: Vector3<f64>,
+    pub moment_base_nm: Vector3<f64>,
+}
+
+const DEG: f64 = std::f64::consts::PI / 180.0;
+const MM: f64 = 1e-3;
+
+impl Robot {
+    pub fn new(spec: RobotSpec) -> Self {
+        let j = &spec.joints;
+        let mut cogs_mm = [Vector3::zeros(); JOINTS + 1];
+        let mut masses_kg = [0.0; JOINTS + 1];
+        for i in 0..JOINTS {
+            cogs_mm[i] = Vector3::from(j[i].link_cog_mm);
+            masses_kg[i] = j[i].link_mass_kg;
+        }
+        cogs_mm[JOINTS] = Vector3::from(spec.payload.cog_mm);
+        masses_kg[JOINTS] = spec.payload.mass_kg;
+        Robot {
+            alpha_rad: std::array::from_fn(|i| j[i].alpha_deg * DEG),
+            a_mm: std::array::from_fn(|i| j[i].a_mm),
+            theta_offset_rad: std::array::from_fn(|i| j[i].theta_offset_deg * DEG),
+            d_mm: std::array::from_fn(|i| j[i].d_mm),
+            masses_kg,
+            cogs_mm,
+            gravity_mps2: Vector3::from(spec.gravity_mps2),
+            spec,
+        }
+    }
+
+    pub fn spec(&self) -> &RobotSpec {
+        &self.spec
+    }
+
+    /// Joint limits `[min, max]` in degrees.
+    pub fn limits_deg(&self, joint: usize) -> [f64; 2] {
+        self.spec.joints[joint].limits_deg
+    }
+
+    pub fn within_limits(&self, q_deg: &[f64; JOINTS]) -> bool {
+        (0..JOINTS).all(|i| {
+            let [lo, hi] = self.limits_deg(i);
+            q_deg[i] >= lo && q_deg[i] <= hi
+        })
+    }
+
+    /// Nominal MDH values (alpha rad, a mm, theta offset rad, d mm) of joint `i`, for
+    /// the closed-form inverse kinematics.
+    pub(crate) fn nominal_mdh(&self, i: usize) -> (f64, f64, f64, f64) {
+        (
+            self.alpha_rad[i],
+            self.a_mm[i],
+            self.theta_offset_rad[i],
+            self.d_mm[i],
+        )
+    }
+
+    /// World ← base frame of a parameter set (eq. (3)).
+    pub fn world_from_base(&self, p: &ParamValues) -> Frame {
+        let v = &p.0;
+        Frame::from_xyz_euler_then_translation(
+            [v[3] * DEG, v[4] * DEG, v[5] * DEG],
+            Vector3::new(v[0], v[1], v[2]),
+        )
+    }
+
+    /// Forward chain in the base frame for joint commands `q_deg` plus extra joint
+    /// angles `extra_deg` (the compliance deflections, or zero).
+    pub(crate) fn chain(
+        &self,
+        p: &ParamValues,
+        q_deg: &[f64; JOINTS],
+        extra_deg: &[f64; JOINTS],
+    ) -> Chain {
+        let v = &p.0;
+        let mut joints = [Frame::identity(); JOINTS + 1];
+        for i in 0..JOINTS {
+            let alpha = self.alpha_rad[i] + v[18 + i] * DEG;
+            let a = self.a_mm[i] + v[24 + i];
+            let theta = (q_deg[i] + v[12 + i] + extra_deg[i]) * DEG + self.theta_offset_rad[i];
+            let d = self.d_mm[i] + v[30 + i];
+            let rx = rot_x(alpha);
+            let local = Frame {
+                rotation: rx * rot_z(theta),
+                origin_mm: Vector3::new(a, 0.0, 0.0) + rx.column(2) * d,
+            };
+            joints[i + 1] = joints[i].compose(&local);
+        }
+        let tool_rx = rot_x(v[9] * DEG);
+        let tool_rxy = tool_rx * super::frame::rot_y(v[10] * DEG);
+        let flange_from_tool = Frame::from_xyz_euler_then_translation(
+            [v[9] * DEG, v[10] * DEG, v[11] * DEG],
+            Vector3::new(v[6], v[7], v[8]),
+        );
+        Chain {
+            tool: joints[JOINTS].compose(&flange_from_tool),
+            joints,
+            tool_rx,
+            tool_rxy,
+        }
+    }
+
+    /// Gravity and external-wrench torques on the chain (spec §3; paper eqs. (7)–(16)).
+    pub(crate) fn loads(&self, chain: &Chain, wrench: &Wrench) -> Loads {
+        let mut suffix_mass_kg = [0.0; JOINTS + 2];
+        let mut suffix_moment_kgm = [Vector3::zeros(); JOINTS + 2];
+        // Body b (1..=6 links, 7 payload) has its frame at joints[b] or the tool.
+        for body in (1..=JOINTS + 1).rev() {
+            let frame = if body <= JOINTS {
+                &chain.joints[body]
+            } else {
+                &chain.tool
+            };
+            let cog_m = frame.transform_point(&self.cogs_mm[body - 1]) * MM;
+            let mass = self.masses_kg[body - 1];
+            suffix_mass_kg[body] = suffix_mass_kg.get(body + 1).copied().unwrap_or(0.0) + mass;
+            suffix_moment_kgm[body] = suffix_moment_kgm
+                .get(body + 1)
+                .copied()
+                .unwrap_or_else(Vector3::zeros)
+                + cog_m * mass;
+        }
+        let force_base_n = chain.tool.rotation * wrench.force_n;
+        let moment_base_nm = chain.tool.rotation * wrench.moment_nm;
+        let tool_m = chain.tool.origin_mm * MM;
+        let g = self.gravity_mps2;
+        let torques_nm = std::array::from_fn(|j| {
+            let frame = &chain.joints[j + 1];
+            let z = frame.axis(2);
+            let o = frame.origin_mm * MM;
+            let gravity_lever = suffix_moment_kgm[j + 1] - o * suffix_mass_kg[j + 1];
+            z.dot(&(gravity_lever.cross(&g) + (tool_m - o).cross(&force_base_n) + moment_base_nm))
+        });
+        Loads {
+            torques_nm,
+            suffix_mass_kg,
+            suffix_moment_kgm,
+            force_base_n,
+            moment_base_nm,
+        }
+    }
+
+    /// Load torques (N·m) and deflections (deg) for one conf-wrench row.
+    pub fn deflections(
+        &self,
+        p: &ParamValues,
+        q_deg: &[f64; JOINTS],
+        wrench: &Wrench,
+    ) -> ([f64; JOINTS], [f64; JOINTS]) {
+        let undeflected = self.chain(p, q_deg, &[0.0; JOINTS]);
+        let torques = self.loads(&undeflected, wrench).torques_nm;
+        let deflections = std::array::from_fn(|i| p.0[36 + i] * torques[i]);
+        (torques, deflections)
+    }
+
+    /// Tool pose in the world frame on the loaded (deflected) robot.
+    pub fn tool_in_world(&self, p: &ParamValues, q_deg: &[f64; JOINTS], wrench: &Wrench) -> Frame {
+        let (_, deflections) = self.deflections(p, q_deg, wrench);
+        self.world_from_base(p)
+            .compose(&self.chain(p, q_deg, &deflections).tool)
+    }
+
+    /// Paper eq. (17): the SMR position with torques and deflections.
+    pub fn predict(&self, p: &ParamValues, q_deg: &[f64; JOINTS], wrench: &Wrench) -> Prediction {
+        let (torques_nm, deflections_deg) = self.deflections(p, q_deg, wrench);
+        let tool = self.chain(p, q_deg, &deflections_deg).tool;
+        Prediction {
+            position_mm: self.world_from_base(p).transform_point(&tool.origin_mm),
+            torques_nm,
+            deflections_deg,
+        }
+    }
+
+    /// Flange pose in the base frame of the nominal arm (zero errors, no load):
+    /// the frame the closed-form inverse kinematics solves for.
+    pub fn nominal_flange_in_base(&self, q_deg: &[f64; JOINTS]) -> Frame {
+        let zero = ParamValues([0.0; PARAM_COUNT]);
+        self.chain(&zero, q_deg, &[0.0; JOINTS]).joints[JOINTS]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::test_support::{irb1600, random_q, random_wrench, truth_params};
+    use rand::SeedableRng;
+    use rand::rngs::StdRng;
+
+    #[test]
+    fn spec_flange_check_positions() {
+        let robot = irb1600();
+        let cases = [
+            ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0], [815.0, 0.0, 1186.5]),
+            ([0.0, 30.0, 0.0, 0.0, 0.0, 0.0], [1075.907, 0.0, 760.218]),
+            ([0.0, 0.0, 30.0, 0.0, 0.0, 0.0], [725.907, 0.0, 854.000]),
+        ];
+        for (q, expected) in cases {
+            let flange = robot.nominal_flange_in_base(&q);
+            // The spec prints three decimals; the exact values follow from its geometry.
+            let exact = exact_flange(q[1], q[2]);
+            for k in 0..3 {
+                assert!(
+                    (flange.origin_mm[k] - exact[k]).abs() < 1e-6,
+                    "{q:?}: {flange:?}"
+                );
+                assert!(
+                    (flange.origin_mm[k] - expected[k]).abs() < 5e-4,
+                    "{q:?}: {flange:?}"
+                );
+            }
+        }
+        let home = robot.nominal_flange_in_base(&[0.0; 6]);
+        assert!((home.axis(2) - Vector3::new(1.0, 0.0, 0.0)).norm() < 1e-12);
+    }
+
+    /// Planar closed form of the IRB 1600 with q1 = q4 = q5 = q6 = 0 (x forward, z up):
+    /// shoulder at (150, 486.5), upper arm 700 leaning forward by q2, forearm 600 + flange 65
+    /// horizontal when q3 = 0 and lowered by q3.
+    fn exact_flange(q2_deg: f64, q3_deg: f64) -> [f64; 3] {
+        let (q2, q23) = (q2_deg * DEG, (q2_deg + q3_deg) * DEG);
+        [
+            150.0 + 700.0 * q2.sin() + 665.0 * q23.cos(),
+            0.0,
+            486.5 + 700.0 * q2.cos() - 665.0 * q23.sin(),
+        ]
+    }
+
+    #[test]
+    fn gravity_torque_on_joint_1_is_zero_for_a_level_base() {
+        let robot = irb1600();
+        let mut rng = StdRng::seed_from_u64(1);
+        for _ in 0..100 {
+            let q = random_q(&robot, &mut rng);
+            let (torques, _) = robot.deflections(&truth_params(&robot), &q, &Wrench::zero());
+            assert!(torques[0].abs() < 1e-9, "{torques:?}");
+            assert!(torques[1].abs() > 1.0);
+        }
+    }
+
+    #[test]
+    fn external_torques_equal_geometric_jacobian_transpose_times_wrench() {
+        let robot = irb1600();
+        let p = truth_params(&robot);
+        let mut rng = StdRng::seed_from_u64(2);
+        for _ in 0..100 {
+            let q = random_q(&robot, &mut rng);
+            let w = random_wrench(&mut rng);
+            let (with_load, _) = robot.deflections(&p, &q, &w);
+            let (gravity_only, _) = robot.deflections(&p, &q, &Wrench::zero());
+            let chain = robot.chain(&p, &q, &[0.0; 6]);
+            let f = chain.tool.rotation * w.force_n;
+            let m = chain.tool.rotation * w.moment_nm;
+            for i in 0..6 {
+                // Column i of the geometric Jacobian at the tool origin (metres).
+                let z = chain.joints[i + 1].axis(2);
+                let linear =
+                    z.cross(&((chain.tool.origin_mm - chain.joints[i + 1].origin_mm) * MM));
+                let jt_w = linear.dot(&f) + z.dot(&m);
+                assert!((with_load[i] - gravity_only[i] - jt_w).abs() < 1e-9);
+            }
+        }
+    }
+
+    #[test]
+    fn zero_compliance_gives_the_kinematic_model() {
+        let robot = irb1600();
+        let mut p = truth_params(&robot);
+        for i in 0..6 {
+            p.0[36 + i] = 0.0;
+        }
+        let mut rng = StdRng::seed_from_u64(3);
+        for _ in 0..50 {
+            let q = random_q(&robot, &mut rng);
+            let loaded = robot.predict(&p, &q, &random_wrench(&mut rng));
+            let kinematic = robot
+                .world_from_base(&p)
+                .transform_point(&robot.chain(&p, &q, &[0.0; 6]).tool.origin_mm);
+            assert_eq!(loaded.position_mm, kinematic);
+            assert_eq!(loaded.deflections_deg, [0.0; 6]);
+        }
+    }
+
+    #[test]
+    fn deflection_moves_the_tool_by_compliance_times_torque() {
+        let robot = irb1600();
+        let p = truth_params(&robot);
+        let q = [10.0, 20.0, -30.0, 40.0, 50.0, 60.0];
+        let w = Wrench::from_array([0.0, 0.0, 100.0, 0.0, 0.0, 5.0]);
+        let prediction = robot.predict(&p, &q, &w);
+        let mut q_deflected = q;
+        for i in 0..6 {
+            q_deflected[i] += prediction.deflections_deg[i];
+        }
+        let mut rigid = p;
+        for i in 0..6 {
+            rigid.0[36 + i] = 0.0;
+        }
+        let moved = robot
+            .predict(&rigid, &q_deflected, &Wrench::zero())
+            .position_mm;
+        assert!((moved - prediction.position_mm).norm() < 1e-9);
+        assert!(prediction.deflections_deg[5].abs() > 0.1);
+    }
+
+    #[test]
+    fn world_frame_maps_base_to_tracker() {
+        let robot = irb1600();
+        let p = ParamValues::nominal(robot.spec());
+        // Base origin in the world: Rot(x, -180) applied to (1326, 1362, -1476).
+        let base = robot.world_from_base(&p).origin_mm;
+        assert!((base - Vector3::new(1326.0, -1362.0, 1476.0)).norm() < 1e-9);
+    }
+}

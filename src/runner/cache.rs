@@ -1,0 +1,202 @@
+//! The content-addressed cache: one folder per cache key holding a stage's output
+//! tables and a manifest, written last.
+//!
+//! An entry is built in a temporary folder (every file fsynced, the manifest
+//! last), then renamed into place, so a kill at any instant leaves either no entry
+//! or a complete one. Every hit re-hashes the files against the manifest; a
+//! truncated or altered entry is reported, deleted and recomputed.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use polars::prelude::DataFrame;
+use serde::{Deserialize, Serialize};
+
+use crate::fsio;
+use crate::table::{self, Provenance};
+
+/// One table of a cache entry.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CachedTable {
+    pub file: String,
+    /// Blake3 of the file's bytes: integrity.
+    pub bytes_hash: String,
+    /// Blake3 of the table's data (not its provenance): what downstream keys use.
+    pub content_hash: String,
+    pub rows: usize,
+}
+
+/// The manifest of a cache entry.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub key: String,
+    pub stage_kind: String,
+    pub tables: BTreeMap<String, CachedTable>,
+    pub facts: BTreeMap<String, String>,
+    pub created_at: String,
+}
+
+/// Why a cache entry was not usable.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Lookup {
+    Hit(Manifest),
+    Miss,
+    /// Present but damaged; the reason says which file and how.
+    Corrupt(String),
+}
+
+pub struct Cache {
+    root: PathBuf,
+}
+
+const MANIFEST: &str = "manifest.json";
+
+impl Cache {
+    pub fn new(root: PathBuf) -> Self {
+        Cache { root }
+    }
+
+    pub fn root(&self) -> &Path {
+        &self.root
+    }
+
+    pub fn entry_dir(&self, key: &str) -> PathBuf {
+        self.root.join(&key[..2]).join(key)
+    }
+
+    pub fn table_path(&self, key: &str, table: &CachedTable) -> PathBuf {
+        self.entry_dir(key).join(&table.file)
+    }
+
+    /// Looks `key` up and verifies every file against the manifest.
+    pub fn lookup(&self, key: &str) -> Lookup {
+        let dir = self.entry_dir(key);
+        let manifest_path = dir.join(MANIFEST);
+        let text = match fs::read_to_string(&manifest_path) {
+            Ok(t) => t,
+            Err(_) if !dir.exists() => return Lookup::Miss,
+            Err(e) => return Lookup::Corrupt(format!("manifest unreadable: {e}")),
+        };
+        let manifest: Manifest = match serde_json::from_str(&text) {
+            Ok(m) => m,
+            Err(e) => return Lookup::Corrupt(format!("manifest damaged: {e}")),
+        };
+        if manifest.key != key {
+            return Lookup::Corrupt(format!("manifest is for key {}", manifest.key));
+        }
+        for table in manifest.tables.values() {
+            match fsio::hash_file(&dir.join(&table.file)) {
+                Ok(hash) if hash == table.bytes_hash => {}
+                Ok(_) => return Lookup::Corrupt(format!("{} does not match its hash", table.file)),
+                Err(e) => return Lookup::Corrupt(format!("{}: {e}", table.file)),
+            }
+        }
+        Lookup::Hit(manifest)
+    }
+
+    /// Deletes an entry (after it was found corrupt).
+    pub fn remove(&self, key: &str) -> std::io::Result<()> {
+        let dir = self.entry_dir(key);
+        if dir.exists() {
+            fs::remove_dir_all(&dir)?;
+        }
+        Ok(())
+    }
+
+    /// Writes a new entry atomically and returns its manifest.
+    pub fn store(
+        &self,
+        key: &str,
+        stage_kind: &str,
+        tables: &mut BTreeMap<String, DataFrame>,
+        facts: &BTreeMap<String, String>,
+        provenance: &Provenance,
+    ) -> Result<Manifest, table::TableError> {
+        let final_dir = self.entry_dir(key);
+        let parent = final_dir.parent().expect("entry has a parent");
+        let tmp_dir = parent.join(format!(".{key}.{}.tmp", std::process::id()));
+        let io = |e: std::io::Error| table::schema::io_error(&tmp_dir, e);
+        if tmp_dir.exists() {
+            fs::remove_dir_all(&tmp_dir).map_err(io)?;
+        }
+        fs::create_dir_all(&tmp_dir).map_err(io)?;
+        let mut manifest = Manifest {
+            key: key.to_string(),
+            stage_kind: stage_kind.to_string(),
+            tables: BTreeMap::new(),
+            facts: facts.clone(),
+            created_at: provenance.created_at.clone(),
+        };
+        for (name, df) in tables.iter_mut() {
+            let file = format!("{name}.parquet");
+            let path = tmp_dir.join(&file);
+            table::write_parquet(df, &path, Some(provenance))?;
+            manifest.tables.insert(
+                name.clone(),
+                CachedTable {
+                    bytes_hash: fsio::hash_file(&path).map_err(io)?,
+                    content_hash: table::content_hash(df),
+                    rows: df.height(),
+                    file,
+                },
+            );
+        }
+        let json = serde_json::to_vec_pretty(&manifest).expect("manifest serialises");
+        fsio::write_bytes_atomic(&tmp_dir.join(MANIFEST), &json).map_err(io)?;
+        if final_dir.exists() {
+            fs::remove_dir_all(&final_dir).map_err(io)?;
+        }
+        fs::rename(&tmp_dir, &final_dir).map_err(io)?;
+        fsio::sync_dir(parent).map_err(io)?;
+        Ok(manifest)
+    }
+
+    /// Removes entries whose key is not in `keep` and leftovers of killed runs.
+    /// Returns (entries removed, bytes freed).
+    pub fn gc(&self, keep: &std::collections::HashSet<String>) -> std::io::Result<(usize, u64)> {
+        let mut removed = 0;
+        let mut freed = 0;
+        let Ok(shards) = fs::read_dir(&self.root) else {
+            return Ok((0, 0));
+        };
+        for shard in shards {
+            let shard = shard?.path();
+            if !shard.is_dir() {
+                continue;
+            }
+            for entry in fs::read_dir(&shard)? {
+                let path = entry?.path();
+                let name = path
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                if !keep.contains(&name) {
+                    freed += dir_size(&path);
+                    fs::remove_dir_all(&path)?;
+                    removed += 1;
+                }
+            }
+        }
+        Ok((removed, freed))
+    }
+}
+
+fn dir_size(path: &Path) -> u64 {
+    fs::read_dir(path)
+        .map(|entries| {
+            entries
+                .filter_map(Result::ok)
+                .map(|e| {
+                    e.metadata().map_or(0, |m| {
+                        if m.is_dir() {
+                            dir_size(&e.path())
+                        } else {
+                            m.len()
+                        }
+                    })
+                })
+                .sum()
+        })
+        .unwrap_or(0)
+}

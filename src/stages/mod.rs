@@ -1,0 +1,245 @@
+//! Stage kinds: each a pure function from checked input tables and typed settings
+//! to output tables. A stage never touches the cache, the lock or the job file;
+//! the runner never knows a stage's maths.
+//!
+//! A stage kind is defined once, by implementing [`Stage`]: its settings struct
+//! (serde + JSON Schema + defaults) is the single source for job-file parsing,
+//! `egcal list-stages`, the job-file JSON Schema and the cache key.
+
+pub mod predict;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use polars::prelude::DataFrame;
+use schemars::JsonSchema;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
+
+use crate::robot::Robot;
+use crate::table::{TableError, TableSchema};
+
+/// A named input or output table of a stage kind.
+#[derive(Debug, Clone, Copy)]
+pub struct TableSlot {
+    pub name: &'static str,
+    pub schema: fn() -> TableSchema,
+    /// Optional inputs may be left out of a job.
+    pub required: bool,
+    pub meaning: &'static str,
+}
+
+/// What a stage kind declares about itself.
+#[derive(Debug, Clone, Copy)]
+pub struct StageInfo {
+    pub kind: &'static str,
+    pub summary: &'static str,
+    /// Bump when the stage's maths or output changes: invalidates its cache entries.
+    pub code_version: u32,
+    pub inputs: &'static [TableSlot],
+    pub outputs: &'static [TableSlot],
+}
+
+/// A checked input table and the file it came from.
+#[derive(Debug, Clone)]
+pub struct InputTable {
+    pub path: PathBuf,
+    pub df: DataFrame,
+}
+
+/// Receives progress from a long stage; the runner draws bars or log lines.
+pub trait Progress: Sync {
+    fn start(&self, total: u64, what: &str);
+    fn advance(&self, done: u64);
+    fn note(&self, message: &str);
+}
+
+/// A progress sink that discards everything (tests, `--quiet`).
+pub struct NoProgress;
+
+impl Progress for NoProgress {
+    fn start(&self, _: u64, _: &str) {}
+    fn advance(&self, _: u64) {}
+    fn note(&self, _: &str) {}
+}
+
+/// Everything a stage may use.
+pub struct StageContext<'a> {
+    pub robot: &'a Robot,
+    /// The job's seed mixed with the stage id, so stages draw independent streams.
+    pub seed: u64,
+    pub inputs: &'a BTreeMap<String, InputTable>,
+    /// A folder the stage owns across runs (journals of resumable stages).
+    pub work_dir: &'a Path,
+    pub progress: &'a dyn Progress,
+}
+
+impl StageContext<'_> {
+    /// A required input (the runner has checked that required inputs are bound).
+    pub fn input(&self, name: &str) -> Result<&InputTable, StageError> {
+        self.inputs
+            .get(name)
+            .ok_or_else(|| StageError::Invalid(format!("input `{name}` is not bound")))
+    }
+}
+
+/// What a stage produced.
+#[derive(Debug, Default)]
+pub struct StageOutputs {
+    pub tables: BTreeMap<String, DataFrame>,
+    /// Short facts to keep in provenance and print (rejection counts, ranks, ...).
+    pub facts: BTreeMap<String, String>,
+}
+
+/// Why a stage failed.
+#[derive(Debug, thiserror::Error)]
+pub enum StageError {
+    #[error(transparent)]
+    Table(#[from] TableError),
+    #[error("{0}")]
+    Invalid(String),
+    #[error("{0}")]
+    Failed(String),
+}
+
+/// A stage kind with typed settings.
+pub trait Stage: Sync {
+    type Settings: DeserializeOwned + Serialize + JsonSchema + Default;
+    fn info(&self) -> &'static StageInfo;
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &Self::Settings,
+    ) -> Result<StageOutputs, StageError>;
+}
+
+/// A settings value that failed to parse, with its key relative to the stage table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SettingsProblem {
+    pub key: String,
+    pub message: String,
+}
+
+/// Object-safe view of a [`Stage`], for the registry and the runner.
+pub trait StageKind: Sync {
+    fn info(&self) -> &'static StageInfo;
+    /// JSON Schema of the settings (an object schema).
+    fn settings_schema(&self) -> serde_json::Value;
+    /// Settings with defaults filled, as JSON: the canonical form hashed into cache keys.
+    fn canonical_settings(
+        &self,
+        raw: &toml::Table,
+    ) -> Result<serde_json::Value, Vec<SettingsProblem>>;
+    fn defaults(&self) -> serde_json::Value;
+    fn run(
+        &self,
+        ctx: &StageContext,
+        canonical: &serde_json::Value,
+    ) -> Result<StageOutputs, StageError>;
+}
+
+impl<S: Stage> StageKind for S {
+    fn info(&self) -> &'static StageInfo {
+        Stage::info(self)
+    }
+
+    fn settings_schema(&self) -> serde_json::Value {
+        serde_json::to_value(schemars::schema_for!(S::Settings)).expect("schema serialises")
+    }
+
+    fn canonical_settings(
+        &self,
+        raw: &toml::Table,
+    ) -> Result<serde_json::Value, Vec<SettingsProblem>> {
+        let schema = self.settings_schema();
+        let known: Vec<&str> = schema["properties"]
+            .as_object()
+            .map(|p| p.keys().map(String::as_str).collect())
+            .unwrap_or_default();
+        let unknown: Vec<SettingsProblem> = raw
+            .keys()
+            .filter(|k| !known.contains(&k.as_str()))
+            .map(|k| SettingsProblem {
+                key: k.clone(),
+                message: format!(
+                    "unknown setting `{k}` for stage kind `{}`{}",
+                    self.info().kind,
+                    crate::suggest::did_you_mean(k, known.iter().copied())
+                ),
+            })
+            .collect();
+        if !unknown.is_empty() {
+            return Err(unknown);
+        }
+        let mut problems = Vec::new();
+        // Check each key on its own so that every bad value is reported, not just the first.
+        for (key, value) in raw {
+            let mut single = toml::Table::new();
+            single.insert(key.clone(), value.clone());
+            if let Err(e) = parse_settings::<S::Settings>(&single) {
+                problems.push(e);
+            }
+        }
+        if !problems.is_empty() {
+            return Err(problems);
+        }
+        let settings = parse_settings::<S::Settings>(raw).map_err(|e| vec![e])?;
+        Ok(serde_json::to_value(settings).expect("settings serialise"))
+    }
+
+    fn defaults(&self) -> serde_json::Value {
+        serde_json::to_value(S::Settings::default()).expect("settings serialise")
+    }
+
+    fn run(
+        &self,
+        ctx: &StageContext,
+        canonical: &serde_json::Value,
+    ) -> Result<StageOutputs, StageError> {
+        let settings: S::Settings = serde_json::from_value(canonical.clone())
+            .map_err(|e| StageError::Invalid(format!("settings: {e}")))?;
+        Stage::run(self, ctx, &settings)
+    }
+}
+
+fn parse_settings<T: DeserializeOwned>(raw: &toml::Table) -> Result<T, SettingsProblem> {
+    let value = toml::Value::Table(raw.clone());
+    serde_path_to_error::deserialize(value).map_err(|e| SettingsProblem {
+        key: e.path().to_string(),
+        message: e.inner().message().to_string(),
+    })
+}
+
+/// Every stage kind, in pipeline order.
+pub fn registry() -> Vec<&'static dyn StageKind> {
+    vec![&predict::PredictStage]
+}
+
+/// Looks a stage kind up by name.
+pub fn lookup(kind: &str) -> Option<&'static dyn StageKind> {
+    registry().into_iter().find(|s| s.info().kind == kind)
+}
+
+/// Reads conf-wrench rows (cw_id, q1..q6, wrench) from a checked table.
+pub fn conf_wrench_rows(
+    input: &InputTable,
+) -> Result<(Vec<i64>, Vec<crate::robot::ConfWrench>), StageError> {
+    use crate::table::schema::{JOINT_COLUMNS, WRENCH_COLUMNS, f64_values, i64_values};
+    let path = &input.path;
+    let ids = i64_values(&input.df, "cw_id", path)?;
+    let joints = JOINT_COLUMNS
+        .iter()
+        .map(|c| f64_values(&input.df, c, path))
+        .collect::<Result<Vec<_>, _>>()?;
+    let wrench = WRENCH_COLUMNS
+        .iter()
+        .map(|c| f64_values(&input.df, c, path))
+        .collect::<Result<Vec<_>, _>>()?;
+    let rows = (0..ids.len())
+        .map(|k| crate::robot::ConfWrench {
+            q_deg: std::array::from_fn(|i| joints[i][k]),
+            wrench: crate::robot::Wrench::from_array(std::array::from_fn(|i| wrench[i][k])),
+        })
+        .collect();
+    Ok((ids, rows))
+}

@@ -1,0 +1,120 @@
+//! `predict`: the forward model over a table of conf-wrench rows — SMR position,
+//! load torques and deflections per row, for one model of a parameters table (or
+//! the robot file's nominal values when no parameters table is bound).
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::{
+    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
+};
+use crate::robot::{ParamValues, batch_predict};
+use crate::table::parameters::{self, ModelName};
+use crate::table::schema::{self, DEFLECTION_COLUMNS, POSITION_COLUMNS, TORQUE_COLUMNS};
+use crate::table::{TableError, frame};
+use polars::prelude::Column;
+
+pub struct PredictStage;
+
+/// Settings of `predict`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct PredictSettings {
+    /// Which model of the `parameters` input to use: nominal, registered, kinematic
+    /// or elastogeometric. Ignored when no parameters table is bound (nominal).
+    pub model: String,
+}
+
+impl Default for PredictSettings {
+    fn default() -> Self {
+        PredictSettings {
+            model: ModelName::Elastogeometric.as_str().to_string(),
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "predict",
+    summary: "Forward model: SMR position, load torques and deflections for conf-wrench rows",
+    code_version: 1,
+    inputs: &[
+        TableSlot {
+            name: "conf_wrenches",
+            schema: schema::conf_wrenches,
+            required: true,
+            meaning: "rows with cw_id, q1_deg..q6_deg and the six wrench columns",
+        },
+        TableSlot {
+            name: "parameters",
+            schema: schema::parameters,
+            required: false,
+            meaning: "parameter sets; nominal when absent",
+        },
+    ],
+    outputs: &[TableSlot {
+        name: "predictions",
+        schema: schema::predictions,
+        required: true,
+        meaning: "cw_id, x_mm..z_mm, tau1_nm..tau6_nm, dq1_deg..dq6_deg",
+    }],
+};
+
+impl Stage for PredictStage {
+    type Settings = PredictSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &PredictSettings,
+    ) -> Result<StageOutputs, StageError> {
+        let nominal = ParamValues::nominal(ctx.robot.spec());
+        let values = match ctx.inputs.get("parameters") {
+            None => nominal,
+            Some(table) => {
+                let model: ModelName = settings
+                    .model
+                    .parse()
+                    .map_err(|m: String| StageError::Invalid(format!("setting `model`: {m}")))?;
+                let sets = parameters::from_frame(&table.df, &table.path, &nominal)?;
+                sets.iter()
+                    .find(|s| s.model == model)
+                    .ok_or_else(|| {
+                        StageError::Table(TableError::BadValue {
+                            file: table.path.clone(),
+                            column: "model".into(),
+                            row: 0,
+                            message: format!("no rows for model `{model}`"),
+                        })
+                    })?
+                    .values
+            }
+        };
+        let input = ctx.input("conf_wrenches")?;
+        let (ids, rows) = conf_wrench_rows(input)?;
+        let predictions = batch_predict(ctx.robot, &values, &rows);
+        let mut columns = vec![Column::new("cw_id".into(), ids)];
+        for (axis, name) in POSITION_COLUMNS.iter().enumerate() {
+            let v: Vec<f64> = predictions.iter().map(|p| p.position_mm[axis]).collect();
+            columns.push(Column::new((*name).into(), v));
+        }
+        for (joint, name) in TORQUE_COLUMNS.iter().enumerate() {
+            let v: Vec<f64> = predictions.iter().map(|p| p.torques_nm[joint]).collect();
+            columns.push(Column::new((*name).into(), v));
+        }
+        for (joint, name) in DEFLECTION_COLUMNS.iter().enumerate() {
+            let v: Vec<f64> = predictions
+                .iter()
+                .map(|p| p.deflections_deg[joint])
+                .collect();
+            columns.push(Column::new((*name).into(), v));
+        }
+        let mut outputs = StageOutputs::default();
+        outputs.tables.insert("predictions".into(), frame(columns));
+        outputs.facts.insert("rows".into(), rows.len().to_string());
+        Ok(outputs)
+    }
+}

@@ -1,0 +1,281 @@
+//! Parquet tables: reading with schema checks, atomic writing with provenance in
+//! the file's key-value metadata, and the `parameters` table conversion.
+//!
+//! Provenance is stored under the key `egcal.provenance` as one JSON object so
+//! that `egcal show` (and any Parquet tool) can print where a table came from.
+
+pub mod parameters;
+pub mod schema;
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::path::Path;
+
+use polars::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use schema::io_error;
+pub use schema::{TableError, TableSchema};
+
+/// The metadata key provenance is stored under.
+pub const PROVENANCE_KEY: &str = "egcal.provenance";
+
+/// Where an output table came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+pub struct Provenance {
+    pub job: String,
+    pub stage_id: String,
+    pub stage_kind: String,
+    pub cache_key: String,
+    /// Input name → content hash (blake3 hex).
+    pub input_hashes: BTreeMap<String, String>,
+    pub tool_version: String,
+    /// RFC 3339, UTC.
+    pub created_at: String,
+    /// Stage-specific facts worth keeping with the table (rejection counts, ...).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub extra: BTreeMap<String, String>,
+}
+
+/// Reads a whole Parquet file.
+pub fn read_parquet(path: &Path) -> Result<DataFrame, TableError> {
+    let file = File::open(path).map_err(|e| io_error(path, format!("cannot open: {e}")))?;
+    ParquetReader::new(file)
+        .finish()
+        .map_err(|e| io_error(path, format!("not a readable Parquet file: {e}")))
+}
+
+/// Reads a Parquet file and checks it against `schema`.
+pub fn read_checked(path: &Path, schema: &TableSchema) -> Result<DataFrame, TableError> {
+    let df = read_parquet(path)?;
+    schema.check(&df, path)?;
+    Ok(df)
+}
+
+/// Reads only the footer: column names with types, row count and key-value metadata.
+pub struct Footer {
+    pub columns: Vec<(String, String)>,
+    pub rows: usize,
+    pub metadata: BTreeMap<String, String>,
+}
+
+pub fn read_footer(path: &Path) -> Result<Footer, TableError> {
+    let file = File::open(path).map_err(|e| io_error(path, format!("cannot open: {e}")))?;
+    let mut reader = ParquetReader::new(file);
+    let bad = |e: PolarsError| io_error(path, format!("not a readable Parquet file: {e}"));
+    let schema = reader.schema().map_err(bad)?;
+    let columns = schema
+        .iter()
+        .map(|(name, field)| {
+            (
+                name.to_string(),
+                DataType::from_arrow_dtype(field.dtype()).to_string(),
+            )
+        })
+        .collect();
+    let metadata = reader.get_metadata().map_err(bad)?;
+    let rows = metadata.num_rows;
+    let metadata = metadata
+        .key_value_metadata()
+        .iter()
+        .flatten()
+        .filter_map(|kv| kv.value.clone().map(|v| (kv.key.clone(), v)))
+        .collect();
+    Ok(Footer {
+        columns,
+        rows,
+        metadata,
+    })
+}
+
+/// Provenance of a table written by egcal, if it has one.
+pub fn read_provenance(path: &Path) -> Result<Option<Provenance>, TableError> {
+    let footer = read_footer(path)?;
+    footer
+        .metadata
+        .get(PROVENANCE_KEY)
+        .map(|json| {
+            serde_json::from_str(json).map_err(|e| io_error(path, format!("bad provenance: {e}")))
+        })
+        .transpose()
+}
+
+/// Writes `df` atomically with provenance in the footer.
+pub fn write_parquet(
+    df: &mut DataFrame,
+    path: &Path,
+    provenance: Option<&Provenance>,
+) -> Result<(), TableError> {
+    let metadata = provenance.map(|p| {
+        KeyValueMetadata::from_static(vec![(
+            PROVENANCE_KEY.to_string(),
+            serde_json::to_string(p).expect("provenance serialises"),
+        )])
+    });
+    crate::fsio::write_atomic(path, |file| {
+        ParquetWriter::new(file)
+            .with_key_value_metadata(metadata)
+            .finish(df)
+            .map(|_| ())
+            .map_err(std::io::Error::other)
+    })
+    .map_err(|e| io_error(path, format!("cannot write: {e}")))
+}
+
+/// Blake3 of a table's data: column names, types and values, not its metadata.
+/// Two runs that produce the same table give the same hash even though their
+/// provenance (creation time, cache key) differs; downstream cache keys use this.
+pub fn content_hash(df: &DataFrame) -> String {
+    let mut hasher = blake3::Hasher::new();
+    hasher.update(&(df.height() as u64).to_le_bytes());
+    for column in df.columns() {
+        hasher.update(column.name().as_bytes());
+        hasher.update(&[0]);
+        hasher.update(column.dtype().to_string().as_bytes());
+        hasher.update(&[0]);
+        let physical = column.to_physical_repr();
+        match physical.dtype() {
+            DataType::Float64 => {
+                for v in physical.f64().expect("f64 column").iter() {
+                    hash_option(&mut hasher, v.map(f64::to_bits));
+                }
+            }
+            DataType::Int64 => {
+                for v in physical.i64().expect("i64 column").iter() {
+                    hash_option(&mut hasher, v.map(|x| x as u64));
+                }
+            }
+            DataType::Boolean => {
+                for v in physical.bool().expect("bool column").iter() {
+                    hash_option(&mut hasher, v.map(u64::from));
+                }
+            }
+            _ => {
+                let text = physical
+                    .cast(&DataType::String)
+                    .expect("any column casts to text");
+                for v in text.str().expect("str column").iter() {
+                    match v {
+                        Some(s) => {
+                            hasher.update(&[1]);
+                            hasher.update(&(s.len() as u64).to_le_bytes());
+                            hasher.update(s.as_bytes());
+                        }
+                        None => {
+                            hasher.update(&[0]);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    hasher.finalize().to_hex().to_string()
+}
+
+fn hash_option(hasher: &mut blake3::Hasher, value: Option<u64>) {
+    match value {
+        Some(v) => {
+            hasher.update(&[1]);
+            hasher.update(&v.to_le_bytes());
+        }
+        None => {
+            hasher.update(&[0]);
+        }
+    }
+}
+
+/// Builds a data frame from named f64/i64/str columns of equal length.
+pub fn frame(columns: Vec<Column>) -> DataFrame {
+    let height = columns.first().map_or(0, |c| c.len());
+    DataFrame::new(height, columns).expect("columns of equal length with unique names")
+}
+
+/// Current time as RFC 3339 UTC with seconds, without a date-time crate.
+pub fn now_rfc3339() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs() as i64);
+    rfc3339_from_unix(secs)
+}
+
+fn rfc3339_from_unix(secs: i64) -> String {
+    let days = secs.div_euclid(86_400);
+    let rem = secs.rem_euclid(86_400);
+    // Howard Hinnant's civil-from-days.
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rfc3339_of_known_instants() {
+        assert_eq!(rfc3339_from_unix(0), "1970-01-01T00:00:00Z");
+        assert_eq!(rfc3339_from_unix(951_782_400), "2000-02-29T00:00:00Z");
+        // Reference: Python's datetime.fromtimestamp(1795000000, UTC).
+        assert_eq!(rfc3339_from_unix(1_795_000_000), "2026-11-18T11:06:40Z");
+    }
+
+    #[test]
+    fn provenance_round_trips_through_the_footer() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.parquet");
+        let mut df = frame(vec![Column::new("cw_id".into(), vec![1i64, 2, 3])]);
+        let provenance = Provenance {
+            job: "j".into(),
+            stage_id: "s".into(),
+            stage_kind: "predict".into(),
+            cache_key: "abc".into(),
+            input_hashes: [("input".to_string(), "123".to_string())].into(),
+            tool_version: "0.1.0".into(),
+            created_at: now_rfc3339(),
+            extra: BTreeMap::new(),
+        };
+        write_parquet(&mut df, &path, Some(&provenance)).unwrap();
+        assert_eq!(read_provenance(&path).unwrap(), Some(provenance));
+        let footer = read_footer(&path).unwrap();
+        assert_eq!(footer.rows, 3);
+        assert_eq!(
+            footer.columns,
+            vec![("cw_id".to_string(), "i64".to_string())]
+        );
+        assert_eq!(read_parquet(&path).unwrap(), df);
+    }
+
+    #[test]
+    fn content_hash_ignores_provenance_but_not_values() {
+        let a = frame(vec![Column::new("x".into(), vec![1.0f64, 2.0])]);
+        let b = frame(vec![Column::new("x".into(), vec![1.0f64, 2.5])]);
+        let c = frame(vec![Column::new("y".into(), vec![1.0f64, 2.0])]);
+        assert_eq!(content_hash(&a), content_hash(&a.clone()));
+        assert_ne!(content_hash(&a), content_hash(&b));
+        assert_ne!(content_hash(&a), content_hash(&c));
+    }
+
+    #[test]
+    fn garbage_file_is_reported_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bad.parquet");
+        std::fs::write(&path, b"not parquet at all").unwrap();
+        let err = read_parquet(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("bad.parquet") && err.contains("not a readable Parquet file"),
+            "{err}"
+        );
+    }
+}

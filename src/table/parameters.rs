@@ -1,0 +1,315 @@
+//! The `parameters` table (`../shared/spec/model.md` §6) ↔ parameter sets.
+//!
+//! One row per parameter and model. Reading is strict about names, units, models
+//! and duplicates; parameters a model does not list take their nominal value with
+//! status `fixed`, so a hand-written table with only a few corrections is usable.
+
+use std::fmt;
+use std::path::Path;
+use std::str::FromStr;
+
+use polars::prelude::*;
+
+use super::schema::{self, TableError, f64_values, str_values};
+use crate::robot::params::{PARAM_COUNT, ParamId, ParamValues};
+
+/// Which calibration a parameter set comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum ModelName {
+    Nominal,
+    /// Nominal robot with only the world frame fitted.
+    Registered,
+    Kinematic,
+    Elastogeometric,
+}
+
+impl ModelName {
+    pub const ALL: [ModelName; 4] = [
+        ModelName::Nominal,
+        ModelName::Registered,
+        ModelName::Kinematic,
+        ModelName::Elastogeometric,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ModelName::Nominal => "nominal",
+            ModelName::Registered => "registered",
+            ModelName::Kinematic => "kinematic",
+            ModelName::Elastogeometric => "elastogeometric",
+        }
+    }
+}
+
+impl fmt::Display for ModelName {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for ModelName {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        ModelName::ALL
+            .into_iter()
+            .find(|m| m.as_str() == s)
+            .ok_or_else(|| {
+                format!(
+                    "unknown model `{s}`, expected nominal, registered, kinematic or elastogeometric{}",
+                    crate::suggest::did_you_mean(s, ModelName::ALL.map(|m| m.as_str()))
+                )
+            })
+    }
+}
+
+/// How a parameter got its value in a set.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ParamStatus {
+    Identified,
+    /// Not identifiable from the data (rank analysis); held at nominal.
+    Dependent,
+    /// Not part of this model (e.g. compliances in a kinematic calibration).
+    Fixed,
+}
+
+impl ParamStatus {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ParamStatus::Identified => "identified",
+            ParamStatus::Dependent => "dependent",
+            ParamStatus::Fixed => "fixed",
+        }
+    }
+
+    fn parse(s: &str) -> Option<Self> {
+        [
+            ParamStatus::Identified,
+            ParamStatus::Dependent,
+            ParamStatus::Fixed,
+        ]
+        .into_iter()
+        .find(|v| v.as_str() == s)
+    }
+}
+
+/// The parameters of one model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParameterSet {
+    pub model: ModelName,
+    pub values: ParamValues,
+    pub std_errors: [Option<f64>; PARAM_COUNT],
+    pub status: [ParamStatus; PARAM_COUNT],
+}
+
+impl ParameterSet {
+    /// All parameters at `values`, none identified.
+    pub fn fixed(model: ModelName, values: ParamValues) -> Self {
+        ParameterSet {
+            model,
+            values,
+            std_errors: [None; PARAM_COUNT],
+            status: [ParamStatus::Fixed; PARAM_COUNT],
+        }
+    }
+}
+
+/// The table for `sets`, with `nominal` in the `nominal` column.
+pub fn to_frame(nominal: &ParamValues, sets: &[ParameterSet]) -> DataFrame {
+    let mut model = Vec::new();
+    let mut name = Vec::new();
+    let mut unit = Vec::new();
+    let mut nominal_col = Vec::new();
+    let mut value = Vec::new();
+    let mut std_error = Vec::new();
+    let mut status = Vec::new();
+    for set in sets {
+        for id in ParamId::all() {
+            model.push(set.model.as_str());
+            name.push(id.name());
+            unit.push(id.unit());
+            nominal_col.push(nominal.get(id));
+            value.push(set.values.get(id));
+            std_error.push(set.std_errors[id.index()]);
+            status.push(set.status[id.index()].as_str());
+        }
+    }
+    super::frame(vec![
+        Column::new("model".into(), model),
+        Column::new("name".into(), name),
+        Column::new("unit".into(), unit),
+        Column::new("nominal".into(), nominal_col),
+        Column::new("value".into(), value),
+        Column::new("std_error".into(), std_error),
+        Column::new("status".into(), status),
+    ])
+}
+
+/// Parameter sets from a checked `parameters` table, in the order models first appear.
+pub fn from_frame(
+    df: &DataFrame,
+    file: &Path,
+    nominal: &ParamValues,
+) -> Result<Vec<ParameterSet>, TableError> {
+    schema::parameters().check(df, file)?;
+    let models = str_values(df, "model", file)?;
+    let names = str_values(df, "name", file)?;
+    let units = str_values(df, "unit", file)?;
+    let values = f64_values(df, "value", file)?;
+    let statuses = str_values(df, "status", file)?;
+    let std_errors: Vec<Option<f64>> = match df.column("std_error") {
+        Ok(c) => c
+            .f64()
+            .map_err(|e| schema::io_error(file, e))?
+            .iter()
+            .collect(),
+        Err(_) => vec![None; df.height()],
+    };
+    let bad = |row: usize, column: &str, message: String| TableError::BadValue {
+        file: file.to_path_buf(),
+        column: column.to_string(),
+        row,
+        message,
+    };
+    let mut sets: Vec<ParameterSet> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    for row in 0..df.height() {
+        let model_str = models[row].as_deref().unwrap_or_default();
+        let model = ModelName::from_str(model_str).map_err(|m| bad(row, "model", m))?;
+        let name = names[row].as_deref().unwrap_or_default();
+        let id = ParamId::from_name(name).ok_or_else(|| {
+            bad(
+                row,
+                "name",
+                format!(
+                    "unknown parameter `{name}`{}",
+                    crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
+                ),
+            )
+        })?;
+        let unit = units[row].as_deref().unwrap_or_default();
+        if unit != id.unit() {
+            return Err(bad(
+                row,
+                "unit",
+                format!("`{name}` is in {}, found `{unit}`", id.unit()),
+            ));
+        }
+        let status_str = statuses[row].as_deref().unwrap_or_default();
+        let status = ParamStatus::parse(status_str).ok_or_else(|| {
+            bad(
+                row,
+                "status",
+                format!("expected identified, dependent or fixed, found `{status_str}`"),
+            )
+        })?;
+        if !seen.insert((model, id)) {
+            return Err(bad(
+                row,
+                "name",
+                format!("`{name}` appears twice for model `{model}`"),
+            ));
+        }
+        let index = match sets.iter().position(|s| s.model == model) {
+            Some(i) => i,
+            None => {
+                sets.push(ParameterSet::fixed(model, *nominal));
+                sets.len() - 1
+            }
+        };
+        let set = &mut sets[index];
+        set.values.set(id, values[row]);
+        set.status[id.index()] = status;
+        set.std_errors[id.index()] = std_errors[row].filter(|v| v.is_finite());
+    }
+    Ok(sets)
+}
+
+/// The set of `model` from a parameters file.
+pub fn load_model(
+    path: &Path,
+    model: ModelName,
+    nominal: &ParamValues,
+) -> Result<ParameterSet, TableError> {
+    let df = super::read_parquet(path)?;
+    let sets = from_frame(&df, path, nominal)?;
+    let available: Vec<&str> = sets.iter().map(|s| s.model.as_str()).collect();
+    sets.iter()
+        .find(|s| s.model == model)
+        .cloned()
+        .ok_or_else(|| TableError::BadValue {
+            file: path.to_path_buf(),
+            column: "model".into(),
+            row: 0,
+            message: format!(
+                "no rows for model `{model}` (the table has: {})",
+                available.join(", ")
+            ),
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::test_support::{irb1600, truth_params};
+
+    #[test]
+    fn round_trip_through_parquet() {
+        let robot = irb1600();
+        let nominal = ParamValues::nominal(robot.spec());
+        let mut eg = ParameterSet::fixed(ModelName::Elastogeometric, truth_params(&robot));
+        eg.status[5] = ParamStatus::Identified;
+        eg.std_errors[5] = Some(0.001);
+        eg.status[12] = ParamStatus::Dependent;
+        let sets = vec![ParameterSet::fixed(ModelName::Nominal, nominal), eg];
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("parameters.parquet");
+        super::super::write_parquet(&mut to_frame(&nominal, &sets), &path, None).unwrap();
+        let back =
+            from_frame(&super::super::read_parquet(&path).unwrap(), &path, &nominal).unwrap();
+        assert_eq!(back, sets);
+        let loaded = load_model(&path, ModelName::Elastogeometric, &nominal).unwrap();
+        assert_eq!(loaded, sets[1]);
+        let err = load_model(&path, ModelName::Kinematic, &nominal)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("no rows for model `kinematic`"), "{err}");
+    }
+
+    #[test]
+    fn unknown_name_and_wrong_unit_are_rejected() {
+        let robot = irb1600();
+        let nominal = ParamValues::nominal(robot.spec());
+        let good = to_frame(
+            &nominal,
+            &[ParameterSet::fixed(ModelName::Kinematic, nominal)],
+        );
+        let mut names: Vec<String> = str_values(&good, "name", Path::new("p"))
+            .unwrap()
+            .into_iter()
+            .flatten()
+            .collect();
+        names[3] = "alpha_ww".into();
+        let mut df = good.clone();
+        df.with_column(Column::new("name".into(), names)).unwrap();
+        let err = from_frame(&df, Path::new("p.parquet"), &nominal)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("row 3") && err.contains("did you mean `alpha_w`"),
+            "{err}"
+        );
+
+        let mut units: Vec<String> = str_values(&good, "unit", Path::new("p"))
+            .unwrap()
+            .into_iter()
+            .flatten()
+            .collect();
+        units[0] = "m".into();
+        let mut df = good;
+        df.with_column(Column::new("unit".into(), units)).unwrap();
+        let err = from_frame(&df, Path::new("p.parquet"), &nominal)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("`x_w` is in mm, found `m`"), "{err}");
+    }
+}

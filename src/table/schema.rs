@@ -1,0 +1,564 @@
+//! Table schemas (column, type, unit, required, meaning) and the checks every table
+//! passes before a stage reads it.
+//!
+//! The schemas live here, in code, and `schemas/tables/*.json` is generated from them
+//! (a test fails when the committed files are stale), so the docs cannot drift from
+//! what the checks enforce. `measurements` and `parameters` follow
+//! `../shared/spec/model.md` §6 exactly; extra columns are allowed and kept.
+
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+
+use polars::prelude::*;
+use serde::Serialize;
+
+/// Logical column type.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ColumnType {
+    Int64,
+    Float64,
+    Utf8,
+    Boolean,
+    /// Microseconds since the epoch, UTC.
+    TimestampUs,
+}
+
+impl ColumnType {
+    pub fn polars(self) -> DataType {
+        match self {
+            ColumnType::Int64 => DataType::Int64,
+            ColumnType::Float64 => DataType::Float64,
+            ColumnType::Utf8 => DataType::String,
+            ColumnType::Boolean => DataType::Boolean,
+            ColumnType::TimestampUs => {
+                DataType::Datetime(TimeUnit::Microseconds, Some(TimeZone::UTC))
+            }
+        }
+    }
+
+    fn accepts(self, dtype: &DataType) -> bool {
+        match self {
+            ColumnType::TimestampUs => matches!(dtype, DataType::Datetime(_, _)),
+            other => &other.polars() == dtype,
+        }
+    }
+}
+
+/// One column of a table kind.
+#[derive(Debug, Clone, Serialize)]
+pub struct ColumnSpec {
+    pub name: &'static str,
+    #[serde(rename = "type")]
+    pub dtype: ColumnType,
+    pub unit: &'static str,
+    pub required: bool,
+    pub meaning: &'static str,
+}
+
+/// A table kind.
+#[derive(Debug, Clone, Serialize)]
+pub struct TableSchema {
+    pub kind: &'static str,
+    pub description: &'static str,
+    pub columns: Vec<ColumnSpec>,
+    /// Column whose values must be unique (e.g. `cw_id`).
+    pub unique: Option<&'static str>,
+}
+
+/// A problem with a table, worded the same way for every table and stage.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TableError {
+    #[error("{file}: missing required column `{column}` ({expected}){hint}")]
+    MissingColumn {
+        file: PathBuf,
+        column: String,
+        expected: String,
+        hint: String,
+    },
+    #[error("{file}: column `{column}` has type {found}, expected {expected}")]
+    WrongType {
+        file: PathBuf,
+        column: String,
+        found: String,
+        expected: String,
+    },
+    #[error("{file}: column `{column}` is null at row {row} (required)")]
+    Null {
+        file: PathBuf,
+        column: String,
+        row: usize,
+    },
+    #[error("{file}: column `{column}` is {value} at row {row}, expected a finite number")]
+    NonFinite {
+        file: PathBuf,
+        column: String,
+        row: usize,
+        value: f64,
+    },
+    #[error(
+        "{file}: column `{column}` repeats value {value} at row {row} (first at row {first_row}); it must be unique"
+    )]
+    Duplicate {
+        file: PathBuf,
+        column: String,
+        value: String,
+        row: usize,
+        first_row: usize,
+    },
+    #[error("{file}: column `{column}`, row {row}: {message}")]
+    BadValue {
+        file: PathBuf,
+        column: String,
+        row: usize,
+        message: String,
+    },
+    #[error("{file}: {message}")]
+    Io { file: PathBuf, message: String },
+}
+
+impl TableSchema {
+    pub fn column(&self, name: &str) -> Option<&ColumnSpec> {
+        self.columns.iter().find(|c| c.name == name)
+    }
+
+    /// Checks `df` (read from `file`) against this schema: every required column
+    /// present, every known column of the right type, no nulls in required columns,
+    /// no NaN or infinity in float columns, unique key unique. Reports the first
+    /// problem with its column and row (0-based, as in the file).
+    pub fn check(&self, df: &DataFrame, file: &Path) -> Result<(), TableError> {
+        let present: Vec<&str> = df.get_column_names().iter().map(|s| s.as_str()).collect();
+        for spec in &self.columns {
+            let Ok(column) = df.column(spec.name) else {
+                if spec.required {
+                    return Err(TableError::MissingColumn {
+                        file: file.to_path_buf(),
+                        column: spec.name.to_string(),
+                        expected: format!("{:?}, {}", spec.dtype, spec.meaning),
+                        hint: crate::suggest::did_you_mean(spec.name, present.iter().copied())
+                            .replace("did you mean", "found"),
+                    });
+                }
+                continue;
+            };
+            if !spec.dtype.accepts(column.dtype()) {
+                return Err(TableError::WrongType {
+                    file: file.to_path_buf(),
+                    column: spec.name.to_string(),
+                    found: column.dtype().to_string(),
+                    expected: spec.dtype.polars().to_string(),
+                });
+            }
+            if spec.required && column.null_count() > 0 {
+                let row = column
+                    .is_null()
+                    .iter()
+                    .position(|n| n == Some(true))
+                    .unwrap_or(0);
+                return Err(TableError::Null {
+                    file: file.to_path_buf(),
+                    column: spec.name.to_string(),
+                    row,
+                });
+            }
+            if spec.dtype == ColumnType::Float64 {
+                let values = column.f64().map_err(|e| io_error(file, e))?;
+                if let Some((row, value)) = values
+                    .iter()
+                    .enumerate()
+                    .find_map(|(row, v)| v.filter(|v| !v.is_finite()).map(|v| (row, v)))
+                {
+                    return Err(TableError::NonFinite {
+                        file: file.to_path_buf(),
+                        column: spec.name.to_string(),
+                        row,
+                        value,
+                    });
+                }
+            }
+        }
+        if let Some(key) = self.unique {
+            check_unique(df, key, file)?;
+        }
+        Ok(())
+    }
+}
+
+fn check_unique(df: &DataFrame, key: &str, file: &Path) -> Result<(), TableError> {
+    let Ok(column) = df.column(key) else {
+        return Ok(());
+    };
+    let values: Vec<String> = match column.dtype() {
+        DataType::Int64 => column
+            .i64()
+            .map_err(|e| io_error(file, e))?
+            .iter()
+            .map(|v| format!("{v:?}"))
+            .collect(),
+        _ => column
+            .cast(&DataType::String)
+            .map_err(|e| io_error(file, e))?
+            .str()
+            .map_err(|e| io_error(file, e))?
+            .iter()
+            .map(|v| format!("{v:?}"))
+            .collect(),
+    };
+    let mut seen = std::collections::HashMap::with_capacity(values.len());
+    for (row, value) in values.iter().enumerate() {
+        if let Some(first_row) = seen.insert(value.as_str(), row) {
+            return Err(TableError::Duplicate {
+                file: file.to_path_buf(),
+                column: key.to_string(),
+                value: value
+                    .trim_start_matches("Some(")
+                    .trim_end_matches(')')
+                    .to_string(),
+                row,
+                first_row,
+            });
+        }
+    }
+    Ok(())
+}
+
+pub(crate) fn io_error(file: &Path, e: impl std::fmt::Display) -> TableError {
+    TableError::Io {
+        file: file.to_path_buf(),
+        message: e.to_string(),
+    }
+}
+
+fn col(
+    name: &'static str,
+    dtype: ColumnType,
+    unit: &'static str,
+    required: bool,
+    meaning: &'static str,
+) -> ColumnSpec {
+    ColumnSpec {
+        name,
+        dtype,
+        unit,
+        required,
+        meaning,
+    }
+}
+
+/// `q1_deg … q6_deg`: the joint commands of a conf-wrench row.
+fn joint_columns(columns: &mut Vec<ColumnSpec>, meaning: &'static str) {
+    const NAMES: [&str; 6] = ["q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg"];
+    for name in NAMES {
+        columns.push(col(name, ColumnType::Float64, "deg", true, meaning));
+    }
+}
+
+/// The six wrench columns of the spec (wrench on the robot, tool axes, tool origin).
+pub const WRENCH_COLUMNS: [&str; 6] = ["fx_n", "fy_n", "fz_n", "mx_nm", "my_nm", "mz_nm"];
+pub const JOINT_COLUMNS: [&str; 6] = ["q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg"];
+pub const POSITION_COLUMNS: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
+
+fn wrench_columns(columns: &mut Vec<ColumnSpec>) {
+    for name in WRENCH_COLUMNS {
+        let unit = if name.starts_with('f') { "N" } else { "N·m" };
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            unit,
+            true,
+            "wrench applied to the robot, tool-frame axes, reduced to the tool origin (0 where no load)",
+        ));
+    }
+}
+
+/// Conf-wrench rows: the input of `predict` and of design and measurement stages.
+pub fn conf_wrenches() -> TableSchema {
+    let mut columns = vec![col(
+        "cw_id",
+        ColumnType::Int64,
+        "",
+        true,
+        "conf-wrench combination id, unique",
+    )];
+    joint_columns(&mut columns, "joint command");
+    wrench_columns(&mut columns);
+    TableSchema {
+        kind: "conf_wrenches",
+        description: "Joint configurations with the wrench applied at each (any table with these columns, e.g. candidates or measurements).",
+        columns,
+        unique: Some("cw_id"),
+    }
+}
+
+/// `../shared/spec/model.md` §6 `measurements`.
+pub fn measurements() -> TableSchema {
+    let mut columns = vec![col(
+        "cw_id",
+        ColumnType::Int64,
+        "",
+        true,
+        "conf-wrench combination id, unique",
+    )];
+    joint_columns(&mut columns, "joint angle read from the encoders");
+    wrench_columns(&mut columns);
+    for name in POSITION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm",
+            true,
+            "SMR position measured in the tracker (world) frame",
+        ));
+    }
+    columns.push(col(
+        "config_id",
+        ColumnType::Int64,
+        "",
+        false,
+        "robot configuration id the row belongs to",
+    ));
+    columns.push(col(
+        "robot_id",
+        ColumnType::Utf8,
+        "",
+        false,
+        "robot the row was measured on",
+    ));
+    columns.push(col(
+        "measured_at",
+        ColumnType::TimestampUs,
+        "µs UTC",
+        false,
+        "time of the tracker reading",
+    ));
+    TableSchema {
+        kind: "measurements",
+        description: "Complete measured rows (spec §6). Incomplete rows go to measurement_failures, never here.",
+        columns,
+        unique: Some("cw_id"),
+    }
+}
+
+/// `../shared/spec/model.md` §6 `parameters`.
+pub fn parameters() -> TableSchema {
+    TableSchema {
+        kind: "parameters",
+        description: "Parameter sets, one row per parameter and model (spec §6).",
+        columns: vec![
+            col(
+                "model",
+                ColumnType::Utf8,
+                "",
+                true,
+                "nominal, registered, kinematic or elastogeometric",
+            ),
+            col(
+                "name",
+                ColumnType::Utf8,
+                "",
+                true,
+                "parameter name from spec §4",
+            ),
+            col("unit", ColumnType::Utf8, "", true, "unit from spec §4"),
+            col(
+                "nominal",
+                ColumnType::Float64,
+                "unit",
+                true,
+                "nominal value",
+            ),
+            col(
+                "value",
+                ColumnType::Float64,
+                "unit",
+                true,
+                "value in this model",
+            ),
+            col(
+                "std_error",
+                ColumnType::Float64,
+                "unit",
+                false,
+                "standard error; null where not identified",
+            ),
+            col(
+                "status",
+                ColumnType::Utf8,
+                "",
+                true,
+                "identified, dependent or fixed",
+            ),
+        ],
+        unique: None,
+    }
+}
+
+/// Output of `predict`.
+pub fn predictions() -> TableSchema {
+    let mut columns = vec![col(
+        "cw_id",
+        ColumnType::Int64,
+        "",
+        true,
+        "conf-wrench combination id",
+    )];
+    for name in POSITION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm",
+            true,
+            "predicted SMR position in the world frame",
+        ));
+    }
+    for i in 0..6 {
+        columns.push(col(
+            TORQUE_COLUMNS[i],
+            ColumnType::Float64,
+            "N·m",
+            true,
+            "load torque on the joint (gravity and external wrench)",
+        ));
+    }
+    for i in 0..6 {
+        columns.push(col(
+            DEFLECTION_COLUMNS[i],
+            ColumnType::Float64,
+            "deg",
+            true,
+            "compliance deflection k_i·tau_i",
+        ));
+    }
+    TableSchema {
+        kind: "predictions",
+        description: "Model predictions for conf-wrench rows: position, load torques, deflections.",
+        columns,
+        unique: Some("cw_id"),
+    }
+}
+
+pub const TORQUE_COLUMNS: [&str; 6] = [
+    "tau1_nm", "tau2_nm", "tau3_nm", "tau4_nm", "tau5_nm", "tau6_nm",
+];
+pub const DEFLECTION_COLUMNS: [&str; 6] = [
+    "dq1_deg", "dq2_deg", "dq3_deg", "dq4_deg", "dq5_deg", "dq6_deg",
+];
+
+/// Every table kind, for schema generation and `egcal show`.
+pub fn all() -> Vec<TableSchema> {
+    vec![conf_wrenches(), measurements(), parameters(), predictions()]
+}
+
+/// Looks a table kind up by name.
+pub fn by_kind(kind: &str) -> Option<TableSchema> {
+    all().into_iter().find(|s| s.kind == kind)
+}
+
+/// Values of a required f64 column (after [`TableSchema::check`]).
+pub fn f64_values(df: &DataFrame, name: &str, file: &Path) -> Result<Vec<f64>, TableError> {
+    let column = df.column(name).map_err(|e| io_error(file, e))?;
+    let values = column.f64().map_err(|e| io_error(file, e))?;
+    Ok(values.iter().map(|v| v.unwrap_or(f64::NAN)).collect())
+}
+
+/// Values of a required i64 column (after [`TableSchema::check`]).
+pub fn i64_values(df: &DataFrame, name: &str, file: &Path) -> Result<Vec<i64>, TableError> {
+    let column = df.column(name).map_err(|e| io_error(file, e))?;
+    let values = column.i64().map_err(|e| io_error(file, e))?;
+    Ok(values.iter().map(|v| v.unwrap_or_default()).collect())
+}
+
+/// Values of a utf8 column (nulls as `None`).
+pub fn str_values(
+    df: &DataFrame,
+    name: &str,
+    file: &Path,
+) -> Result<Vec<Option<String>>, TableError> {
+    let column = df.column(name).map_err(|e| io_error(file, e))?;
+    let values = column.str().map_err(|e| io_error(file, e))?;
+    Ok(values.iter().map(|v| v.map(str::to_string)).collect())
+}
+
+/// Distinct values, for tests and diagnostics.
+pub fn distinct(values: &[i64]) -> usize {
+    values.iter().collect::<HashSet<_>>().len()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(cw: Vec<i64>, q1: Vec<f64>) -> DataFrame {
+        let n = cw.len();
+        let mut columns = vec![Column::new("cw_id".into(), cw)];
+        for name in JOINT_COLUMNS.iter().chain(&WRENCH_COLUMNS) {
+            let values = if *name == "q1_deg" {
+                q1.clone()
+            } else {
+                vec![0.0; n]
+            };
+            columns.push(Column::new((*name).into(), values));
+        }
+        DataFrame::new(n, columns).unwrap()
+    }
+
+    #[test]
+    fn good_table_passes() {
+        conf_wrenches()
+            .check(
+                &frame(vec![1, 2, 3], vec![0.0, 1.0, 2.0]),
+                Path::new("t.parquet"),
+            )
+            .unwrap();
+    }
+
+    #[test]
+    fn nan_is_reported_with_row_and_column() {
+        let err = conf_wrenches()
+            .check(
+                &frame(vec![1, 2, 3], vec![0.0, f64::NAN, 2.0]),
+                Path::new("t.parquet"),
+            )
+            .unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "t.parquet: column `q1_deg` is NaN at row 1, expected a finite number"
+        );
+    }
+
+    #[test]
+    fn duplicate_id_is_reported() {
+        let err = conf_wrenches()
+            .check(&frame(vec![1, 2, 1], vec![0.0; 3]), Path::new("t.parquet"))
+            .unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("repeats value 1 at row 2 (first at row 0)"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn missing_and_mistyped_columns_are_reported() {
+        let df = frame(vec![1], vec![0.0]).drop("fz_n").unwrap();
+        let err = conf_wrenches()
+            .check(&df, Path::new("t.parquet"))
+            .unwrap_err();
+        assert!(
+            err.to_string().contains("missing required column `fz_n`"),
+            "{err}"
+        );
+
+        let mut df = frame(vec![1], vec![0.0]);
+        df.with_column(Column::new("q2_deg".into(), vec!["a"]))
+            .unwrap();
+        let err = conf_wrenches()
+            .check(&df, Path::new("t.parquet"))
+            .unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("column `q2_deg` has type str, expected f64"),
+            "{err}"
+        );
+    }
+}
