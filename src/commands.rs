@@ -21,13 +21,16 @@ pub enum CommandError {
     #[error(transparent)]
     Job(#[from] JobProblems),
     #[error(transparent)]
-    Table(#[from] TableError),
+    Table(Box<TableError>),
     #[error(transparent)]
-    Run(#[from] RunError),
+    Run(Box<RunError>),
     #[error(transparent)]
     Robot(#[from] crate::robot::file::RobotFileError),
     #[error("stage `{kind}` failed: {source}")]
-    Stage { kind: String, source: StageError },
+    Stage {
+        kind: String,
+        source: Box<StageError>,
+    },
 }
 
 /// Exit codes (documented in the README).
@@ -42,6 +45,18 @@ pub mod exit {
     pub const LOCKED: u8 = 5;
 }
 
+impl From<TableError> for CommandError {
+    fn from(e: TableError) -> Self {
+        CommandError::Table(Box::new(e))
+    }
+}
+
+impl From<RunError> for CommandError {
+    fn from(e: RunError) -> Self {
+        CommandError::Run(Box::new(e))
+    }
+}
+
 impl CommandError {
     pub fn exit_code(&self) -> u8 {
         match self {
@@ -50,7 +65,7 @@ impl CommandError {
             | CommandError::Table(_)
             | CommandError::Robot(_) => exit::BAD_INPUT,
             CommandError::Stage { source, .. } => stage_code(source),
-            CommandError::Run(e) => match e {
+            CommandError::Run(e) => match e.as_ref() {
                 RunError::Lock(runner::lock::LockError::Held { .. }) => exit::LOCKED,
                 RunError::Lock(_) | RunError::Io { .. } => exit::INTERNAL,
                 RunError::UnknownStage(..)
@@ -393,13 +408,14 @@ fn run_on_files(
         seed,
         inputs: &tables,
         work_dir,
+        job_dir: Path::new("."),
         progress: &NoProgress,
     };
     let outputs = stage_kind
         .run(&ctx, &settings)
         .map_err(|source| CommandError::Stage {
             kind: kind.to_string(),
-            source,
+            source: Box::new(source),
         })?;
     let provenance = Provenance {
         job: "(egcal stage)".into(),
@@ -415,6 +431,43 @@ fn run_on_files(
         extra: outputs.facts.clone(),
     };
     Ok((outputs.tables, provenance))
+}
+
+/// `egcal sim-driver`: serves the simulator over the driver protocol on
+/// stdin/stdout until `shutdown` or end of input.
+pub fn sim_driver(
+    robot_file: &Path,
+    truth: Option<&Path>,
+    truth_model: &str,
+    settings_file: Option<&Path>,
+    seed: u64,
+) -> Result<String, CommandError> {
+    use crate::rig::simulator::{Simulator, SimulatorSettings};
+    let robot = Robot::new(RobotSpec::load(robot_file)?);
+    let nominal = crate::robot::ParamValues::nominal(robot.spec());
+    let values = match truth {
+        None => nominal,
+        Some(path) => {
+            let model = truth_model.parse().map_err(CommandError::Usage)?;
+            table::parameters::load_model(path, model, &nominal)?.values
+        }
+    };
+    let settings: SimulatorSettings = match settings_file {
+        None => SimulatorSettings::default(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| CommandError::Usage(format!("cannot read {}: {e}", path.display())))?;
+            toml::from_str(&text).map_err(|e| {
+                CommandError::Usage(format!("{}: {}", path.display(), crate::toml_error::describe(&e, &text)))
+            })?
+        }
+    };
+    let mut simulator = Simulator::new(robot, values, settings, seed).map_err(CommandError::Usage)?;
+    let stdin = std::io::stdin();
+    let stdout = std::io::stdout();
+    crate::rig::driver::serve(&mut simulator, "egcal simulator", stdin.lock(), stdout.lock())
+        .map_err(|e| CommandError::Usage(format!("driver I/O: {e}")))?;
+    Ok(String::new())
 }
 
 /// `egcal list-stages`: every kind with inputs, outputs and settings with defaults.
@@ -501,10 +554,10 @@ pub fn write_schemas(dir: &Path) -> Result<String, CommandError> {
 
 /// Every generated schema file: (path relative to `schemas/`, content).
 pub fn generated_schemas() -> Vec<(String, String)> {
-    let mut files = vec![(
-        "job.schema.json".to_string(),
-        crate::job::schema::job_schema_json(),
-    )];
+    let mut files = vec![
+        ("job.schema.json".to_string(), crate::job::schema::job_schema_json()),
+        ("driver-protocol.schema.json".to_string(), crate::rig::protocol::schema_json()),
+    ];
     let robot =
         serde_json::to_string_pretty(&schemars::schema_for!(RobotSpec)).expect("schema serialises");
     files.push(("robot.schema.json".into(), robot + "\n"));

@@ -1,12 +1,15 @@
 //! egcal: elasto-geometric calibration of industrial robots as reproducible batch
 //! jobs. See `ARCHITECTURE.md` for the module map.
 
+pub mod calibration;
 pub mod commands;
 pub mod fsio;
 pub mod job;
+pub mod journal;
 pub mod robot;
 pub mod runner;
 pub mod stages;
 pub mod suggest;
 pub mod table;
 pub mod toml_error;
+pub mod rig;

@@ -87,6 +87,22 @@ enum Command {
         #[arg(long)]
         output: PathBuf,
     },
+    /// Serve the simulator over the driver protocol on stdin/stdout (for testing
+    /// the external-driver path, and as an example driver).
+    SimDriver {
+        #[arg(long)]
+        robot: PathBuf,
+        /// Parameters table of the simulated robot; nominal when absent.
+        #[arg(long)]
+        truth: Option<PathBuf>,
+        #[arg(long, default_value = "elastogeometric")]
+        truth_model: String,
+        /// TOML file with simulator settings (the `simulator` table of a measure stage).
+        #[arg(long)]
+        settings: Option<PathBuf>,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
     /// Stage kinds with their inputs, outputs and settings (with defaults).
     ListStages,
     /// Cache maintenance.
@@ -155,6 +171,13 @@ fn dispatch(cli: Cli) -> Result<String, CommandError> {
             input,
             output,
         } => commands::predict(&robot, params.as_deref(), &model, &input, &output),
+        Command::SimDriver {
+            robot,
+            truth,
+            truth_model,
+            settings,
+            seed,
+        } => commands::sim_driver(&robot, truth.as_deref(), &truth_model, settings.as_deref(), seed),
         Command::ListStages => Ok(commands::list_stages()),
         Command::Cache {
             action: CacheAction::Gc { job },

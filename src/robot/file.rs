@@ -188,7 +188,7 @@ impl RobotSpec {
                 ));
             }
             if let Some(capsule) = &joint.capsule
-                && !(capsule.radius_mm > 0.0)
+                && capsule.radius_mm.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
             {
                 return Err(invalid(
                     format!("joints[{i}].capsule.radius_mm"),
@@ -196,7 +196,7 @@ impl RobotSpec {
                 ));
             }
         }
-        if !(self.payload.mass_kg >= 0.0) {
+        if !(self.payload.mass_kg.is_finite() && self.payload.mass_kg >= 0.0) {
             return Err(invalid(
                 "payload.mass_kg".into(),
                 "expected a mass >= 0".into(),

@@ -378,10 +378,7 @@ mod tests {
         let q = [10.0, 20.0, -30.0, 40.0, 50.0, 60.0];
         let w = Wrench::from_array([0.0, 0.0, 100.0, 0.0, 0.0, 5.0]);
         let prediction = robot.predict(&p, &q, &w);
-        let mut q_deflected = q;
-        for i in 0..6 {
-            q_deflected[i] += prediction.deflections_deg[i];
-        }
+        let q_deflected: [f64; 6] = std::array::from_fn(|i| q[i] + prediction.deflections_deg[i]);
         let mut rigid = p;
         for i in 0..6 {
             rigid.0[36 + i] = 0.0;

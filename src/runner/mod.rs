@@ -92,14 +92,17 @@ pub enum RunError {
     Stage {
         stage: String,
         kind: String,
-        source: StageError,
+        source: Box<StageError>,
     },
     #[error(
         "stage `{stage}`: input file {file} changed while the stage ran; nothing was cached, run again"
     )]
     InputChanged { stage: String, file: PathBuf },
     #[error("stage `{stage}`: {source}")]
-    Table { stage: String, source: TableError },
+    Table {
+        stage: String,
+        source: Box<TableError>,
+    },
     #[error("{context}: {source}")]
     Io {
         context: String,
@@ -358,7 +361,7 @@ fn execute(
     let stage = &plan.stages[index];
     let table_error = |source| RunError::Table {
         stage: stage.id.clone(),
-        source,
+        source: Box::new(source),
     };
     let hashes = input_hashes(stage, plan, upstream)?;
     let parts = key_parts(plan, stage, hashes.clone(), robot_hash);
@@ -399,12 +402,13 @@ fn execute(
         seed: stage_seed(plan.seed, &stage.id),
         inputs: &inputs,
         work_dir: &work_dir,
+        job_dir: plan.job_file.parent().unwrap_or(Path::new(".")),
         progress: &progress,
     };
     let stage_error = |source| RunError::Stage {
         stage: stage.id.clone(),
         kind: stage.kind.info().kind.to_string(),
-        source,
+        source: Box::new(source),
     };
     let mut outputs = stage.kind.run(&ctx, &stage.settings).map_err(stage_error)?;
     drop(progress);
@@ -412,13 +416,13 @@ fn execute(
 
     // Inputs must not have changed under the stage.
     for (name, source) in &stage.inputs {
-        if let InputSource::Files { paths, .. } = source {
-            if files_hash(paths).ok().as_ref() != hashes.get(name) {
-                return Err(RunError::InputChanged {
-                    stage: stage.id.clone(),
-                    file: paths[0].clone(),
-                });
-            }
+        if let InputSource::Files { paths, .. } = source
+            && files_hash(paths).ok().as_ref() != hashes.get(name)
+        {
+            return Err(RunError::InputChanged {
+                stage: stage.id.clone(),
+                file: paths[0].clone(),
+            });
         }
     }
 

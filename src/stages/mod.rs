@@ -6,6 +6,8 @@
 //! (serde + JSON Schema + defaults) is the single source for job-file parsing,
 //! `egcal list-stages`, the job-file JSON Schema and the cache key.
 
+pub mod identify;
+pub mod measure;
 pub mod predict;
 
 use std::collections::BTreeMap;
@@ -71,6 +73,8 @@ pub struct StageContext<'a> {
     pub inputs: &'a BTreeMap<String, InputTable>,
     /// A folder the stage owns across runs (journals of resumable stages).
     pub work_dir: &'a Path,
+    /// The job file's folder: relative paths in settings (driver commands) resolve here.
+    pub job_dir: &'a Path,
     pub progress: &'a dyn Progress,
 }
 
@@ -212,7 +216,7 @@ fn parse_settings<T: DeserializeOwned>(raw: &toml::Table) -> Result<T, SettingsP
 
 /// Every stage kind, in pipeline order.
 pub fn registry() -> Vec<&'static dyn StageKind> {
-    vec![&predict::PredictStage]
+    vec![&predict::PredictStage, &measure::MeasureStage, &identify::IdentifyStage]
 }
 
 /// Looks a stage kind up by name.

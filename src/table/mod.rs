@@ -198,6 +198,35 @@ pub fn now_rfc3339() -> String {
     rfc3339_from_unix(secs)
 }
 
+/// Parses `YYYY-MM-DDTHH:MM:SS[.ffffff]Z` to microseconds since the epoch.
+pub fn parse_rfc3339_us(text: &str) -> Option<i64> {
+    let text = text.strip_suffix('Z')?;
+    let (date, time) = text.split_once('T')?;
+    let mut d = date.splitn(3, '-').map(|p| p.parse::<i64>().ok());
+    let (year, month, day) = (d.next()??, d.next()??, d.next()??);
+    let (hms, fraction) = time.split_once('.').unwrap_or((time, ""));
+    let mut t = hms.splitn(3, ':').map(|p| p.parse::<i64>().ok());
+    let (hour, minute, second) = (t.next()??, t.next()??, t.next()??);
+    if !(1..=12).contains(&month) || !(1..=31).contains(&day) || hour > 23 || minute > 59 || second > 60 {
+        return None;
+    }
+    let micros = if fraction.is_empty() {
+        0
+    } else {
+        let digits: String = fraction.chars().chain(std::iter::repeat('0')).take(6).collect();
+        digits.parse::<i64>().ok()?
+    };
+    // Howard Hinnant's days-from-civil.
+    let y = if month <= 2 { year - 1 } else { year };
+    let era = y.div_euclid(400);
+    let yoe = y.rem_euclid(400);
+    let mp = (month + 9) % 12;
+    let doy = (153 * mp + 2) / 5 + day - 1;
+    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
+    let days = era * 146_097 + doe - 719_468;
+    Some(((days * 86_400 + hour * 3600 + minute * 60 + second) * 1_000_000) + micros)
+}
+
 fn rfc3339_from_unix(secs: i64) -> String {
     let days = secs.div_euclid(86_400);
     let rem = secs.rem_euclid(86_400);
@@ -255,6 +284,16 @@ mod tests {
             vec![("cw_id".to_string(), "i64".to_string())]
         );
         assert_eq!(read_parquet(&path).unwrap(), df);
+    }
+
+    #[test]
+    fn rfc3339_parses_back() {
+        for secs in [0, 951_782_400, 1_795_000_000, 1_767_225_600] {
+            assert_eq!(parse_rfc3339_us(&rfc3339_from_unix(secs)), Some(secs * 1_000_000));
+        }
+        assert_eq!(parse_rfc3339_us("2026-01-01T00:00:00.5Z"), Some(1_767_225_600_500_000));
+        assert_eq!(parse_rfc3339_us("2026-13-01T00:00:00Z"), None);
+        assert_eq!(parse_rfc3339_us("yesterday"), None);
     }
 
     #[test]

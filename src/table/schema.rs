@@ -393,6 +393,50 @@ pub fn parameters() -> TableSchema {
     }
 }
 
+/// `../shared/spec/model.md` §6 `measurement_failures`.
+pub fn measurement_failures() -> TableSchema {
+    TableSchema {
+        kind: "measurement_failures",
+        description: "Rows a measuring stage could not complete (spec §6).",
+        columns: vec![
+            col("cw_id", ColumnType::Int64, "", true, "conf-wrench combination id"),
+            col("attempts", ColumnType::Int64, "", true, "attempts made"),
+            col("reason", ColumnType::Utf8, "", true, "last error (driver error, timeout, beam lost)"),
+            col("failed_at", ColumnType::TimestampUs, "µs UTC", true, "time of the last attempt"),
+        ],
+        unique: Some("cw_id"),
+    }
+}
+
+/// Which rows calibrate and which validate.
+pub fn selection() -> TableSchema {
+    TableSchema {
+        kind: "selection",
+        description: "Role of each conf-wrench row: `calibration` (identify on it) or `validation`.",
+        columns: vec![
+            col("cw_id", ColumnType::Int64, "", true, "conf-wrench combination id"),
+            col("role", ColumnType::Utf8, "", true, "calibration or validation"),
+        ],
+        unique: Some("cw_id"),
+    }
+}
+
+/// Convergence of each identification (paper §III.B steps (b)–(g)).
+pub fn identification_trace() -> TableSchema {
+    TableSchema {
+        kind: "identification_trace",
+        description: "Gauss–Newton iterations of each identified model.",
+        columns: vec![
+            col("model", ColumnType::Utf8, "", true, "registered, kinematic or elastogeometric"),
+            col("iteration", ColumnType::Int64, "", true, "1-based iteration"),
+            col("rms_mm", ColumnType::Float64, "mm", true, "residual RMS per coordinate before the step"),
+            col("max_mm", ColumnType::Float64, "mm", true, "largest residual norm before the step"),
+            col("step_mm", ColumnType::Float64, "mm", true, "largest position change the step predicts"),
+        ],
+        unique: None,
+    }
+}
+
 /// Output of `predict`.
 pub fn predictions() -> TableSchema {
     let mut columns = vec![col(
@@ -411,18 +455,18 @@ pub fn predictions() -> TableSchema {
             "predicted SMR position in the world frame",
         ));
     }
-    for i in 0..6 {
+    for name in TORQUE_COLUMNS {
         columns.push(col(
-            TORQUE_COLUMNS[i],
+            name,
             ColumnType::Float64,
             "N·m",
             true,
             "load torque on the joint (gravity and external wrench)",
         ));
     }
-    for i in 0..6 {
+    for name in DEFLECTION_COLUMNS {
         columns.push(col(
-            DEFLECTION_COLUMNS[i],
+            name,
             ColumnType::Float64,
             "deg",
             true,
@@ -446,7 +490,15 @@ pub const DEFLECTION_COLUMNS: [&str; 6] = [
 
 /// Every table kind, for schema generation and `egcal show`.
 pub fn all() -> Vec<TableSchema> {
-    vec![conf_wrenches(), measurements(), parameters(), predictions()]
+    vec![
+        conf_wrenches(),
+        measurements(),
+        measurement_failures(),
+        parameters(),
+        predictions(),
+        selection(),
+        identification_trace(),
+    ]
 }
 
 /// Looks a table kind up by name.

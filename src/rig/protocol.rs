@@ -1,0 +1,147 @@
+//! The driver protocol: one JSON object per line over the driver's stdin/stdout.
+//!
+//! egcal sends `{"id": N, "method": "...", "params": {...}}` and waits (with a
+//! timeout) for `{"id": N, "result": {...}}` or
+//! `{"id": N, "error": {"message": "...", "transient": true}}`. A transient error
+//! makes egcal retry the row; any other error, a malformed reply or a timeout is
+//! recorded against the row. `schemas/driver-protocol.md` is the prose version and
+//! `schemas/driver-protocol.schema.json` the message shapes, generated from here.
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+/// Protocol version sent in `hello`.
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// A request from egcal to the driver.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct Request {
+    pub id: u64,
+    #[serde(flatten)]
+    pub call: Call,
+}
+
+/// The methods and their parameters.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "method", content = "params", rename_all = "snake_case")]
+pub enum Call {
+    /// First message: protocol version; the reply names the driver and its capabilities.
+    Hello { protocol: u32 },
+    /// Move the robot to joint commands (deg) for conf-wrench row `cw_id`; reply when settled.
+    MoveJoints { cw_id: i64, q_deg: [f64; 6] },
+    /// Apply a wrench with the cable robot: fx, fy, fz (N), mx, my, mz (N·m), tool axes, tool origin.
+    ApplyWrench { wrench: [f64; 6] },
+    /// Release the cable tension.
+    ReleaseWrench {},
+    /// Read the force/torque sensor (same order and frame as apply_wrench).
+    ReadWrench {},
+    /// Read the joint encoders (deg).
+    ReadJoints {},
+    /// Measure the SMR with the laser tracker (mm, tracker frame).
+    Measure {},
+    /// Park and exit.
+    Shutdown {},
+}
+
+/// A reply from the driver.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Reply {
+    pub id: u64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub result: Option<ReplyResult>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<ReplyError>,
+}
+
+/// The result fields; which are present depends on the method.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ReplyResult {
+    /// hello: the protocol version the driver speaks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub protocol: Option<u32>,
+    /// hello: a name for logs ("ABB IRC5 + FARO Vantage + cable robot v2").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// hello: the methods it implements.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub capabilities: Option<Vec<String>>,
+    /// read_wrench.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub wrench: Option<[f64; 6]>,
+    /// read_joints.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub q_deg: Option<[f64; 6]>,
+    /// measure.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_mm: Option<[f64; 3]>,
+    /// measure: time of the reading, µs since the epoch, UTC (egcal's clock when absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub measured_at_us: Option<i64>,
+}
+
+/// An error reply.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ReplyError {
+    pub message: String,
+    /// True when retrying the row may succeed (beam lost, busy).
+    #[serde(default)]
+    pub transient: bool,
+}
+
+/// Method names, as capabilities.
+pub const METHODS: [&str; 8] = [
+    "hello",
+    "move_joints",
+    "apply_wrench",
+    "release_wrench",
+    "read_wrench",
+    "read_joints",
+    "measure",
+    "shutdown",
+];
+
+/// JSON Schema of both message kinds, for `schemas/driver-protocol.schema.json`.
+pub fn schema_json() -> String {
+    let schema = serde_json::json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": "egcal driver protocol v1",
+        "description": "One JSON object per line. egcal writes Request objects to the driver's stdin and reads Reply objects from its stdout.",
+        "$defs": {
+            "Request": schemars::schema_for!(Request),
+            "Reply": schemars::schema_for!(Reply),
+        },
+    });
+    let mut text = serde_json::to_string_pretty(&schema).expect("schema serialises");
+    text.push('\n');
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wire_format_is_stable() {
+        let request = Request {
+            id: 3,
+            call: Call::MoveJoints {
+                cw_id: 12,
+                q_deg: [0.0, 1.0, 2.0, 3.0, 4.0, 5.0],
+            },
+        };
+        let line = serde_json::to_string(&request).unwrap();
+        assert_eq!(
+            line,
+            r#"{"id":3,"method":"move_joints","params":{"cw_id":12,"q_deg":[0.0,1.0,2.0,3.0,4.0,5.0]}}"#
+        );
+        assert_eq!(serde_json::from_str::<Request>(&line).unwrap(), request);
+        let measure: Request = serde_json::from_str(r#"{"id":4,"method":"measure","params":{}}"#).unwrap();
+        assert_eq!(measure.call, Call::Measure {});
+        let reply: Reply =
+            serde_json::from_str(r#"{"id":4,"error":{"message":"beam lost","transient":true}}"#).unwrap();
+        assert!(reply.error.unwrap().transient);
+    }
+}

@@ -1,0 +1,436 @@
+//! `measure`: the campaign, hardware in the loop. For each conf-wrench row it
+//! moves the robot, applies the wrench, reads the force/torque sensor and the joint
+//! encoders, measures the SMR, and records one `measurements` row (spec §6).
+//!
+//! Durability: every row is appended to a journal (flushed, fsynced) before the
+//! next move, so an interrupted campaign — crash, Ctrl-C, driver death — resumes on
+//! the next run without measuring a row twice or losing one. Rows that keep
+//! failing after `retries` go to `measurement_failures` with the reason; they are
+//! tried again when the campaign is resumed. Safety checks (joint limits, wrench
+//! bounds) stop the campaign before the move, with the row named.
+
+use std::collections::HashMap;
+
+use polars::prelude::{Column, DataType, TimeUnit, TimeZone};
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows};
+use crate::journal::Journal;
+use crate::rig::driver::ExternalDriver;
+use crate::rig::simulator::{Simulator, SimulatorSettings};
+use crate::rig::{Rig, RigError, timeout_from_seconds};
+use crate::robot::{ConfWrench, ParamValues};
+use crate::table::parameters::{self, ModelName};
+use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS, WRENCH_COLUMNS};
+use crate::table::{content_hash, frame};
+
+pub struct MeasureStage;
+
+/// Which rig the campaign runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum DriverKind {
+    /// The in-process simulator (settings under `simulator`).
+    Simulator,
+    /// An external driver process started with `command`.
+    External,
+}
+
+/// Settings of `measure`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct MeasureSettings {
+    pub driver: DriverKind,
+    /// Program and arguments of the external driver, run in the job file's folder.
+    pub command: Vec<String>,
+    /// Time limit of each driver request (s).
+    pub timeout_s: f64,
+    /// Extra attempts of a row after a transient failure.
+    pub retries: u32,
+    /// Stop the campaign at the first row that still fails after its retries.
+    pub stop_on_failure: bool,
+    /// Safety bound on each force component (N); a row beyond it stops the campaign.
+    pub max_force_n: f64,
+    /// Safety bound on each moment component (N·m).
+    pub max_moment_nm: f64,
+    /// Model of the `truth` input the simulator uses.
+    pub truth_model: String,
+    /// Written to the `robot_id` column when set.
+    pub robot_id: Option<String>,
+    /// Seed of the simulated noise; default: the stage's seed.
+    pub seed: Option<u64>,
+    pub simulator: SimulatorSettings,
+}
+
+impl Default for MeasureSettings {
+    fn default() -> Self {
+        MeasureSettings {
+            driver: DriverKind::Simulator,
+            command: Vec::new(),
+            timeout_s: 30.0,
+            retries: 2,
+            stop_on_failure: false,
+            max_force_n: 150.0,
+            max_moment_nm: 15.0,
+            truth_model: ModelName::Elastogeometric.as_str().into(),
+            robot_id: None,
+            seed: None,
+            simulator: SimulatorSettings::default(),
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "measure",
+    summary: "Measurement campaign on a rig (simulator or external driver), resumable",
+    code_version: 1,
+    inputs: &[
+        TableSlot {
+            name: "conf_wrenches",
+            schema: schema::conf_wrenches,
+            required: true,
+            meaning: "rows to measure: cw_id, q1_deg..q6_deg, commanded wrench",
+        },
+        TableSlot {
+            name: "truth",
+            schema: schema::parameters,
+            required: false,
+            meaning: "the simulated robot's true parameters (simulator only; nominal when absent)",
+        },
+    ],
+    outputs: &[
+        TableSlot {
+            name: "measurements",
+            schema: schema::measurements,
+            required: true,
+            meaning: "complete measured rows (spec §6)",
+        },
+        TableSlot {
+            name: "measurement_failures",
+            schema: schema::measurement_failures,
+            required: true,
+            meaning: "rows that could not be measured, with the reason",
+        },
+    ],
+};
+
+/// One journal entry.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "status", rename_all = "snake_case")]
+enum Entry {
+    Measured {
+        cw_id: i64,
+        q_deg: [f64; 6],
+        wrench: [f64; 6],
+        position_mm: [f64; 3],
+        measured_at_us: i64,
+    },
+    Failed {
+        cw_id: i64,
+        attempts: u32,
+        reason: String,
+        failed_at_us: i64,
+    },
+}
+
+impl Entry {
+    fn cw_id(&self) -> i64 {
+        match self {
+            Entry::Measured { cw_id, .. } | Entry::Failed { cw_id, .. } => *cw_id,
+        }
+    }
+}
+
+impl Stage for MeasureStage {
+    type Settings = MeasureSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn run(&self, ctx: &StageContext, settings: &MeasureSettings) -> Result<StageOutputs, StageError> {
+        let input = ctx.input("conf_wrenches")?;
+        let (ids, rows) = conf_wrench_rows(input)?;
+        let config_ids = input
+            .df
+            .column("config_id")
+            .ok()
+            .and_then(|c| c.i64().ok().map(|v| v.iter().collect::<Vec<_>>()));
+        let seed = settings.seed.unwrap_or(ctx.seed);
+
+        let truth = match ctx.inputs.get("truth") {
+            None => ParamValues::nominal(ctx.robot.spec()),
+            Some(table) => {
+                let model: ModelName = settings
+                    .truth_model
+                    .parse()
+                    .map_err(|m: String| StageError::Invalid(format!("setting `truth_model`: {m}")))?;
+                let nominal = ParamValues::nominal(ctx.robot.spec());
+                parameters::from_frame(&table.df, &table.path, &nominal)?
+                    .into_iter()
+                    .find(|s| s.model == model)
+                    .ok_or_else(|| {
+                        StageError::Invalid(format!("{}: no rows for model `{model}`", table.path.display()))
+                    })?
+                    .values
+            }
+        };
+
+        // The journal belongs to what determines the measured values, not to
+        // retry or safety settings, so changing those resumes the same campaign.
+        let fingerprint = {
+            let mut hasher = blake3::Hasher::new();
+            hasher.update(content_hash(&input.df).as_bytes());
+            hasher.update(&serde_json::to_vec(&(settings.driver, &settings.command, &settings.simulator, &settings.robot_id)).expect("serialises"));
+            hasher.update(&seed.to_le_bytes());
+            hasher.update(ctx.robot.spec().content_hash().as_bytes());
+            for v in truth.0 {
+                hasher.update(&v.to_le_bytes());
+            }
+            hasher.finalize().to_hex().to_string()
+        };
+        let (mut journal, recorded) = Journal::open::<Entry>(ctx.work_dir, &fingerprint)
+            .map_err(|e| StageError::Failed(e.to_string()))?;
+        let mut latest: HashMap<i64, Entry> = HashMap::new();
+        for entry in recorded {
+            latest.insert(entry.cw_id(), entry);
+        }
+        let done = |latest: &HashMap<i64, Entry>, id: i64| matches!(latest.get(&id), Some(Entry::Measured { .. }));
+        let todo: Vec<usize> = (0..ids.len()).filter(|&k| !done(&latest, ids[k])).collect();
+        if todo.len() < ids.len() {
+            ctx.progress.note(&format!(
+                "resuming: {} of {} rows already measured ({})",
+                ids.len() - todo.len(),
+                ids.len(),
+                journal.path().display()
+            ));
+        }
+
+        let mut rig: Box<dyn Rig> = match settings.driver {
+            DriverKind::Simulator => Box::new(
+                Simulator::new(ctx.robot.clone(), truth, settings.simulator.clone(), seed)
+                    .map_err(|m| StageError::Invalid(format!("setting `simulator.{m}")))?,
+            ),
+            DriverKind::External => {
+                if settings.command.is_empty() {
+                    return Err(StageError::Invalid("driver = \"external\" needs `command`".into()));
+                }
+                let mut command = settings.command.clone();
+                if let Some(first) = command.first_mut() {
+                    let local = ctx.job_dir.join(&*first);
+                    if first.contains('/') && local.exists() {
+                        *first = local.to_string_lossy().into_owned();
+                    }
+                }
+                Box::new(
+                    ExternalDriver::start(&command, timeout_from_seconds(settings.timeout_s))
+                        .map_err(|e| StageError::Failed(format!("starting the driver: {e}")))?,
+                )
+            }
+        };
+
+        ctx.progress.start(todo.len() as u64, "rows");
+        let mut failures = 0;
+        for (done_count, &k) in todo.iter().enumerate() {
+            check_safety(ctx, settings, ids[k], k, &rows[k])?;
+            let mut attempts = 0;
+            let entry = loop {
+                attempts += 1;
+                match measure_row(rig.as_mut(), ids[k], &rows[k]) {
+                    Ok(entry) => break entry,
+                    Err(RigError::Transient(reason)) if attempts <= settings.retries => {
+                        ctx.progress.note(&format!("cw_id {}: {reason}; retrying", ids[k]));
+                        let _ = rig.release_wrench();
+                    }
+                    Err(RigError::Transient(reason)) => {
+                        let _ = rig.release_wrench();
+                        break Entry::Failed {
+                            cw_id: ids[k],
+                            attempts,
+                            reason,
+                            failed_at_us: rig.measured_at_us().max(now_us()),
+                        };
+                    }
+                    Err(RigError::Fatal(reason)) => {
+                        return Err(StageError::Failed(format!(
+                            "cw_id {} (input row {k}): {reason}; the {} rows measured so far are kept in {} and the next run resumes",
+                            ids[k],
+                            latest.values().filter(|e| matches!(e, Entry::Measured { .. })).count(),
+                            journal.path().display()
+                        )));
+                    }
+                }
+            };
+            journal.append(&entry).map_err(|e| StageError::Failed(e.to_string()))?;
+            if let Entry::Failed { reason, .. } = &entry {
+                failures += 1;
+                if settings.stop_on_failure {
+                    return Err(StageError::Failed(format!(
+                        "cw_id {} (input row {k}) failed after {attempts} attempts: {reason} (stop_on_failure = true)",
+                        ids[k]
+                    )));
+                }
+            }
+            latest.insert(ids[k], entry);
+            ctx.progress.advance(done_count as u64 + 1);
+        }
+        drop(rig);
+
+        let mut outputs = tables(&ids, config_ids.as_deref(), &latest, settings.robot_id.as_deref());
+        outputs.facts.insert("rows".into(), ids.len().to_string());
+        outputs.facts.insert("failed".into(), failures.to_string());
+        outputs.facts.insert("measured_this_run".into(), (todo.len() - failures).to_string());
+        Ok(outputs)
+    }
+}
+
+fn check_safety(ctx: &StageContext, settings: &MeasureSettings, cw_id: i64, k: usize, row: &ConfWrench) -> Result<(), StageError> {
+    for (i, name) in JOINT_COLUMNS.iter().enumerate() {
+        let [lo, hi] = ctx.robot.limits_deg(i);
+        if !(row.q_deg[i] >= lo && row.q_deg[i] <= hi) {
+            return Err(StageError::Failed(format!(
+                "safety stop before cw_id {cw_id} (input row {k}): {name} = {} is outside the joint limits [{lo}, {hi}]",
+                row.q_deg[i]
+            )));
+        }
+    }
+    let w = [row.wrench.force_n.as_slice(), row.wrench.moment_nm.as_slice()].concat();
+    for (i, name) in WRENCH_COLUMNS.iter().enumerate() {
+        let bound = if i < 3 { settings.max_force_n } else { settings.max_moment_nm };
+        if w[i].abs() > bound {
+            return Err(StageError::Failed(format!(
+                "safety stop before cw_id {cw_id} (input row {k}): {name} = {} exceeds the bound ±{bound}",
+                w[i]
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// One conf-wrench row on the rig, in the lab's order.
+fn measure_row(rig: &mut dyn Rig, cw_id: i64, row: &ConfWrench) -> Result<Entry, RigError> {
+    rig.move_joints(cw_id, row.q_deg)?;
+    let commanded = [
+        row.wrench.force_n.x,
+        row.wrench.force_n.y,
+        row.wrench.force_n.z,
+        row.wrench.moment_nm.x,
+        row.wrench.moment_nm.y,
+        row.wrench.moment_nm.z,
+    ];
+    rig.apply_wrench(commanded)?;
+    let wrench = rig.read_wrench()?;
+    let q_deg = rig.read_joints()?;
+    let position_mm = rig.measure()?;
+    rig.release_wrench()?;
+    let finite = wrench.iter().chain(&q_deg).chain(&position_mm).all(|v| v.is_finite());
+    if !finite {
+        return Err(RigError::Transient("rig returned a non-finite reading".into()));
+    }
+    Ok(Entry::Measured {
+        cw_id,
+        q_deg,
+        wrench,
+        position_mm,
+        measured_at_us: rig.measured_at_us(),
+    })
+}
+
+fn now_us() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as i64)
+}
+
+fn timestamps(name: &str, values: Vec<i64>) -> Column {
+    Column::new(name.into(), values)
+        .cast(&DataType::Datetime(TimeUnit::Microseconds, Some(TimeZone::UTC)))
+        .expect("i64 casts to datetime")
+}
+
+/// The two output tables, rows in input order.
+fn tables(ids: &[i64], config_ids: Option<&[Option<i64>]>, latest: &HashMap<i64, Entry>, robot_id: Option<&str>) -> StageOutputs {
+    let mut measured: Vec<(usize, &Entry)> = Vec::new();
+    let mut failed: Vec<&Entry> = Vec::new();
+    for (k, id) in ids.iter().enumerate() {
+        match latest.get(id) {
+            Some(e @ Entry::Measured { .. }) => measured.push((k, e)),
+            Some(e @ Entry::Failed { .. }) => failed.push(e),
+            None => {}
+        }
+    }
+    let mut cw = Vec::new();
+    let mut q = vec![Vec::new(); 6];
+    let mut w = vec![Vec::new(); 6];
+    let mut p = vec![Vec::new(); 3];
+    let mut at = Vec::new();
+    let mut config = Vec::new();
+    for (k, entry) in &measured {
+        if let Entry::Measured {
+            cw_id,
+            q_deg,
+            wrench,
+            position_mm,
+            measured_at_us,
+        } = entry
+        {
+            cw.push(*cw_id);
+            for i in 0..6 {
+                q[i].push(q_deg[i]);
+                w[i].push(wrench[i]);
+            }
+            for i in 0..3 {
+                p[i].push(position_mm[i]);
+            }
+            at.push(*measured_at_us);
+            config.push(config_ids.and_then(|c| c[*k]));
+        }
+    }
+    let mut columns = vec![Column::new("cw_id".into(), cw)];
+    for (name, values) in JOINT_COLUMNS.iter().zip(q) {
+        columns.push(Column::new((*name).into(), values));
+    }
+    for (name, values) in WRENCH_COLUMNS.iter().zip(w) {
+        columns.push(Column::new((*name).into(), values));
+    }
+    for (name, values) in POSITION_COLUMNS.iter().zip(p) {
+        columns.push(Column::new((*name).into(), values));
+    }
+    if config_ids.is_some() {
+        columns.push(Column::new("config_id".into(), config));
+    }
+    if let Some(robot_id) = robot_id {
+        columns.push(Column::new("robot_id".into(), vec![robot_id; measured.len()]));
+    }
+    columns.push(timestamps("measured_at", at));
+
+    let mut f_id = Vec::new();
+    let mut f_attempts = Vec::new();
+    let mut f_reason = Vec::new();
+    let mut f_at = Vec::new();
+    for entry in failed {
+        if let Entry::Failed {
+            cw_id,
+            attempts,
+            reason,
+            failed_at_us,
+        } = entry
+        {
+            f_id.push(*cw_id);
+            f_attempts.push(i64::from(*attempts));
+            f_reason.push(reason.clone());
+            f_at.push(*failed_at_us);
+        }
+    }
+    let failures = frame(vec![
+        Column::new("cw_id".into(), f_id),
+        Column::new("attempts".into(), f_attempts),
+        Column::new("reason".into(), f_reason),
+        timestamps("failed_at", f_at),
+    ]);
+    let mut outputs = StageOutputs::default();
+    outputs.tables.insert("measurements".into(), frame(columns));
+    outputs.tables.insert("measurement_failures".into(), failures);
+    outputs
+}
