@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use polars::prelude::*;
 
+use crate::cdpr::CableRobotSpec;
 use crate::job::{InputSource, JobProblems, Plan};
 use crate::robot::{Robot, RobotSpec};
 use crate::runner::{self, RunError, RunOptions, progress::Reporter};
@@ -266,15 +267,19 @@ fn format_rows(df: &DataFrame) -> String {
     out
 }
 
+/// One stage kind run on files, outside any job (`egcal stage`, `egcal predict`).
+pub struct FileStage<'a> {
+    pub kind: &'a str,
+    pub robot_file: &'a Path,
+    /// Cable-robot geometry; the built-in default when absent.
+    pub cable_robot_file: Option<&'a Path>,
+    pub inputs: &'a [(String, PathBuf)],
+    pub seed: u64,
+}
+
 /// `egcal stage`: one stage kind on files, outputs to `DIR/<table>.parquet`.
-pub fn stage(
-    kind: &str,
-    robot_file: &Path,
-    inputs: &[(String, PathBuf)],
-    settings_file: Option<&Path>,
-    out_dir: &Path,
-    seed: u64,
-) -> Result<String, CommandError> {
+pub fn stage(stage: &FileStage, settings_file: Option<&Path>, out_dir: &Path) -> Result<String, CommandError> {
+    let kind = stage.kind;
     let raw_settings: toml::Table = match settings_file {
         None => toml::Table::new(),
         Some(path) => {
@@ -292,15 +297,7 @@ pub fn stage(
     };
     let settings_name = settings_file.map_or("settings".to_string(), |p| p.display().to_string());
     let work_dir = out_dir.join(".work");
-    let (mut tables, provenance) = run_on_files(
-        kind,
-        robot_file,
-        inputs,
-        &raw_settings,
-        &settings_name,
-        &work_dir,
-        seed,
-    )?;
+    let (mut tables, provenance) = run_on_files(stage, &raw_settings, &settings_name, &work_dir)?;
     let mut written = Vec::new();
     for (name, df) in tables.iter_mut() {
         let path = out_dir.join(format!("{name}.parquet"));
@@ -325,9 +322,14 @@ pub fn predict(
     let mut settings = toml::Table::new();
     settings.insert("model".into(), toml::Value::String(model.to_string()));
     let work_dir = std::env::temp_dir().join(format!("egcal-predict-{}", std::process::id()));
-    let (mut tables, provenance) = run_on_files(
-        "predict", robot_file, &inputs, &settings, "--model", &work_dir, 0,
-    )?;
+    let stage = FileStage {
+        kind: "predict",
+        robot_file,
+        cable_robot_file: None,
+        inputs: &inputs,
+        seed: 0,
+    };
+    let (mut tables, provenance) = run_on_files(&stage, &settings, "--model", &work_dir)?;
     let _ = std::fs::remove_dir_all(&work_dir);
     let df = tables
         .get_mut("predictions")
@@ -343,14 +345,18 @@ pub fn predict(
 /// Runs one stage kind on files outside any job: checks inputs against the kind's
 /// schemas, runs it, and returns its tables with provenance for writing.
 fn run_on_files(
-    kind: &str,
-    robot_file: &Path,
-    inputs: &[(String, PathBuf)],
+    stage: &FileStage,
     raw_settings: &toml::Table,
     settings_name: &str,
     work_dir: &Path,
-    seed: u64,
 ) -> Result<(BTreeMap<String, DataFrame>, Provenance), CommandError> {
+    let FileStage {
+        kind,
+        robot_file,
+        cable_robot_file,
+        inputs,
+        seed,
+    } = *stage;
     let stage_kind = stages::lookup(kind).ok_or_else(|| {
         let known: Vec<&str> = stages::registry().iter().map(|k| k.info().kind).collect();
         CommandError::Usage(format!(
@@ -372,6 +378,10 @@ fn run_on_files(
             )
         })?;
     let robot = Robot::new(RobotSpec::load(robot_file)?);
+    let cable_robot = match cable_robot_file {
+        Some(path) => CableRobotSpec::load(path).map_err(|e| CommandError::Usage(e.to_string()))?,
+        None => CableRobotSpec::default(),
+    };
     let mut tables = BTreeMap::new();
     for (name, path) in inputs {
         let slot = info.inputs.iter().find(|s| s.name == name).ok_or_else(|| {
@@ -405,6 +415,7 @@ fn run_on_files(
     std::fs::create_dir_all(work_dir).map_err(|e| table::schema::io_error(work_dir, e))?;
     let ctx = StageContext {
         robot: &robot,
+        cable_robot: &cable_robot,
         seed,
         inputs: &tables,
         work_dir,

@@ -2,13 +2,16 @@
 //! jobs. See `ARCHITECTURE.md` for the module map.
 
 pub mod calibration;
+pub mod cdpr;
 pub mod commands;
+pub mod design;
 pub mod fsio;
 pub mod job;
 pub mod journal;
 pub mod robot;
 pub mod runner;
 pub mod stages;
+pub mod stats;
 pub mod suggest;
 pub mod table;
 pub mod toml_error;

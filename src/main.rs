@@ -61,6 +61,9 @@ enum Command {
         kind: String,
         #[arg(long)]
         robot: PathBuf,
+        /// Cable-robot geometry (TOML); the built-in default when absent.
+        #[arg(long)]
+        cable_robot: Option<PathBuf>,
         /// NAME=PATH, repeatable.
         #[arg(long = "input", value_parser = parse_input)]
         inputs: Vec<(String, PathBuf)>,
@@ -159,11 +162,22 @@ fn dispatch(cli: Cli) -> Result<String, CommandError> {
         Command::Stage {
             kind,
             robot,
+            cable_robot,
             inputs,
             settings,
             out,
             seed,
-        } => commands::stage(&kind, &robot, &inputs, settings.as_deref(), &out, seed),
+        } => commands::stage(
+            &commands::FileStage {
+                kind: &kind,
+                robot_file: &robot,
+                cable_robot_file: cable_robot.as_deref(),
+                inputs: &inputs,
+                seed,
+            },
+            settings.as_deref(),
+            &out,
+        ),
         Command::Predict {
             robot,
             params,

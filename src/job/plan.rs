@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 
 use super::raw::{self, RawJob};
 use super::{JobProblem, JobProblems};
+use crate::cdpr::CableRobotSpec;
 use crate::robot::RobotSpec;
 use crate::stages::{self, StageKind, TableSlot};
 use crate::table::{self, TableSchema};
@@ -47,6 +48,7 @@ pub struct Plan {
     pub output_dir: PathBuf,
     pub robot_file: PathBuf,
     pub robot: RobotSpec,
+    pub cable_robot: CableRobotSpec,
     /// In dependency order.
     pub stages: Vec<PlannedStage>,
 }
@@ -100,6 +102,16 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
             problems.push(at("job.robot", e.to_string()));
             None
         }
+    };
+    let cable_robot = match &raw.header.cable_robot {
+        None => Some(CableRobotSpec::default()),
+        Some(file) => match CableRobotSpec::load(&dir.join(file)) {
+            Ok(spec) => Some(spec),
+            Err(e) => {
+                problems.push(at("job.cable_robot", e.to_string()));
+                None
+            }
+        },
     };
     let output_dir = dir.join(
         raw.header
@@ -213,6 +225,7 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
         return Err(JobProblems(problems));
     }
     let robot = robot.expect("no problems means the robot loaded");
+    let cable_robot = cable_robot.expect("no problems means the cable robot loaded");
     let mut new_index = vec![0; order.len()];
     for (position, &old) in order.iter().enumerate() {
         new_index[old] = position;
@@ -234,6 +247,7 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
         output_dir,
         robot_file,
         robot,
+        cable_robot,
         stages,
     })
 }

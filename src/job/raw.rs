@@ -26,6 +26,10 @@ pub struct JobHeader {
     pub output: Option<String>,
     /// Robot file, relative to the job file.
     pub robot: String,
+    /// Cable-robot geometry file, relative to the job file; the built-in default
+    /// geometry (`jobs/cdpr/default.toml`) when absent.
+    #[serde(default)]
+    pub cable_robot: Option<String>,
 }
 
 /// One `[[stages]]` entry before validation.
@@ -157,7 +161,7 @@ pub fn parse(text: &str, path: &Path) -> Result<RawJob, JobProblems> {
                     format!("job.{}", e.path())
                 };
                 let message = e.inner().message().to_string();
-                let hint = unknown_field_hint(&message, &["name", "seed", "output", "robot"]);
+                let hint = unknown_field_hint(&message, &["name", "seed", "output", "robot", "cable_robot"]);
                 problems.push(at(&key, format!("{message}{hint}")));
                 None
             }

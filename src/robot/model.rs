@@ -262,6 +262,13 @@ impl Robot {
         }
     }
 
+    /// Frames of joints 0..=6 and of the tool in the base frame, unloaded: the
+    /// geometry collision and visibility checks work on.
+    pub fn frames_in_base(&self, p: &ParamValues, q_deg: &[f64; JOINTS]) -> ([Frame; JOINTS + 1], Frame) {
+        let chain = self.chain(p, q_deg, &[0.0; JOINTS]);
+        (chain.joints, chain.tool)
+    }
+
     /// Flange pose in the base frame of the nominal arm (zero errors, no load):
     /// the frame the closed-form inverse kinematics solves for.
     pub fn nominal_flange_in_base(&self, q_deg: &[f64; JOINTS]) -> Frame {

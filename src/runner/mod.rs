@@ -54,6 +54,9 @@ pub struct KeyParts {
     /// Input name → content hash.
     pub inputs: BTreeMap<String, String>,
     pub robot: String,
+    /// Hash of the cable-robot geometry, for stages that read it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cable_robot: Option<String>,
     pub seed: u64,
 }
 
@@ -323,6 +326,10 @@ fn input_hashes(
     Ok(hashes)
 }
 
+fn hash_json(value: &impl Serialize) -> String {
+    blake3::hash(&serde_json::to_vec(value).expect("serialises")).to_hex().to_string()
+}
+
 fn files_hash(paths: &[PathBuf]) -> std::io::Result<String> {
     let mut hasher = blake3::Hasher::new();
     for path in paths {
@@ -343,6 +350,7 @@ fn key_parts(
         settings: stage.settings.clone(),
         inputs,
         robot: robot_hash.to_string(),
+        cable_robot: stage.kind.info().uses_cable_robot.then(|| hash_json(&plan.cable_robot)),
         seed: plan.seed,
     }
 }
@@ -399,6 +407,7 @@ fn execute(
     let progress = reporter.stage(&stage.id);
     let ctx = StageContext {
         robot,
+        cable_robot: &plan.cable_robot,
         seed: stage_seed(plan.seed, &stage.id),
         inputs: &inputs,
         work_dir: &work_dir,
@@ -662,6 +671,9 @@ fn explain(previous: Option<StageState>, now: &KeyParts) -> Vec<String> {
     }
     if before.robot != now.robot {
         reasons.push("robot file changed".into());
+    }
+    if before.cable_robot != now.cable_robot {
+        reasons.push("cable-robot geometry changed".into());
     }
     if before.seed != now.seed {
         reasons.push(format!("seed changed ({} -> {})", before.seed, now.seed));

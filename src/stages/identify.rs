@@ -51,6 +51,7 @@ impl Default for IdentifySettings {
 
 static INFO: StageInfo = StageInfo {
     kind: "identify",
+    uses_cable_robot: false,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
     code_version: 1,
     inputs: &[

@@ -83,6 +83,7 @@ impl Default for MeasureSettings {
 
 static INFO: StageInfo = StageInfo {
     kind: "measure",
+    uses_cable_robot: false,
     summary: "Measurement campaign on a rig (simulator or external driver), resumable",
     code_version: 1,
     inputs: &[

@@ -6,6 +6,11 @@
 //! (serde + JSON Schema + defaults) is the single source for job-file parsing,
 //! `egcal list-stages`, the job-file JSON Schema and the cache key.
 
+pub mod detmax;
+pub mod poses;
+// TEMP until stats lands: pub mod validate;
+pub mod wrenches;
+pub mod identifiability;
 pub mod identify;
 pub mod measure;
 pub mod predict;
@@ -18,6 +23,7 @@ use schemars::JsonSchema;
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 
+use crate::cdpr::CableRobotSpec;
 use crate::robot::Robot;
 use crate::table::{TableError, TableSchema};
 
@@ -40,6 +46,9 @@ pub struct StageInfo {
     pub code_version: u32,
     pub inputs: &'static [TableSlot],
     pub outputs: &'static [TableSlot],
+    /// Whether the stage reads the job's cable-robot geometry (then its hash is
+    /// part of the cache key).
+    pub uses_cable_robot: bool,
 }
 
 /// A checked input table and the file it came from.
@@ -68,6 +77,8 @@ impl Progress for NoProgress {
 /// Everything a stage may use.
 pub struct StageContext<'a> {
     pub robot: &'a Robot,
+    /// The cable robot that applies the wrenches (the job's, or the default geometry).
+    pub cable_robot: &'a CableRobotSpec,
     /// The job's seed mixed with the stage id, so stages draw independent streams.
     pub seed: u64,
     pub inputs: &'a BTreeMap<String, InputTable>,
@@ -216,7 +227,16 @@ fn parse_settings<T: DeserializeOwned>(raw: &toml::Table) -> Result<T, SettingsP
 
 /// Every stage kind, in pipeline order.
 pub fn registry() -> Vec<&'static dyn StageKind> {
-    vec![&predict::PredictStage, &measure::MeasureStage, &identify::IdentifyStage]
+    vec![
+        &poses::PosesStage,
+        &wrenches::WrenchesStage,
+        &identifiability::IdentifiabilityStage,
+        &detmax::DetmaxStage,
+        &measure::MeasureStage,
+        &identify::IdentifyStage,
+        // TEMP &validate::ValidateStage,
+        &predict::PredictStage,
+    ]
 }
 
 /// Looks a stage kind up by name.

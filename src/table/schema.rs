@@ -437,6 +437,136 @@ pub fn identification_trace() -> TableSchema {
     }
 }
 
+/// Which parameters the candidates can identify (rank analysis).
+pub fn identifiability() -> TableSchema {
+    TableSchema {
+        kind: "identifiability",
+        description: "Rank analysis of the scaled identification Jacobian: one row per candidate parameter.",
+        columns: vec![
+            col("name", ColumnType::Utf8, "", true, "parameter name from spec §4"),
+            col("unit", ColumnType::Utf8, "", true, "unit from spec §4"),
+            col("identifiable", ColumnType::Boolean, "", true, "kept by the rank analysis"),
+            col("combined_with", ColumnType::Utf8, "", false, "for a dependent parameter: the identifiable ones it is combined with"),
+        ],
+        unique: Some("name"),
+    }
+}
+
+/// DETMAX exchanges (paper §IV.B).
+pub fn detmax_trace() -> TableSchema {
+    TableSchema {
+        kind: "detmax_trace",
+        description: "Each DETMAX exchange: the row added, the row removed, and O1 after it (iteration 0 is the random start).",
+        columns: vec![
+            col("iteration", ColumnType::Int64, "", true, "exchange number"),
+            col("added_cw_id", ColumnType::Int64, "", false, "row added"),
+            col("removed_cw_id", ColumnType::Int64, "", false, "row removed"),
+            col("o1", ColumnType::Float64, "", true, "observability index O1 of the selection (columns scaled to unit norm over all candidates)"),
+        ],
+        unique: None,
+    }
+}
+
+/// Per-row position errors of each model on validation rows (paper eq. (30)).
+pub fn errors() -> TableSchema {
+    TableSchema {
+        kind: "errors",
+        description: "Position error (predicted − measured) of each model on each validation row.",
+        columns: vec![
+            col("cw_id", ColumnType::Int64, "", true, "conf-wrench combination id"),
+            col("model", ColumnType::Utf8, "", true, "parameter set used"),
+            col("ex_mm", ColumnType::Float64, "mm", true, "x error, world frame"),
+            col("ey_mm", ColumnType::Float64, "mm", true, "y error, world frame"),
+            col("ez_mm", ColumnType::Float64, "mm", true, "z error, world frame"),
+            col("error_mm", ColumnType::Float64, "mm", true, "Euclidean norm of the error"),
+        ],
+        unique: None,
+    }
+}
+
+/// Error statistics per model (the paper's Table III and more).
+pub fn stats() -> TableSchema {
+    let mut columns = vec![
+        col("model", ColumnType::Utf8, "", true, "parameter set"),
+        col("n", ColumnType::Int64, "", true, "validation rows"),
+    ];
+    for (name, meaning) in [
+        ("mean_mm", "mean error norm"),
+        ("std_mm", "sample standard deviation (n − 1)"),
+        ("median_mm", "median"),
+        ("rms_mm", "root mean square"),
+        ("p95_mm", "95th percentile (linear interpolation)"),
+        ("max_mm", "maximum"),
+    ] {
+        columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
+    }
+    TableSchema {
+        kind: "stats",
+        description: "Statistics of the error norms per model on the validation rows.",
+        columns,
+        unique: Some("model"),
+    }
+}
+
+/// Hypothesis tests between models on the same rows.
+pub fn tests() -> TableSchema {
+    TableSchema {
+        kind: "tests",
+        description: "Two-sided tests of equal error norms between each pair of models.",
+        columns: vec![
+            col("model_a", ColumnType::Utf8, "", true, "first model"),
+            col("model_b", ColumnType::Utf8, "", true, "second model"),
+            col("test", ColumnType::Utf8, "", true, "paired_t, welch_t, student_t or wilcoxon"),
+            col("statistic", ColumnType::Float64, "", true, "t, or the Wilcoxon signed-rank statistic"),
+            col("dof", ColumnType::Float64, "", false, "degrees of freedom (t-tests)"),
+            col("p_value", ColumnType::Float64, "", true, "two-sided p-value"),
+        ],
+        unique: None,
+    }
+}
+
+/// Generated robot configurations (paper §IV.A (a)–(b)).
+pub fn poses() -> TableSchema {
+    let mut columns = vec![col("config_id", ColumnType::Int64, "", true, "configuration id, unique")];
+    for (name, meaning) in [
+        ("target_x_mm", "target SMR position, base frame"),
+        ("target_y_mm", "target SMR position, base frame"),
+        ("target_z_mm", "target SMR position, base frame"),
+    ] {
+        columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
+    }
+    for name in ["tool_alpha_deg", "tool_beta_deg", "tool_gamma_deg"] {
+        columns.push(col(name, ColumnType::Float64, "deg", true, "tool orientation in the base frame, Rot(x)·Rot(y)·Rot(z) as eq. (4)"));
+    }
+    joint_columns(&mut columns, "joint command (nominal inverse kinematics)");
+    columns.push(col("branch", ColumnType::Int64, "", true, "IK branch: bit 0 shoulder back, bit 1 elbow down, bit 2 wrist flipped"));
+    columns.push(col("clearance_mm", ColumnType::Float64, "mm", true, "smallest distance to any obstacle, link or beam"));
+    columns.push(col("incidence_deg", ColumnType::Float64, "deg", true, "angle between the SMR axis and the direction to the tracker"));
+    TableSchema {
+        kind: "poses",
+        description: "Robot configurations that reach the target points with the SMR facing the tracker, collision-free.",
+        columns,
+        unique: Some("config_id"),
+    }
+}
+
+/// Conf-wrench candidates with the cable tensions that realise them (paper §IV.A (c)).
+pub fn candidates() -> TableSchema {
+    let mut schema = conf_wrenches();
+    schema.kind = "candidates";
+    schema.description = "Conf-wrench combinations: each configuration with wrenches feasible for the cable robot.";
+    schema.columns.push(col("config_id", ColumnType::Int64, "", true, "configuration the row belongs to"));
+    for name in TENSION_COLUMNS {
+        schema.columns.push(col(name, ColumnType::Float64, "N", true, "cable tension (minimum-norm distribution)"));
+    }
+    schema.columns.push(col("margin_n", ColumnType::Float64, "N", true, "capacity margin: distance of the wrench inside the available wrench set (moments scaled, see cdpr)"));
+    schema
+}
+
+pub const TENSION_COLUMNS: [&str; 8] = [
+    "tension1_n", "tension2_n", "tension3_n", "tension4_n", "tension5_n", "tension6_n", "tension7_n", "tension8_n",
+];
+
 /// Output of `predict`.
 pub fn predictions() -> TableSchema {
     let mut columns = vec![col(
@@ -498,6 +628,13 @@ pub fn all() -> Vec<TableSchema> {
         predictions(),
         selection(),
         identification_trace(),
+        identifiability(),
+        detmax_trace(),
+        errors(),
+        stats(),
+        tests(),
+        poses(),
+        candidates(),
     ]
 }
 

@@ -1,0 +1,6 @@
+//! Experiment design (paper §IV): pose generation with collision and visibility
+//! filters, and DETMAX selection by observability.
+
+pub mod collision;
+pub mod detmax;
+pub mod poses;

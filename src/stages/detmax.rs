@@ -1,0 +1,160 @@
+//! `detmax`: picks the n conf-wrench rows that maximise the observability index O1
+//! of the identifiable parameters (paper §IV.B). The other rows become the
+//! validation set. See `design::detmax` for the algorithm and the column scaling.
+
+use polars::prelude::Column;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows};
+use crate::calibration::rank;
+use crate::design::detmax::{Candidates, detmax};
+use crate::robot::{ParamId, ParamValues, batch_jacobian};
+use crate::table::schema::{self, str_values};
+use crate::table::frame;
+
+pub struct DetmaxStage;
+
+/// Settings of `detmax`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct DetmaxSettings {
+    /// Number of calibration rows to select.
+    pub n: usize,
+    /// Upper bound on exchanges (the paper's loop stops earlier, when the row added is the row removed).
+    pub max_iterations: usize,
+    /// Rank tolerance when no identifiability input is bound.
+    pub rank_tolerance: f64,
+}
+
+impl Default for DetmaxSettings {
+    fn default() -> Self {
+        DetmaxSettings {
+            n: 50,
+            max_iterations: 1000,
+            rank_tolerance: 1e-6,
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "detmax",
+    uses_cable_robot: false,
+    summary: "DETMAX selection of calibration rows by the observability index O1",
+    code_version: 1,
+    inputs: &[
+        TableSlot {
+            name: "candidates",
+            schema: schema::conf_wrenches,
+            required: true,
+            meaning: "conf-wrench rows to choose from",
+        },
+        TableSlot {
+            name: "identifiability",
+            schema: schema::identifiability,
+            required: false,
+            meaning: "which parameters to make observable; rank analysis of the candidates when absent",
+        },
+    ],
+    outputs: &[
+        TableSlot {
+            name: "selection",
+            schema: schema::selection,
+            required: true,
+            meaning: "cw_id and role (calibration for the n selected, validation for the rest)",
+        },
+        TableSlot {
+            name: "detmax_trace",
+            schema: schema::detmax_trace,
+            required: true,
+            meaning: "each exchange and O1 after it",
+        },
+    ],
+};
+
+impl Stage for DetmaxStage {
+    type Settings = DetmaxSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn run(&self, ctx: &StageContext, settings: &DetmaxSettings) -> Result<StageOutputs, StageError> {
+        let input = ctx.input("candidates")?;
+        let (ids, rows) = conf_wrench_rows(input)?;
+        let nominal = ParamValues::nominal(ctx.robot.spec());
+        let parameters: Vec<ParamId> = match ctx.inputs.get("identifiability") {
+            Some(table) => {
+                let names = str_values(&table.df, "name", &table.path)?;
+                let flags = table
+                    .df
+                    .column("identifiable")
+                    .and_then(|c| c.bool().map(|b| b.iter().collect::<Vec<_>>()))
+                    .map_err(|e| StageError::Invalid(format!("{}: {e}", table.path.display())))?;
+                let mut chosen = Vec::new();
+                for (row, (name, flag)) in names.iter().zip(flags).enumerate() {
+                    let name = name.as_deref().unwrap_or_default();
+                    let id = ParamId::from_name(name).ok_or_else(|| {
+                        StageError::Table(crate::table::TableError::BadValue {
+                            file: table.path.clone(),
+                            column: "name".into(),
+                            row,
+                            message: format!("unknown parameter `{name}`"),
+                        })
+                    })?;
+                    if flag == Some(true) {
+                        chosen.push(id);
+                    }
+                }
+                chosen
+            }
+            None => {
+                let all: Vec<ParamId> = ParamId::all().collect();
+                rank::analyse(ctx.robot, &nominal, &rows, &all, settings.rank_tolerance).independent
+            }
+        };
+        let jacobian = batch_jacobian(ctx.robot, &nominal, &rows, &parameters);
+        let (candidates, _) = Candidates::from_jacobian(&jacobian.jacobian, rows.len(), parameters.len());
+        let result = detmax(&candidates, settings.n, ctx.seed, settings.max_iterations)
+            .map_err(|e| StageError::Invalid(format!("setting `n`: {e}")))?;
+        if !result.converged {
+            ctx.progress.note(&format!("DETMAX stopped at max_iterations = {} before converging", settings.max_iterations));
+        }
+
+        let mut role = vec!["validation"; ids.len()];
+        for &k in &result.chosen {
+            role[k] = "calibration";
+        }
+        let mut iteration = vec![0i64];
+        let mut added = vec![None];
+        let mut removed = vec![None];
+        let mut o1 = vec![result.o1_start];
+        for exchange in &result.trace {
+            iteration.push(exchange.iteration as i64);
+            added.push(Some(ids[exchange.added]));
+            removed.push(Some(ids[exchange.removed]));
+            o1.push(exchange.o1);
+        }
+        let mut outputs = StageOutputs::default();
+        outputs.tables.insert(
+            "selection".into(),
+            frame(vec![Column::new("cw_id".into(), ids.clone()), Column::new("role".into(), role)]),
+        );
+        outputs.tables.insert(
+            "detmax_trace".into(),
+            frame(vec![
+                Column::new("iteration".into(), iteration),
+                Column::new("added_cw_id".into(), added),
+                Column::new("removed_cw_id".into(), removed),
+                Column::new("o1".into(), o1),
+            ]),
+        );
+        outputs.facts.insert("parameters".into(), parameters.len().to_string());
+        outputs.facts.insert("selected".into(), settings.n.to_string());
+        outputs.facts.insert("o1".into(), format!("{:.6}", result.o1));
+        outputs.facts.insert("o1_random_start".into(), format!("{:.6}", result.o1_start));
+        outputs.facts.insert("o1_scaling".into(), "columns scaled to unit norm over all candidates, at nominal".into());
+        outputs.facts.insert("exchanges".into(), result.trace.len().to_string());
+        Ok(outputs)
+    }
+}

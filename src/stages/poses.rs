@@ -1,0 +1,195 @@
+//! `poses`: robot configurations for the campaign (paper §IV.A steps (a)–(b)):
+//! target points in the cable robot's workspace box, SMR orientations facing the
+//! tracker within its acceptance angle, all inverse-kinematics solutions filtered
+//! by joint limits, singularity distance, collisions (links, pulleys, cables,
+//! platform, floor) and line of sight; one survivor per point drawn at random.
+
+use nalgebra::Vector3;
+use polars::prelude::Column;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use crate::design::collision::{CapsuleMm, Cell};
+use crate::design::poses::{PoseProblem, Sampling, SingularityLimits, generate, xyz_euler_deg};
+use crate::robot::ParamValues;
+use crate::table::schema::{self, JOINT_COLUMNS};
+use crate::table::frame;
+
+pub struct PosesStage;
+
+/// How target points fill the box.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SamplingKind {
+    Grid,
+    Random,
+    LatinHypercube,
+}
+
+/// Settings of `poses`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct PosesSettings {
+    pub sampling: SamplingKind,
+    /// Grid points per axis (grid sampling).
+    pub points_per_axis: usize,
+    /// Number of points (random and Latin-hypercube sampling).
+    pub count: usize,
+    /// Centre of the workspace box in the base frame (mm).
+    pub centre_mm: [f64; 3],
+    /// Edge of the (cubic) workspace box (mm).
+    pub edge_mm: f64,
+    /// Tracker head in the base frame (mm); default: the robot file's nominal world origin.
+    pub tracker_mm: Option<[f64; 3]>,
+    /// Largest angle between the SMR axis (tool z) and the direction to the tracker.
+    pub acceptance_half_angle_deg: f64,
+    /// Orientations tried per point before it is dropped.
+    pub orientation_attempts: usize,
+    /// Smallest |q5| (wrist singularity).
+    pub min_wrist_deg: f64,
+    /// Smallest distance of the wrist centre from axis 1 (shoulder singularity).
+    pub min_shoulder_mm: f64,
+    /// Smallest elbow bend from straight (elbow singularity).
+    pub min_elbow_deg: f64,
+    /// Links 2–6 stay above this height in the base frame (mm).
+    pub floor_z_mm: f64,
+    /// Smallest allowed clearance between any two checked shapes (mm).
+    pub safety_margin_mm: f64,
+    /// Pulley (anchor) ball radius of the cable robot's frame (mm).
+    pub pulley_radius_mm: f64,
+    /// Cable radius (mm).
+    pub cable_radius_mm: f64,
+}
+
+impl Default for PosesSettings {
+    fn default() -> Self {
+        PosesSettings {
+            sampling: SamplingKind::Grid,
+            points_per_axis: 5,
+            count: 125,
+            centre_mm: [900.0, 0.0, 900.0],
+            edge_mm: 500.0,
+            tracker_mm: None,
+            acceptance_half_angle_deg: 40.0,
+            orientation_attempts: 50,
+            min_wrist_deg: 5.0,
+            min_shoulder_mm: 100.0,
+            min_elbow_deg: 5.0,
+            floor_z_mm: 0.0,
+            safety_margin_mm: 5.0,
+            pulley_radius_mm: 40.0,
+            cable_radius_mm: 3.0,
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "poses",
+    uses_cable_robot: true,
+    summary: "Robot configurations in the workspace box, SMR facing the tracker, collision-free",
+    code_version: 1,
+    inputs: &[],
+    outputs: &[TableSlot {
+        name: "poses",
+        schema: schema::poses,
+        required: true,
+        meaning: "config_id, target, tool orientation, q1..q6, branch, clearance, incidence",
+    }],
+};
+
+impl Stage for PosesStage {
+    type Settings = PosesSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn run(&self, ctx: &StageContext, settings: &PosesSettings) -> Result<StageOutputs, StageError> {
+        let nominal = ParamValues::nominal(ctx.robot.spec());
+        let tracker = match settings.tracker_mm {
+            Some(t) => Vector3::from(t),
+            None => ctx.robot.world_from_base(&nominal).inverse().origin_mm,
+        };
+        let cable = ctx.cable_robot;
+        let attachments: Vec<Vector3<f64>> = cable.attachments_tool_mm.iter().map(|a| Vector3::from(*a)).collect();
+        let platform_centre = attachments.iter().sum::<Vector3<f64>>() / attachments.len().max(1) as f64;
+        let platform_radius_mm = attachments.iter().map(|a| (a - platform_centre).norm()).fold(0.0, f64::max);
+        let cell = Cell {
+            link_capsules: std::array::from_fn(|i| {
+                ctx.robot.spec().joints[i].capsule.as_ref().map(|c| CapsuleMm {
+                    from: Vector3::from(c.from_mm),
+                    to: Vector3::from(c.to_mm),
+                    radius: c.radius_mm,
+                })
+            }),
+            anchors: cable.anchors_base_mm.iter().map(|a| Vector3::from(*a)).collect(),
+            pulley_radius_mm: settings.pulley_radius_mm,
+            attachments,
+            cable_radius_mm: settings.cable_radius_mm,
+            platform_centre,
+            platform_radius_mm,
+            floor_z_mm: settings.floor_z_mm,
+            tracker,
+            safety_margin_mm: settings.safety_margin_mm,
+        };
+        let sampling = match settings.sampling {
+            SamplingKind::Grid => Sampling::Grid {
+                per_axis: settings.points_per_axis,
+            },
+            SamplingKind::Random => Sampling::Random { count: settings.count },
+            SamplingKind::LatinHypercube => Sampling::LatinHypercube { count: settings.count },
+        };
+        let problem = PoseProblem {
+            centre_mm: Vector3::from(settings.centre_mm),
+            edge_mm: settings.edge_mm,
+            sampling,
+            acceptance_half_angle_deg: settings.acceptance_half_angle_deg,
+            orientation_attempts: settings.orientation_attempts,
+            singularity: SingularityLimits {
+                min_wrist_deg: settings.min_wrist_deg,
+                min_shoulder_mm: settings.min_shoulder_mm,
+                min_elbow_deg: settings.min_elbow_deg,
+            },
+            cell,
+        };
+        let outcome = generate(ctx.robot, &nominal, &problem, ctx.seed);
+        if outcome.poses.is_empty() {
+            return Err(StageError::Failed(format!(
+                "no reachable collision-free pose at any of the {} target points; rejections: {:?}",
+                outcome.targets, outcome.rejections
+            )));
+        }
+        let poses = &outcome.poses;
+        let mut columns = vec![Column::new("config_id".into(), poses.iter().map(|p| p.config_id).collect::<Vec<_>>())];
+        for (axis, name) in ["target_x_mm", "target_y_mm", "target_z_mm"].iter().enumerate() {
+            columns.push(Column::new((*name).into(), poses.iter().map(|p| p.target_mm[axis]).collect::<Vec<_>>()));
+        }
+        let angles: Vec<[f64; 3]> = poses.iter().map(|p| xyz_euler_deg(&p.tool_rotation)).collect();
+        for (axis, name) in ["tool_alpha_deg", "tool_beta_deg", "tool_gamma_deg"].iter().enumerate() {
+            columns.push(Column::new((*name).into(), angles.iter().map(|a| a[axis]).collect::<Vec<_>>()));
+        }
+        for (joint, name) in JOINT_COLUMNS.iter().enumerate() {
+            columns.push(Column::new((*name).into(), poses.iter().map(|p| p.q_deg[joint]).collect::<Vec<_>>()));
+        }
+        columns.push(Column::new("branch".into(), poses.iter().map(|p| i64::from(p.branch)).collect::<Vec<_>>()));
+        columns.push(Column::new("clearance_mm".into(), poses.iter().map(|p| p.clearance_mm).collect::<Vec<_>>()));
+        columns.push(Column::new("incidence_deg".into(), poses.iter().map(|p| p.incidence_deg).collect::<Vec<_>>()));
+
+        let mut outputs = StageOutputs::default();
+        outputs.tables.insert("poses".into(), frame(columns));
+        outputs.facts.insert("targets".into(), outcome.targets.to_string());
+        outputs.facts.insert("poses".into(), poses.len().to_string());
+        outputs.facts.insert("dropped_points".into(), outcome.dropped_points.to_string());
+        for (reason, count) in &outcome.rejections {
+            outputs.facts.insert(format!("rejected_{reason}"), count.to_string());
+        }
+        if outcome.dropped_points > 0 {
+            ctx.progress.note(&format!(
+                "{} of {} target points dropped after {} orientation attempts each",
+                outcome.dropped_points, outcome.targets, settings.orientation_attempts
+            ));
+        }
+        Ok(outputs)
+    }
+}

@@ -1,0 +1,232 @@
+//! `validate`: predicts the validation rows with every model of a parameters table
+//! and compares each with the measurements (paper §VI, eq. (30), Table III), then
+//! tests every pair of models on the same rows: paired t, Welch's t, Student's t
+//! (the paper's) and the Wilcoxon signed-rank test (error norms are not normal).
+
+use polars::prelude::Column;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::identify::{ids_with_role, measured_rows};
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use crate::robot::{ParamValues, batch_predict};
+use crate::stats::{self, TestResult};
+use crate::table::parameters::{self, ModelName};
+use crate::table::{frame, schema};
+
+pub struct ValidateStage;
+
+/// Settings of `validate` (none yet: the models are those of the parameters table).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct ValidateSettings {}
+
+static INFO: StageInfo = StageInfo {
+    kind: "validate",
+    uses_cable_robot: false,
+    summary: "Validation errors per model, statistics (Table III) and pairwise hypothesis tests",
+    code_version: 1,
+    inputs: &[
+        TableSlot {
+            name: "measurements",
+            schema: schema::measurements,
+            required: true,
+            meaning: "measured rows (a separate validation table, or all rows with a selection)",
+        },
+        TableSlot {
+            name: "parameters",
+            schema: schema::parameters,
+            required: true,
+            meaning: "parameter sets to compare",
+        },
+        TableSlot {
+            name: "selection",
+            schema: schema::selection,
+            required: false,
+            meaning: "rows with role = validation are used; all rows when absent",
+        },
+    ],
+    outputs: &[
+        TableSlot {
+            name: "errors",
+            schema: schema::errors,
+            required: true,
+            meaning: "per row and model: error components and norm",
+        },
+        TableSlot {
+            name: "stats",
+            schema: schema::stats,
+            required: true,
+            meaning: "per model: n, mean, std, median, rms, p95, max",
+        },
+        TableSlot {
+            name: "tests",
+            schema: schema::tests,
+            required: true,
+            meaning: "per pair of models and test: statistic, dof, p-value",
+        },
+    ],
+};
+
+impl Stage for ValidateStage {
+    type Settings = ValidateSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn run(&self, ctx: &StageContext, _: &ValidateSettings) -> Result<StageOutputs, StageError> {
+        let keep = match ctx.inputs.get("selection") {
+            Some(selection) => Some(ids_with_role(selection, "validation")?),
+            None => None,
+        };
+        let (ids, rows, measured) = measured_rows(ctx.input("measurements")?, keep.as_ref())?;
+        if ids.len() < 2 {
+            return Err(StageError::Invalid(format!("{} validation rows; need at least 2", ids.len())));
+        }
+        let table = ctx.input("parameters")?;
+        let nominal = ParamValues::nominal(ctx.robot.spec());
+        let mut sets = parameters::from_frame(&table.df, &table.path, &nominal)?;
+        sets.sort_by_key(|s| s.model);
+
+        let mut e = ErrorColumns::default();
+        let mut norms: Vec<(ModelName, Vec<f64>)> = Vec::new();
+        for set in &sets {
+            let predictions = batch_predict(ctx.robot, &set.values, &rows);
+            let mut model_norms = Vec::with_capacity(rows.len());
+            for (k, prediction) in predictions.iter().enumerate() {
+                let error = prediction.position_mm - measured[k];
+                e.cw_id.push(ids[k]);
+                e.model.push(set.model.as_str());
+                e.ex.push(error.x);
+                e.ey.push(error.y);
+                e.ez.push(error.z);
+                e.norm.push(error.norm());
+                model_norms.push(error.norm());
+            }
+            norms.push((set.model, model_norms));
+        }
+
+        let mut s = StatsColumns::default();
+        for (model, values) in &norms {
+            let summary = stats::summary(values).map_err(|err| StageError::Failed(format!("{model}: {err}")))?;
+            s.model.push(model.as_str());
+            s.n.push(summary.n as i64);
+            s.mean.push(summary.mean);
+            s.std.push(summary.std);
+            s.median.push(summary.median);
+            s.rms.push(summary.rms);
+            s.p95.push(summary.p95);
+            s.max.push(summary.max);
+        }
+
+        let mut t = TestColumns::default();
+        let tests: [(&str, fn(&[f64], &[f64]) -> Result<TestResult, stats::StatsError>); 4] = [
+            ("paired_t", stats::paired_t),
+            ("welch_t", stats::welch_t),
+            ("student_t", stats::student_t),
+            ("wilcoxon", stats::wilcoxon_signed_rank),
+        ];
+        for (i, (model_a, a)) in norms.iter().enumerate() {
+            for (model_b, b) in &norms[i + 1..] {
+                for (name, test) in &tests {
+                    match test(a, b) {
+                        Ok(result) => {
+                            t.model_a.push(model_a.as_str());
+                            t.model_b.push(model_b.as_str());
+                            t.test.push(*name);
+                            t.statistic.push(result.statistic);
+                            t.dof.push(result.dof);
+                            t.p_value.push(result.p_value);
+                        }
+                        Err(err) => ctx.progress.note(&format!("{name} {model_a} vs {model_b}: {err}")),
+                    }
+                }
+            }
+        }
+
+        let mut outputs = StageOutputs::default();
+        outputs.facts.insert("validation_rows".into(), ids.len().to_string());
+        for (model, values) in &norms {
+            let max = values.iter().cloned().fold(0.0, f64::max);
+            outputs.facts.insert(format!("{model}_max_mm"), format!("{max:.3}"));
+        }
+        outputs.tables.insert("errors".into(), e.into_frame());
+        outputs.tables.insert("stats".into(), s.into_frame());
+        outputs.tables.insert("tests".into(), t.into_frame());
+        Ok(outputs)
+    }
+}
+
+#[derive(Default)]
+struct ErrorColumns {
+    cw_id: Vec<i64>,
+    model: Vec<&'static str>,
+    ex: Vec<f64>,
+    ey: Vec<f64>,
+    ez: Vec<f64>,
+    norm: Vec<f64>,
+}
+
+impl ErrorColumns {
+    fn into_frame(self) -> polars::prelude::DataFrame {
+        frame(vec![
+            Column::new("cw_id".into(), self.cw_id),
+            Column::new("model".into(), self.model),
+            Column::new("ex_mm".into(), self.ex),
+            Column::new("ey_mm".into(), self.ey),
+            Column::new("ez_mm".into(), self.ez),
+            Column::new("error_mm".into(), self.norm),
+        ])
+    }
+}
+
+#[derive(Default)]
+struct StatsColumns {
+    model: Vec<&'static str>,
+    n: Vec<i64>,
+    mean: Vec<f64>,
+    std: Vec<f64>,
+    median: Vec<f64>,
+    rms: Vec<f64>,
+    p95: Vec<f64>,
+    max: Vec<f64>,
+}
+
+impl StatsColumns {
+    fn into_frame(self) -> polars::prelude::DataFrame {
+        frame(vec![
+            Column::new("model".into(), self.model),
+            Column::new("n".into(), self.n),
+            Column::new("mean_mm".into(), self.mean),
+            Column::new("std_mm".into(), self.std),
+            Column::new("median_mm".into(), self.median),
+            Column::new("rms_mm".into(), self.rms),
+            Column::new("p95_mm".into(), self.p95),
+            Column::new("max_mm".into(), self.max),
+        ])
+    }
+}
+
+#[derive(Default)]
+struct TestColumns {
+    model_a: Vec<&'static str>,
+    model_b: Vec<&'static str>,
+    test: Vec<&'static str>,
+    statistic: Vec<f64>,
+    dof: Vec<Option<f64>>,
+    p_value: Vec<f64>,
+}
+
+impl TestColumns {
+    fn into_frame(self) -> polars::prelude::DataFrame {
+        frame(vec![
+            Column::new("model_a".into(), self.model_a),
+            Column::new("model_b".into(), self.model_b),
+            Column::new("test".into(), self.test),
+            Column::new("statistic".into(), self.statistic),
+            Column::new("dof".into(), self.dof),
+            Column::new("p_value".into(), self.p_value),
+        ])
+    }
+}

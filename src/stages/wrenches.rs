@@ -1,0 +1,168 @@
+//! `wrenches`: K wrenches per configuration inside the cable robot's
+//! wrench-feasible set (paper §IV.A step (c)): forces and moments drawn from
+//! normal distributions, clipped to the paper's ranges, kept only when tensions
+//! within bounds exist that produce them (decided by the cable robot's QP), redrawn
+//! otherwise up to a limit.
+
+use polars::prelude::Column;
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+use rand_distr::{Distribution, Normal};
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use crate::cdpr::check_wrench;
+use crate::robot::{JOINTS, ParamValues};
+use crate::table::frame;
+use crate::table::schema::{self, JOINT_COLUMNS, TENSION_COLUMNS, WRENCH_COLUMNS, f64_values, i64_values};
+
+pub struct WrenchesStage;
+
+/// Settings of `wrenches`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct WrenchesSettings {
+    /// Wrenches per configuration.
+    pub per_config: usize,
+    /// Standard deviation of each force component (N).
+    pub sigma_force_n: f64,
+    /// Standard deviation of each moment component (N·m).
+    pub sigma_moment_nm: f64,
+    /// Forces are clipped to ±this (N).
+    pub max_force_n: f64,
+    /// Moments are clipped to ±this (N·m).
+    pub max_moment_nm: f64,
+    /// Draws per wanted wrench before the configuration is reported short.
+    pub max_draws: usize,
+}
+
+impl Default for WrenchesSettings {
+    fn default() -> Self {
+        WrenchesSettings {
+            per_config: 7,
+            sigma_force_n: 60.0,
+            sigma_moment_nm: 5.0,
+            max_force_n: 120.0,
+            max_moment_nm: 10.0,
+            max_draws: 50,
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "wrenches",
+    uses_cable_robot: true,
+    summary: "Feasible cable-robot wrenches per configuration: the conf-wrench candidates",
+    code_version: 1,
+    inputs: &[TableSlot {
+        name: "poses",
+        schema: schema::poses,
+        required: true,
+        meaning: "configurations (config_id, q1_deg..q6_deg)",
+    }],
+    outputs: &[TableSlot {
+        name: "candidates",
+        schema: schema::candidates,
+        required: true,
+        meaning: "cw_id, config_id, q, wrench, cable tensions, capacity margin",
+    }],
+};
+
+impl Stage for WrenchesStage {
+    type Settings = WrenchesSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn run(&self, ctx: &StageContext, settings: &WrenchesSettings) -> Result<StageOutputs, StageError> {
+        let input = ctx.input("poses")?;
+        let config_ids = i64_values(&input.df, "config_id", &input.path)?;
+        let joints = JOINT_COLUMNS
+            .iter()
+            .map(|c| f64_values(&input.df, c, &input.path))
+            .collect::<Result<Vec<_>, _>>()?;
+        let force = Normal::new(0.0, settings.sigma_force_n)
+            .map_err(|e| StageError::Invalid(format!("setting `sigma_force_n`: {e}")))?;
+        let moment = Normal::new(0.0, settings.sigma_moment_nm)
+            .map_err(|e| StageError::Invalid(format!("setting `sigma_moment_nm`: {e}")))?;
+        let nominal = ParamValues::nominal(ctx.robot.spec());
+        let mut rng = StdRng::seed_from_u64(ctx.seed);
+
+        let mut cw_id = Vec::new();
+        let mut config = Vec::new();
+        let mut q: Vec<Vec<f64>> = vec![Vec::new(); JOINTS];
+        let mut w: Vec<Vec<f64>> = vec![Vec::new(); 6];
+        let mut tensions: Vec<Vec<f64>> = vec![Vec::new(); TENSION_COLUMNS.len()];
+        let mut margin = Vec::new();
+        let (mut draws, mut short_configs) = (0usize, 0usize);
+        ctx.progress.start(config_ids.len() as u64, "configurations");
+        for (k, &config_id) in config_ids.iter().enumerate() {
+            let q_deg: [f64; JOINTS] = std::array::from_fn(|i| joints[i][k]);
+            let (_, tool) = ctx.robot.frames_in_base(&nominal, &q_deg);
+            let mut kept = 0;
+            let mut attempts = 0;
+            while kept < settings.per_config && attempts < settings.max_draws * settings.per_config {
+                attempts += 1;
+                draws += 1;
+                let wrench: [f64; 6] = std::array::from_fn(|i| {
+                    if i < 3 {
+                        force.sample(&mut rng).clamp(-settings.max_force_n, settings.max_force_n)
+                    } else {
+                        moment.sample(&mut rng).clamp(-settings.max_moment_nm, settings.max_moment_nm)
+                    }
+                });
+                let feasibility = check_wrench(ctx.cable_robot, &tool, wrench)
+                    .map_err(|e| StageError::Failed(format!("config_id {config_id}: {e}")))?;
+                if !feasibility.feasible {
+                    continue;
+                }
+                kept += 1;
+                cw_id.push((k * settings.per_config + kept) as i64);
+                config.push(config_id);
+                for i in 0..JOINTS {
+                    q[i].push(q_deg[i]);
+                }
+                for i in 0..6 {
+                    w[i].push(wrench[i]);
+                }
+                for (i, t) in feasibility.tensions_n.iter().enumerate() {
+                    tensions[i].push(*t);
+                }
+                margin.push(feasibility.capacity_margin_n);
+            }
+            if kept < settings.per_config {
+                short_configs += 1;
+                ctx.progress.note(&format!(
+                    "config_id {config_id}: only {kept} of {} feasible wrenches after {attempts} draws",
+                    settings.per_config
+                ));
+            }
+            ctx.progress.advance(k as u64 + 1);
+        }
+        let kept = cw_id.len();
+        let mut columns = vec![Column::new("cw_id".into(), cw_id)];
+        for (name, values) in JOINT_COLUMNS.iter().zip(q) {
+            columns.push(Column::new((*name).into(), values));
+        }
+        for (name, values) in WRENCH_COLUMNS.iter().zip(w) {
+            columns.push(Column::new((*name).into(), values));
+        }
+        columns.push(Column::new("config_id".into(), config));
+        for (name, values) in TENSION_COLUMNS.iter().zip(tensions) {
+            columns.push(Column::new((*name).into(), values));
+        }
+        columns.push(Column::new("margin_n".into(), margin));
+        let mut outputs = StageOutputs::default();
+        outputs.tables.insert("candidates".into(), frame(columns));
+        outputs.facts.insert("candidates".into(), kept.to_string());
+        outputs.facts.insert("draws".into(), draws.to_string());
+        outputs.facts.insert(
+            "rejection_rate".into(),
+            format!("{:.3}", 1.0 - kept as f64 / draws.max(1) as f64),
+        );
+        outputs.facts.insert("short_configs".into(), short_configs.to_string());
+        Ok(outputs)
+    }
+}
