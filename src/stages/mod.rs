@@ -8,7 +8,7 @@
 
 pub mod detmax;
 pub mod poses;
-// TEMP until stats lands: pub mod validate;
+pub mod validate;
 pub mod wrenches;
 pub mod identifiability;
 pub mod identify;
@@ -234,7 +234,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &detmax::DetmaxStage,
         &measure::MeasureStage,
         &identify::IdentifyStage,
-        // TEMP &validate::ValidateStage,
+        &validate::ValidateStage,
         &predict::PredictStage,
     ]
 }

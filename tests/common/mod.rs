@@ -1,0 +1,80 @@
+//! Shared helpers for the integration tests: the built binary, the repository's
+//! files, and a temporary folder per test.
+
+#![allow(dead_code)] // each test binary uses a different subset
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The repository root.
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The `egcal` binary built for this test run.
+pub fn egcal() -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_egcal"));
+    command.env("NO_COLOR", "1");
+    command
+}
+
+/// Runs egcal with arguments; returns (exit code, stdout, stderr).
+pub fn run(args: &[&str], dir: &Path) -> (i32, String, String) {
+    let Output { status, stdout, stderr } = egcal().args(args).current_dir(dir).output().expect("egcal runs");
+    (
+        status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&stdout).into_owned(),
+        String::from_utf8_lossy(&stderr).into_owned(),
+    )
+}
+
+/// A small but complete campaign: 8 poses, 3 wrenches each, measured in the
+/// simulator, identified and validated; plus an independent `predict` stage.
+/// `extra` is appended to the file (more stages, or overrides).
+pub fn small_job(dir: &Path, wrenches_per_config: usize, extra: &str) -> PathBuf {
+    let root = root();
+    let text = format!(
+        r#"[job]
+name = "small"
+seed = 7
+robot = "{robot}"
+cable_robot = "{cable}"
+output = "out"
+
+[[stages]]
+id = "poses"
+kind = "poses"
+points_per_axis = 2
+edge_mm = 300.0
+
+[[stages]]
+id = "wrenches"
+kind = "wrenches"
+inputs = {{ poses = "poses" }}
+per_config = {wrenches_per_config}
+
+[[stages]]
+id = "measure"
+kind = "measure"
+inputs = {{ conf_wrenches = "wrenches", truth = "{truth}" }}
+
+[[stages]]
+id = "identify"
+kind = "identify"
+inputs = {{ measurements = "measure.measurements" }}
+models = ["nominal", "registered"]
+
+[[stages]]
+id = "predict_nominal"
+kind = "predict"
+inputs = {{ conf_wrenches = "{fixture}" }}
+{extra}"#,
+        robot = root.join("jobs/robots/irb1600_145.toml").display(),
+        cable = root.join("jobs/cdpr/default.toml").display(),
+        truth = root.join("jobs/truth/irb1600_paper.parquet").display(),
+        fixture = root.join("fixtures/predict/nominal/conf_wrenches.parquet").display(),
+    );
+    let path = dir.join("job.toml");
+    std::fs::write(&path, text).expect("write job");
+    path
+}

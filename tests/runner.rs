@@ -1,0 +1,276 @@
+//! End-to-end tests of the runner through the binary: caching, status reasons,
+//! kills at arbitrary instants, corrupted cache entries, and job-file errors.
+
+mod common;
+
+use std::path::Path;
+use std::time::Duration;
+
+use common::{run, small_job};
+use egcal::table;
+
+fn ran_and_cached(stderr: &str) -> (Vec<String>, Vec<String>) {
+    let mut ran = Vec::new();
+    let mut cached = Vec::new();
+    for line in stderr.lines() {
+        if let Some((stage, rest)) = line.split_once(": ") {
+            if rest.starts_with("running") {
+                ran.push(stage.to_string());
+            } else if rest == "cached" {
+                cached.push(stage.to_string());
+            }
+        }
+    }
+    ran.sort();
+    cached.sort();
+    (ran, cached)
+}
+
+#[test]
+fn second_run_is_fully_cached_and_a_setting_change_reruns_only_descendants() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 3, "");
+    let job = job.to_str().unwrap();
+    let (code, stdout, stderr) = run(&["run", job], dir.path());
+    assert_eq!(code, 0, "{stdout}\n{stderr}");
+    let (ran, _) = ran_and_cached(&stderr);
+    assert_eq!(ran, ["identify", "measure", "poses", "predict_nominal", "wrenches"]);
+
+    let (code, _, stderr) = run(&["run", job], dir.path());
+    assert_eq!(code, 0);
+    let (ran, cached) = ran_and_cached(&stderr);
+    assert!(ran.is_empty(), "{stderr}");
+    assert_eq!(cached.len(), 5);
+
+    // Change one setting of `identify`: only it is stale.
+    let text = std::fs::read_to_string(job).unwrap();
+    std::fs::write(job, text.replace("models = [\"nominal\", \"registered\"]", "models = [\"registered\"]")).unwrap();
+    let (code, status, _) = run(&["status", job], dir.path());
+    assert_eq!(code, 0);
+    assert!(status.contains("identify             stale: setting `models` changed"), "{status}");
+    assert!(status.contains("measure              cached"), "{status}");
+    let (_, _, stderr) = run(&["run", job], dir.path());
+    let (ran, _) = ran_and_cached(&stderr);
+    assert_eq!(ran, ["identify"]);
+
+    // Change a setting upstream: it and everything downstream re-run, the
+    // independent stage does not.
+    let text = std::fs::read_to_string(job).unwrap();
+    std::fs::write(job, text.replace("per_config = 3", "per_config = 4")).unwrap();
+    let (_, status, _) = run(&["status", job], dir.path());
+    assert!(status.contains("wrenches             stale: setting `per_config` changed (3 -> 4)"), "{status}");
+    assert!(status.contains("measure              stale: waits on stale upstream wrenches"), "{status}");
+    assert!(status.contains("predict_nominal      cached"), "{status}");
+    let (_, _, stderr) = run(&["run", job], dir.path());
+    let (ran, cached) = ran_and_cached(&stderr);
+    assert_eq!(ran, ["identify", "measure", "wrenches"]);
+    assert_eq!(cached, ["poses", "predict_nominal"]);
+}
+
+#[test]
+fn an_upstream_rerun_with_identical_output_does_not_cascade() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 3, "");
+    let job = job.to_str().unwrap();
+    assert_eq!(run(&["run", job], dir.path()).0, 0);
+    // A setting that changes the key of `poses` but not its output: more
+    // orientation attempts than any point needs.
+    let text = std::fs::read_to_string(job).unwrap();
+    std::fs::write(job, text.replace("edge_mm = 300.0", "edge_mm = 300.0\norientation_attempts = 51")).unwrap();
+    let (code, _, stderr) = run(&["run", job], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    let (ran, cached) = ran_and_cached(&stderr);
+    assert_eq!(ran, ["poses"], "{stderr}");
+    assert!(cached.contains(&"wrenches".to_string()));
+}
+
+#[test]
+fn outputs_carry_provenance() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 3, "");
+    assert_eq!(run(&["run", job.to_str().unwrap()], dir.path()).0, 0);
+    let provenance = table::read_provenance(&dir.path().join("out/measure/measurements.parquet"))
+        .unwrap()
+        .unwrap();
+    assert_eq!(provenance.job, "small");
+    assert_eq!(provenance.stage_id, "measure");
+    assert_eq!(provenance.stage_kind, "measure");
+    assert_eq!(provenance.cache_key.len(), 64);
+    assert!(provenance.input_hashes.contains_key("conf_wrenches"));
+    assert!(provenance.input_hashes.contains_key("truth"));
+    assert_eq!(provenance.tool_version, env!("CARGO_PKG_VERSION"));
+    let (code, shown, _) = run(&["show", "out/measure/measurements.parquet"], dir.path());
+    assert_eq!(code, 0);
+    assert!(shown.contains("\"stage_kind\": \"measure\"") && shown.contains("first 10 rows"), "{shown}");
+}
+
+#[test]
+fn a_corrupted_cache_entry_is_detected_and_recomputed() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 3, "");
+    let job = job.to_str().unwrap();
+    assert_eq!(run(&["run", job], dir.path()).0, 0);
+    // Truncate the cached measurements table.
+    let cache = dir.path().join("out/.egcal/cache");
+    let mut damaged = None;
+    for shard in std::fs::read_dir(&cache).unwrap() {
+        for entry in std::fs::read_dir(shard.unwrap().path()).unwrap() {
+            let file = entry.unwrap().path().join("measurements.parquet");
+            if file.exists() {
+                let bytes = std::fs::read(&file).unwrap();
+                std::fs::write(&file, &bytes[..bytes.len() / 2]).unwrap();
+                damaged = Some(file);
+            }
+        }
+    }
+    assert!(damaged.is_some());
+    let (code, _, stderr) = run(&["run", job], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stderr.contains("measure: cache entry") && stderr.contains("is corrupt"), "{stderr}");
+    let (ran, _) = ran_and_cached(&stderr);
+    assert_eq!(ran, ["measure"]);
+    table::read_parquet(&damaged.unwrap()).unwrap();
+}
+
+/// Kills `egcal run` at increasing delays; after every kill, each published
+/// table and every cache entry that exists must be complete, and a final run
+/// must finish with the same data as an uninterrupted one.
+#[test]
+fn killing_a_run_at_any_instant_leaves_nothing_corrupt() {
+    let reference = tempfile::tempdir().unwrap();
+    let job = small_job(reference.path(), 6, "");
+    assert_eq!(run(&["run", job.to_str().unwrap()], reference.path()).0, 0);
+
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 6, "");
+    for delay_ms in [5, 30, 80, 150, 250, 400, 600, 900] {
+        let mut child = common::egcal()
+            .args(["run", "--quiet", job.to_str().unwrap()])
+            .current_dir(dir.path())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(delay_ms));
+        let _ = child.kill();
+        let _ = child.wait();
+        assert_everything_readable(&dir.path().join("out"));
+    }
+    let (code, _, stderr) = run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    for table in ["poses/poses", "wrenches/candidates", "measure/measurements", "identify/parameters"] {
+        let a = table::read_parquet(&reference.path().join(format!("out/{table}.parquet"))).unwrap();
+        let b = table::read_parquet(&dir.path().join(format!("out/{table}.parquet"))).unwrap();
+        assert_eq!(table::content_hash(&a), table::content_hash(&b), "{table}");
+    }
+}
+
+fn assert_everything_readable(out: &Path) {
+    let Ok(entries) = std::fs::read_dir(out) else { return };
+    for stage in entries.flatten() {
+        let path = stage.path();
+        if path.file_name().is_some_and(|n| n == ".egcal") || !path.is_dir() {
+            continue;
+        }
+        for file in std::fs::read_dir(&path).unwrap().flatten() {
+            let file = file.path();
+            if file.extension().is_some_and(|e| e == "parquet") {
+                table::read_parquet(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+            }
+        }
+    }
+    let cache = egcal::runner::cache::Cache::new(out.join(".egcal/cache"));
+    let Ok(shards) = std::fs::read_dir(cache.root()) else { return };
+    for shard in shards.flatten() {
+        for entry in std::fs::read_dir(shard.path()).unwrap().flatten() {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            if name.starts_with('.') {
+                continue; // an unfinished temporary entry: never looked up
+            }
+            match cache.lookup(&name) {
+                egcal::runner::cache::Lookup::Hit(_) => {}
+                other => panic!("cache entry {name}: {other:?}"),
+            }
+        }
+    }
+}
+
+#[test]
+fn job_file_errors_name_file_line_key_and_hint() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 3, "");
+    let text = std::fs::read_to_string(&job).unwrap();
+    let check = |text: String, expected: &[&str]| {
+        std::fs::write(&job, text).unwrap();
+        let (code, stdout, stderr) = run(&["check", job.to_str().unwrap()], dir.path());
+        assert_eq!(code, 2, "{stdout}{stderr}");
+        for e in expected {
+            assert!(stderr.contains(e), "expected `{e}` in:\n{stderr}");
+        }
+    };
+    // Misspelt setting, unknown kind and unknown input reported together.
+    check(
+        text.replace("per_config = 3", "per_confg = 3")
+            .replace("kind = \"predict\"", "kind = \"predcit\"")
+            .replace("poses = \"poses\"", "poses = \"pose\""),
+        &[
+            "3 problems in the job file",
+            "job.toml:18: stages[1].per_confg: unknown setting `per_confg` for stage kind `wrenches` (did you mean `per_config`?)",
+            "stages[4].kind: unknown stage kind `predcit` (did you mean `predict`?)",
+            "stages[1].inputs.poses: unknown stage `pose` (did you mean `poses`?)",
+        ],
+    );
+    // A cycle.
+    check(
+        text.clone()
+            + "\n[[stages]]\nid = \"a\"\nkind = \"identify\"\ninputs = { measurements = \"b.measurements\" }\n\n[[stages]]\nid = \"b\"\nkind = \"measure\"\ninputs = { conf_wrenches = \"a.parameters\" }\n",
+        &["stages form a cycle: b -> a -> b"],
+    );
+    // A wrong type with its line.
+    check(text.replace("per_config = 3", "per_config = \"three\""), &["stages[1].per_config", "invalid type"]);
+    // A missing external file.
+    check(
+        text.replace("fixtures/predict/nominal/conf_wrenches.parquet", "fixtures/nope.parquet"),
+        &["stages[4].inputs.conf_wrenches: no file matches", "nope.parquet"],
+    );
+}
+
+#[test]
+fn a_bad_external_table_names_file_column_and_row() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = common::root().join("fixtures/predict/bad_nan/conf_wrenches.parquet");
+    let good = common::root().join("fixtures/predict/nominal/conf_wrenches.parquet");
+    let job = small_job(dir.path(), 3, "");
+    let text = std::fs::read_to_string(&job).unwrap().replace(&*good.to_string_lossy(), &bad.to_string_lossy());
+    std::fs::write(&job, text).unwrap();
+    let (code, _, stderr) = run(&["run", "--only", "predict_nominal", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("bad_nan/conf_wrenches.parquet: column `q3_deg` is NaN at row 4"), "{stderr}");
+}
+
+#[test]
+fn a_live_lock_blocks_and_a_stale_one_is_taken_over() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 3, "");
+    let job = job.to_str().unwrap();
+    std::fs::create_dir_all(dir.path().join("out/.egcal")).unwrap();
+    std::fs::write(dir.path().join("out/.egcal/lock"), "1\n").unwrap();
+    let (code, _, stderr) = run(&["run", "--only", "predict_nominal", job], dir.path());
+    assert_eq!(code, 5, "{stderr}");
+    assert!(stderr.contains("another egcal run (pid 1)"), "{stderr}");
+    std::fs::write(dir.path().join("out/.egcal/lock"), "4000000000\n").unwrap();
+    let (code, _, stderr) = run(&["run", "--only", "predict_nominal", job], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stderr.contains("taking over a stale lock"), "{stderr}");
+}
+
+#[test]
+fn dag_lists_every_edge() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 3, "");
+    let (code, mermaid, _) = run(&["dag", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0);
+    assert!(mermaid.starts_with("flowchart LR"));
+    assert!(mermaid.contains("poses -->|poses| wrenches"), "{mermaid}");
+    assert!(mermaid.contains("measure -->|measurements| identify"), "{mermaid}");
+    let (_, dot, _) = run(&["dag", "--dot", job.to_str().unwrap()], dir.path());
+    assert!(dot.contains("\"wrenches\" -> \"measure\""), "{dot}");
+}
