@@ -278,7 +278,11 @@ pub struct FileStage<'a> {
 }
 
 /// `egcal stage`: one stage kind on files, outputs to `DIR/<table>.parquet`.
-pub fn stage(stage: &FileStage, settings_file: Option<&Path>, out_dir: &Path) -> Result<String, CommandError> {
+pub fn stage(
+    stage: &FileStage,
+    settings_file: Option<&Path>,
+    out_dir: &Path,
+) -> Result<String, CommandError> {
     let kind = stage.kind;
     let raw_settings: toml::Table = match settings_file {
         None => toml::Table::new(),
@@ -297,12 +301,18 @@ pub fn stage(stage: &FileStage, settings_file: Option<&Path>, out_dir: &Path) ->
     };
     let settings_name = settings_file.map_or("settings".to_string(), |p| p.display().to_string());
     let work_dir = out_dir.join(".work");
-    let (mut tables, provenance) = run_on_files(stage, &raw_settings, &settings_name, &work_dir)?;
+    let (mut outputs, provenance) = run_on_files(stage, &raw_settings, &settings_name, &work_dir)?;
     let mut written = Vec::new();
-    for (name, df) in tables.iter_mut() {
+    for (name, df) in outputs.tables.iter_mut() {
         let path = out_dir.join(format!("{name}.parquet"));
         table::write_parquet(df, &path, Some(&provenance))?;
         written.push(format!("{} ({} rows)", path.display(), df.height()));
+    }
+    for (name, bytes) in &outputs.files {
+        let path = out_dir.join(name);
+        crate::fsio::write_bytes_atomic(&path, bytes)
+            .map_err(|e| table::schema::io_error(&path, e))?;
+        written.push(path.display().to_string());
     }
     Ok(format!("{kind}: wrote {}", written.join(", ")))
 }
@@ -329,9 +339,10 @@ pub fn predict(
         inputs: &inputs,
         seed: 0,
     };
-    let (mut tables, provenance) = run_on_files(&stage, &settings, "--model", &work_dir)?;
+    let (mut outputs, provenance) = run_on_files(&stage, &settings, "--model", &work_dir)?;
     let _ = std::fs::remove_dir_all(&work_dir);
-    let df = tables
+    let df = outputs
+        .tables
         .get_mut("predictions")
         .expect("predict writes predictions");
     table::write_parquet(df, output, Some(&provenance))?;
@@ -349,7 +360,7 @@ fn run_on_files(
     raw_settings: &toml::Table,
     settings_name: &str,
     work_dir: &Path,
-) -> Result<(BTreeMap<String, DataFrame>, Provenance), CommandError> {
+) -> Result<(stages::StageOutputs, Provenance), CommandError> {
     let FileStage {
         kind,
         robot_file,
@@ -441,7 +452,7 @@ fn run_on_files(
         created_at: table::now_rfc3339(),
         extra: outputs.facts.clone(),
     };
-    Ok((outputs.tables, provenance))
+    Ok((outputs, provenance))
 }
 
 /// `egcal sim-driver`: serves the simulator over the driver protocol on
@@ -469,15 +480,25 @@ pub fn sim_driver(
             let text = std::fs::read_to_string(path)
                 .map_err(|e| CommandError::Usage(format!("cannot read {}: {e}", path.display())))?;
             toml::from_str(&text).map_err(|e| {
-                CommandError::Usage(format!("{}: {}", path.display(), crate::toml_error::describe(&e, &text)))
+                CommandError::Usage(format!(
+                    "{}: {}",
+                    path.display(),
+                    crate::toml_error::describe(&e, &text)
+                ))
             })?
         }
     };
-    let mut simulator = Simulator::new(robot, values, settings, seed).map_err(CommandError::Usage)?;
+    let mut simulator =
+        Simulator::new(robot, values, settings, seed).map_err(CommandError::Usage)?;
     let stdin = std::io::stdin();
     let stdout = std::io::stdout();
-    crate::rig::driver::serve(&mut simulator, "egcal simulator", stdin.lock(), stdout.lock())
-        .map_err(|e| CommandError::Usage(format!("driver I/O: {e}")))?;
+    crate::rig::driver::serve(
+        &mut simulator,
+        "egcal simulator",
+        stdin.lock(),
+        stdout.lock(),
+    )
+    .map_err(|e| CommandError::Usage(format!("driver I/O: {e}")))?;
     Ok(String::new())
 }
 
@@ -566,8 +587,14 @@ pub fn write_schemas(dir: &Path) -> Result<String, CommandError> {
 /// Every generated schema file: (path relative to `schemas/`, content).
 pub fn generated_schemas() -> Vec<(String, String)> {
     let mut files = vec![
-        ("job.schema.json".to_string(), crate::job::schema::job_schema_json()),
-        ("driver-protocol.schema.json".to_string(), crate::rig::protocol::schema_json()),
+        (
+            "job.schema.json".to_string(),
+            crate::job::schema::job_schema_json(),
+        ),
+        (
+            "driver-protocol.schema.json".to_string(),
+            crate::rig::protocol::schema_json(),
+        ),
     ];
     let robot =
         serde_json::to_string_pretty(&schemars::schema_for!(RobotSpec)).expect("schema serialises");

@@ -31,8 +31,14 @@ struct Header {
 impl Journal {
     /// Opens (or creates) `dir/journal-<fingerprint prefix>.jsonl` and returns it
     /// with the entries already recorded.
-    pub fn open<T: DeserializeOwned>(dir: &Path, fingerprint: &str) -> Result<(Journal, Vec<T>), JournalError> {
-        let path = dir.join(format!("journal-{}.jsonl", &fingerprint[..16.min(fingerprint.len())]));
+    pub fn open<T: DeserializeOwned>(
+        dir: &Path,
+        fingerprint: &str,
+    ) -> Result<(Journal, Vec<T>), JournalError> {
+        let path = dir.join(format!(
+            "journal-{}.jsonl",
+            &fingerprint[..16.min(fingerprint.len())]
+        ));
         let io = |e: std::io::Error| JournalError::Io {
             path: path.clone(),
             message: e.to_string(),
@@ -57,10 +63,11 @@ impl Journal {
                     break; // end, or a torn last line
                 }
                 if !header_seen {
-                    let header: Header = serde_json::from_str(line.trim()).map_err(|e| JournalError::Io {
-                        path: path.clone(),
-                        message: format!("bad header: {e}"),
-                    })?;
+                    let header: Header =
+                        serde_json::from_str(line.trim()).map_err(|e| JournalError::Io {
+                            path: path.clone(),
+                            message: format!("bad header: {e}"),
+                        })?;
                     if header.fingerprint != fingerprint {
                         return Err(JournalError::Io {
                             path: path.clone(),
@@ -119,7 +126,8 @@ mod tests {
     fn entries_survive_reopen_and_torn_lines_are_cut() {
         let dir = tempfile::tempdir().unwrap();
         {
-            let (mut journal, old) = Journal::open::<u32>(dir.path(), "abcdef0123456789ff").unwrap();
+            let (mut journal, old) =
+                Journal::open::<u32>(dir.path(), "abcdef0123456789ff").unwrap();
             assert!(old.is_empty());
             journal.append(&1u32).unwrap();
             journal.append(&2u32).unwrap();

@@ -191,7 +191,13 @@ fn dispatch(cli: Cli) -> Result<String, CommandError> {
             truth_model,
             settings,
             seed,
-        } => commands::sim_driver(&robot, truth.as_deref(), &truth_model, settings.as_deref(), seed),
+        } => commands::sim_driver(
+            &robot,
+            truth.as_deref(),
+            &truth_model,
+            settings.as_deref(),
+            seed,
+        ),
         Command::ListStages => Ok(commands::list_stages()),
         Command::Cache {
             action: CacheAction::Gc { job },

@@ -7,9 +7,11 @@
 
 use faer::Mat;
 use faer::prelude::*;
-use nalgebra::{DMatrix, Vector3};
+use nalgebra::Vector3;
 
-use crate::robot::{ConfWrench, PARAM_COUNT, ParamId, ParamValues, Robot, batch_jacobian, batch_predict};
+use crate::robot::{
+    ConfWrench, PARAM_COUNT, ParamId, ParamValues, Robot, batch_jacobian, batch_predict,
+};
 
 /// When to stop iterating.
 #[derive(Debug, Clone, Copy)]
@@ -43,7 +45,9 @@ pub struct Fit {
 
 #[derive(Debug, thiserror::Error)]
 pub enum FitError {
-    #[error("{rows} measurements give {equations} equations for {parameters} free parameters; need more rows")]
+    #[error(
+        "{rows} measurements give {equations} equations for {parameters} free parameters; need more rows"
+    )]
     TooFewRows {
         rows: usize,
         equations: usize,
@@ -51,12 +55,19 @@ pub enum FitError {
     },
     #[error("the fit diverged (residual became non-finite at iteration {0})")]
     Diverged(usize),
-    #[error("normal matrix is singular: the free parameters are not all identifiable from these rows")]
+    #[error(
+        "the Jacobian is rank deficient at the solution: the free parameters are not all identifiable from these rows"
+    )]
     Singular,
 }
 
 /// Residuals `measured − predicted` per row.
-pub fn residuals(robot: &Robot, p: &ParamValues, rows: &[ConfWrench], measured: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+pub fn residuals(
+    robot: &Robot,
+    p: &ParamValues,
+    rows: &[ConfWrench],
+    measured: &[Vector3<f64>],
+) -> Vec<Vector3<f64>> {
     batch_predict(robot, p, rows)
         .iter()
         .zip(measured)
@@ -146,14 +157,20 @@ pub fn fit(
         .collect();
     let rss: f64 = r.iter().map(|v| v.norm_squared()).sum();
     let sigma2 = rss / (equations - m) as f64;
+    // From the SVD of the scaled Jacobian, J = U·S·Vᵀ: var_j = σ²·Σ_k V_jk²/s_k²,
+    // which stays accurate where forming JᵀJ would square the condition number.
     let (scaled, scale) = scaled_jacobian(&batch.jacobian, equations, m);
-    let normal = DMatrix::<f64>::from_fn(m, m, |a, b| {
-        (0..equations).map(|row| scaled[(row, a)] * scaled[(row, b)]).sum()
-    });
-    let inverse = normal.cholesky().ok_or(FitError::Singular)?.inverse();
+    let svd = scaled.thin_svd().map_err(|_| FitError::Singular)?;
+    let s = svd.S().column_vector();
+    let v = svd.V();
+    let s_max = (0..m).map(|k| s[k]).fold(0.0, f64::max);
+    if (0..m).any(|k| s[k] <= 1e-12 * s_max) {
+        return Err(FitError::Singular);
+    }
     let mut std_errors = [None; PARAM_COUNT];
     for (j, id) in free.iter().enumerate() {
-        std_errors[id.index()] = Some((sigma2 * inverse[(j, j)]).sqrt() * scale[j]);
+        let variance: f64 = (0..m).map(|k| (v[(j, k)] / s[k]).powi(2)).sum::<f64>() * sigma2;
+        std_errors[id.index()] = Some(variance.sqrt() * scale[j]);
     }
     Ok(Fit {
         values,
@@ -168,7 +185,10 @@ pub fn fit(
 fn scaled_jacobian(jacobian: &[f64], rows: usize, m: usize) -> (Mat<f64>, Vec<f64>) {
     let mut scale = vec![0.0; m];
     for (j, s) in scale.iter_mut().enumerate() {
-        let norm = (0..rows).map(|r| jacobian[r * m + j].powi(2)).sum::<f64>().sqrt();
+        let norm = (0..rows)
+            .map(|r| jacobian[r * m + j].powi(2))
+            .sum::<f64>()
+            .sqrt();
         *s = if norm > 0.0 { 1.0 / norm } else { 1.0 };
     }
     let scaled = Mat::<f64>::from_fn(rows, m, |r, j| jacobian[r * m + j] * scale[j]);
@@ -178,8 +198,8 @@ fn scaled_jacobian(jacobian: &[f64], rows: usize, m: usize) -> (Mat<f64>, Vec<f6
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::robot::test_support::{irb1600, random_q, random_wrench, truth_params};
     use crate::robot::Selection;
+    use crate::robot::test_support::{irb1600, random_q, random_wrench, truth_params};
     use rand::SeedableRng;
     use rand::rngs::StdRng;
 
@@ -195,7 +215,10 @@ mod tests {
                 wrench: random_wrench(&mut rng),
             })
             .collect();
-        let measured: Vec<Vector3<f64>> = batch_predict(&robot, &truth, &rows).iter().map(|p| p.position_mm).collect();
+        let measured: Vec<Vector3<f64>> = batch_predict(&robot, &truth, &rows)
+            .iter()
+            .map(|p| p.position_mm)
+            .collect();
         let free = Selection::spec_identifiable();
         let options = FitOptions {
             max_iterations: 30,
@@ -207,7 +230,10 @@ mod tests {
         // recovered exactly (the spec's truth leaves the dependent ones at nominal).
         for id in free.ids() {
             let (got, want) = (fit.values.get(*id), truth.get(*id));
-            assert!((got - want).abs() < 1e-7 * want.abs().max(1.0), "{id}: {got} vs {want}");
+            assert!(
+                (got - want).abs() < 1e-7 * want.abs().max(1.0),
+                "{id}: {got} vs {want}"
+            );
         }
         assert!(fit.residual_rms_mm < 1e-9);
         // Gauss–Newton converges quadratically: a handful of iterations.
@@ -225,7 +251,10 @@ mod tests {
                 wrench: random_wrench(&mut rng),
             })
             .collect();
-        let exact: Vec<Vector3<f64>> = batch_predict(&robot, &truth, &rows).iter().map(|p| p.position_mm).collect();
+        let exact: Vec<Vector3<f64>> = batch_predict(&robot, &truth, &rows)
+            .iter()
+            .map(|p| p.position_mm)
+            .collect();
         let free = Selection::spec_identifiable();
         let options = FitOptions {
             max_iterations: 20,
@@ -238,16 +267,23 @@ mod tests {
         for _ in 0..40 {
             let noisy: Vec<Vector3<f64>> = exact
                 .iter()
-                .map(|p| p + Vector3::from_fn(|_, _| rand_distr::Distribution::sample(&normal, &mut rng)))
+                .map(|p| {
+                    p + Vector3::from_fn(|_, _| rand_distr::Distribution::sample(&normal, &mut rng))
+                })
                 .collect();
             let fit = fit(&robot, &truth, &rows, &noisy, free.ids(), &options).unwrap();
             estimates.push(fit.values.get(k6));
             reported.push(fit.std_errors[k6.index()].unwrap());
         }
         let mean = estimates.iter().sum::<f64>() / estimates.len() as f64;
-        let scatter = (estimates.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (estimates.len() - 1) as f64).sqrt();
+        let scatter = (estimates.iter().map(|e| (e - mean).powi(2)).sum::<f64>()
+            / (estimates.len() - 1) as f64)
+            .sqrt();
         let typical = reported.iter().sum::<f64>() / reported.len() as f64;
         // 40 samples: the sample standard deviation is within ±35 % of the truth with high probability.
-        assert!((scatter / typical - 1.0).abs() < 0.35, "scatter {scatter} vs reported {typical}");
+        assert!(
+            (scatter / typical - 1.0).abs() < 0.35,
+            "scatter {scatter} vs reported {typical}"
+        );
     }
 }

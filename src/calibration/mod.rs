@@ -47,8 +47,18 @@ pub fn calibrate(
     let nominal = ParamValues::nominal(robot.spec());
     let candidates: Vec<ParamId> = match model {
         ModelName::Nominal => Vec::new(),
-        ModelName::Registered => options.candidates.iter().copied().filter(|p| p.is_world()).collect(),
-        ModelName::Kinematic => options.candidates.iter().copied().filter(|p| !p.is_compliance()).collect(),
+        ModelName::Registered => options
+            .candidates
+            .iter()
+            .copied()
+            .filter(|p| p.is_world())
+            .collect(),
+        ModelName::Kinematic => options
+            .candidates
+            .iter()
+            .copied()
+            .filter(|p| !p.is_compliance())
+            .collect(),
         ModelName::Elastogeometric => options.candidates.clone(),
     };
     let mut set = ParameterSet::fixed(model, nominal);
@@ -67,7 +77,14 @@ pub fn calibrate(
         trace,
         converged,
         ..
-    } = fit::fit(robot, &nominal, rows, measured, &rank.independent, &options.fit)?;
+    } = fit::fit(
+        robot,
+        &nominal,
+        rows,
+        measured,
+        &rank.independent,
+        &options.fit,
+    )?;
     set.values = values;
     set.std_errors = std_errors;
     for id in &rank.independent {

@@ -45,7 +45,13 @@ fn priority(id: ParamId) -> usize {
 }
 
 /// Rank analysis of `candidates` over `rows` at parameter values `at`.
-pub fn analyse(robot: &Robot, at: &ParamValues, rows: &[ConfWrench], candidates: &[ParamId], tolerance: f64) -> RankAnalysis {
+pub fn analyse(
+    robot: &Robot,
+    at: &ParamValues,
+    rows: &[ConfWrench],
+    candidates: &[ParamId],
+    tolerance: f64,
+) -> RankAnalysis {
     let mut ordered: Vec<ParamId> = candidates.to_vec();
     ordered.sort_by_key(|id| priority(*id));
     let jacobian = batch_jacobian(robot, at, rows, &ordered);
@@ -54,7 +60,13 @@ pub fn analyse(robot: &Robot, at: &ParamValues, rows: &[ConfWrench], candidates:
     let scaled = Mat::<f64>::from_fn(n, m, |r, c| jacobian.entry(r, c));
     let norms: Vec<f64> = (0..m).map(|c| scaled.col(c).norm_l2()).collect();
     let max_norm = norms.iter().cloned().fold(0.0, f64::max);
-    let unit = Mat::<f64>::from_fn(n, m, |r, c| if norms[c] > 0.0 { scaled[(r, c)] / norms[c] } else { 0.0 });
+    let unit = Mat::<f64>::from_fn(n, m, |r, c| {
+        if norms[c] > 0.0 {
+            scaled[(r, c)] / norms[c]
+        } else {
+            0.0
+        }
+    });
 
     let mut basis: Vec<Vec<f64>> = Vec::new();
     let mut kept: Vec<usize> = Vec::new();
@@ -108,7 +120,10 @@ pub fn analyse(robot: &Robot, at: &ParamValues, rows: &[ConfWrench], candidates:
 
     let singular_values = unit.singular_values().unwrap_or_default();
     let sigma_max = singular_values.first().copied().unwrap_or(0.0);
-    let svd_rank = singular_values.iter().filter(|s| **s > tolerance * sigma_max).count();
+    let svd_rank = singular_values
+        .iter()
+        .filter(|s| **s > tolerance * sigma_max)
+        .count();
     let mut independent: Vec<ParamId> = kept.iter().map(|&c| ordered[c]).collect();
     independent.sort();
     RankAnalysis {
@@ -142,14 +157,30 @@ mod tests {
         let all: Vec<ParamId> = ParamId::all().collect();
         let analysis = analyse(&robot, &nominal, &rows, &all, 1e-6);
         let names: Vec<&str> = analysis.independent.iter().map(|p| p.name()).collect();
-        assert_eq!(analysis.independent, Selection::spec_identifiable().ids(), "{names:?}");
+        assert_eq!(
+            analysis.independent,
+            Selection::spec_identifiable().ids(),
+            "{names:?}"
+        );
         assert_eq!(analysis.svd_rank, 32);
         let partners = |name: &str| -> Vec<&str> {
             let id = ParamId::from_name(name).unwrap();
-            analysis.dependent.iter().find(|(d, _)| *d == id).unwrap().1.iter().map(|p| p.name()).collect()
+            analysis
+                .dependent
+                .iter()
+                .find(|(d, _)| *d == id)
+                .unwrap()
+                .1
+                .iter()
+                .map(|p| p.name())
+                .collect()
         };
         assert_eq!(partners("dd3"), vec!["dd2"]);
-        assert!(partners("dtheta1").contains(&"gamma_w"), "{:?}", partners("dtheta1"));
+        assert!(
+            partners("dtheta1").contains(&"gamma_w"),
+            "{:?}",
+            partners("dtheta1")
+        );
     }
 
     #[test]

@@ -112,7 +112,11 @@ impl Cell {
         let mut clearance = f64::INFINITY;
         let mut require = |d: f64, why: Rejection| {
             clearance = clearance.min(d);
-            if d <= self.safety_margin_mm { Err(why) } else { Ok(()) }
+            if d <= self.safety_margin_mm {
+                Err(why)
+            } else {
+                Ok(())
+            }
         };
 
         // Links 2.. above the floor (link 1 stands on it).
@@ -129,7 +133,10 @@ impl Cell {
                 }
             }
         }
-        let platform = ball_at(&tool.transform_point(&self.platform_centre), self.platform_radius_mm);
+        let platform = ball_at(
+            &tool.transform_point(&self.platform_centre),
+            self.platform_radius_mm,
+        );
         // The platform against the arm up to the forearm.
         for (link, shape, _) in &links {
             if *link <= 3 {
@@ -150,7 +157,13 @@ impl Cell {
             .anchors
             .iter()
             .zip(&self.attachments)
-            .map(|(anchor, attachment)| capsule(anchor, &tool.transform_point(attachment), self.cable_radius_mm))
+            .map(|(anchor, attachment)| {
+                capsule(
+                    anchor,
+                    &tool.transform_point(attachment),
+                    self.cable_radius_mm,
+                )
+            })
             .collect();
         for cable in &cables {
             for (link, shape, _) in &links {
@@ -163,7 +176,11 @@ impl Cell {
         // platform radius (the beam ends on the platform's face).
         let smr = tool.origin_mm;
         let towards_tracker = (self.tracker - smr).normalize();
-        let beam = capsule(&self.tracker, &(smr + towards_tracker * self.platform_radius_mm), 0.0);
+        let beam = capsule(
+            &self.tracker,
+            &(smr + towards_tracker * self.platform_radius_mm),
+            0.0,
+        );
         for (_, shape, _) in &links {
             require(distance(&beam, shape), Rejection::LineOfSight)?;
         }
@@ -180,8 +197,16 @@ mod tests {
 
     #[test]
     fn parry_distances_match_closed_forms() {
-        let a = capsule(&Vector3::new(0.0, 0.0, 0.0), &Vector3::new(100.0, 0.0, 0.0), 10.0);
-        let b = capsule(&Vector3::new(50.0, 50.0, -20.0), &Vector3::new(50.0, 50.0, 20.0), 5.0);
+        let a = capsule(
+            &Vector3::new(0.0, 0.0, 0.0),
+            &Vector3::new(100.0, 0.0, 0.0),
+            10.0,
+        );
+        let b = capsule(
+            &Vector3::new(50.0, 50.0, -20.0),
+            &Vector3::new(50.0, 50.0, 20.0),
+            5.0,
+        );
         assert!((distance(&a, &b) - 35.0).abs() < 1e-9);
         let ball = ball_at(&Vector3::new(200.0, 0.0, 0.0), 20.0);
         assert!((distance(&a, &ball) - 70.0).abs() < 1e-9);

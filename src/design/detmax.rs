@@ -10,9 +10,9 @@
 //! scaling changes O1's value but not which subset wins, and it is reported with it.
 
 use nalgebra::{DMatrix, Matrix3};
+use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand::seq::index::sample;
-use rand::SeedableRng;
 
 /// One exchange of the DETMAX loop.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -41,9 +41,13 @@ pub struct Selection {
 pub enum DetmaxError {
     #[error("asked for {wanted} combinations out of {available} candidates")]
     NotEnoughCandidates { wanted: usize, available: usize },
-    #[error("{n} combinations give {rows} equations for {m} parameters; the paper's minimum is n ≥ m/3")]
+    #[error(
+        "{n} combinations give {rows} equations for {m} parameters; the paper's minimum is n ≥ m/3"
+    )]
     TooFew { n: usize, rows: usize, m: usize },
-    #[error("the candidates cannot identify the parameters (JᵀJ is singular even with all of them)")]
+    #[error(
+        "the candidates cannot identify the parameters (JᵀJ is singular even with all of them)"
+    )]
     Singular,
 }
 
@@ -59,12 +63,19 @@ impl Candidates {
     pub fn from_jacobian(jacobian: &[f64], n: usize, m: usize) -> (Candidates, Vec<f64>) {
         let scale: Vec<f64> = (0..m)
             .map(|j| {
-                let norm = (0..3 * n).map(|r| jacobian[r * m + j].powi(2)).sum::<f64>().sqrt();
+                let norm = (0..3 * n)
+                    .map(|r| jacobian[r * m + j].powi(2))
+                    .sum::<f64>()
+                    .sqrt();
                 if norm > 0.0 { 1.0 / norm } else { 1.0 }
             })
             .collect();
         let blocks = (0..n)
-            .map(|k| nalgebra::OMatrix::<f64, nalgebra::U3, nalgebra::Dyn>::from_fn(m, |r, j| jacobian[(3 * k + r) * m + j] * scale[j]))
+            .map(|k| {
+                nalgebra::OMatrix::<f64, nalgebra::U3, nalgebra::Dyn>::from_fn(m, |r, j| {
+                    jacobian[(3 * k + r) * m + j] * scale[j]
+                })
+            })
             .collect();
         (Candidates { blocks, m }, scale)
     }
@@ -100,13 +111,22 @@ fn log_det_change(c: &Candidates, inv: &DMatrix<f64>, k: usize, sign: f64) -> f6
     let b = &c.blocks[k];
     let s: Matrix3<f64> = Matrix3::identity() + (b * inv * b.transpose()) * sign;
     let det = s.determinant();
-    if det > 0.0 { det.ln() } else { f64::NEG_INFINITY }
+    if det > 0.0 {
+        det.ln()
+    } else {
+        f64::NEG_INFINITY
+    }
 }
 
 /// DETMAX: from a random start of `n`, repeatedly add the candidate that raises
 /// det(JᵀJ) most, then remove the member whose removal lowers it least, until the
 /// removed one is the one just added (paper §IV.B steps (a)–(d)).
-pub fn detmax(c: &Candidates, n: usize, seed: u64, max_iterations: usize) -> Result<Selection, DetmaxError> {
+pub fn detmax(
+    c: &Candidates,
+    n: usize,
+    seed: u64,
+    max_iterations: usize,
+) -> Result<Selection, DetmaxError> {
     let total = c.blocks.len();
     if n > total {
         return Err(DetmaxError::NotEnoughCandidates {
@@ -115,7 +135,11 @@ pub fn detmax(c: &Candidates, n: usize, seed: u64, max_iterations: usize) -> Res
         });
     }
     if 3 * n < c.m {
-        return Err(DetmaxError::TooFew { n, rows: 3 * n, m: c.m });
+        return Err(DetmaxError::TooFew {
+            n,
+            rows: 3 * n,
+            m: c.m,
+        });
     }
     let all: Vec<usize> = (0..total).collect();
     if inverse(&c.information(&all)).is_none() {
@@ -149,7 +173,9 @@ pub fn detmax(c: &Candidates, n: usize, seed: u64, max_iterations: usize) -> Res
         let inv = inverse(&info).ok_or(DetmaxError::Singular)?;
         let added = (0..total)
             .filter(|&k| !in_set[k])
-            .max_by(|&a, &b| log_det_change(c, &inv, a, 1.0).total_cmp(&log_det_change(c, &inv, b, 1.0)))
+            .max_by(|&a, &b| {
+                log_det_change(c, &inv, a, 1.0).total_cmp(&log_det_change(c, &inv, b, 1.0))
+            })
             .ok_or(DetmaxError::NotEnoughCandidates {
                 wanted: n + 1,
                 available: total,
@@ -160,7 +186,9 @@ pub fn detmax(c: &Candidates, n: usize, seed: u64, max_iterations: usize) -> Res
         let (position, &removed) = chosen
             .iter()
             .enumerate()
-            .max_by(|(_, a), (_, b)| log_det_change(c, &inv, **a, -1.0).total_cmp(&log_det_change(c, &inv, **b, -1.0)))
+            .max_by(|(_, a), (_, b)| {
+                log_det_change(c, &inv, **a, -1.0).total_cmp(&log_det_change(c, &inv, **b, -1.0))
+            })
             .expect("the set is not empty");
         chosen.swap_remove(position);
         let o1 = observability_index(&c.information(&chosen), n);
@@ -193,7 +221,9 @@ mod tests {
 
     fn random_candidates(total: usize, m: usize, seed: u64) -> Candidates {
         let mut rng = StdRng::seed_from_u64(seed);
-        let jacobian: Vec<f64> = (0..3 * total * m).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let jacobian: Vec<f64> = (0..3 * total * m)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
         Candidates::from_jacobian(&jacobian, total, m).0
     }
 
@@ -233,7 +263,13 @@ mod tests {
     #[test]
     fn asking_for_too_few_rows_is_an_error() {
         let c = random_candidates(10, 9, 3);
-        assert!(matches!(detmax(&c, 2, 0, 10), Err(DetmaxError::TooFew { .. })));
-        assert!(matches!(detmax(&c, 11, 0, 10), Err(DetmaxError::NotEnoughCandidates { .. })));
+        assert!(matches!(
+            detmax(&c, 2, 0, 10),
+            Err(DetmaxError::TooFew { .. })
+        ));
+        assert!(matches!(
+            detmax(&c, 11, 0, 10),
+            Err(DetmaxError::NotEnoughCandidates { .. })
+        ));
     }
 }

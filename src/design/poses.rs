@@ -82,7 +82,11 @@ pub fn targets(problem: &PoseProblem, rng: &mut impl Rng) -> Vec<Vector3<f64>> {
     let corner = problem.centre_mm - Vector3::repeat(half);
     match problem.sampling {
         Sampling::Grid { per_axis } => {
-            let step = if per_axis > 1 { problem.edge_mm / (per_axis - 1) as f64 } else { 0.0 };
+            let step = if per_axis > 1 {
+                problem.edge_mm / (per_axis - 1) as f64
+            } else {
+                0.0
+            };
             let offset = if per_axis > 1 { 0.0 } else { half };
             let mut points = Vec::with_capacity(per_axis.pow(3));
             for i in 0..per_axis {
@@ -109,7 +113,8 @@ pub fn targets(problem: &PoseProblem, rng: &mut impl Rng) -> Vec<Vector3<f64>> {
                 .map(|p| {
                     corner
                         + Vector3::from_fn(|axis, _| {
-                            (strata[axis][p] as f64 + rng.random::<f64>()) / count as f64 * problem.edge_mm
+                            (strata[axis][p] as f64 + rng.random::<f64>()) / count as f64
+                                * problem.edge_mm
                         })
                 })
                 .collect()
@@ -141,14 +146,20 @@ pub fn singularity_margins(joints: &[Frame; JOINTS + 1], q_deg: &[f64; JOINTS]) 
 }
 
 /// Generates one configuration per target point (or drops the point).
-pub fn generate(robot: &Robot, nominal: &ParamValues, problem: &PoseProblem, seed: u64) -> PoseOutcome {
+pub fn generate(
+    robot: &Robot,
+    nominal: &ParamValues,
+    problem: &PoseProblem,
+    seed: u64,
+) -> PoseOutcome {
     let mut rng = StdRng::seed_from_u64(seed);
     let points = targets(problem, &mut rng);
     let per_point: Vec<(Option<GeneratedPose>, BTreeMap<&'static str, usize>)> = points
         .par_iter()
         .enumerate()
         .map(|(index, target)| {
-            let mut rng = StdRng::seed_from_u64(seed ^ (index as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            let mut rng =
+                StdRng::seed_from_u64(seed ^ (index as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
             generate_one(robot, nominal, problem, index as i64 + 1, target, &mut rng)
         })
         .collect();
@@ -205,7 +216,10 @@ fn generate_one(
             let (joints, tool) = robot.frames_in_base(nominal, &solution.q_deg);
             let (wrist, shoulder, elbow) = singularity_margins(&joints, &solution.q_deg);
             let limits = &problem.singularity;
-            if wrist < limits.min_wrist_deg || shoulder < limits.min_shoulder_mm || elbow < limits.min_elbow_deg {
+            if wrist < limits.min_wrist_deg
+                || shoulder < limits.min_shoulder_mm
+                || elbow < limits.min_elbow_deg
+            {
                 reject(Rejection::Singular);
                 continue;
             }
@@ -217,8 +231,14 @@ fn generate_one(
         if survivors.is_empty() {
             continue;
         }
-        let (solution, tool, clearance_mm) = survivors.swap_remove(rng.random_range(0..survivors.len()));
-        let incidence_deg = tool.axis(2).dot(&to_tracker).clamp(-1.0, 1.0).acos().to_degrees();
+        let (solution, tool, clearance_mm) =
+            survivors.swap_remove(rng.random_range(0..survivors.len()));
+        let incidence_deg = tool
+            .axis(2)
+            .dot(&to_tracker)
+            .clamp(-1.0, 1.0)
+            .acos()
+            .to_degrees();
         return (
             Some(GeneratedPose {
                 config_id,

@@ -178,11 +178,18 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
                 ));
                 continue;
             };
+            // The edge counts for cycle detection even when the reference is
+            // otherwise bad, so a cycle is reported alongside other problems.
+            if !is_path(reference) {
+                let stage_id = reference
+                    .split_once('.')
+                    .map_or(reference.as_str(), |(s, _)| s);
+                if let Some(&u) = ids.get(stage_id) {
+                    edges[i].push(u);
+                }
+            }
             match resolve_input(reference, slot, &dir, &raw, &ids, &kinds) {
-                Ok((source, upstream)) => {
-                    if let Some(u) = upstream {
-                        edges[i].push(u);
-                    }
+                Ok(source) => {
                     inputs.insert(name.clone(), source);
                 }
                 Err(message) => problems.push(at(&key, message)),
@@ -264,20 +271,17 @@ fn resolve_input(
     raw: &RawJob,
     ids: &HashMap<&str, usize>,
     kinds: &[Option<&'static dyn StageKind>],
-) -> Result<(InputSource, Option<usize>), String> {
+) -> Result<InputSource, String> {
     let expected = (slot.schema)();
     if is_path(reference) {
         let paths = expand(dir, reference)?;
         for path in &paths {
             check_footer(path, &expected)?;
         }
-        return Ok((
-            InputSource::Files {
-                pattern: reference.to_string(),
-                paths,
-            },
-            None,
-        ));
+        return Ok(InputSource::Files {
+            pattern: reference.to_string(),
+            paths,
+        });
     }
     let (stage_id, table) = match reference.split_once('.') {
         Some((s, t)) => (s, Some(t)),
@@ -291,13 +295,10 @@ fn resolve_input(
     };
     let Some(kind) = kinds[upstream] else {
         // Its unknown kind is reported already.
-        return Ok((
-            InputSource::Stage {
-                stage: stage_id.to_string(),
-                table: table.unwrap_or_default().to_string(),
-            },
-            Some(upstream),
-        ));
+        return Ok(InputSource::Stage {
+            stage: stage_id.to_string(),
+            table: table.unwrap_or_default().to_string(),
+        });
     };
     let outputs = kind.info().outputs;
     let output = match table {
@@ -328,13 +329,10 @@ fn resolve_input(
             ));
         }
     }
-    Ok((
-        InputSource::Stage {
-            stage: stage_id.to_string(),
-            table: output.name.to_string(),
-        },
-        Some(upstream),
-    ))
+    Ok(InputSource::Stage {
+        stage: stage_id.to_string(),
+        table: output.name.to_string(),
+    })
 }
 
 fn names(slots: &[TableSlot]) -> String {

@@ -161,7 +161,10 @@ pub fn parse(text: &str, path: &Path) -> Result<RawJob, JobProblems> {
                     format!("job.{}", e.path())
                 };
                 let message = e.inner().message().to_string();
-                let hint = unknown_field_hint(&message, &["name", "seed", "output", "robot", "cable_robot"]);
+                let hint = unknown_field_hint(
+                    &message,
+                    &["name", "seed", "output", "robot", "cable_robot"],
+                );
                 problems.push(at(&key, format!("{message}{hint}")));
                 None
             }

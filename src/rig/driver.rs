@@ -39,8 +39,14 @@ impl ExternalDriver {
             .stderr(Stdio::inherit())
             .spawn()
             .map_err(|e| RigError::Fatal(format!("cannot start driver `{program}`: {e}")))?;
-        let stdin = child.stdin.take().ok_or_else(|| RigError::Fatal("driver has no stdin".into()))?;
-        let stdout = child.stdout.take().ok_or_else(|| RigError::Fatal("driver has no stdout".into()))?;
+        let stdin = child
+            .stdin
+            .take()
+            .ok_or_else(|| RigError::Fatal("driver has no stdin".into()))?;
+        let stdout = child
+            .stdout
+            .take()
+            .ok_or_else(|| RigError::Fatal("driver has no stdout".into()))?;
         let (sender, lines) = channel();
         std::thread::spawn(move || {
             for line in BufReader::new(stdout).lines() {
@@ -103,8 +109,11 @@ impl ExternalDriver {
                     )));
                 }
             };
-            let reply: Reply = serde_json::from_str(&line)
-                .map_err(|e| RigError::Fatal(format!("driver sent a malformed reply to `{method}`: {e}: {line}")))?;
+            let reply: Reply = serde_json::from_str(&line).map_err(|e| {
+                RigError::Fatal(format!(
+                    "driver sent a malformed reply to `{method}`: {e}: {line}"
+                ))
+            })?;
             if reply.id < id {
                 continue; // late answer to a request that already timed out
             }
@@ -116,7 +125,10 @@ impl ExternalDriver {
             }
             return match (reply.result, reply.error) {
                 (_, Some(error)) if error.transient => Err(RigError::Transient(error.message)),
-                (_, Some(error)) => Err(RigError::Transient(format!("driver error: {}", error.message))),
+                (_, Some(error)) => Err(RigError::Transient(format!(
+                    "driver error: {}",
+                    error.message
+                ))),
                 (Some(result), None) => Ok(result),
                 (None, None) => Ok(ReplyResult::default()),
             };
@@ -152,7 +164,9 @@ impl Rig for ExternalDriver {
     fn measure(&mut self) -> Result<[f64; 3], RigError> {
         let result = self.call(Call::Measure {})?;
         self.last_measured_at_us = result.measured_at_us.unwrap_or_else(now_us);
-        result.position_mm.ok_or_else(|| Self::missing("measure", "position_mm"))
+        result
+            .position_mm
+            .ok_or_else(|| Self::missing("measure", "position_mm"))
     }
 
     fn release_wrench(&mut self) -> Result<(), RigError> {
@@ -186,7 +200,12 @@ fn now_us() -> i64 {
 
 /// Serves a rig over the protocol on the given streams until `shutdown` or EOF:
 /// the server side, used by `egcal sim-driver` and by tests.
-pub fn serve(rig: &mut dyn Rig, name: &str, input: impl BufRead, mut output: impl Write) -> std::io::Result<()> {
+pub fn serve(
+    rig: &mut dyn Rig,
+    name: &str,
+    input: impl BufRead,
+    mut output: impl Write,
+) -> std::io::Result<()> {
     for line in input.lines() {
         let line = line?;
         if line.trim().is_empty() {
@@ -206,7 +225,12 @@ pub fn serve(rig: &mut dyn Rig, name: &str, input: impl BufRead, mut output: imp
             Call::Hello { .. } => {
                 result.protocol = Some(PROTOCOL_VERSION);
                 result.name = Some(name.to_string());
-                result.capabilities = Some(super::protocol::METHODS.iter().map(|m| m.to_string()).collect());
+                result.capabilities = Some(
+                    super::protocol::METHODS
+                        .iter()
+                        .map(|m| m.to_string())
+                        .collect(),
+                );
                 Ok(())
             }
             Call::MoveJoints { cw_id, q_deg } => rig.move_joints(cw_id, q_deg),
@@ -219,7 +243,15 @@ pub fn serve(rig: &mut dyn Rig, name: &str, input: impl BufRead, mut output: imp
                 result.measured_at_us = Some(rig.measured_at_us());
             }),
             Call::Shutdown {} => {
-                writeln!(output, "{}", serde_json::to_string(&Reply { id: request.id, result: Some(result), error: None })?)?;
+                writeln!(
+                    output,
+                    "{}",
+                    serde_json::to_string(&Reply {
+                        id: request.id,
+                        result: Some(result),
+                        error: None
+                    })?
+                )?;
                 output.flush()?;
                 return Ok(());
             }

@@ -138,10 +138,12 @@ mod tests {
             r#"{"id":3,"method":"move_joints","params":{"cw_id":12,"q_deg":[0.0,1.0,2.0,3.0,4.0,5.0]}}"#
         );
         assert_eq!(serde_json::from_str::<Request>(&line).unwrap(), request);
-        let measure: Request = serde_json::from_str(r#"{"id":4,"method":"measure","params":{}}"#).unwrap();
+        let measure: Request =
+            serde_json::from_str(r#"{"id":4,"method":"measure","params":{}}"#).unwrap();
         assert_eq!(measure.call, Call::Measure {});
         let reply: Reply =
-            serde_json::from_str(r#"{"id":4,"error":{"message":"beam lost","transient":true}}"#).unwrap();
+            serde_json::from_str(r#"{"id":4,"error":{"message":"beam lost","transient":true}}"#)
+                .unwrap();
         assert!(reply.error.unwrap().transient);
     }
 }

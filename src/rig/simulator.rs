@@ -89,11 +89,22 @@ pub struct Simulator {
 }
 
 impl Simulator {
-    pub fn new(robot: Robot, truth: ParamValues, settings: SimulatorSettings, seed: u64) -> Result<Self, String> {
-        let clock_start_us = crate::table::parse_rfc3339_us(&settings.clock_start)
-            .ok_or_else(|| format!("clock_start `{}` is not RFC 3339 (2026-01-01T00:00:00Z)", settings.clock_start))?;
+    pub fn new(
+        robot: Robot,
+        truth: ParamValues,
+        settings: SimulatorSettings,
+        seed: u64,
+    ) -> Result<Self, String> {
+        let clock_start_us =
+            crate::table::parse_rfc3339_us(&settings.clock_start).ok_or_else(|| {
+                format!(
+                    "clock_start `{}` is not RFC 3339 (2026-01-01T00:00:00Z)",
+                    settings.clock_start
+                )
+            })?;
         let mut phase_rng = StdRng::seed_from_u64(seed ^ 0x5eed_0f7a);
-        let phases_rad = std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU));
+        let phases_rad =
+            std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU));
         Ok(Simulator {
             robot,
             truth,
@@ -120,12 +131,16 @@ impl Simulator {
         let (torques, _) = self.robot.deflections(&self.truth, q, &wrench);
         let mut actual = *q;
         for i in 0..JOINTS {
-            actual[i] += self.settings.transmission_error_deg * (2.0 * q[i].to_radians() + self.phases_rad[i]).sin();
+            actual[i] += self.settings.transmission_error_deg
+                * (2.0 * q[i].to_radians() + self.phases_rad[i]).sin();
         }
         for i in [1, 2] {
             actual[i] += self.settings.quadratic_compliance * torques[i] * torques[i].abs();
         }
-        let p = self.robot.predict(&self.truth, &actual, &wrench).position_mm;
+        let p = self
+            .robot
+            .predict(&self.truth, &actual, &wrench)
+            .position_mm;
         [p.x, p.y, p.z]
     }
 }
@@ -136,7 +151,9 @@ impl Rig for Simulator {
         hasher.update(&self.seed.to_le_bytes());
         hasher.update(&cw_id.to_le_bytes());
         let bytes = hasher.finalize();
-        self.rng = StdRng::seed_from_u64(u64::from_le_bytes(bytes.as_bytes()[..8].try_into().expect("8 bytes")));
+        self.rng = StdRng::seed_from_u64(u64::from_le_bytes(
+            bytes.as_bytes()[..8].try_into().expect("8 bytes"),
+        ));
         self.cw_id = cw_id;
         self.commanded_q = Some(q_deg);
         self.applied = [0.0; 6];
@@ -183,12 +200,15 @@ impl Rig for Simulator {
         let q = self
             .commanded_q
             .ok_or_else(|| RigError::Fatal("measure before move_joints".into()))?;
-        if self.settings.beam_loss_probability > 0.0 && self.rng.random::<f64>() < self.settings.beam_loss_probability {
+        if self.settings.beam_loss_probability > 0.0
+            && self.rng.random::<f64>() < self.settings.beam_loss_probability
+        {
             return Err(RigError::Transient("tracker lost the beam".into()));
         }
         let position = self.position_now(&q);
         let distance_m = position.iter().map(|v| v * v).sum::<f64>().sqrt() / 1000.0;
-        let sigma = self.settings.tracker_noise_mm + self.settings.tracker_noise_mm_per_m * distance_m;
+        let sigma =
+            self.settings.tracker_noise_mm + self.settings.tracker_noise_mm_per_m * distance_m;
         Ok(position.map(|v| v + self.gauss(sigma)))
     }
 
@@ -232,7 +252,9 @@ mod tests {
         sim.apply_wrench(w).unwrap();
         assert_eq!(sim.read_wrench().unwrap(), w);
         assert_eq!(sim.read_joints().unwrap(), q);
-        let expected = robot.predict(&truth, &q, &Wrench::from_array(w)).position_mm;
+        let expected = robot
+            .predict(&truth, &q, &Wrench::from_array(w))
+            .position_mm;
         let measured = sim.measure().unwrap();
         for k in 0..3 {
             assert!((measured[k] - expected[k]).abs() < 1e-12);
@@ -245,9 +267,14 @@ mod tests {
         let robot = irb1600();
         let truth = truth_params(&robot);
         let row = |sim: &mut Simulator| {
-            sim.move_joints(3, [0.0, 10.0, 10.0, 0.0, 30.0, 0.0]).unwrap();
+            sim.move_joints(3, [0.0, 10.0, 10.0, 0.0, 30.0, 0.0])
+                .unwrap();
             sim.apply_wrench([10.0, 0.0, 0.0, 0.0, 0.0, 1.0]).unwrap();
-            (sim.read_wrench().unwrap(), sim.read_joints().unwrap(), sim.measure().unwrap())
+            (
+                sim.read_wrench().unwrap(),
+                sim.read_joints().unwrap(),
+                sim.measure().unwrap(),
+            )
         };
         let mut a = Simulator::new(robot.clone(), truth, SimulatorSettings::default(), 9).unwrap();
         let mut b = Simulator::new(robot, truth, SimulatorSettings::default(), 9).unwrap();

@@ -264,7 +264,11 @@ impl Robot {
 
     /// Frames of joints 0..=6 and of the tool in the base frame, unloaded: the
     /// geometry collision and visibility checks work on.
-    pub fn frames_in_base(&self, p: &ParamValues, q_deg: &[f64; JOINTS]) -> ([Frame; JOINTS + 1], Frame) {
+    pub fn frames_in_base(
+        &self,
+        p: &ParamValues,
+        q_deg: &[f64; JOINTS],
+    ) -> ([Frame; JOINTS + 1], Frame) {
         let chain = self.chain(p, q_deg, &[0.0; JOINTS]);
         (chain.joints, chain.tool)
     }

@@ -27,12 +27,21 @@ pub struct CachedTable {
     pub rows: usize,
 }
 
+/// A non-table output of a cache entry (a report).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CachedFile {
+    pub file: String,
+    pub bytes_hash: String,
+}
+
 /// The manifest of a cache entry.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Manifest {
     pub key: String,
     pub stage_kind: String,
     pub tables: BTreeMap<String, CachedTable>,
+    #[serde(default)]
+    pub files: BTreeMap<String, CachedFile>,
     pub facts: BTreeMap<String, String>,
     pub created_at: String,
 }
@@ -69,6 +78,10 @@ impl Cache {
         self.entry_dir(key).join(&table.file)
     }
 
+    pub fn file_path(&self, key: &str, file: &CachedFile) -> PathBuf {
+        self.entry_dir(key).join(&file.file)
+    }
+
     /// Looks `key` up and verifies every file against the manifest.
     pub fn lookup(&self, key: &str) -> Lookup {
         let dir = self.entry_dir(key);
@@ -85,11 +98,16 @@ impl Cache {
         if manifest.key != key {
             return Lookup::Corrupt(format!("manifest is for key {}", manifest.key));
         }
-        for table in manifest.tables.values() {
-            match fsio::hash_file(&dir.join(&table.file)) {
-                Ok(hash) if hash == table.bytes_hash => {}
-                Ok(_) => return Lookup::Corrupt(format!("{} does not match its hash", table.file)),
-                Err(e) => return Lookup::Corrupt(format!("{}: {e}", table.file)),
+        let stored = manifest
+            .tables
+            .values()
+            .map(|t| (&t.file, &t.bytes_hash))
+            .chain(manifest.files.values().map(|f| (&f.file, &f.bytes_hash)));
+        for (file, expected) in stored {
+            match fsio::hash_file(&dir.join(file)) {
+                Ok(hash) if &hash == expected => {}
+                Ok(_) => return Lookup::Corrupt(format!("{file} does not match its hash")),
+                Err(e) => return Lookup::Corrupt(format!("{file}: {e}")),
             }
         }
         Lookup::Hit(manifest)
@@ -110,6 +128,7 @@ impl Cache {
         key: &str,
         stage_kind: &str,
         tables: &mut BTreeMap<String, DataFrame>,
+        files: &BTreeMap<String, Vec<u8>>,
         facts: &BTreeMap<String, String>,
         provenance: &Provenance,
     ) -> Result<Manifest, table::TableError> {
@@ -125,6 +144,7 @@ impl Cache {
             key: key.to_string(),
             stage_kind: stage_kind.to_string(),
             tables: BTreeMap::new(),
+            files: BTreeMap::new(),
             facts: facts.clone(),
             created_at: provenance.created_at.clone(),
         };
@@ -139,6 +159,16 @@ impl Cache {
                     content_hash: table::content_hash(df),
                     rows: df.height(),
                     file,
+                },
+            );
+        }
+        for (name, bytes) in files {
+            fsio::write_bytes_atomic(&tmp_dir.join(name), bytes).map_err(io)?;
+            manifest.files.insert(
+                name.clone(),
+                CachedFile {
+                    file: name.clone(),
+                    bytes_hash: blake3::hash(bytes).to_hex().to_string(),
                 },
             );
         }

@@ -327,7 +327,9 @@ fn input_hashes(
 }
 
 fn hash_json(value: &impl Serialize) -> String {
-    blake3::hash(&serde_json::to_vec(value).expect("serialises")).to_hex().to_string()
+    blake3::hash(&serde_json::to_vec(value).expect("serialises"))
+        .to_hex()
+        .to_string()
 }
 
 fn files_hash(paths: &[PathBuf]) -> std::io::Result<String> {
@@ -350,7 +352,11 @@ fn key_parts(
         settings: stage.settings.clone(),
         inputs,
         robot: robot_hash.to_string(),
-        cable_robot: stage.kind.info().uses_cable_robot.then(|| hash_json(&plan.cable_robot)),
+        cable_robot: stage
+            .kind
+            .info()
+            .uses_cable_robot
+            .then(|| hash_json(&plan.cable_robot)),
         seed: plan.seed,
     }
 }
@@ -451,6 +457,7 @@ fn execute(
             &key,
             stage.kind.info().kind,
             &mut outputs.tables,
+            &outputs.files,
             &outputs.facts,
             &provenance,
         )
@@ -539,15 +546,27 @@ fn load_inputs(
     Ok(inputs)
 }
 
-/// Copies a cache entry's tables to `<output>/<stage>/`, unless already identical.
+/// Copies a cache entry's tables and files to `<output>/<stage>/`, unless already identical.
 fn publish(layout: &Layout, stage: &str, key: &str, manifest: &Manifest) -> Result<(), TableError> {
-    for (name, table) in &manifest.tables {
-        let target = layout.published(stage, name);
-        if fsio::hash_file(&target).ok().as_deref() == Some(table.bytes_hash.as_str()) {
+    let tables = manifest.tables.iter().map(|(name, t)| {
+        (
+            layout.published(stage, name),
+            layout.cache.table_path(key, t),
+            &t.bytes_hash,
+        )
+    });
+    let files = manifest.files.iter().map(|(name, f)| {
+        (
+            layout.output.join(stage).join(name),
+            layout.cache.file_path(key, f),
+            &f.bytes_hash,
+        )
+    });
+    for (target, source, hash) in tables.chain(files) {
+        if fsio::hash_file(&target).ok().as_ref() == Some(hash) {
             continue;
         }
-        let bytes = std::fs::read(layout.cache.table_path(key, table))
-            .map_err(|e| table::schema::io_error(&target, e))?;
+        let bytes = std::fs::read(&source).map_err(|e| table::schema::io_error(&target, e))?;
         fsio::write_bytes_atomic(&target, &bytes)
             .map_err(|e| table::schema::io_error(&target, e))?;
     }

@@ -6,12 +6,14 @@ use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows};
+use super::{
+    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
+};
 use crate::calibration::rank;
 use crate::design::detmax::{Candidates, detmax};
 use crate::robot::{ParamId, ParamValues, batch_jacobian};
-use crate::table::schema::{self, str_values};
 use crate::table::frame;
+use crate::table::schema::{self, str_values};
 
 pub struct DetmaxStage;
 
@@ -79,7 +81,11 @@ impl Stage for DetmaxStage {
         &INFO
     }
 
-    fn run(&self, ctx: &StageContext, settings: &DetmaxSettings) -> Result<StageOutputs, StageError> {
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &DetmaxSettings,
+    ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("candidates")?;
         let (ids, rows) = conf_wrench_rows(input)?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
@@ -114,11 +120,15 @@ impl Stage for DetmaxStage {
             }
         };
         let jacobian = batch_jacobian(ctx.robot, &nominal, &rows, &parameters);
-        let (candidates, _) = Candidates::from_jacobian(&jacobian.jacobian, rows.len(), parameters.len());
+        let (candidates, _) =
+            Candidates::from_jacobian(&jacobian.jacobian, rows.len(), parameters.len());
         let result = detmax(&candidates, settings.n, ctx.seed, settings.max_iterations)
             .map_err(|e| StageError::Invalid(format!("setting `n`: {e}")))?;
         if !result.converged {
-            ctx.progress.note(&format!("DETMAX stopped at max_iterations = {} before converging", settings.max_iterations));
+            ctx.progress.note(&format!(
+                "DETMAX stopped at max_iterations = {} before converging",
+                settings.max_iterations
+            ));
         }
 
         let mut role = vec!["validation"; ids.len()];
@@ -138,7 +148,10 @@ impl Stage for DetmaxStage {
         let mut outputs = StageOutputs::default();
         outputs.tables.insert(
             "selection".into(),
-            frame(vec![Column::new("cw_id".into(), ids.clone()), Column::new("role".into(), role)]),
+            frame(vec![
+                Column::new("cw_id".into(), ids.clone()),
+                Column::new("role".into(), role),
+            ]),
         );
         outputs.tables.insert(
             "detmax_trace".into(),
@@ -149,12 +162,25 @@ impl Stage for DetmaxStage {
                 Column::new("o1".into(), o1),
             ]),
         );
-        outputs.facts.insert("parameters".into(), parameters.len().to_string());
-        outputs.facts.insert("selected".into(), settings.n.to_string());
-        outputs.facts.insert("o1".into(), format!("{:.6}", result.o1));
-        outputs.facts.insert("o1_random_start".into(), format!("{:.6}", result.o1_start));
-        outputs.facts.insert("o1_scaling".into(), "columns scaled to unit norm over all candidates, at nominal".into());
-        outputs.facts.insert("exchanges".into(), result.trace.len().to_string());
+        outputs
+            .facts
+            .insert("parameters".into(), parameters.len().to_string());
+        outputs
+            .facts
+            .insert("selected".into(), settings.n.to_string());
+        outputs
+            .facts
+            .insert("o1".into(), format!("{:.6}", result.o1));
+        outputs
+            .facts
+            .insert("o1_random_start".into(), format!("{:.6}", result.o1_start));
+        outputs.facts.insert(
+            "o1_scaling".into(),
+            "columns scaled to unit norm over all candidates, at nominal".into(),
+        );
+        outputs
+            .facts
+            .insert("exchanges".into(), result.trace.len().to_string());
         Ok(outputs)
     }
 }

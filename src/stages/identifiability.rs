@@ -6,7 +6,9 @@ use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows};
+use super::{
+    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
+};
 use crate::calibration::rank;
 use crate::robot::{ParamId, ParamValues};
 use crate::table::{frame, schema};
@@ -59,13 +61,23 @@ impl Stage for IdentifiabilityStage {
         &INFO
     }
 
-    fn run(&self, ctx: &StageContext, settings: &IdentifiabilitySettings) -> Result<StageOutputs, StageError> {
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &IdentifiabilitySettings,
+    ) -> Result<StageOutputs, StageError> {
         let (_, rows) = conf_wrench_rows(ctx.input("candidates")?)?;
         let candidates: Vec<ParamId> = ParamId::all()
             .filter(|p| !(settings.kinematic_only && p.is_compliance()))
             .collect();
         let nominal = ParamValues::nominal(ctx.robot.spec());
-        let analysis = rank::analyse(ctx.robot, &nominal, &rows, &candidates, settings.rank_tolerance);
+        let analysis = rank::analyse(
+            ctx.robot,
+            &nominal,
+            &rows,
+            &candidates,
+            settings.rank_tolerance,
+        );
         let mut names = Vec::new();
         let mut units = Vec::new();
         let mut identifiable = Vec::new();
@@ -75,7 +87,10 @@ impl Stage for IdentifiabilityStage {
             units.push(id.unit());
             let partners = analysis.dependent.iter().find(|(d, _)| d == id);
             identifiable.push(partners.is_none());
-            combined.push(partners.map(|(_, with)| with.iter().map(|p| p.name()).collect::<Vec<_>>().join(", ")));
+            combined.push(
+                partners
+                    .map(|(_, with)| with.iter().map(|p| p.name()).collect::<Vec<_>>().join(", ")),
+            );
         }
         let mut outputs = StageOutputs::default();
         outputs.tables.insert(
@@ -89,12 +104,26 @@ impl Stage for IdentifiabilityStage {
         );
         let smallest = analysis.singular_values.last().copied().unwrap_or(0.0);
         let largest = analysis.singular_values.first().copied().unwrap_or(0.0);
-        outputs.facts.insert("candidates".into(), candidates.len().to_string());
-        outputs.facts.insert("identifiable".into(), analysis.independent.len().to_string());
-        outputs.facts.insert("dependent".into(), analysis.dependent.len().to_string());
-        outputs.facts.insert("svd_rank".into(), analysis.svd_rank.to_string());
-        outputs.facts.insert("rank_tolerance".into(), settings.rank_tolerance.to_string());
-        outputs.facts.insert("sigma_min_over_max".into(), format!("{:.3e}", smallest / largest.max(f64::MIN_POSITIVE)));
+        outputs
+            .facts
+            .insert("candidates".into(), candidates.len().to_string());
+        outputs.facts.insert(
+            "identifiable".into(),
+            analysis.independent.len().to_string(),
+        );
+        outputs
+            .facts
+            .insert("dependent".into(), analysis.dependent.len().to_string());
+        outputs
+            .facts
+            .insert("svd_rank".into(), analysis.svd_rank.to_string());
+        outputs
+            .facts
+            .insert("rank_tolerance".into(), settings.rank_tolerance.to_string());
+        outputs.facts.insert(
+            "sigma_min_over_max".into(),
+            format!("{:.3e}", smallest / largest.max(f64::MIN_POSITIVE)),
+        );
         if analysis.svd_rank != analysis.independent.len() {
             ctx.progress.note(&format!(
                 "warning: sequential rank {} differs from SVD rank {} at tolerance {}",

@@ -12,13 +12,16 @@ use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows};
+use super::{
+    InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot,
+    conf_wrench_rows,
+};
 use crate::calibration::fit::FitOptions;
 use crate::calibration::{CalibrationOptions, calibrate};
 use crate::robot::{ConfWrench, ParamId, ParamValues};
+use crate::table::frame;
 use crate::table::parameters::{self, ModelName};
 use crate::table::schema::{self, f64_values, i64_values, str_values};
-use crate::table::frame;
 
 pub struct IdentifyStage;
 
@@ -40,7 +43,10 @@ pub struct IdentifySettings {
 impl Default for IdentifySettings {
     fn default() -> Self {
         IdentifySettings {
-            models: ModelName::ALL.iter().map(|m| m.as_str().to_string()).collect(),
+            models: ModelName::ALL
+                .iter()
+                .map(|m| m.as_str().to_string())
+                .collect(),
             candidates: Vec::new(),
             rank_tolerance: 1e-6,
             max_iterations: 30,
@@ -84,23 +90,31 @@ static INFO: StageInfo = StageInfo {
     ],
 };
 
-/// Measured rows as model inputs and measured positions, optionally only those
-/// whose id is in `keep`.
+/// Measured rows: ids, model inputs (measured joints and wrench) and measured positions.
+#[derive(Debug, Default)]
+pub struct MeasuredRows {
+    pub ids: Vec<i64>,
+    pub rows: Vec<ConfWrench>,
+    pub positions: Vec<Vector3<f64>>,
+}
+
+/// The measured rows of a table, optionally only those whose id is in `keep`.
 pub fn measured_rows(
     table: &InputTable,
     keep: Option<&HashSet<i64>>,
-) -> Result<(Vec<i64>, Vec<ConfWrench>, Vec<Vector3<f64>>), StageError> {
+) -> Result<MeasuredRows, StageError> {
     let (ids, rows) = conf_wrench_rows(table)?;
     let xyz = schema::POSITION_COLUMNS
         .iter()
         .map(|c| f64_values(&table.df, c, &table.path))
         .collect::<Result<Vec<_>, _>>()?;
-    let mut out = (Vec::new(), Vec::new(), Vec::new());
+    let mut out = MeasuredRows::default();
     for k in 0..ids.len() {
         if keep.is_none_or(|keep| keep.contains(&ids[k])) {
-            out.0.push(ids[k]);
-            out.1.push(rows[k]);
-            out.2.push(Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]));
+            out.ids.push(ids[k]);
+            out.rows.push(rows[k]);
+            out.positions
+                .push(Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]));
         }
     }
     Ok(out)
@@ -153,11 +167,18 @@ impl Stage for IdentifyStage {
         &INFO
     }
 
-    fn run(&self, ctx: &StageContext, settings: &IdentifySettings) -> Result<StageOutputs, StageError> {
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &IdentifySettings,
+    ) -> Result<StageOutputs, StageError> {
         let models: Vec<ModelName> = settings
             .models
             .iter()
-            .map(|m| m.parse().map_err(|e: String| StageError::Invalid(format!("setting `models`: {e}"))))
+            .map(|m| {
+                m.parse()
+                    .map_err(|e: String| StageError::Invalid(format!("setting `models`: {e}")))
+            })
             .collect::<Result<_, _>>()?;
         let options = CalibrationOptions {
             candidates: parse_candidates(&settings.candidates)?,
@@ -171,25 +192,41 @@ impl Stage for IdentifyStage {
             Some(selection) => Some(ids_with_role(selection, "calibration")?),
             None => None,
         };
-        let (_, rows, measured) = measured_rows(ctx.input("measurements")?, keep.as_ref())?;
+        let MeasuredRows {
+            rows,
+            positions: measured,
+            ..
+        } = measured_rows(ctx.input("measurements")?, keep.as_ref())?;
         if rows.is_empty() {
-            return Err(StageError::Invalid("no calibration rows (selection marks none, or measurements is empty)".into()));
+            return Err(StageError::Invalid(
+                "no calibration rows (selection marks none, or measurements is empty)".into(),
+            ));
         }
         let mut sets = Vec::new();
-        let (mut t_model, mut t_iter, mut t_rms, mut t_max, mut t_step) = (vec![], vec![], vec![], vec![], vec![]);
+        let (mut t_model, mut t_iter, mut t_rms, mut t_max, mut t_step) =
+            (vec![], vec![], vec![], vec![], vec![]);
         let mut outputs = StageOutputs::default();
         for model in models {
-            ctx.progress.note(&format!("identifying {model} on {} rows", rows.len()));
+            ctx.progress
+                .note(&format!("identifying {model} on {} rows", rows.len()));
             let result = calibrate(ctx.robot, model, &rows, &measured, &options)
                 .map_err(|e| StageError::Failed(format!("{model}: {e}")))?;
             if let Some(rank) = &result.rank {
                 outputs.facts.insert(
                     format!("{model}_identified"),
-                    format!("{} of {} (svd rank {})", rank.independent.len(), rank.independent.len() + rank.dependent.len(), rank.svd_rank),
+                    format!(
+                        "{} of {} (svd rank {})",
+                        rank.independent.len(),
+                        rank.independent.len() + rank.dependent.len(),
+                        rank.svd_rank
+                    ),
                 );
             }
             if !result.converged {
-                ctx.progress.note(&format!("{model}: not converged after {} iterations", settings.max_iterations));
+                ctx.progress.note(&format!(
+                    "{model}: not converged after {} iterations",
+                    settings.max_iterations
+                ));
             }
             for it in &result.trace {
                 t_model.push(model.as_str());
@@ -201,7 +238,9 @@ impl Stage for IdentifyStage {
             sets.push(result.set);
         }
         let nominal = ParamValues::nominal(ctx.robot.spec());
-        outputs.tables.insert("parameters".into(), parameters::to_frame(&nominal, &sets));
+        outputs
+            .tables
+            .insert("parameters".into(), parameters::to_frame(&nominal, &sets));
         outputs.tables.insert(
             "identification_trace".into(),
             frame(vec![
@@ -212,7 +251,9 @@ impl Stage for IdentifyStage {
                 Column::new("step_mm".into(), t_step),
             ]),
         );
-        outputs.facts.insert("calibration_rows".into(), rows.len().to_string());
+        outputs
+            .facts
+            .insert("calibration_rows".into(), rows.len().to_string());
         Ok(outputs)
     }
 }

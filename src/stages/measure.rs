@@ -15,7 +15,9 @@ use polars::prelude::{Column, DataType, TimeUnit, TimeZone};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows};
+use super::{
+    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
+};
 use crate::journal::Journal;
 use crate::rig::driver::ExternalDriver;
 use crate::rig::simulator::{Simulator, SimulatorSettings};
@@ -150,7 +152,11 @@ impl Stage for MeasureStage {
         &INFO
     }
 
-    fn run(&self, ctx: &StageContext, settings: &MeasureSettings) -> Result<StageOutputs, StageError> {
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &MeasureSettings,
+    ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("conf_wrenches")?;
         let (ids, rows) = conf_wrench_rows(input)?;
         let config_ids = input
@@ -163,16 +169,18 @@ impl Stage for MeasureStage {
         let truth = match ctx.inputs.get("truth") {
             None => ParamValues::nominal(ctx.robot.spec()),
             Some(table) => {
-                let model: ModelName = settings
-                    .truth_model
-                    .parse()
-                    .map_err(|m: String| StageError::Invalid(format!("setting `truth_model`: {m}")))?;
+                let model: ModelName = settings.truth_model.parse().map_err(|m: String| {
+                    StageError::Invalid(format!("setting `truth_model`: {m}"))
+                })?;
                 let nominal = ParamValues::nominal(ctx.robot.spec());
                 parameters::from_frame(&table.df, &table.path, &nominal)?
                     .into_iter()
                     .find(|s| s.model == model)
                     .ok_or_else(|| {
-                        StageError::Invalid(format!("{}: no rows for model `{model}`", table.path.display()))
+                        StageError::Invalid(format!(
+                            "{}: no rows for model `{model}`",
+                            table.path.display()
+                        ))
                     })?
                     .values
             }
@@ -183,7 +191,15 @@ impl Stage for MeasureStage {
         let fingerprint = {
             let mut hasher = blake3::Hasher::new();
             hasher.update(content_hash(&input.df).as_bytes());
-            hasher.update(&serde_json::to_vec(&(settings.driver, &settings.command, &settings.simulator, &settings.robot_id)).expect("serialises"));
+            hasher.update(
+                &serde_json::to_vec(&(
+                    settings.driver,
+                    &settings.command,
+                    &settings.simulator,
+                    &settings.robot_id,
+                ))
+                .expect("serialises"),
+            );
             hasher.update(&seed.to_le_bytes());
             hasher.update(ctx.robot.spec().content_hash().as_bytes());
             for v in truth.0 {
@@ -197,7 +213,9 @@ impl Stage for MeasureStage {
         for entry in recorded {
             latest.insert(entry.cw_id(), entry);
         }
-        let done = |latest: &HashMap<i64, Entry>, id: i64| matches!(latest.get(&id), Some(Entry::Measured { .. }));
+        let done = |latest: &HashMap<i64, Entry>, id: i64| {
+            matches!(latest.get(&id), Some(Entry::Measured { .. }))
+        };
         let todo: Vec<usize> = (0..ids.len()).filter(|&k| !done(&latest, ids[k])).collect();
         if todo.len() < ids.len() {
             ctx.progress.note(&format!(
@@ -215,7 +233,9 @@ impl Stage for MeasureStage {
             ),
             DriverKind::External => {
                 if settings.command.is_empty() {
-                    return Err(StageError::Invalid("driver = \"external\" needs `command`".into()));
+                    return Err(StageError::Invalid(
+                        "driver = \"external\" needs `command`".into(),
+                    ));
                 }
                 let mut command = settings.command.clone();
                 if let Some(first) = command.first_mut() {
@@ -241,7 +261,8 @@ impl Stage for MeasureStage {
                 match measure_row(rig.as_mut(), ids[k], &rows[k]) {
                     Ok(entry) => break entry,
                     Err(RigError::Transient(reason)) if attempts <= settings.retries => {
-                        ctx.progress.note(&format!("cw_id {}: {reason}; retrying", ids[k]));
+                        ctx.progress
+                            .note(&format!("cw_id {}: {reason}; retrying", ids[k]));
                         let _ = rig.release_wrench();
                     }
                     Err(RigError::Transient(reason)) => {
@@ -257,13 +278,18 @@ impl Stage for MeasureStage {
                         return Err(StageError::Failed(format!(
                             "cw_id {} (input row {k}): {reason}; the {} rows measured so far are kept in {} and the next run resumes",
                             ids[k],
-                            latest.values().filter(|e| matches!(e, Entry::Measured { .. })).count(),
+                            latest
+                                .values()
+                                .filter(|e| matches!(e, Entry::Measured { .. }))
+                                .count(),
                             journal.path().display()
                         )));
                     }
                 }
             };
-            journal.append(&entry).map_err(|e| StageError::Failed(e.to_string()))?;
+            journal
+                .append(&entry)
+                .map_err(|e| StageError::Failed(e.to_string()))?;
             if let Entry::Failed { reason, .. } = &entry {
                 failures += 1;
                 if settings.stop_on_failure {
@@ -278,15 +304,29 @@ impl Stage for MeasureStage {
         }
         drop(rig);
 
-        let mut outputs = tables(&ids, config_ids.as_deref(), &latest, settings.robot_id.as_deref());
+        let mut outputs = tables(
+            &ids,
+            config_ids.as_deref(),
+            &latest,
+            settings.robot_id.as_deref(),
+        );
         outputs.facts.insert("rows".into(), ids.len().to_string());
         outputs.facts.insert("failed".into(), failures.to_string());
-        outputs.facts.insert("measured_this_run".into(), (todo.len() - failures).to_string());
+        outputs.facts.insert(
+            "measured_this_run".into(),
+            (todo.len() - failures).to_string(),
+        );
         Ok(outputs)
     }
 }
 
-fn check_safety(ctx: &StageContext, settings: &MeasureSettings, cw_id: i64, k: usize, row: &ConfWrench) -> Result<(), StageError> {
+fn check_safety(
+    ctx: &StageContext,
+    settings: &MeasureSettings,
+    cw_id: i64,
+    k: usize,
+    row: &ConfWrench,
+) -> Result<(), StageError> {
     for (i, name) in JOINT_COLUMNS.iter().enumerate() {
         let [lo, hi] = ctx.robot.limits_deg(i);
         if !(row.q_deg[i] >= lo && row.q_deg[i] <= hi) {
@@ -296,9 +336,17 @@ fn check_safety(ctx: &StageContext, settings: &MeasureSettings, cw_id: i64, k: u
             )));
         }
     }
-    let w = [row.wrench.force_n.as_slice(), row.wrench.moment_nm.as_slice()].concat();
+    let w = [
+        row.wrench.force_n.as_slice(),
+        row.wrench.moment_nm.as_slice(),
+    ]
+    .concat();
     for (i, name) in WRENCH_COLUMNS.iter().enumerate() {
-        let bound = if i < 3 { settings.max_force_n } else { settings.max_moment_nm };
+        let bound = if i < 3 {
+            settings.max_force_n
+        } else {
+            settings.max_moment_nm
+        };
         if w[i].abs() > bound {
             return Err(StageError::Failed(format!(
                 "safety stop before cw_id {cw_id} (input row {k}): {name} = {} exceeds the bound ±{bound}",
@@ -325,9 +373,15 @@ fn measure_row(rig: &mut dyn Rig, cw_id: i64, row: &ConfWrench) -> Result<Entry,
     let q_deg = rig.read_joints()?;
     let position_mm = rig.measure()?;
     rig.release_wrench()?;
-    let finite = wrench.iter().chain(&q_deg).chain(&position_mm).all(|v| v.is_finite());
+    let finite = wrench
+        .iter()
+        .chain(&q_deg)
+        .chain(&position_mm)
+        .all(|v| v.is_finite());
     if !finite {
-        return Err(RigError::Transient("rig returned a non-finite reading".into()));
+        return Err(RigError::Transient(
+            "rig returned a non-finite reading".into(),
+        ));
     }
     Ok(Entry::Measured {
         cw_id,
@@ -346,12 +400,20 @@ fn now_us() -> i64 {
 
 fn timestamps(name: &str, values: Vec<i64>) -> Column {
     Column::new(name.into(), values)
-        .cast(&DataType::Datetime(TimeUnit::Microseconds, Some(TimeZone::UTC)))
+        .cast(&DataType::Datetime(
+            TimeUnit::Microseconds,
+            Some(TimeZone::UTC),
+        ))
         .expect("i64 casts to datetime")
 }
 
 /// The two output tables, rows in input order.
-fn tables(ids: &[i64], config_ids: Option<&[Option<i64>]>, latest: &HashMap<i64, Entry>, robot_id: Option<&str>) -> StageOutputs {
+fn tables(
+    ids: &[i64],
+    config_ids: Option<&[Option<i64>]>,
+    latest: &HashMap<i64, Entry>,
+    robot_id: Option<&str>,
+) -> StageOutputs {
     let mut measured: Vec<(usize, &Entry)> = Vec::new();
     let mut failed: Vec<&Entry> = Vec::new();
     for (k, id) in ids.iter().enumerate() {
@@ -402,7 +464,10 @@ fn tables(ids: &[i64], config_ids: Option<&[Option<i64>]>, latest: &HashMap<i64,
         columns.push(Column::new("config_id".into(), config));
     }
     if let Some(robot_id) = robot_id {
-        columns.push(Column::new("robot_id".into(), vec![robot_id; measured.len()]));
+        columns.push(Column::new(
+            "robot_id".into(),
+            vec![robot_id; measured.len()],
+        ));
     }
     columns.push(timestamps("measured_at", at));
 
@@ -432,6 +497,8 @@ fn tables(ids: &[i64], config_ids: Option<&[Option<i64>]>, latest: &HashMap<i64,
     ]);
     let mut outputs = StageOutputs::default();
     outputs.tables.insert("measurements".into(), frame(columns));
-    outputs.tables.insert("measurement_failures".into(), failures);
+    outputs
+        .tables
+        .insert("measurement_failures".into(), failures);
     outputs
 }

@@ -7,13 +7,13 @@
 //! `egcal list-stages`, the job-file JSON Schema and the cache key.
 
 pub mod detmax;
-pub mod poses;
-pub mod validate;
-pub mod wrenches;
 pub mod identifiability;
 pub mod identify;
 pub mod measure;
+pub mod poses;
 pub mod predict;
+pub mod validate;
+pub mod wrenches;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -102,6 +102,8 @@ impl StageContext<'_> {
 #[derive(Debug, Default)]
 pub struct StageOutputs {
     pub tables: BTreeMap<String, DataFrame>,
+    /// Other files by name (e.g. `report.html`), published beside the tables.
+    pub files: BTreeMap<String, Vec<u8>>,
     /// Short facts to keep in provenance and print (rejection counts, ranks, ...).
     pub facts: BTreeMap<String, String>,
 }

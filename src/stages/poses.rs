@@ -13,8 +13,8 @@ use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot}
 use crate::design::collision::{CapsuleMm, Cell};
 use crate::design::poses::{PoseProblem, Sampling, SingularityLimits, generate, xyz_euler_deg};
 use crate::robot::ParamValues;
-use crate::table::schema::{self, JOINT_COLUMNS};
 use crate::table::frame;
+use crate::table::schema::{self, JOINT_COLUMNS};
 
 pub struct PosesStage;
 
@@ -105,25 +105,44 @@ impl Stage for PosesStage {
         &INFO
     }
 
-    fn run(&self, ctx: &StageContext, settings: &PosesSettings) -> Result<StageOutputs, StageError> {
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &PosesSettings,
+    ) -> Result<StageOutputs, StageError> {
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let tracker = match settings.tracker_mm {
             Some(t) => Vector3::from(t),
             None => ctx.robot.world_from_base(&nominal).inverse().origin_mm,
         };
         let cable = ctx.cable_robot;
-        let attachments: Vec<Vector3<f64>> = cable.attachments_tool_mm.iter().map(|a| Vector3::from(*a)).collect();
-        let platform_centre = attachments.iter().sum::<Vector3<f64>>() / attachments.len().max(1) as f64;
-        let platform_radius_mm = attachments.iter().map(|a| (a - platform_centre).norm()).fold(0.0, f64::max);
+        let attachments: Vec<Vector3<f64>> = cable
+            .attachments_tool_mm
+            .iter()
+            .map(|a| Vector3::from(*a))
+            .collect();
+        let platform_centre =
+            attachments.iter().sum::<Vector3<f64>>() / attachments.len().max(1) as f64;
+        let platform_radius_mm = attachments
+            .iter()
+            .map(|a| (a - platform_centre).norm())
+            .fold(0.0, f64::max);
         let cell = Cell {
             link_capsules: std::array::from_fn(|i| {
-                ctx.robot.spec().joints[i].capsule.as_ref().map(|c| CapsuleMm {
-                    from: Vector3::from(c.from_mm),
-                    to: Vector3::from(c.to_mm),
-                    radius: c.radius_mm,
-                })
+                ctx.robot.spec().joints[i]
+                    .capsule
+                    .as_ref()
+                    .map(|c| CapsuleMm {
+                        from: Vector3::from(c.from_mm),
+                        to: Vector3::from(c.to_mm),
+                        radius: c.radius_mm,
+                    })
             }),
-            anchors: cable.anchors_base_mm.iter().map(|a| Vector3::from(*a)).collect(),
+            anchors: cable
+                .anchors_base_mm
+                .iter()
+                .map(|a| Vector3::from(*a))
+                .collect(),
             pulley_radius_mm: settings.pulley_radius_mm,
             attachments,
             cable_radius_mm: settings.cable_radius_mm,
@@ -137,8 +156,12 @@ impl Stage for PosesStage {
             SamplingKind::Grid => Sampling::Grid {
                 per_axis: settings.points_per_axis,
             },
-            SamplingKind::Random => Sampling::Random { count: settings.count },
-            SamplingKind::LatinHypercube => Sampling::LatinHypercube { count: settings.count },
+            SamplingKind::Random => Sampling::Random {
+                count: settings.count,
+            },
+            SamplingKind::LatinHypercube => Sampling::LatinHypercube {
+                count: settings.count,
+            },
         };
         let problem = PoseProblem {
             centre_mm: Vector3::from(settings.centre_mm),
@@ -161,28 +184,69 @@ impl Stage for PosesStage {
             )));
         }
         let poses = &outcome.poses;
-        let mut columns = vec![Column::new("config_id".into(), poses.iter().map(|p| p.config_id).collect::<Vec<_>>())];
-        for (axis, name) in ["target_x_mm", "target_y_mm", "target_z_mm"].iter().enumerate() {
-            columns.push(Column::new((*name).into(), poses.iter().map(|p| p.target_mm[axis]).collect::<Vec<_>>()));
+        let mut columns = vec![Column::new(
+            "config_id".into(),
+            poses.iter().map(|p| p.config_id).collect::<Vec<_>>(),
+        )];
+        for (axis, name) in ["target_x_mm", "target_y_mm", "target_z_mm"]
+            .iter()
+            .enumerate()
+        {
+            columns.push(Column::new(
+                (*name).into(),
+                poses.iter().map(|p| p.target_mm[axis]).collect::<Vec<_>>(),
+            ));
         }
-        let angles: Vec<[f64; 3]> = poses.iter().map(|p| xyz_euler_deg(&p.tool_rotation)).collect();
-        for (axis, name) in ["tool_alpha_deg", "tool_beta_deg", "tool_gamma_deg"].iter().enumerate() {
-            columns.push(Column::new((*name).into(), angles.iter().map(|a| a[axis]).collect::<Vec<_>>()));
+        let angles: Vec<[f64; 3]> = poses
+            .iter()
+            .map(|p| xyz_euler_deg(&p.tool_rotation))
+            .collect();
+        for (axis, name) in ["tool_alpha_deg", "tool_beta_deg", "tool_gamma_deg"]
+            .iter()
+            .enumerate()
+        {
+            columns.push(Column::new(
+                (*name).into(),
+                angles.iter().map(|a| a[axis]).collect::<Vec<_>>(),
+            ));
         }
         for (joint, name) in JOINT_COLUMNS.iter().enumerate() {
-            columns.push(Column::new((*name).into(), poses.iter().map(|p| p.q_deg[joint]).collect::<Vec<_>>()));
+            columns.push(Column::new(
+                (*name).into(),
+                poses.iter().map(|p| p.q_deg[joint]).collect::<Vec<_>>(),
+            ));
         }
-        columns.push(Column::new("branch".into(), poses.iter().map(|p| i64::from(p.branch)).collect::<Vec<_>>()));
-        columns.push(Column::new("clearance_mm".into(), poses.iter().map(|p| p.clearance_mm).collect::<Vec<_>>()));
-        columns.push(Column::new("incidence_deg".into(), poses.iter().map(|p| p.incidence_deg).collect::<Vec<_>>()));
+        columns.push(Column::new(
+            "branch".into(),
+            poses
+                .iter()
+                .map(|p| i64::from(p.branch))
+                .collect::<Vec<_>>(),
+        ));
+        columns.push(Column::new(
+            "clearance_mm".into(),
+            poses.iter().map(|p| p.clearance_mm).collect::<Vec<_>>(),
+        ));
+        columns.push(Column::new(
+            "incidence_deg".into(),
+            poses.iter().map(|p| p.incidence_deg).collect::<Vec<_>>(),
+        ));
 
         let mut outputs = StageOutputs::default();
         outputs.tables.insert("poses".into(), frame(columns));
-        outputs.facts.insert("targets".into(), outcome.targets.to_string());
-        outputs.facts.insert("poses".into(), poses.len().to_string());
-        outputs.facts.insert("dropped_points".into(), outcome.dropped_points.to_string());
+        outputs
+            .facts
+            .insert("targets".into(), outcome.targets.to_string());
+        outputs
+            .facts
+            .insert("poses".into(), poses.len().to_string());
+        outputs
+            .facts
+            .insert("dropped_points".into(), outcome.dropped_points.to_string());
         for (reason, count) in &outcome.rejections {
-            outputs.facts.insert(format!("rejected_{reason}"), count.to_string());
+            outputs
+                .facts
+                .insert(format!("rejected_{reason}"), count.to_string());
         }
         if outcome.dropped_points > 0 {
             ctx.progress.note(&format!(

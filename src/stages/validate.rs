@@ -7,7 +7,7 @@ use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::identify::{ids_with_role, measured_rows};
+use super::identify::{MeasuredRows, ids_with_role, measured_rows};
 use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
 use crate::robot::{ParamValues, batch_predict};
 use crate::stats::{self, TestResult};
@@ -15,6 +15,9 @@ use crate::table::parameters::{self, ModelName};
 use crate::table::{frame, schema};
 
 pub struct ValidateStage;
+
+/// A two-sided test of two samples of error norms.
+type TwoSampleTest = fn(&[f64], &[f64]) -> Result<TestResult, stats::StatsError>;
 
 /// Settings of `validate` (none yet: the models are those of the parameters table).
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
@@ -80,9 +83,16 @@ impl Stage for ValidateStage {
             Some(selection) => Some(ids_with_role(selection, "validation")?),
             None => None,
         };
-        let (ids, rows, measured) = measured_rows(ctx.input("measurements")?, keep.as_ref())?;
+        let MeasuredRows {
+            ids,
+            rows,
+            positions: measured,
+        } = measured_rows(ctx.input("measurements")?, keep.as_ref())?;
         if ids.len() < 2 {
-            return Err(StageError::Invalid(format!("{} validation rows; need at least 2", ids.len())));
+            return Err(StageError::Invalid(format!(
+                "{} validation rows; need at least 2",
+                ids.len()
+            )));
         }
         let table = ctx.input("parameters")?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
@@ -109,7 +119,8 @@ impl Stage for ValidateStage {
 
         let mut s = StatsColumns::default();
         for (model, values) in &norms {
-            let summary = stats::summary(values).map_err(|err| StageError::Failed(format!("{model}: {err}")))?;
+            let summary = stats::summary(values)
+                .map_err(|err| StageError::Failed(format!("{model}: {err}")))?;
             s.model.push(model.as_str());
             s.n.push(summary.n as i64);
             s.mean.push(summary.mean);
@@ -121,7 +132,7 @@ impl Stage for ValidateStage {
         }
 
         let mut t = TestColumns::default();
-        let tests: [(&str, fn(&[f64], &[f64]) -> Result<TestResult, stats::StatsError>); 4] = [
+        let tests: [(&str, TwoSampleTest); 4] = [
             ("paired_t", stats::paired_t),
             ("welch_t", stats::welch_t),
             ("student_t", stats::student_t),
@@ -139,17 +150,23 @@ impl Stage for ValidateStage {
                             t.dof.push(result.dof);
                             t.p_value.push(result.p_value);
                         }
-                        Err(err) => ctx.progress.note(&format!("{name} {model_a} vs {model_b}: {err}")),
+                        Err(err) => ctx
+                            .progress
+                            .note(&format!("{name} {model_a} vs {model_b}: {err}")),
                     }
                 }
             }
         }
 
         let mut outputs = StageOutputs::default();
-        outputs.facts.insert("validation_rows".into(), ids.len().to_string());
+        outputs
+            .facts
+            .insert("validation_rows".into(), ids.len().to_string());
         for (model, values) in &norms {
             let max = values.iter().cloned().fold(0.0, f64::max);
-            outputs.facts.insert(format!("{model}_max_mm"), format!("{max:.3}"));
+            outputs
+                .facts
+                .insert(format!("{model}_max_mm"), format!("{max:.3}"));
         }
         outputs.tables.insert("errors".into(), e.into_frame());
         outputs.tables.insert("stats".into(), s.into_frame());

@@ -15,7 +15,9 @@ use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot}
 use crate::cdpr::check_wrench;
 use crate::robot::{JOINTS, ParamValues};
 use crate::table::frame;
-use crate::table::schema::{self, JOINT_COLUMNS, TENSION_COLUMNS, WRENCH_COLUMNS, f64_values, i64_values};
+use crate::table::schema::{
+    self, JOINT_COLUMNS, TENSION_COLUMNS, WRENCH_COLUMNS, f64_values, i64_values,
+};
 
 pub struct WrenchesStage;
 
@@ -76,7 +78,11 @@ impl Stage for WrenchesStage {
         &INFO
     }
 
-    fn run(&self, ctx: &StageContext, settings: &WrenchesSettings) -> Result<StageOutputs, StageError> {
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &WrenchesSettings,
+    ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("poses")?;
         let config_ids = i64_values(&input.df, "config_id", &input.path)?;
         let joints = JOINT_COLUMNS
@@ -97,20 +103,26 @@ impl Stage for WrenchesStage {
         let mut tensions: Vec<Vec<f64>> = vec![Vec::new(); TENSION_COLUMNS.len()];
         let mut margin = Vec::new();
         let (mut draws, mut short_configs) = (0usize, 0usize);
-        ctx.progress.start(config_ids.len() as u64, "configurations");
+        ctx.progress
+            .start(config_ids.len() as u64, "configurations");
         for (k, &config_id) in config_ids.iter().enumerate() {
             let q_deg: [f64; JOINTS] = std::array::from_fn(|i| joints[i][k]);
             let (_, tool) = ctx.robot.frames_in_base(&nominal, &q_deg);
             let mut kept = 0;
             let mut attempts = 0;
-            while kept < settings.per_config && attempts < settings.max_draws * settings.per_config {
+            while kept < settings.per_config && attempts < settings.max_draws * settings.per_config
+            {
                 attempts += 1;
                 draws += 1;
                 let wrench: [f64; 6] = std::array::from_fn(|i| {
                     if i < 3 {
-                        force.sample(&mut rng).clamp(-settings.max_force_n, settings.max_force_n)
+                        force
+                            .sample(&mut rng)
+                            .clamp(-settings.max_force_n, settings.max_force_n)
                     } else {
-                        moment.sample(&mut rng).clamp(-settings.max_moment_nm, settings.max_moment_nm)
+                        moment
+                            .sample(&mut rng)
+                            .clamp(-settings.max_moment_nm, settings.max_moment_nm)
                     }
                 });
                 let feasibility = check_wrench(ctx.cable_robot, &tool, wrench)
@@ -162,7 +174,9 @@ impl Stage for WrenchesStage {
             "rejection_rate".into(),
             format!("{:.3}", 1.0 - kept as f64 / draws.max(1) as f64),
         );
-        outputs.facts.insert("short_configs".into(), short_configs.to_string());
+        outputs
+            .facts
+            .insert("short_configs".into(), short_configs.to_string());
         Ok(outputs)
     }
 }

@@ -207,13 +207,22 @@ pub fn parse_rfc3339_us(text: &str) -> Option<i64> {
     let (hms, fraction) = time.split_once('.').unwrap_or((time, ""));
     let mut t = hms.splitn(3, ':').map(|p| p.parse::<i64>().ok());
     let (hour, minute, second) = (t.next()??, t.next()??, t.next()??);
-    if !(1..=12).contains(&month) || !(1..=31).contains(&day) || hour > 23 || minute > 59 || second > 60 {
+    if !(1..=12).contains(&month)
+        || !(1..=31).contains(&day)
+        || hour > 23
+        || minute > 59
+        || second > 60
+    {
         return None;
     }
     let micros = if fraction.is_empty() {
         0
     } else {
-        let digits: String = fraction.chars().chain(std::iter::repeat('0')).take(6).collect();
+        let digits: String = fraction
+            .chars()
+            .chain(std::iter::repeat('0'))
+            .take(6)
+            .collect();
         digits.parse::<i64>().ok()?
     };
     // Howard Hinnant's days-from-civil.
@@ -289,9 +298,15 @@ mod tests {
     #[test]
     fn rfc3339_parses_back() {
         for secs in [0, 951_782_400, 1_795_000_000, 1_767_225_600] {
-            assert_eq!(parse_rfc3339_us(&rfc3339_from_unix(secs)), Some(secs * 1_000_000));
+            assert_eq!(
+                parse_rfc3339_us(&rfc3339_from_unix(secs)),
+                Some(secs * 1_000_000)
+            );
         }
-        assert_eq!(parse_rfc3339_us("2026-01-01T00:00:00.5Z"), Some(1_767_225_600_500_000));
+        assert_eq!(
+            parse_rfc3339_us("2026-01-01T00:00:00.5Z"),
+            Some(1_767_225_600_500_000)
+        );
         assert_eq!(parse_rfc3339_us("2026-13-01T00:00:00Z"), None);
         assert_eq!(parse_rfc3339_us("yesterday"), None);
     }

@@ -399,10 +399,28 @@ pub fn measurement_failures() -> TableSchema {
         kind: "measurement_failures",
         description: "Rows a measuring stage could not complete (spec §6).",
         columns: vec![
-            col("cw_id", ColumnType::Int64, "", true, "conf-wrench combination id"),
+            col(
+                "cw_id",
+                ColumnType::Int64,
+                "",
+                true,
+                "conf-wrench combination id",
+            ),
             col("attempts", ColumnType::Int64, "", true, "attempts made"),
-            col("reason", ColumnType::Utf8, "", true, "last error (driver error, timeout, beam lost)"),
-            col("failed_at", ColumnType::TimestampUs, "µs UTC", true, "time of the last attempt"),
+            col(
+                "reason",
+                ColumnType::Utf8,
+                "",
+                true,
+                "last error (driver error, timeout, beam lost)",
+            ),
+            col(
+                "failed_at",
+                ColumnType::TimestampUs,
+                "µs UTC",
+                true,
+                "time of the last attempt",
+            ),
         ],
         unique: Some("cw_id"),
     }
@@ -414,8 +432,20 @@ pub fn selection() -> TableSchema {
         kind: "selection",
         description: "Role of each conf-wrench row: `calibration` (identify on it) or `validation`.",
         columns: vec![
-            col("cw_id", ColumnType::Int64, "", true, "conf-wrench combination id"),
-            col("role", ColumnType::Utf8, "", true, "calibration or validation"),
+            col(
+                "cw_id",
+                ColumnType::Int64,
+                "",
+                true,
+                "conf-wrench combination id",
+            ),
+            col(
+                "role",
+                ColumnType::Utf8,
+                "",
+                true,
+                "calibration or validation",
+            ),
         ],
         unique: Some("cw_id"),
     }
@@ -427,11 +457,41 @@ pub fn identification_trace() -> TableSchema {
         kind: "identification_trace",
         description: "Gauss–Newton iterations of each identified model.",
         columns: vec![
-            col("model", ColumnType::Utf8, "", true, "registered, kinematic or elastogeometric"),
-            col("iteration", ColumnType::Int64, "", true, "1-based iteration"),
-            col("rms_mm", ColumnType::Float64, "mm", true, "residual RMS per coordinate before the step"),
-            col("max_mm", ColumnType::Float64, "mm", true, "largest residual norm before the step"),
-            col("step_mm", ColumnType::Float64, "mm", true, "largest position change the step predicts"),
+            col(
+                "model",
+                ColumnType::Utf8,
+                "",
+                true,
+                "registered, kinematic or elastogeometric",
+            ),
+            col(
+                "iteration",
+                ColumnType::Int64,
+                "",
+                true,
+                "1-based iteration",
+            ),
+            col(
+                "rms_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "residual RMS per coordinate before the step",
+            ),
+            col(
+                "max_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "largest residual norm before the step",
+            ),
+            col(
+                "step_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "largest position change the step predicts",
+            ),
         ],
         unique: None,
     }
@@ -443,10 +503,28 @@ pub fn identifiability() -> TableSchema {
         kind: "identifiability",
         description: "Rank analysis of the scaled identification Jacobian: one row per candidate parameter.",
         columns: vec![
-            col("name", ColumnType::Utf8, "", true, "parameter name from spec §4"),
+            col(
+                "name",
+                ColumnType::Utf8,
+                "",
+                true,
+                "parameter name from spec §4",
+            ),
             col("unit", ColumnType::Utf8, "", true, "unit from spec §4"),
-            col("identifiable", ColumnType::Boolean, "", true, "kept by the rank analysis"),
-            col("combined_with", ColumnType::Utf8, "", false, "for a dependent parameter: the identifiable ones it is combined with"),
+            col(
+                "identifiable",
+                ColumnType::Boolean,
+                "",
+                true,
+                "kept by the rank analysis",
+            ),
+            col(
+                "combined_with",
+                ColumnType::Utf8,
+                "",
+                false,
+                "for a dependent parameter: the identifiable ones it is combined with",
+            ),
         ],
         unique: Some("name"),
     }
@@ -461,7 +539,13 @@ pub fn detmax_trace() -> TableSchema {
             col("iteration", ColumnType::Int64, "", true, "exchange number"),
             col("added_cw_id", ColumnType::Int64, "", false, "row added"),
             col("removed_cw_id", ColumnType::Int64, "", false, "row removed"),
-            col("o1", ColumnType::Float64, "", true, "observability index O1 of the selection (columns scaled to unit norm over all candidates)"),
+            col(
+                "o1",
+                ColumnType::Float64,
+                "",
+                true,
+                "observability index O1 of the selection (columns scaled to unit norm over all candidates)",
+            ),
         ],
         unique: None,
     }
@@ -473,12 +557,42 @@ pub fn errors() -> TableSchema {
         kind: "errors",
         description: "Position error (predicted − measured) of each model on each validation row.",
         columns: vec![
-            col("cw_id", ColumnType::Int64, "", true, "conf-wrench combination id"),
+            col(
+                "cw_id",
+                ColumnType::Int64,
+                "",
+                true,
+                "conf-wrench combination id",
+            ),
             col("model", ColumnType::Utf8, "", true, "parameter set used"),
-            col("ex_mm", ColumnType::Float64, "mm", true, "x error, world frame"),
-            col("ey_mm", ColumnType::Float64, "mm", true, "y error, world frame"),
-            col("ez_mm", ColumnType::Float64, "mm", true, "z error, world frame"),
-            col("error_mm", ColumnType::Float64, "mm", true, "Euclidean norm of the error"),
+            col(
+                "ex_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "x error, world frame",
+            ),
+            col(
+                "ey_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "y error, world frame",
+            ),
+            col(
+                "ez_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "z error, world frame",
+            ),
+            col(
+                "error_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "Euclidean norm of the error",
+            ),
         ],
         unique: None,
     }
@@ -516,10 +630,34 @@ pub fn tests() -> TableSchema {
         columns: vec![
             col("model_a", ColumnType::Utf8, "", true, "first model"),
             col("model_b", ColumnType::Utf8, "", true, "second model"),
-            col("test", ColumnType::Utf8, "", true, "paired_t, welch_t, student_t or wilcoxon"),
-            col("statistic", ColumnType::Float64, "", true, "t, or the Wilcoxon signed-rank statistic"),
-            col("dof", ColumnType::Float64, "", false, "degrees of freedom (t-tests)"),
-            col("p_value", ColumnType::Float64, "", true, "two-sided p-value"),
+            col(
+                "test",
+                ColumnType::Utf8,
+                "",
+                true,
+                "paired_t, welch_t, student_t or wilcoxon",
+            ),
+            col(
+                "statistic",
+                ColumnType::Float64,
+                "",
+                true,
+                "t, or the Wilcoxon signed-rank statistic",
+            ),
+            col(
+                "dof",
+                ColumnType::Float64,
+                "",
+                false,
+                "degrees of freedom (t-tests)",
+            ),
+            col(
+                "p_value",
+                ColumnType::Float64,
+                "",
+                true,
+                "two-sided p-value",
+            ),
         ],
         unique: None,
     }
@@ -527,7 +665,13 @@ pub fn tests() -> TableSchema {
 
 /// Generated robot configurations (paper §IV.A (a)–(b)).
 pub fn poses() -> TableSchema {
-    let mut columns = vec![col("config_id", ColumnType::Int64, "", true, "configuration id, unique")];
+    let mut columns = vec![col(
+        "config_id",
+        ColumnType::Int64,
+        "",
+        true,
+        "configuration id, unique",
+    )];
     for (name, meaning) in [
         ("target_x_mm", "target SMR position, base frame"),
         ("target_y_mm", "target SMR position, base frame"),
@@ -536,12 +680,36 @@ pub fn poses() -> TableSchema {
         columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
     }
     for name in ["tool_alpha_deg", "tool_beta_deg", "tool_gamma_deg"] {
-        columns.push(col(name, ColumnType::Float64, "deg", true, "tool orientation in the base frame, Rot(x)·Rot(y)·Rot(z) as eq. (4)"));
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "deg",
+            true,
+            "tool orientation in the base frame, Rot(x)·Rot(y)·Rot(z) as eq. (4)",
+        ));
     }
     joint_columns(&mut columns, "joint command (nominal inverse kinematics)");
-    columns.push(col("branch", ColumnType::Int64, "", true, "IK branch: bit 0 shoulder back, bit 1 elbow down, bit 2 wrist flipped"));
-    columns.push(col("clearance_mm", ColumnType::Float64, "mm", true, "smallest distance to any obstacle, link or beam"));
-    columns.push(col("incidence_deg", ColumnType::Float64, "deg", true, "angle between the SMR axis and the direction to the tracker"));
+    columns.push(col(
+        "branch",
+        ColumnType::Int64,
+        "",
+        true,
+        "IK branch: bit 0 shoulder back, bit 1 elbow down, bit 2 wrist flipped",
+    ));
+    columns.push(col(
+        "clearance_mm",
+        ColumnType::Float64,
+        "mm",
+        true,
+        "smallest distance to any obstacle, link or beam",
+    ));
+    columns.push(col(
+        "incidence_deg",
+        ColumnType::Float64,
+        "deg",
+        true,
+        "angle between the SMR axis and the direction to the tracker",
+    ));
     TableSchema {
         kind: "poses",
         description: "Robot configurations that reach the target points with the SMR facing the tracker, collision-free.",
@@ -554,17 +722,37 @@ pub fn poses() -> TableSchema {
 pub fn candidates() -> TableSchema {
     let mut schema = conf_wrenches();
     schema.kind = "candidates";
-    schema.description = "Conf-wrench combinations: each configuration with wrenches feasible for the cable robot.";
-    schema.columns.push(col("config_id", ColumnType::Int64, "", true, "configuration the row belongs to"));
+    schema.description =
+        "Conf-wrench combinations: each configuration with wrenches feasible for the cable robot.";
+    schema.columns.push(col(
+        "config_id",
+        ColumnType::Int64,
+        "",
+        true,
+        "configuration the row belongs to",
+    ));
     for name in TENSION_COLUMNS {
-        schema.columns.push(col(name, ColumnType::Float64, "N", true, "cable tension (minimum-norm distribution)"));
+        schema.columns.push(col(
+            name,
+            ColumnType::Float64,
+            "N",
+            true,
+            "cable tension (minimum-norm distribution)",
+        ));
     }
     schema.columns.push(col("margin_n", ColumnType::Float64, "N", true, "capacity margin: distance of the wrench inside the available wrench set (moments scaled, see cdpr)"));
     schema
 }
 
 pub const TENSION_COLUMNS: [&str; 8] = [
-    "tension1_n", "tension2_n", "tension3_n", "tension4_n", "tension5_n", "tension6_n", "tension7_n", "tension8_n",
+    "tension1_n",
+    "tension2_n",
+    "tension3_n",
+    "tension4_n",
+    "tension5_n",
+    "tension6_n",
+    "tension7_n",
+    "tension8_n",
 ];
 
 /// Output of `predict`.
