@@ -34,7 +34,16 @@ fn second_run_is_fully_cached_and_a_setting_change_reruns_only_descendants() {
     let (code, stdout, stderr) = run(&["run", job], dir.path());
     assert_eq!(code, 0, "{stdout}\n{stderr}");
     let (ran, _) = ran_and_cached(&stderr);
-    assert_eq!(ran, ["identify", "measure", "poses", "predict_nominal", "wrenches"]);
+    assert_eq!(
+        ran,
+        [
+            "identify",
+            "measure",
+            "poses",
+            "predict_nominal",
+            "wrenches"
+        ]
+    );
 
     let (code, _, stderr) = run(&["run", job], dir.path());
     assert_eq!(code, 0);
@@ -44,10 +53,20 @@ fn second_run_is_fully_cached_and_a_setting_change_reruns_only_descendants() {
 
     // Change one setting of `identify`: only it is stale.
     let text = std::fs::read_to_string(job).unwrap();
-    std::fs::write(job, text.replace("models = [\"nominal\", \"registered\"]", "models = [\"registered\"]")).unwrap();
+    std::fs::write(
+        job,
+        text.replace(
+            "models = [\"nominal\", \"registered\"]",
+            "models = [\"registered\"]",
+        ),
+    )
+    .unwrap();
     let (code, status, _) = run(&["status", job], dir.path());
     assert_eq!(code, 0);
-    assert!(status.contains("identify             stale: setting `models` changed"), "{status}");
+    assert!(
+        status.contains("identify             stale: setting `models` changed"),
+        "{status}"
+    );
     assert!(status.contains("measure              cached"), "{status}");
     let (_, _, stderr) = run(&["run", job], dir.path());
     let (ran, _) = ran_and_cached(&stderr);
@@ -58,8 +77,14 @@ fn second_run_is_fully_cached_and_a_setting_change_reruns_only_descendants() {
     let text = std::fs::read_to_string(job).unwrap();
     std::fs::write(job, text.replace("per_config = 3", "per_config = 4")).unwrap();
     let (_, status, _) = run(&["status", job], dir.path());
-    assert!(status.contains("wrenches             stale: setting `per_config` changed (3 -> 4)"), "{status}");
-    assert!(status.contains("measure              stale: waits on stale upstream wrenches"), "{status}");
+    assert!(
+        status.contains("wrenches             stale: setting `per_config` changed (3 -> 4)"),
+        "{status}"
+    );
+    assert!(
+        status.contains("measure              stale: waits on stale upstream wrenches"),
+        "{status}"
+    );
     assert!(status.contains("predict_nominal      cached"), "{status}");
     let (_, _, stderr) = run(&["run", job], dir.path());
     let (ran, cached) = ran_and_cached(&stderr);
@@ -76,7 +101,14 @@ fn an_upstream_rerun_with_identical_output_does_not_cascade() {
     // A setting that changes the key of `poses` but not its output: more
     // orientation attempts than any point needs.
     let text = std::fs::read_to_string(job).unwrap();
-    std::fs::write(job, text.replace("edge_mm = 300.0", "edge_mm = 300.0\norientation_attempts = 51")).unwrap();
+    std::fs::write(
+        job,
+        text.replace(
+            "edge_mm = 300.0",
+            "edge_mm = 300.0\norientation_attempts = 51",
+        ),
+    )
+    .unwrap();
     let (code, _, stderr) = run(&["run", job], dir.path());
     assert_eq!(code, 0, "{stderr}");
     let (ran, cached) = ran_and_cached(&stderr);
@@ -101,7 +133,10 @@ fn outputs_carry_provenance() {
     assert_eq!(provenance.tool_version, env!("CARGO_PKG_VERSION"));
     let (code, shown, _) = run(&["show", "out/measure/measurements.parquet"], dir.path());
     assert_eq!(code, 0);
-    assert!(shown.contains("\"stage_kind\": \"measure\"") && shown.contains("first 10 rows"), "{shown}");
+    assert!(
+        shown.contains("\"stage_kind\": \"measure\"") && shown.contains("first 10 rows"),
+        "{shown}"
+    );
 }
 
 #[test]
@@ -126,7 +161,10 @@ fn a_corrupted_cache_entry_is_detected_and_recomputed() {
     assert!(damaged.is_some());
     let (code, _, stderr) = run(&["run", job], dir.path());
     assert_eq!(code, 0, "{stderr}");
-    assert!(stderr.contains("measure: cache entry") && stderr.contains("is corrupt"), "{stderr}");
+    assert!(
+        stderr.contains("measure: cache entry") && stderr.contains("is corrupt"),
+        "{stderr}"
+    );
     let (ran, _) = ran_and_cached(&stderr);
     assert_eq!(ran, ["measure"]);
     table::read_parquet(&damaged.unwrap()).unwrap();
@@ -156,15 +194,23 @@ fn killing_a_run_at_any_instant_leaves_nothing_corrupt() {
     }
     let (code, _, stderr) = run(&["run", job.to_str().unwrap()], dir.path());
     assert_eq!(code, 0, "{stderr}");
-    for table in ["poses/poses", "wrenches/candidates", "measure/measurements", "identify/parameters"] {
-        let a = table::read_parquet(&reference.path().join(format!("out/{table}.parquet"))).unwrap();
+    for table in [
+        "poses/poses",
+        "wrenches/candidates",
+        "measure/measurements",
+        "identify/parameters",
+    ] {
+        let a =
+            table::read_parquet(&reference.path().join(format!("out/{table}.parquet"))).unwrap();
         let b = table::read_parquet(&dir.path().join(format!("out/{table}.parquet"))).unwrap();
         assert_eq!(table::content_hash(&a), table::content_hash(&b), "{table}");
     }
 }
 
 fn assert_everything_readable(out: &Path) {
-    let Ok(entries) = std::fs::read_dir(out) else { return };
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return;
+    };
     for stage in entries.flatten() {
         let path = stage.path();
         if path.file_name().is_some_and(|n| n == ".egcal") || !path.is_dir() {
@@ -178,7 +224,9 @@ fn assert_everything_readable(out: &Path) {
         }
     }
     let cache = egcal::runner::cache::Cache::new(out.join(".egcal/cache"));
-    let Ok(shards) = std::fs::read_dir(cache.root()) else { return };
+    let Ok(shards) = std::fs::read_dir(cache.root()) else {
+        return;
+    };
     for shard in shards.flatten() {
         for entry in std::fs::read_dir(shard.path()).unwrap().flatten() {
             let name = entry.file_name().to_string_lossy().into_owned();
@@ -225,11 +273,20 @@ fn job_file_errors_name_file_line_key_and_hint() {
         &["stages form a cycle: b -> a -> b"],
     );
     // A wrong type with its line.
-    check(text.replace("per_config = 3", "per_config = \"three\""), &["stages[1].per_config", "invalid type"]);
+    check(
+        text.replace("per_config = 3", "per_config = \"three\""),
+        &["stages[1].per_config", "invalid type"],
+    );
     // A missing external file.
     check(
-        text.replace("fixtures/predict/nominal/conf_wrenches.parquet", "fixtures/nope.parquet"),
-        &["stages[4].inputs.conf_wrenches: no file matches", "nope.parquet"],
+        text.replace(
+            "fixtures/predict/nominal/conf_wrenches.parquet",
+            "fixtures/nope.parquet",
+        ),
+        &[
+            "stages[4].inputs.conf_wrenches: no file matches",
+            "nope.parquet",
+        ],
     );
 }
 
@@ -239,11 +296,19 @@ fn a_bad_external_table_names_file_column_and_row() {
     let bad = common::root().join("fixtures/predict/bad_nan/conf_wrenches.parquet");
     let good = common::root().join("fixtures/predict/nominal/conf_wrenches.parquet");
     let job = small_job(dir.path(), 3, "");
-    let text = std::fs::read_to_string(&job).unwrap().replace(&*good.to_string_lossy(), &bad.to_string_lossy());
+    let text = std::fs::read_to_string(&job)
+        .unwrap()
+        .replace(&*good.to_string_lossy(), &bad.to_string_lossy());
     std::fs::write(&job, text).unwrap();
-    let (code, _, stderr) = run(&["run", "--only", "predict_nominal", job.to_str().unwrap()], dir.path());
+    let (code, _, stderr) = run(
+        &["run", "--only", "predict_nominal", job.to_str().unwrap()],
+        dir.path(),
+    );
     assert_eq!(code, 2, "{stderr}");
-    assert!(stderr.contains("bad_nan/conf_wrenches.parquet: column `q3_deg` is NaN at row 4"), "{stderr}");
+    assert!(
+        stderr.contains("bad_nan/conf_wrenches.parquet: column `q3_deg` is NaN at row 4"),
+        "{stderr}"
+    );
 }
 
 #[test]
@@ -270,7 +335,10 @@ fn dag_lists_every_edge() {
     assert_eq!(code, 0);
     assert!(mermaid.starts_with("flowchart LR"));
     assert!(mermaid.contains("poses -->|poses| wrenches"), "{mermaid}");
-    assert!(mermaid.contains("measure -->|measurements| identify"), "{mermaid}");
+    assert!(
+        mermaid.contains("measure -->|measurements| identify"),
+        "{mermaid}"
+    );
     let (_, dot, _) = run(&["dag", "--dot", job.to_str().unwrap()], dir.path());
     assert!(dot.contains("\"wrenches\" -> \"measure\""), "{dot}");
 }

@@ -20,7 +20,15 @@ pub fn egcal() -> Command {
 
 /// Runs egcal with arguments; returns (exit code, stdout, stderr).
 pub fn run(args: &[&str], dir: &Path) -> (i32, String, String) {
-    let Output { status, stdout, stderr } = egcal().args(args).current_dir(dir).output().expect("egcal runs");
+    let Output {
+        status,
+        stdout,
+        stderr,
+    } = egcal()
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("egcal runs");
     (
         status.code().unwrap_or(-1),
         String::from_utf8_lossy(&stdout).into_owned(),
@@ -72,7 +80,9 @@ inputs = {{ conf_wrenches = "{fixture}" }}
         robot = root.join("jobs/robots/irb1600_145.toml").display(),
         cable = root.join("jobs/cdpr/default.toml").display(),
         truth = root.join("jobs/truth/irb1600_paper.parquet").display(),
-        fixture = root.join("fixtures/predict/nominal/conf_wrenches.parquet").display(),
+        fixture = root
+            .join("fixtures/predict/nominal/conf_wrenches.parquet")
+            .display(),
     );
     let path = dir.join("job.toml");
     std::fs::write(&path, text).expect("write job");
