@@ -186,24 +186,23 @@ impl Stage for MeasureStage {
             }
         };
 
-        // The journal belongs to what determines the measured values, not to
-        // retry or safety settings, so changing those resumes the same campaign.
+        // The journal belongs to the rows and the rig they are measured on, not to
+        // retry, timeout or safety settings, nor to the external driver's command
+        // line (a lab restarting its driver with other arguments continues the same
+        // campaign). For the simulator, its settings, seed and truth define the rig.
         let fingerprint = {
             let mut hasher = blake3::Hasher::new();
             hasher.update(content_hash(&input.df).as_bytes());
-            hasher.update(
-                &serde_json::to_vec(&(
-                    settings.driver,
-                    &settings.command,
-                    &settings.simulator,
-                    &settings.robot_id,
-                ))
-                .expect("serialises"),
-            );
-            hasher.update(&seed.to_le_bytes());
             hasher.update(ctx.robot.spec().content_hash().as_bytes());
-            for v in truth.0 {
-                hasher.update(&v.to_le_bytes());
+            let rig =
+                serde_json::to_vec(&(settings.driver, &settings.robot_id)).expect("serialises");
+            hasher.update(&rig);
+            if settings.driver == DriverKind::Simulator {
+                hasher.update(&serde_json::to_vec(&settings.simulator).expect("serialises"));
+                hasher.update(&seed.to_le_bytes());
+                for v in truth.0 {
+                    hasher.update(&v.to_le_bytes());
+                }
             }
             hasher.finalize().to_hex().to_string()
         };

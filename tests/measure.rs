@@ -1,0 +1,214 @@
+//! The measurement campaign through the runner: the external-driver path gives
+//! the same rows as the in-process simulator, an interrupted campaign resumes
+//! without measuring a row twice or losing one, and failing rows are recorded.
+
+mod common;
+
+use std::path::Path;
+
+use egcal::table;
+
+/// A job measuring the fixture's conf-wrench rows with the given measure settings.
+fn measure_job(dir: &Path, settings: &str) -> std::path::PathBuf {
+    let root = common::root();
+    let text = format!(
+        r#"[job]
+name = "campaign"
+seed = 3
+robot = "{robot}"
+output = "out"
+
+[[stages]]
+id = "measure"
+kind = "measure"
+inputs = {{ conf_wrenches = "{rows}", truth = "{truth}" }}
+{settings}
+"#,
+        robot = root.join("jobs/robots/irb1600_145.toml").display(),
+        rows = root
+            .join("fixtures/measure/noiseless_simulator/conf_wrenches.parquet")
+            .display(),
+        truth = root.join("jobs/truth/irb1600_paper.parquet").display(),
+    );
+    let path = dir.join("job.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn measurements(dir: &Path) -> polars::prelude::DataFrame {
+    table::read_parquet(&dir.join("out/measure/measurements.parquet")).unwrap()
+}
+
+#[test]
+fn external_driver_gives_the_same_rows_as_the_in_process_simulator() {
+    let inproc = tempfile::tempdir().unwrap();
+    let job = measure_job(inproc.path(), "seed = 42");
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], inproc.path());
+    assert_eq!(code, 0, "{stderr}");
+
+    let external = tempfile::tempdir().unwrap();
+    let driver = format!(
+        "driver = \"external\"\ncommand = [\"{}\", \"sim-driver\", \"--robot\", \"{}\", \"--truth\", \"{}\", \"--seed\", \"42\"]",
+        env!("CARGO_BIN_EXE_egcal"),
+        common::root()
+            .join("jobs/robots/irb1600_145.toml")
+            .display(),
+        common::root()
+            .join("jobs/truth/irb1600_paper.parquet")
+            .display(),
+    );
+    let job = measure_job(external.path(), &driver);
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], external.path());
+    assert_eq!(code, 0, "{stderr}");
+    let (a, b) = (measurements(inproc.path()), measurements(external.path()));
+    assert_eq!(a.height(), 15);
+    assert_eq!(table::content_hash(&a), table::content_hash(&b));
+}
+
+/// A driver that answers like a rig and dies after a number of `measure` calls,
+/// standing in for a crashed lab driver.
+const DYING_DRIVER: &str = r#"
+import json, sys
+limit = int(sys.argv[1])
+measured = 0
+for line in sys.stdin:
+    request = json.loads(line)
+    method, rid = request["method"], request["id"]
+    result = {}
+    if method == "hello":
+        result = {"protocol": 1, "name": "dying test driver"}
+    elif method == "move_joints":
+        q = request["params"]["q_deg"]
+    elif method == "read_joints":
+        result = {"q_deg": q}
+    elif method == "read_wrench":
+        result = {"wrench": [0.0] * 6}
+    elif method == "measure":
+        if measured == limit:
+            sys.exit(3)
+        measured += 1
+        result = {"position_mm": [sum(q), 1.0, 2.0], "measured_at_us": 0}
+    elif method == "shutdown":
+        print(json.dumps({"id": rid, "result": {}}), flush=True)
+        break
+    print(json.dumps({"id": rid, "result": result}), flush=True)
+"#;
+
+#[test]
+fn a_campaign_interrupted_by_driver_death_resumes_without_duplicates_or_losses() {
+    let dir = tempfile::tempdir().unwrap();
+    let script = dir.path().join("driver.py");
+    std::fs::write(&script, DYING_DRIVER).unwrap();
+    let job_with_limit = |limit: usize| {
+        measure_job(
+            dir.path(),
+            &format!(
+                "driver = \"external\"\ncommand = [\"python3\", \"{}\", \"{limit}\"]",
+                script.display()
+            ),
+        )
+    };
+    let job = job_with_limit(6);
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 3, "{stderr}");
+    assert!(stderr.contains("driver exited"), "{stderr}");
+    assert!(
+        stderr.contains("the 6 rows measured so far are kept"),
+        "{stderr}"
+    );
+    assert!(!dir.path().join("out/measure/measurements.parquet").exists());
+
+    // A restarted driver (here with another argument: the command line is not part
+    // of the campaign's identity) continues the journal: 6 rows come from it.
+    let job = job_with_limit(100);
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stderr.contains("resuming: 6 of 15 rows already measured"),
+        "{stderr}"
+    );
+    let df = measurements(dir.path());
+    let ids = table::schema::i64_values(&df, "cw_id", Path::new("m")).unwrap();
+    assert_eq!(ids, (1..=15).collect::<Vec<i64>>());
+}
+
+#[test]
+fn transient_failures_are_retried_then_recorded_without_stopping() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = measure_job(
+        dir.path(),
+        "retries = 1\n[stages.simulator]\nbeam_loss_probability = 0.5",
+    );
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    let measured = measurements(dir.path()).height();
+    let failures =
+        table::read_parquet(&dir.path().join("out/measure/measurement_failures.parquet")).unwrap();
+    assert!(
+        failures.height() > 0 && measured > 0,
+        "{measured} measured, {} failed",
+        failures.height()
+    );
+    assert_eq!(measured + failures.height(), 15);
+    let reasons = table::schema::str_values(&failures, "reason", Path::new("f")).unwrap();
+    assert!(
+        reasons
+            .iter()
+            .all(|r| r.as_deref() == Some("tracker lost the beam"))
+    );
+    let attempts = table::schema::i64_values(&failures, "attempts", Path::new("f")).unwrap();
+    assert!(attempts.iter().all(|a| *a == 2));
+}
+
+/// A driver whose tracker hangs on row 2: it answers after the timeout.
+const SLOW_DRIVER: &str = r#"
+import json, sys, time
+for line in sys.stdin:
+    request = json.loads(line)
+    method, rid = request["method"], request["id"]
+    result = {}
+    if method == "hello":
+        result = {"protocol": 1, "name": "slow test driver"}
+    elif method == "move_joints":
+        row, q = request["params"]["cw_id"], request["params"]["q_deg"]
+    elif method == "read_joints":
+        result = {"q_deg": q}
+    elif method == "read_wrench":
+        result = {"wrench": [0.0] * 6}
+    elif method == "measure":
+        if row == 2:
+            time.sleep(0.8)
+        result = {"position_mm": [sum(q), 1.0, 2.0]}
+    elif method == "shutdown":
+        print(json.dumps({"id": rid, "result": {}}), flush=True)
+        break
+    print(json.dumps({"id": rid, "result": result}), flush=True)
+"#;
+
+#[test]
+fn a_driver_timeout_fails_that_row_only_and_late_replies_are_ignored() {
+    let dir = tempfile::tempdir().unwrap();
+    let script = dir.path().join("driver.py");
+    std::fs::write(&script, SLOW_DRIVER).unwrap();
+    let job = measure_job(
+        dir.path(),
+        &format!(
+            "driver = \"external\"\ncommand = [\"python3\", \"{}\"]\ntimeout_s = 0.3\nretries = 0",
+            script.display()
+        ),
+    );
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    let failures =
+        table::read_parquet(&dir.path().join("out/measure/measurement_failures.parquet")).unwrap();
+    assert_eq!(
+        table::schema::i64_values(&failures, "cw_id", Path::new("f")).unwrap(),
+        [2]
+    );
+    let reasons = table::schema::str_values(&failures, "reason", Path::new("f")).unwrap();
+    assert_eq!(
+        reasons[0].as_deref(),
+        Some("driver did not answer `measure` within 0.3 s")
+    );
+    assert_eq!(measurements(dir.path()).height(), 14);
+}
