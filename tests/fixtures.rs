@@ -32,7 +32,10 @@ struct Expect {
 
 fn cases() -> Vec<PathBuf> {
     let mut found = Vec::new();
-    for kind in std::fs::read_dir(common::root().join("fixtures")).unwrap().flatten() {
+    for kind in std::fs::read_dir(common::root().join("fixtures"))
+        .unwrap()
+        .flatten()
+    {
         if !kind.path().is_dir() {
             continue;
         }
@@ -47,7 +50,13 @@ fn cases() -> Vec<PathBuf> {
 }
 
 fn run_case(dir: &Path) -> Result<(), String> {
-    let kind = dir.parent().unwrap().file_name().unwrap().to_string_lossy().into_owned();
+    let kind = dir
+        .parent()
+        .unwrap()
+        .file_name()
+        .unwrap()
+        .to_string_lossy()
+        .into_owned();
     let case: Case = toml::from_str(&std::fs::read_to_string(dir.join("case.toml")).unwrap())
         .map_err(|e| format!("case.toml: {e}"))?;
     let out = tempfile::tempdir().unwrap();
@@ -75,7 +84,9 @@ fn run_case(dir: &Path) -> Result<(), String> {
     let (code, stdout, stderr) = common::run(&args, out.path());
     if let Some(error) = &case.expect.error {
         if code == 0 {
-            return Err(format!("expected an error containing `{error}`, but it succeeded: {stdout}"));
+            return Err(format!(
+                "expected an error containing `{error}`, but it succeeded: {stdout}"
+            ));
         }
         if !stderr.contains(error.as_str()) {
             return Err(format!("expected `{error}` in:\n{stderr}"));
@@ -85,7 +96,10 @@ fn run_case(dir: &Path) -> Result<(), String> {
     if code != 0 {
         return Err(format!("exit {code}:\n{stderr}"));
     }
-    let tolerance = case.expect.tolerance.ok_or("[expect] needs tolerance or error")?;
+    let tolerance = case
+        .expect
+        .tolerance
+        .ok_or("[expect] needs tolerance or error")?;
     for expected in std::fs::read_dir(dir.join("expected")).unwrap().flatten() {
         let name = expected.file_name().to_string_lossy().into_owned();
         let want = egcal::table::read_parquet(&expected.path()).map_err(|e| e.to_string())?;
@@ -101,7 +115,9 @@ fn compare(want: &DataFrame, got: &DataFrame, tolerance: f64) -> Result<(), Stri
     }
     for column in want.columns() {
         let name = column.name().as_str();
-        let other = got.column(name).map_err(|_| format!("missing column `{name}`"))?;
+        let other = got
+            .column(name)
+            .map_err(|_| format!("missing column `{name}`"))?;
         if column.dtype().is_float() {
             let a = column.f64().unwrap();
             let b = other.f64().map_err(|e| format!("`{name}`: {e}"))?;
@@ -109,14 +125,24 @@ fn compare(want: &DataFrame, got: &DataFrame, tolerance: f64) -> Result<(), Stri
                 match (x, y) {
                     (Some(x), Some(y)) if (x - y).abs() <= tolerance * x.abs().max(1.0) => {}
                     (None, None) => {}
-                    _ => return Err(format!("`{name}` row {row}: {y:?}, expected {x:?} (tolerance {tolerance})")),
+                    _ => {
+                        return Err(format!(
+                            "`{name}` row {row}: {y:?}, expected {x:?} (tolerance {tolerance})"
+                        ));
+                    }
                 }
             }
         } else {
             // Physical values, so timestamps compare as µs whatever their time-zone tag.
             let a = column.to_physical_repr().cast(&DataType::String).unwrap();
             let b = other.to_physical_repr().cast(&DataType::String).unwrap();
-            for (row, (x, y)) in a.str().unwrap().iter().zip(b.str().unwrap().iter()).enumerate() {
+            for (row, (x, y)) in a
+                .str()
+                .unwrap()
+                .iter()
+                .zip(b.str().unwrap().iter())
+                .enumerate()
+            {
                 if x != y {
                     return Err(format!("`{name}` row {row}: {y:?}, expected {x:?}"));
                 }
@@ -129,10 +155,24 @@ fn compare(want: &DataFrame, got: &DataFrame, tolerance: f64) -> Result<(), Stri
 #[test]
 fn every_fixture_case_passes() {
     let cases = cases();
-    assert!(cases.len() >= 10, "found only {} fixture cases", cases.len());
+    assert!(
+        cases.len() >= 10,
+        "found only {} fixture cases",
+        cases.len()
+    );
     let failures: Vec<String> = cases
         .iter()
-        .filter_map(|dir| run_case(dir).err().map(|e| format!("{}: {e}", dir.display())))
+        .filter_map(|dir| {
+            run_case(dir)
+                .err()
+                .map(|e| format!("{}: {e}", dir.display()))
+        })
         .collect();
-    assert!(failures.is_empty(), "{} of {} cases failed:\n{}", failures.len(), cases.len(), failures.join("\n\n"));
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases failed:\n{}",
+        failures.len(),
+        cases.len(),
+        failures.join("\n\n")
+    );
 }

@@ -261,6 +261,17 @@ mod tests {
     }
 
     #[test]
+    fn detmax_beats_the_best_of_1000_random_subsets() {
+        let c = random_candidates(200, 8, 4);
+        let result = detmax(&c, 10, 1, 1000).unwrap();
+        let mut rng = StdRng::seed_from_u64(9);
+        let best_random = (0..1000)
+            .map(|_| observability_index(&c.information(&sample(&mut rng, 200, 10).into_vec()), 10))
+            .fold(0.0, f64::max);
+        assert!(result.o1 > best_random, "{} vs {best_random}", result.o1);
+    }
+
+    #[test]
     fn asking_for_too_few_rows_is_an_error() {
         let c = random_candidates(10, 9, 3);
         assert!(matches!(

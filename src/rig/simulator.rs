@@ -51,6 +51,7 @@ pub struct SimulatorSettings {
     pub beam_loss_probability: f64,
     /// Simulated clock: time of row cw_id = start + cw_id · seconds_per_row (RFC 3339, UTC).
     pub clock_start: String,
+    /// Simulated seconds between consecutive cw_ids.
     pub seconds_per_row: f64,
 }
 

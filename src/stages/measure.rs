@@ -43,6 +43,8 @@ pub enum DriverKind {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct MeasureSettings {
+    /// The rig: simulator (in process) or external (a driver process, see
+    /// schemas/driver-protocol.md).
     pub driver: DriverKind,
     /// Program and arguments of the external driver, run in the job file's folder.
     pub command: Vec<String>,
@@ -62,6 +64,7 @@ pub struct MeasureSettings {
     pub robot_id: Option<String>,
     /// Seed of the simulated noise; default: the stage's seed.
     pub seed: Option<u64>,
+    /// Noise and unmodelled errors of the simulator.
     pub simulator: SimulatorSettings,
 }
 

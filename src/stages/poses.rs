@@ -31,6 +31,7 @@ pub enum SamplingKind {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PosesSettings {
+    /// How target points fill the box: grid, random or latin_hypercube.
     pub sampling: SamplingKind,
     /// Grid points per axis (grid sampling).
     pub points_per_axis: usize,

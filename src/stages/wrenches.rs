@@ -43,8 +43,10 @@ impl Default for WrenchesSettings {
     fn default() -> Self {
         WrenchesSettings {
             per_config: 7,
-            sigma_force_n: 60.0,
-            sigma_moment_nm: 5.0,
+            // "Normally distributed in the range of −120 N to 120 N and −10 Nm to 10 Nm"
+            // (paper §IV.A): the range read as ±3σ.
+            sigma_force_n: 40.0,
+            sigma_moment_nm: 10.0 / 3.0,
             max_force_n: 120.0,
             max_moment_nm: 10.0,
             max_draws: 50,

@@ -446,6 +446,13 @@ pub fn selection() -> TableSchema {
                 true,
                 "calibration or validation",
             ),
+            col(
+                "order",
+                ColumnType::Int64,
+                "",
+                false,
+                "1-based position among the calibration rows, as selected",
+            ),
         ],
         unique: Some("cw_id"),
     }
@@ -532,8 +539,13 @@ pub fn identifiability() -> TableSchema {
 
 /// DETMAX exchanges (paper §IV.B).
 pub fn detmax_trace() -> TableSchema {
+    observability()
+}
+
+/// DETMAX exchanges (paper §IV.B).
+pub fn observability() -> TableSchema {
     TableSchema {
-        kind: "detmax_trace",
+        kind: "observability",
         description: "Each DETMAX exchange: the row added, the row removed, and O1 after it (iteration 0 is the random start).",
         columns: vec![
             col("iteration", ColumnType::Int64, "", true, "exchange number"),
@@ -817,7 +829,7 @@ pub fn all() -> Vec<TableSchema> {
         selection(),
         identification_trace(),
         identifiability(),
-        detmax_trace(),
+        observability(),
         errors(),
         stats(),
         tests(),

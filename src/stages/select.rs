@@ -1,4 +1,4 @@
-//! `detmax`: picks the n conf-wrench rows that maximise the observability index O1
+//! `select`: picks the n conf-wrench rows that maximise the observability index O1
 //! of the identifiable parameters (paper §IV.B). The other rows become the
 //! validation set. See `design::detmax` for the algorithm and the column scaling.
 
@@ -15,32 +15,35 @@ use crate::robot::{ParamId, ParamValues, batch_jacobian};
 use crate::table::frame;
 use crate::table::schema::{self, str_values};
 
-pub struct DetmaxStage;
+pub struct SelectStage;
 
-/// Settings of `detmax`.
+/// Settings of `select`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
-pub struct DetmaxSettings {
+pub struct SelectSettings {
     /// Number of calibration rows to select.
     pub n: usize,
     /// Upper bound on exchanges (the paper's loop stops earlier, when the row added is the row removed).
     pub max_iterations: usize,
     /// Rank tolerance when no identifiability input is bound.
     pub rank_tolerance: f64,
+    /// Independent random starts; the selection with the highest O1 is kept.
+    pub restarts: usize,
 }
 
-impl Default for DetmaxSettings {
+impl Default for SelectSettings {
     fn default() -> Self {
-        DetmaxSettings {
+        SelectSettings {
             n: 50,
             max_iterations: 1000,
             rank_tolerance: 1e-6,
+            restarts: 4,
         }
     }
 }
 
 static INFO: StageInfo = StageInfo {
-    kind: "detmax",
+    kind: "select",
     uses_cable_robot: false,
     summary: "DETMAX selection of calibration rows by the observability index O1",
     code_version: 1,
@@ -63,19 +66,19 @@ static INFO: StageInfo = StageInfo {
             name: "selection",
             schema: schema::selection,
             required: true,
-            meaning: "cw_id and role (calibration for the n selected, validation for the rest)",
+            meaning: "cw_id, role (calibration for the n selected, validation for the rest), order",
         },
         TableSlot {
-            name: "detmax_trace",
-            schema: schema::detmax_trace,
+            name: "observability",
+            schema: schema::observability,
             required: true,
             meaning: "each exchange and O1 after it",
         },
     ],
 };
 
-impl Stage for DetmaxStage {
-    type Settings = DetmaxSettings;
+impl Stage for SelectStage {
+    type Settings = SelectSettings;
 
     fn info(&self) -> &'static StageInfo {
         &INFO
@@ -84,7 +87,7 @@ impl Stage for DetmaxStage {
     fn run(
         &self,
         ctx: &StageContext,
-        settings: &DetmaxSettings,
+        settings: &SelectSettings,
     ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("candidates")?;
         let (ids, rows) = conf_wrench_rows(input)?;
@@ -122,8 +125,19 @@ impl Stage for DetmaxStage {
         let jacobian = batch_jacobian(ctx.robot, &nominal, &rows, &parameters);
         let (candidates, _) =
             Candidates::from_jacobian(&jacobian.jacobian, rows.len(), parameters.len());
-        let result = detmax(&candidates, settings.n, ctx.seed, settings.max_iterations)
-            .map_err(|e| StageError::Invalid(format!("setting `n`: {e}")))?;
+        let mut results = Vec::new();
+        for restart in 0..settings.restarts.max(1) as u64 {
+            let seed = ctx.seed.wrapping_add(restart.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            results.push(
+                detmax(&candidates, settings.n, seed, settings.max_iterations)
+                    .map_err(|e| StageError::Invalid(format!("setting `n`: {e}")))?,
+            );
+        }
+        let o1_per_start: Vec<String> = results.iter().map(|r| format!("{:.6}", r.o1)).collect();
+        let result = results
+            .into_iter()
+            .max_by(|a, b| a.o1.total_cmp(&b.o1))
+            .expect("at least one start");
         if !result.converged {
             ctx.progress.note(&format!(
                 "DETMAX stopped at max_iterations = {} before converging",
@@ -132,8 +146,10 @@ impl Stage for DetmaxStage {
         }
 
         let mut role = vec!["validation"; ids.len()];
-        for &k in &result.chosen {
+        let mut order: Vec<Option<i64>> = vec![None; ids.len()];
+        for (position, &k) in result.chosen.iter().enumerate() {
             role[k] = "calibration";
+            order[k] = Some(position as i64 + 1);
         }
         let mut iteration = vec![0i64];
         let mut added = vec![None];
@@ -154,7 +170,7 @@ impl Stage for DetmaxStage {
             ]),
         );
         outputs.tables.insert(
-            "detmax_trace".into(),
+            "observability".into(),
             frame(vec![
                 Column::new("iteration".into(), iteration),
                 Column::new("added_cw_id".into(), added),
@@ -181,6 +197,9 @@ impl Stage for DetmaxStage {
         outputs
             .facts
             .insert("exchanges".into(), result.trace.len().to_string());
+        outputs
+            .facts
+            .insert("o1_per_start".into(), o1_per_start.join(" "));
         Ok(outputs)
     }
 }
