@@ -8,6 +8,7 @@ pub mod design;
 pub mod fsio;
 pub mod job;
 pub mod journal;
+pub mod report;
 pub mod rig;
 pub mod robot;
 pub mod runner;

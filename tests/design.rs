@@ -60,16 +60,35 @@ fn poses_reach_their_targets_facing_the_tracker_and_wrenches_are_feasible() {
         assert!(robot.within_limits(&q_deg), "row {k}: {q_deg:?}");
         let (_, tool) = robot.frames_in_base(&nominal, &q_deg);
         let target = Vector3::new(tx[k], ty[k], tz[k]);
-        assert!((tool.origin_mm - target).norm() < 1e-6, "row {k}: FK misses the target");
-        let facing = tool.axis(2).dot(&(tracker - target).normalize()).acos().to_degrees();
-        assert!(facing <= 40.0 + 1e-9, "row {k}: SMR {facing}° off the tracker");
+        assert!(
+            (tool.origin_mm - target).norm() < 1e-6,
+            "row {k}: FK misses the target"
+        );
+        let facing = tool
+            .axis(2)
+            .dot(&(tracker - target).normalize())
+            .acos()
+            .to_degrees();
+        assert!(
+            facing <= 40.0 + 1e-9,
+            "row {k}: SMR {facing}° off the tracker"
+        );
         assert!((facing - incidence[k]).abs() < 1e-6);
     }
 
-    let (code, stderr) = stage("wrenches", "per_config = 4\n", &[("poses", &poses_path)], out.path());
+    let (code, stderr) = stage(
+        "wrenches",
+        "per_config = 4\n",
+        &[("poses", &poses_path)],
+        out.path(),
+    );
     assert_eq!(code, 0, "{stderr}");
     let candidates = table::read_parquet(&out.path().join("candidates.parquet")).unwrap();
-    assert!(candidates.height() >= 4 * poses.height() * 9 / 10, "{} candidates", candidates.height());
+    assert!(
+        candidates.height() >= 4 * poses.height() * 9 / 10,
+        "{} candidates",
+        candidates.height()
+    );
     let spec = CableRobotSpec::default();
     let col = |name: &str| schema::f64_values(&candidates, name, Path::new("c")).unwrap();
     let q: Vec<Vec<f64>> = schema::JOINT_COLUMNS.iter().map(|c| col(c)).collect();
@@ -84,7 +103,12 @@ fn poses_reach_their_targets_facing_the_tracker_and_wrenches_are_feasible() {
         }
         let produced = structure_matrix(&spec, &tool) * tensions;
         for i in 0..6 {
-            assert!((produced[i] - w[i][k]).abs() < 1e-6, "row {k} component {i}: {} vs {}", produced[i], w[i][k]);
+            assert!(
+                (produced[i] - w[i][k]).abs() < 1e-6,
+                "row {k} component {i}: {} vs {}",
+                produced[i],
+                w[i][k]
+            );
         }
         assert!(w[0][k].abs() <= 120.0 && w[3][k].abs() <= 10.0);
     }
@@ -93,8 +117,16 @@ fn poses_reach_their_targets_facing_the_tracker_and_wrenches_are_feasible() {
 #[test]
 fn an_unreachable_box_is_dropped_with_its_reason() {
     let out = tempfile::tempdir().unwrap();
-    let (code, stderr) = stage("poses", "points_per_axis = 2\ncentre_mm = [3000.0, 0.0, 900.0]\norientation_attempts = 3\n", &[], out.path());
+    let (code, stderr) = stage(
+        "poses",
+        "points_per_axis = 2\ncentre_mm = [3000.0, 0.0, 900.0]\norientation_attempts = 3\n",
+        &[],
+        out.path(),
+    );
     assert_eq!(code, 3, "{stderr}");
-    assert!(stderr.contains("no reachable collision-free pose at any of the 8 target points"), "{stderr}");
+    assert!(
+        stderr.contains("no reachable collision-free pose at any of the 8 target points"),
+        "{stderr}"
+    );
     assert!(stderr.contains("\"unreachable\": 24"), "{stderr}");
 }

@@ -26,18 +26,43 @@ fn paper_campaign_reproduces_the_qualitative_result() {
 
     let out = dir.path().join("out/paper_sim");
     let candidates = table::read_parquet(&out.join("wrenches/candidates.parquet")).unwrap();
-    assert!(candidates.height() >= 800, "{} candidates", candidates.height());
+    assert!(
+        candidates.height() >= 800,
+        "{} candidates",
+        candidates.height()
+    );
     let selection = table::read_parquet(&out.join("select/selection.parquet")).unwrap();
     let roles = schema::str_values(&selection, "role", Path::new("s")).unwrap();
-    assert_eq!(roles.iter().filter(|r| r.as_deref() == Some("calibration")).count(), 50);
+    assert_eq!(
+        roles
+            .iter()
+            .filter(|r| r.as_deref() == Some("calibration"))
+            .count(),
+        50
+    );
 
     let stats = table::read_parquet(&out.join("validate/stats.parquet")).unwrap();
     let models = schema::str_values(&stats, "model", Path::new("s")).unwrap();
     let max = schema::f64_values(&stats, "max_mm", Path::new("s")).unwrap();
-    let max_of = |model: &str| max[models.iter().position(|m| m.as_deref() == Some(model)).unwrap()];
-    let (registered, kinematic, eg) = (max_of("registered"), max_of("kinematic"), max_of("elastogeometric"));
-    assert!(eg < 0.25 * kinematic, "elasto-geometric max {eg} vs kinematic {kinematic}");
-    assert!(kinematic < 0.8 * registered, "kinematic max {kinematic} vs registered {registered}");
+    let max_of = |model: &str| {
+        max[models
+            .iter()
+            .position(|m| m.as_deref() == Some(model))
+            .unwrap()]
+    };
+    let (registered, kinematic, eg) = (
+        max_of("registered"),
+        max_of("kinematic"),
+        max_of("elastogeometric"),
+    );
+    assert!(
+        eg < 0.25 * kinematic,
+        "elasto-geometric max {eg} vs kinematic {kinematic}"
+    );
+    assert!(
+        kinematic < 0.8 * registered,
+        "kinematic max {kinematic} vs registered {registered}"
+    );
 
     let tests = table::read_parquet(&out.join("validate/tests.parquet")).unwrap();
     let a = schema::str_values(&tests, "model_a", Path::new("t")).unwrap();

@@ -1,6 +1,6 @@
 //! The measurement cell as geometry in the robot base frame (mm): robot links as
 //! capsules, the cable robot's pulleys as balls, its 8 cables as thin capsules, the
-//! platform as a ball, a floor plane, and the tracker's line of sight.
+//! platform as a box on the tool, a floor plane, and the tracker's line of sight.
 //!
 //! Distance queries go through parry3d (the only place its glam types appear:
 //! [`to_parry`] is the boundary). A configuration is rejected with the first
@@ -9,8 +9,9 @@
 use nalgebra::Vector3;
 use parry3d_f64::math::{Pose, Vector};
 use parry3d_f64::query;
-use parry3d_f64::shape::{Capsule, Shape};
+use parry3d_f64::shape::{Capsule, Cuboid, Shape};
 
+use crate::robot::frame::rotation_vector;
 use crate::robot::{Frame, JOINTS};
 
 /// Why a configuration was rejected (also the rejection-count keys).
@@ -60,9 +61,11 @@ pub struct Cell {
     /// Cable attachment points on the platform, in the tool frame.
     pub attachments: Vec<Vector3<f64>>,
     pub cable_radius_mm: f64,
-    /// Platform as a ball (centre in the tool frame).
+    /// Platform as a box aligned with the tool frame: centre (tool frame) and half extents.
     pub platform_centre: Vector3<f64>,
-    pub platform_radius_mm: f64,
+    pub platform_half_extents_mm: Vector3<f64>,
+    /// The beam ends this far before the SMR centre (the SMR's radius).
+    pub smr_radius_mm: f64,
     /// Lowest z any link point may reach (base frame).
     pub floor_z_mm: f64,
     /// Tracker head in the base frame.
@@ -81,7 +84,19 @@ fn capsule(a: &Vector3<f64>, b: &Vector3<f64>, radius: f64) -> Capsule {
 
 fn distance(a: &dyn Shape, b: &dyn Shape) -> f64 {
     let identity = Pose::identity();
-    query::distance(&identity, a, &identity, b).map_or(f64::INFINITY, |d| d.distance)
+    distance_posed(&identity, a, b)
+}
+
+/// Distance between `a` placed at `pose` and `b` given in the base frame.
+fn distance_posed(pose: &Pose, a: &dyn Shape, b: &dyn Shape) -> f64 {
+    query::distance(pose, a, &Pose::identity(), b).map_or(f64::INFINITY, |d| d.distance)
+}
+
+fn to_pose(frame: &Frame) -> Pose {
+    Pose::new(
+        to_parry(&frame.origin_mm),
+        to_parry(&rotation_vector(&frame.rotation)),
+    )
 }
 
 fn ball_at(centre: &Vector3<f64>, radius: f64) -> Capsule {
@@ -133,20 +148,27 @@ impl Cell {
                 }
             }
         }
-        let platform = ball_at(
-            &tool.transform_point(&self.platform_centre),
-            self.platform_radius_mm,
-        );
+        let platform = Cuboid::new(to_parry(&self.platform_half_extents_mm));
+        let platform_pose = to_pose(&tool.compose(&Frame {
+            rotation: nalgebra::Matrix3::identity(),
+            origin_mm: self.platform_centre,
+        }));
         // The platform against the arm up to the forearm.
         for (link, shape, _) in &links {
             if *link <= 3 {
-                require(distance(shape, &platform), Rejection::SelfCollision)?;
+                require(
+                    distance_posed(&platform_pose, &platform, shape),
+                    Rejection::SelfCollision,
+                )?;
             }
         }
         // Pulleys (the cable robot's frame) against links and platform.
         for anchor in &self.anchors {
             let pulley = ball_at(anchor, self.pulley_radius_mm);
-            require(distance(&pulley, &platform), Rejection::FrameCollision)?;
+            require(
+                distance_posed(&platform_pose, &platform, &pulley),
+                Rejection::FrameCollision,
+            )?;
             for (_, shape, _) in &links {
                 require(distance(shape, &pulley), Rejection::FrameCollision)?;
             }
@@ -172,13 +194,12 @@ impl Cell {
                 }
             }
         }
-        // Line of sight from the tracker to the SMR, stopping short of the SMR by the
-        // platform radius (the beam ends on the platform's face).
+        // Line of sight from the tracker to the SMR's surface.
         let smr = tool.origin_mm;
         let towards_tracker = (self.tracker - smr).normalize();
         let beam = capsule(
             &self.tracker,
-            &(smr + towards_tracker * self.platform_radius_mm),
+            &(smr + towards_tracker * self.smr_radius_mm),
             0.0,
         );
         for (_, shape, _) in &links {
@@ -194,6 +215,19 @@ impl Cell {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn posed_box_distance_matches_the_closed_form() {
+        // A 100 mm cube turned 90° about z and moved to x = 500: its face is at 450.
+        let frame = Frame {
+            rotation: crate::robot::frame::rot_z(std::f64::consts::FRAC_PI_2),
+            origin_mm: Vector3::new(500.0, 0.0, 0.0),
+        };
+        let cube = Cuboid::new(to_parry(&Vector3::repeat(50.0)));
+        let ball = ball_at(&Vector3::new(300.0, 0.0, 0.0), 50.0);
+        let d = distance_posed(&to_pose(&frame), &cube, &ball);
+        assert!((d - 100.0).abs() < 1e-6, "{d}");
+    }
 
     #[test]
     fn parry_distances_match_closed_forms() {

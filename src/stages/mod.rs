@@ -6,12 +6,13 @@
 //! (serde + JSON Schema + defaults) is the single source for job-file parsing,
 //! `egcal list-stages`, the job-file JSON Schema and the cache key.
 
-pub mod detmax;
 pub mod identifiability;
 pub mod identify;
 pub mod measure;
 pub mod poses;
 pub mod predict;
+pub mod report;
+pub mod select;
 pub mod validate;
 pub mod wrenches;
 
@@ -233,11 +234,12 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &poses::PosesStage,
         &wrenches::WrenchesStage,
         &identifiability::IdentifiabilityStage,
-        &detmax::DetmaxStage,
+        &select::SelectStage,
         &measure::MeasureStage,
         &identify::IdentifyStage,
         &validate::ValidateStage,
         &predict::PredictStage,
+        &report::ReportStage,
     ]
 }
 

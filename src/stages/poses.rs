@@ -18,6 +18,9 @@ use crate::table::schema::{self, JOINT_COLUMNS};
 
 pub struct PosesStage;
 
+/// A 1.5-inch spherically mounted retroreflector.
+const SMR_RADIUS_MM: f64 = 19.05;
+
 /// How target points fill the box.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
@@ -89,7 +92,7 @@ static INFO: StageInfo = StageInfo {
     kind: "poses",
     uses_cable_robot: true,
     summary: "Robot configurations in the workspace box, SMR facing the tracker, collision-free",
-    code_version: 1,
+    code_version: 2,
     inputs: &[],
     outputs: &[TableSlot {
         name: "poses",
@@ -122,12 +125,13 @@ impl Stage for PosesStage {
             .iter()
             .map(|a| Vector3::from(*a))
             .collect();
-        let platform_centre =
-            attachments.iter().sum::<Vector3<f64>>() / attachments.len().max(1) as f64;
-        let platform_radius_mm = attachments
+        // The platform is the box spanned by the cable attachment points (cube corners).
+        let lower = attachments
             .iter()
-            .map(|a| (a - platform_centre).norm())
-            .fold(0.0, f64::max);
+            .fold(Vector3::repeat(f64::INFINITY), |m, a| m.inf(a));
+        let upper = attachments
+            .iter()
+            .fold(Vector3::repeat(f64::NEG_INFINITY), |m, a| m.sup(a));
         let cell = Cell {
             link_capsules: std::array::from_fn(|i| {
                 ctx.robot.spec().joints[i]
@@ -147,8 +151,9 @@ impl Stage for PosesStage {
             pulley_radius_mm: settings.pulley_radius_mm,
             attachments,
             cable_radius_mm: settings.cable_radius_mm,
-            platform_centre,
-            platform_radius_mm,
+            platform_centre: (lower + upper) / 2.0,
+            platform_half_extents_mm: (upper - lower) / 2.0,
+            smr_radius_mm: SMR_RADIUS_MM,
             floor_z_mm: settings.floor_z_mm,
             tracker,
             safety_margin_mm: settings.safety_margin_mm,

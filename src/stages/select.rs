@@ -127,7 +127,9 @@ impl Stage for SelectStage {
             Candidates::from_jacobian(&jacobian.jacobian, rows.len(), parameters.len());
         let mut results = Vec::new();
         for restart in 0..settings.restarts.max(1) as u64 {
-            let seed = ctx.seed.wrapping_add(restart.wrapping_mul(0x9e37_79b9_7f4a_7c15));
+            let seed = ctx
+                .seed
+                .wrapping_add(restart.wrapping_mul(0x9e37_79b9_7f4a_7c15));
             results.push(
                 detmax(&candidates, settings.n, seed, settings.max_iterations)
                     .map_err(|e| StageError::Invalid(format!("setting `n`: {e}")))?,

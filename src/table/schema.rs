@@ -538,11 +538,6 @@ pub fn identifiability() -> TableSchema {
 }
 
 /// DETMAX exchanges (paper §IV.B).
-pub fn detmax_trace() -> TableSchema {
-    observability()
-}
-
-/// DETMAX exchanges (paper §IV.B).
 pub fn observability() -> TableSchema {
     TableSchema {
         kind: "observability",

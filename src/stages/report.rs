@@ -1,0 +1,378 @@
+//! `report`: one self-contained HTML page (`report.html`) of a calibration run —
+//! the error statistics beside the paper's Table III, histograms like Fig. 7, the
+//! poses like Fig. 4, the parameters with standard errors (and the truth of a
+//! simulated robot), the DETMAX and identification traces, the hypothesis tests
+//! and the provenance of every input. Reads tables only; writes no table.
+//!
+//! This file reads the inputs into plain data; `crate::report` renders it.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use polars::prelude::DataFrame;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use crate::report::{
+    self, DetmaxStep, InputSource, ParamRow, Pose, ReportData, StatsRow, TestRow, TraceRow, Truth,
+};
+use crate::table::schema::{self, f64_values, i64_values, io_error, str_values};
+use crate::table::{self as tables, TableError};
+
+pub struct ReportStage;
+
+/// Settings of `report`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct ReportSettings {
+    /// Page title.
+    pub title: String,
+    /// Bins of each error histogram.
+    pub histogram_bins: usize,
+    /// Model of the `truth` table whose values are the truth.
+    pub truth_model: String,
+}
+
+impl Default for ReportSettings {
+    fn default() -> Self {
+        ReportSettings {
+            title: "Elasto-geometric calibration report".into(),
+            histogram_bins: 30,
+            truth_model: "elastogeometric".into(),
+        }
+    }
+}
+
+/// The report's file name among the stage's outputs.
+pub const REPORT_FILE: &str = "report.html";
+
+static INFO: StageInfo = StageInfo {
+    kind: "report",
+    uses_cable_robot: false,
+    summary: "Self-contained HTML report (report.html): Table III, Fig. 4 and 7, parameters, traces, tests, provenance",
+    code_version: 1,
+    inputs: &[
+        TableSlot {
+            name: "stats",
+            schema: schema::stats,
+            required: true,
+            meaning: "error statistics per model (validate)",
+        },
+        TableSlot {
+            name: "errors",
+            schema: schema::errors,
+            required: true,
+            meaning: "error per validation row and model (validate), for the histograms",
+        },
+        TableSlot {
+            name: "parameters",
+            schema: schema::parameters,
+            required: true,
+            meaning: "identified parameter sets with standard errors (identify)",
+        },
+        TableSlot {
+            name: "tests",
+            schema: schema::tests,
+            required: false,
+            meaning: "hypothesis tests between models (validate)",
+        },
+        TableSlot {
+            name: "poses",
+            schema: schema::poses,
+            required: false,
+            meaning: "robot configurations, for the 3-D view of the poses",
+        },
+        TableSlot {
+            name: "observability",
+            schema: schema::observability,
+            required: false,
+            meaning: "O1 per DETMAX exchange (detmax)",
+        },
+        TableSlot {
+            name: "identification_trace",
+            schema: schema::identification_trace,
+            required: false,
+            meaning: "Gauss–Newton iterations per model (identify)",
+        },
+        TableSlot {
+            name: "truth",
+            schema: schema::parameters,
+            required: false,
+            meaning: "parameters of the simulated robot; the rows of model `truth_model` are the truth",
+        },
+    ],
+    outputs: &[],
+};
+
+impl Stage for ReportStage {
+    type Settings = ReportSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &ReportSettings,
+    ) -> Result<StageOutputs, StageError> {
+        if settings.histogram_bins == 0 {
+            return Err(StageError::Invalid(
+                "setting `histogram_bins`: must be at least 1".into(),
+            ));
+        }
+        let truth = match ctx.inputs.get("truth") {
+            Some(table) => Some(read_truth(table, &settings.truth_model)?),
+            None => None,
+        };
+        let detmax_trace = ctx.inputs.get("observability");
+        let o1_scaling = detmax_trace
+            .and_then(|t| tables::read_provenance(&t.path).ok().flatten())
+            .and_then(|p| p.extra.get("o1_scaling").cloned())
+            .unwrap_or_else(|| report::DEFAULT_O1_SCALING.to_string());
+        let data = ReportData {
+            title: settings.title.clone(),
+            histogram_bins: settings.histogram_bins,
+            truth_model: settings.truth_model.clone(),
+            stats: read_stats(ctx.input("stats")?)?,
+            errors: read_errors(ctx.input("errors")?)?,
+            parameters: read_parameters(ctx.input("parameters")?)?,
+            tests: ctx.inputs.get("tests").map(read_tests).transpose()?,
+            poses: ctx.inputs.get("poses").map(read_poses).transpose()?,
+            detmax_trace: detmax_trace.map(read_detmax).transpose()?,
+            o1_scaling,
+            identification_trace: ctx
+                .inputs
+                .get("identification_trace")
+                .map(read_trace)
+                .transpose()?,
+            truth,
+            sources: ctx
+                .inputs
+                .iter()
+                .map(|(name, table)| source(name, table, ctx.job_dir))
+                .collect(),
+        };
+        let html = report::render(&data);
+        let mut outputs = StageOutputs::default();
+        outputs
+            .facts
+            .insert("report_bytes".into(), html.len().to_string());
+        outputs
+            .facts
+            .insert("charts".into(), html.matches("<svg").count().to_string());
+        outputs.files.insert(REPORT_FILE.into(), html.into_bytes());
+        Ok(outputs)
+    }
+}
+
+/// Provenance and identity of one input, read from its file.
+fn source(name: &str, table: &InputTable, job_dir: &Path) -> InputSource {
+    let shown = table.path.strip_prefix(job_dir).unwrap_or(&table.path);
+    InputSource {
+        input: name.to_string(),
+        file: shown.display().to_string(),
+        rows: table.df.height(),
+        data_hash: tables::content_hash(&table.df),
+        provenance: tables::read_provenance(&table.path).map_err(|e| e.to_string()),
+    }
+}
+
+fn strings(table: &InputTable, column: &str) -> Result<Vec<String>, TableError> {
+    Ok(str_values(&table.df, column, &table.path)?
+        .into_iter()
+        .map(Option::unwrap_or_default)
+        .collect())
+}
+
+fn floats(table: &InputTable, column: &str) -> Result<Vec<f64>, TableError> {
+    f64_values(&table.df, column, &table.path)
+}
+
+fn ints(table: &InputTable, column: &str) -> Result<Vec<i64>, TableError> {
+    i64_values(&table.df, column, &table.path)
+}
+
+/// An optional f64 column: nulls (and a missing column) as `None`.
+fn optional_floats(
+    df: &DataFrame,
+    column: &str,
+    path: &Path,
+) -> Result<Vec<Option<f64>>, TableError> {
+    match df.column(column) {
+        Ok(c) => Ok(c.f64().map_err(|e| io_error(path, e))?.iter().collect()),
+        Err(_) => Ok(vec![None; df.height()]),
+    }
+}
+
+/// An optional i64 column: nulls (and a missing column) as `None`.
+fn optional_ints(
+    df: &DataFrame,
+    column: &str,
+    path: &Path,
+) -> Result<Vec<Option<i64>>, TableError> {
+    match df.column(column) {
+        Ok(c) => Ok(c.i64().map_err(|e| io_error(path, e))?.iter().collect()),
+        Err(_) => Ok(vec![None; df.height()]),
+    }
+}
+
+fn read_stats(table: &InputTable) -> Result<Vec<StatsRow>, TableError> {
+    let model = strings(table, "model")?;
+    let n = ints(table, "n")?;
+    let [mean, std, median, rms, p95, max] = [
+        "mean_mm",
+        "std_mm",
+        "median_mm",
+        "rms_mm",
+        "p95_mm",
+        "max_mm",
+    ]
+    .map(|c| floats(table, c));
+    let (mean, std, median, rms, p95, max) = (mean?, std?, median?, rms?, p95?, max?);
+    Ok((0..model.len())
+        .map(|k| StatsRow {
+            model: model[k].clone(),
+            n: n[k],
+            mean: mean[k],
+            std: std[k],
+            median: median[k],
+            rms: rms[k],
+            p95: p95[k],
+            max: max[k],
+        })
+        .collect())
+}
+
+fn read_errors(table: &InputTable) -> Result<BTreeMap<String, Vec<f64>>, TableError> {
+    let model = strings(table, "model")?;
+    let error = floats(table, "error_mm")?;
+    let mut by_model: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    for (m, e) in model.into_iter().zip(error) {
+        by_model.entry(m).or_default().push(e);
+    }
+    Ok(by_model)
+}
+
+fn read_parameters(table: &InputTable) -> Result<Vec<ParamRow>, TableError> {
+    let model = strings(table, "model")?;
+    let name = strings(table, "name")?;
+    let unit = strings(table, "unit")?;
+    let nominal = floats(table, "nominal")?;
+    let value = floats(table, "value")?;
+    let std_error = optional_floats(&table.df, "std_error", &table.path)?;
+    let status = strings(table, "status")?;
+    Ok((0..model.len())
+        .map(|k| ParamRow {
+            model: model[k].clone(),
+            name: name[k].clone(),
+            unit: unit[k].clone(),
+            nominal: nominal[k],
+            value: value[k],
+            std_error: std_error[k].filter(|v| v.is_finite()),
+            status: status[k].clone(),
+        })
+        .collect())
+}
+
+fn read_truth(table: &InputTable, truth_model: &str) -> Result<Truth, StageError> {
+    let rows = read_parameters(table)?;
+    let values: BTreeMap<String, f64> = rows
+        .iter()
+        .filter(|r| r.model == truth_model)
+        .map(|r| (r.name.clone(), r.value))
+        .collect();
+    if values.is_empty() {
+        let mut models: Vec<&str> = Vec::new();
+        for row in &rows {
+            if !models.contains(&row.model.as_str()) {
+                models.push(&row.model);
+            }
+        }
+        return Err(StageError::Invalid(format!(
+            "setting `truth_model`: the truth table {} has no rows for model `{truth_model}` (it has: {})",
+            table.path.display(),
+            if models.is_empty() {
+                "no rows".to_string()
+            } else {
+                models.join(", ")
+            }
+        )));
+    }
+    Ok(Truth {
+        model: truth_model.to_string(),
+        values,
+    })
+}
+
+fn read_tests(table: &InputTable) -> Result<Vec<TestRow>, TableError> {
+    let model_a = strings(table, "model_a")?;
+    let model_b = strings(table, "model_b")?;
+    let test = strings(table, "test")?;
+    let statistic = floats(table, "statistic")?;
+    let dof = optional_floats(&table.df, "dof", &table.path)?;
+    let p_value = floats(table, "p_value")?;
+    Ok((0..model_a.len())
+        .map(|k| TestRow {
+            model_a: model_a[k].clone(),
+            model_b: model_b[k].clone(),
+            test: test[k].clone(),
+            statistic: statistic[k],
+            dof: dof[k],
+            p_value: p_value[k],
+        })
+        .collect())
+}
+
+fn read_poses(table: &InputTable) -> Result<Vec<Pose>, TableError> {
+    let id = ints(table, "config_id")?;
+    let [x, y, z, a, b, g] = [
+        "target_x_mm",
+        "target_y_mm",
+        "target_z_mm",
+        "tool_alpha_deg",
+        "tool_beta_deg",
+        "tool_gamma_deg",
+    ]
+    .map(|c| floats(table, c));
+    let (x, y, z, a, b, g) = (x?, y?, z?, a?, b?, g?);
+    Ok((0..id.len())
+        .map(|k| Pose {
+            config_id: id[k],
+            target_mm: [x[k], y[k], z[k]],
+            tool_deg: [a[k], b[k], g[k]],
+        })
+        .collect())
+}
+
+fn read_detmax(table: &InputTable) -> Result<Vec<DetmaxStep>, TableError> {
+    let iteration = ints(table, "iteration")?;
+    let added = optional_ints(&table.df, "added_cw_id", &table.path)?;
+    let removed = optional_ints(&table.df, "removed_cw_id", &table.path)?;
+    let o1 = floats(table, "o1")?;
+    Ok((0..iteration.len())
+        .map(|k| DetmaxStep {
+            iteration: iteration[k],
+            added: added[k],
+            removed: removed[k],
+            o1: o1[k],
+        })
+        .collect())
+}
+
+fn read_trace(table: &InputTable) -> Result<Vec<TraceRow>, TableError> {
+    let model = strings(table, "model")?;
+    let iteration = ints(table, "iteration")?;
+    let [rms, max, step] = ["rms_mm", "max_mm", "step_mm"].map(|c| floats(table, c));
+    let (rms, max, step) = (rms?, max?, step?);
+    Ok((0..model.len())
+        .map(|k| TraceRow {
+            model: model[k].clone(),
+            iteration: iteration[k],
+            rms_mm: rms[k],
+            max_mm: max[k],
+            step_mm: step[k],
+        })
+        .collect())
+}
