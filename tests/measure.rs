@@ -177,7 +177,7 @@ for line in sys.stdin:
         result = {"wrench": [0.0] * 6}
     elif method == "measure":
         if row == 2:
-            time.sleep(0.8)
+            time.sleep(4.0)
         result = {"position_mm": [sum(q), 1.0, 2.0]}
     elif method == "shutdown":
         print(json.dumps({"id": rid, "result": {}}), flush=True)
@@ -193,7 +193,7 @@ fn a_driver_timeout_fails_that_row_only_and_late_replies_are_ignored() {
     let job = measure_job(
         dir.path(),
         &format!(
-            "driver = \"external\"\ncommand = [\"python3\", \"{}\"]\ntimeout_s = 0.3\nretries = 0",
+            "driver = \"external\"\ncommand = [\"python3\", \"{}\"]\ntimeout_s = 1.5\nretries = 0",
             script.display()
         ),
     );
@@ -208,7 +208,7 @@ fn a_driver_timeout_fails_that_row_only_and_late_replies_are_ignored() {
     let reasons = table::schema::str_values(&failures, "reason", Path::new("f")).unwrap();
     assert_eq!(
         reasons[0].as_deref(),
-        Some("driver did not answer `measure` within 0.3 s")
+        Some("driver did not answer `measure` within 1.5 s")
     );
     assert_eq!(measurements(dir.path()).height(), 14);
 }
