@@ -20,6 +20,29 @@ pub fn location(err: &toml::de::Error, text: &str) -> String {
     }
 }
 
+/// Why a strictly parsed TOML file was rejected.
+#[derive(Debug, Clone, PartialEq)]
+pub enum StrictError {
+    /// Not TOML at all: message with its location.
+    Syntax(String),
+    /// TOML, but a key is unknown, missing or of the wrong type.
+    Invalid { key: String, message: String },
+}
+
+/// Deserialises `text` into `T`, naming the key path and line of the first problem.
+pub fn from_str_strict<T: serde::de::DeserializeOwned>(text: &str) -> Result<T, StrictError> {
+    let de =
+        toml::de::Deserializer::parse(text).map_err(|e| StrictError::Syntax(describe(&e, text)))?;
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let key = e.path().to_string();
+        let inner = e.into_inner();
+        StrictError::Invalid {
+            message: format!("{} ({})", inner.message(), location(&inner, text)),
+            key,
+        }
+    })
+}
+
 /// The error's message followed by its location.
 pub fn describe(err: &toml::de::Error, text: &str) -> String {
     format!("{} at {}", err.message().trim(), location(err, text))

@@ -106,23 +106,19 @@ impl CableRobotSpec {
 
     /// Parses and validates CDPR-file text; `path` is only used in error messages.
     pub fn parse(text: &str, path: &Path) -> Result<Self, CdprError> {
-        let de = toml::de::Deserializer::parse(text).map_err(|e| CdprError::Parse {
-            path: path.to_path_buf(),
-            message: crate::toml_error::describe(&e, text),
-        })?;
-        let spec: CableRobotSpec = serde_path_to_error::deserialize(de).map_err(|e| {
-            let key = e.path().to_string();
-            let inner = e.into_inner();
-            CdprError::InvalidFile {
-                path: path.to_path_buf(),
-                message: format!(
-                    "{} ({})",
-                    inner.message(),
-                    crate::toml_error::location(&inner, text)
-                ),
-                key,
-            }
-        })?;
+        use crate::toml_error::StrictError;
+        let spec: CableRobotSpec =
+            crate::toml_error::from_str_strict(text).map_err(|e| match e {
+                StrictError::Syntax(message) => CdprError::Parse {
+                    path: path.to_path_buf(),
+                    message,
+                },
+                StrictError::Invalid { key, message } => CdprError::InvalidFile {
+                    path: path.to_path_buf(),
+                    key,
+                    message,
+                },
+            })?;
         spec.validate().map_err(|e| match e {
             CdprError::InvalidSpec { key, message } => CdprError::InvalidFile {
                 path: path.to_path_buf(),

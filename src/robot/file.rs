@@ -10,6 +10,8 @@
 use std::path::{Path, PathBuf};
 
 use schemars::JsonSchema;
+
+use crate::toml_error::StrictError;
 use serde::{Deserialize, Serialize};
 
 /// One revolute joint (Craig's modified DH, `../shared/spec/model.md` §1) and the
@@ -125,22 +127,16 @@ impl RobotSpec {
 
     /// Parses robot-file text; `path` is only used in error messages.
     pub fn parse(text: &str, path: &Path) -> Result<Self, RobotFileError> {
-        let de = toml::de::Deserializer::parse(text).map_err(|e| RobotFileError::Parse {
-            path: path.to_path_buf(),
-            message: crate::toml_error::describe(&e, text),
-        })?;
-        let spec: RobotSpec = serde_path_to_error::deserialize(de).map_err(|e| {
-            let key = e.path().to_string();
-            let inner = e.into_inner();
-            RobotFileError::Invalid {
+        let spec: RobotSpec = crate::toml_error::from_str_strict(text).map_err(|e| match e {
+            StrictError::Syntax(message) => RobotFileError::Parse {
                 path: path.to_path_buf(),
-                message: format!(
-                    "{} ({})",
-                    inner.message(),
-                    crate::toml_error::location(&inner, text)
-                ),
+                message,
+            },
+            StrictError::Invalid { key, message } => RobotFileError::Invalid {
+                path: path.to_path_buf(),
                 key,
-            }
+                message,
+            },
         })?;
         spec.validate(path)?;
         Ok(spec)

@@ -39,7 +39,7 @@ static INFO: StageInfo = StageInfo {
     kind: "identifiability",
     uses_cable_robot: false,
     summary: "Rank analysis: which parameters the candidate rows can identify, and what dependent ones combine with",
-    code_version: 1,
+    code_version: 2,
     inputs: &[TableSlot {
         name: "candidates",
         schema: schema::conf_wrenches,
@@ -102,8 +102,13 @@ impl Stage for IdentifiabilityStage {
                 Column::new("combined_with".into(), combined),
             ]),
         );
-        let smallest = analysis.singular_values.last().copied().unwrap_or(0.0);
+        // Condition number of the identifiable part: σ_max over the smallest kept σ.
         let largest = analysis.singular_values.first().copied().unwrap_or(0.0);
+        let smallest_kept = analysis
+            .singular_values
+            .get(analysis.svd_rank.saturating_sub(1))
+            .copied()
+            .unwrap_or(0.0);
         outputs
             .facts
             .insert("candidates".into(), candidates.len().to_string());
@@ -121,8 +126,8 @@ impl Stage for IdentifiabilityStage {
             .facts
             .insert("rank_tolerance".into(), settings.rank_tolerance.to_string());
         outputs.facts.insert(
-            "sigma_min_over_max".into(),
-            format!("{:.3e}", smallest / largest.max(f64::MIN_POSITIVE)),
+            "condition_number".into(),
+            format!("{:.3e}", largest / smallest_kept.max(f64::MIN_POSITIVE)),
         );
         if analysis.svd_rank != analysis.independent.len() {
             ctx.progress.note(&format!(

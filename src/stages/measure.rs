@@ -17,13 +17,14 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
+    model_values,
 };
 use crate::journal::Journal;
 use crate::rig::driver::ExternalDriver;
 use crate::rig::simulator::{Simulator, SimulatorSettings};
 use crate::rig::{Rig, RigError, timeout_from_seconds};
-use crate::robot::{ConfWrench, ParamValues};
-use crate::table::parameters::{self, ModelName};
+use crate::robot::ConfWrench;
+use crate::table::parameters::ModelName;
 use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS, WRENCH_COLUMNS};
 use crate::table::{content_hash, frame};
 
@@ -169,25 +170,7 @@ impl Stage for MeasureStage {
             .and_then(|c| c.i64().ok().map(|v| v.iter().collect::<Vec<_>>()));
         let seed = settings.seed.unwrap_or(ctx.seed);
 
-        let truth = match ctx.inputs.get("truth") {
-            None => ParamValues::nominal(ctx.robot.spec()),
-            Some(table) => {
-                let model: ModelName = settings.truth_model.parse().map_err(|m: String| {
-                    StageError::Invalid(format!("setting `truth_model`: {m}"))
-                })?;
-                let nominal = ParamValues::nominal(ctx.robot.spec());
-                parameters::from_frame(&table.df, &table.path, &nominal)?
-                    .into_iter()
-                    .find(|s| s.model == model)
-                    .ok_or_else(|| {
-                        StageError::Invalid(format!(
-                            "{}: no rows for model `{model}`",
-                            table.path.display()
-                        ))
-                    })?
-                    .values
-            }
-        };
+        let truth = model_values(ctx, "truth", "truth_model", &settings.truth_model)?;
 
         // The journal belongs to the rows and the rig they are measured on, not to
         // retry, timeout or safety settings, nor to the external driver's command

@@ -248,6 +248,37 @@ pub fn lookup(kind: &str) -> Option<&'static dyn StageKind> {
     registry().into_iter().find(|s| s.info().kind == kind)
 }
 
+/// The values of one model of a bound parameters table (`setting` names the
+/// setting that chose the model, for messages), or the robot's nominal values
+/// when the input is not bound.
+pub fn model_values(
+    ctx: &StageContext,
+    input: &str,
+    setting: &str,
+    model: &str,
+) -> Result<crate::robot::ParamValues, StageError> {
+    use crate::table::parameters::{self, ModelName};
+    let nominal = crate::robot::ParamValues::nominal(ctx.robot.spec());
+    let Some(table) = ctx.inputs.get(input) else {
+        return Ok(nominal);
+    };
+    let model: ModelName = model
+        .parse()
+        .map_err(|m: String| StageError::Invalid(format!("setting `{setting}`: {m}")))?;
+    parameters::from_frame(&table.df, &table.path, &nominal)?
+        .into_iter()
+        .find(|s| s.model == model)
+        .map(|s| s.values)
+        .ok_or_else(|| {
+            StageError::Table(TableError::BadValue {
+                file: table.path.clone(),
+                column: "model".into(),
+                row: 0,
+                message: format!("no rows for model `{model}`"),
+            })
+        })
+}
+
 /// Reads conf-wrench rows (cw_id, q1..q6, wrench) from a checked table.
 pub fn conf_wrench_rows(
     input: &InputTable,

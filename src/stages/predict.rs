@@ -7,11 +7,12 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
+    model_values,
 };
-use crate::robot::{ParamValues, batch_predict};
-use crate::table::parameters::{self, ModelName};
+use crate::robot::batch_predict;
+use crate::table::frame;
+use crate::table::parameters::ModelName;
 use crate::table::schema::{self, DEFLECTION_COLUMNS, POSITION_COLUMNS, TORQUE_COLUMNS};
-use crate::table::{TableError, frame};
 use polars::prelude::Column;
 
 pub struct PredictStage;
@@ -72,28 +73,7 @@ impl Stage for PredictStage {
         ctx: &StageContext,
         settings: &PredictSettings,
     ) -> Result<StageOutputs, StageError> {
-        let nominal = ParamValues::nominal(ctx.robot.spec());
-        let values = match ctx.inputs.get("parameters") {
-            None => nominal,
-            Some(table) => {
-                let model: ModelName = settings
-                    .model
-                    .parse()
-                    .map_err(|m: String| StageError::Invalid(format!("setting `model`: {m}")))?;
-                let sets = parameters::from_frame(&table.df, &table.path, &nominal)?;
-                sets.iter()
-                    .find(|s| s.model == model)
-                    .ok_or_else(|| {
-                        StageError::Table(TableError::BadValue {
-                            file: table.path.clone(),
-                            column: "model".into(),
-                            row: 0,
-                            message: format!("no rows for model `{model}`"),
-                        })
-                    })?
-                    .values
-            }
-        };
+        let values = model_values(ctx, "parameters", "model", &settings.model)?;
         let input = ctx.input("conf_wrenches")?;
         let (ids, rows) = conf_wrench_rows(input)?;
         let predictions = batch_predict(ctx.robot, &values, &rows);
