@@ -58,7 +58,7 @@ static INFO: StageInfo = StageInfo {
     kind: "wrenches",
     uses_cable_robot: true,
     summary: "Feasible cable-robot wrenches per configuration: the conf-wrench candidates",
-    code_version: 1,
+    code_version: 2,
     inputs: &[TableSlot {
         name: "poses",
         schema: schema::poses,
