@@ -108,54 +108,79 @@ fn chain_screw(id: ParamId, chain: &Chain) -> Option<(Screw, usize)> {
     })
 }
 
+/// Per-row quantities every torque derivative uses (base frame, metres):
+/// `gravity_arm[i] = z_i × G_i` with `G_i` the first mass moment of bodies i..7
+/// about joint i, and `wrench_arm[i] = z_i × (tool − o_i)`.
+struct TorqueGeometry {
+    z: [Vector3<f64>; JOINTS],
+    gravity_arm: [Vector3<f64>; JOINTS],
+    wrench_arm: [Vector3<f64>; JOINTS],
+    tool_m: Vector3<f64>,
+}
+
+impl TorqueGeometry {
+    fn new(chain: &Chain, loads: &Loads) -> Self {
+        let tool_m = chain.tool.origin_mm * MM;
+        let z: [Vector3<f64>; JOINTS] = std::array::from_fn(|i| chain.joints[i + 1].axis(2));
+        let o = |i: usize| chain.joints[i + 1].origin_mm * MM;
+        TorqueGeometry {
+            gravity_arm: std::array::from_fn(|i| {
+                z[i].cross(&(loads.suffix_moment_kgm[i + 1] - o(i) * loads.suffix_mass_kg[i + 1]))
+            }),
+            wrench_arm: std::array::from_fn(|i| z[i].cross(&(tool_m - o(i)))),
+            z,
+            tool_m,
+        }
+    }
+}
+
 /// dτ_i/dv (N·m per parameter unit) for a screw on the undeflected chain moving
 /// bodies `first_body..=7`.
 ///
 /// For joints at or after `first_body`, the joint axis, the bodies and the wrench
 /// all move rigidly and only gravity stays put, so only the gravity term changes
-/// (as if gravity turned the other way). For joints before it, the joint axis is
-/// fixed and the moved bodies' centres of gravity, the wrench's point of
-/// application and its direction change.
+/// (as if gravity turned the other way): `−(u × g)·(z_i × G_i)`. For joints before
+/// it, the joint axis is fixed and the moved bodies' centres of gravity, the
+/// wrench's point of application and its direction change:
+/// `z_i·V + (u × f)·(z_i × (t − o_i))`, with `V` the same for every joint.
 fn torque_rates(
     screw: &Screw,
     first_body: usize,
-    chain: &Chain,
+    geometry: &TorqueGeometry,
     loads: &Loads,
     gravity: &Vector3<f64>,
 ) -> [f64; JOINTS] {
-    let tool_m = chain.tool.origin_mm * MM;
     let f = &loads.force_base_n;
     let mass_s = loads.suffix_mass_kg[first_body];
     let moment_s = &loads.suffix_moment_kgm[first_body];
     let mut rates = [0.0; JOINTS];
-    for (i, rate) in rates.iter_mut().enumerate() {
-        let joint = &chain.joints[i + 1];
-        let z = joint.axis(2);
-        let o_m = joint.origin_mm * MM;
-        *rate = match screw {
-            Screw::Rotation { axis: u, point_mm } => {
-                let p_m = point_mm * MM;
+    match screw {
+        Screw::Rotation { axis: u, point_mm } => {
+            let p_m = point_mm * MM;
+            let u_g = u.cross(gravity);
+            let u_f = u.cross(f);
+            let common = u.cross(&(moment_s - p_m * mass_s)).cross(gravity)
+                + u.cross(&(geometry.tool_m - p_m)).cross(f)
+                + u.cross(&loads.moment_base_nm);
+            for (i, rate) in rates.iter_mut().enumerate() {
                 let per_rad = if i + 1 >= first_body {
-                    let lever = loads.suffix_moment_kgm[i + 1] - o_m * loads.suffix_mass_kg[i + 1];
-                    z.dot(&lever.cross(&(-u.cross(gravity))))
+                    -u_g.dot(&geometry.gravity_arm[i])
                 } else {
-                    z.dot(
-                        &(u.cross(&(moment_s - p_m * mass_s)).cross(gravity)
-                            + u.cross(&(tool_m - p_m)).cross(f)
-                            + (tool_m - o_m).cross(&u.cross(f))
-                            + u.cross(&loads.moment_base_nm)),
-                    )
+                    geometry.z[i].dot(&common) + u_f.dot(&geometry.wrench_arm[i])
                 };
-                per_rad * DEG
+                *rate = per_rad * DEG;
             }
-            Screw::Translation { axis: u } => {
-                if i + 1 >= first_body {
-                    0.0
-                } else {
-                    z.dot(&(u.cross(gravity) * mass_s + u.cross(f))) * MM
-                }
+        }
+        Screw::Translation { axis: u } => {
+            let common = u.cross(gravity) * mass_s + u.cross(f);
+            for (i, rate) in rates
+                .iter_mut()
+                .enumerate()
+                .take(first_body.saturating_sub(1))
+            {
+                *rate = geometry.z[i].dot(&common) * MM;
             }
-        };
+        }
     }
     rates
 }
@@ -189,6 +214,7 @@ pub fn jacobian_row(
         joint.axis(2).cross(&(tool_base - joint.origin_mm)) * DEG
     });
     let gravity = Vector3::from(robot.spec().gravity_mps2);
+    let geometry = TorqueGeometry::new(&undeflected, &loads);
 
     for (column, &id) in columns.iter_mut().zip(selected) {
         *column = match id.kind() {
@@ -200,7 +226,7 @@ pub fn jacobian_row(
                     chain_screw(id, &deflected).expect("geometric parameter has a screw");
                 let (torque_screw, first_body) =
                     chain_screw(id, &undeflected).expect("geometric parameter has a screw");
-                let dtau = torque_rates(&torque_screw, first_body, &undeflected, &loads, &gravity);
+                let dtau = torque_rates(&torque_screw, first_body, &geometry, &loads, &gravity);
                 let mut rate = screw.velocity_at(&tool_base) * screw.per_unit();
                 for i in 0..JOINTS {
                     rate += joint_rates[i] * (p.0[36 + i] * dtau[i]);
