@@ -153,10 +153,6 @@ impl ParamValues {
         self.0[id.index()] = value;
     }
 
-    pub fn get_by_name(&self, name: &str) -> Option<f64> {
-        ParamId::from_name(name).map(|id| self.get(id))
-    }
-
     /// Nominal values with some replaced by a TOML file of `name = value` lines
     /// (e.g. a simulator's truth); `path` is only used in error messages.
     pub fn with_overrides(
@@ -226,10 +222,6 @@ impl Selection {
         Selection(ids)
     }
 
-    pub fn all() -> Self {
-        Selection(ParamId::all().collect())
-    }
-
     /// The 32 parameters the spec lists as identifiable from positions (§4).
     pub fn spec_identifiable() -> Self {
         let dependent = [
@@ -239,17 +231,6 @@ impl Selection {
         Selection(
             ParamId::all()
                 .filter(|id| !dependent.contains(&id.name()))
-                .collect(),
-        )
-    }
-
-    /// The same without compliances: a purely kinematic calibration.
-    pub fn without_compliance(&self) -> Self {
-        Selection(
-            self.0
-                .iter()
-                .copied()
-                .filter(|id| !id.is_compliance())
                 .collect(),
         )
     }
@@ -264,10 +245,6 @@ impl Selection {
 
     pub fn is_empty(&self) -> bool {
         self.0.is_empty()
-    }
-
-    pub fn contains(&self, id: ParamId) -> bool {
-        self.0.binary_search(&id).is_ok()
     }
 }
 
@@ -290,7 +267,10 @@ mod tests {
     fn spec_selection_has_32_parameters_with_all_compliances() {
         let selection = Selection::spec_identifiable();
         assert_eq!(selection.len(), 32);
-        assert_eq!(selection.without_compliance().len(), 26);
+        assert_eq!(
+            selection.ids().iter().filter(|p| p.is_compliance()).count(),
+            6
+        );
     }
 
     #[test]

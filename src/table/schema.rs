@@ -6,7 +6,6 @@
 //! what the checks enforce. `measurements` and `parameters` follow
 //! `../shared/spec/model.md` §6 exactly; extra columns are allowed and kept.
 
-use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
 use polars::prelude::*;
@@ -833,11 +832,6 @@ pub fn all() -> Vec<TableSchema> {
     ]
 }
 
-/// Looks a table kind up by name.
-pub fn by_kind(kind: &str) -> Option<TableSchema> {
-    all().into_iter().find(|s| s.kind == kind)
-}
-
 /// Values of a required f64 column (after [`TableSchema::check`]).
 pub fn f64_values(df: &DataFrame, name: &str, file: &Path) -> Result<Vec<f64>, TableError> {
     let column = df.column(name).map_err(|e| io_error(file, e))?;
@@ -861,11 +855,6 @@ pub fn str_values(
     let column = df.column(name).map_err(|e| io_error(file, e))?;
     let values = column.str().map_err(|e| io_error(file, e))?;
     Ok(values.iter().map(|v| v.map(str::to_string)).collect())
-}
-
-/// Distinct values, for tests and diagnostics.
-pub fn distinct(values: &[i64]) -> usize {
-    values.iter().collect::<HashSet<_>>().len()
 }
 
 #[cfg(test)]
