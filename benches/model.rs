@@ -5,7 +5,7 @@ use std::path::Path;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use egcal::robot::ik::closed_form;
-use egcal::robot::{ConfWrench, ParamValues, Robot, RobotSpec, Selection, Wrench, jacobian_row};
+use egcal::robot::{ConfWrench, ParamValues, Robot, RobotSpec, Selection, Wrench};
 use nalgebra::Vector3;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -41,16 +41,11 @@ fn model(c: &mut Criterion) {
     let mut columns = vec![Vector3::zeros(); selection.len()];
     c.bench_function("predict+jacobian 875 rows x 32 params, one core", |b| {
         b.iter(|| {
+            let prepared = robot.prepare(&truth);
             let mut sum = 0.0;
             for row in &rows {
-                let p = jacobian_row(
-                    &robot,
-                    &truth,
-                    &row.q_deg,
-                    &row.wrench,
-                    selection.ids(),
-                    &mut columns,
-                );
+                let p =
+                    prepared.jacobian_row(&row.q_deg, &row.wrench, selection.ids(), &mut columns);
                 sum += p.position_mm.x + columns[0].x;
             }
             sum

@@ -7,15 +7,16 @@
 //! column is the screw's velocity at the SMR on the deflected chain, plus the change
 //! in deflection `k_i·dτ_i/dv` that the screw causes through the load torques on
 //! the undeflected chain. The torque derivatives use the fact that a screw moves
-//! everything downstream rigidly except gravity; see [`torque_rates`].
+//! everything downstream rigidly except gravity; see [`DeflectionMaps`].
 //!
-//! Cost per row: two chain evaluations and O(m·6) cross products; no allocation.
+//! Cost per row: two chain evaluations (six `sin_cos`), seven 3×3 maps, then a
+//! few 3×3 products per column; no allocation.
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::frame::Frame;
-use super::model::{Chain, JOINTS, Loads, Prediction, Robot, Wrench};
+use super::model::{Chain, JOINTS, LoadedChains, Loads, Prediction, PreparedRobot, Robot, Wrench};
 use super::params::{ParamId, ParamKind, ParamValues};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
@@ -41,6 +42,14 @@ impl Screw {
         }
     }
 
+    /// Twist `(ω rad, v m)` per parameter unit, for the torque derivatives in SI units.
+    fn twist_si(&self) -> (Vector3<f64>, Vector3<f64>) {
+        match self {
+            Screw::Rotation { axis, point_mm } => (axis * DEG, (point_mm * MM).cross(axis) * DEG),
+            Screw::Translation { axis } => (Vector3::zeros(), axis * MM),
+        }
+    }
+
     /// Scale from the screw's natural unit to the parameter's unit (deg or mm).
     fn per_unit(&self) -> f64 {
         match self {
@@ -53,205 +62,218 @@ impl Screw {
 /// The screw of a geometric parameter on `chain`, and the first body it moves
 /// (1..=6 links, 7 the tool and payload). `None` for world parameters and compliances,
 /// which need no torque term.
-fn chain_screw(id: ParamId, chain: &Chain) -> Option<(Screw, usize)> {
-    let flange = &chain.joints[JOINTS];
-    Some(match id.kind() {
-        ParamKind::Theta(i) => (
-            Screw::Rotation {
-                axis: chain.joints[i + 1].axis(2),
-                point_mm: chain.joints[i + 1].origin_mm,
-            },
-            i + 1,
-        ),
-        ParamKind::Alpha(i) => (
-            Screw::Rotation {
-                axis: chain.joints[i].axis(0),
-                point_mm: chain.joints[i].origin_mm,
-            },
-            i + 1,
-        ),
-        ParamKind::A(i) => (
-            Screw::Translation {
-                axis: chain.joints[i].axis(0),
-            },
-            i + 1,
-        ),
-        ParamKind::D(i) => (
-            Screw::Translation {
-                axis: chain.joints[i + 1].axis(2),
-            },
-            i + 1,
-        ),
-        ParamKind::ToolRotation(r) => {
-            let local_axis = match r {
-                0 => Vector3::x(),
-                1 => chain.tool_rx.column(1).into_owned(),
-                _ => chain.tool_rxy.column(2).into_owned(),
-            };
-            (
+impl PreparedRobot<'_> {
+    // Inlined: returned through memory, the screw costs a store-forwarding stall per column.
+    #[inline(always)]
+    fn chain_screw(&self, id: ParamId, chain: &Chain) -> Option<(Screw, usize)> {
+        let flange = &chain.joints[JOINTS];
+        Some(match id.kind() {
+            ParamKind::Theta(i) => (
                 Screw::Rotation {
-                    axis: flange.rotation * local_axis,
-                    point_mm: flange.origin_mm,
+                    axis: chain.joints[i + 1].axis(2),
+                    point_mm: chain.joints[i + 1].origin_mm,
+                },
+                i + 1,
+            ),
+            ParamKind::Alpha(i) => (
+                Screw::Rotation {
+                    axis: chain.joints[i].axis(0),
+                    point_mm: chain.joints[i].origin_mm,
+                },
+                i + 1,
+            ),
+            ParamKind::A(i) => (
+                Screw::Translation {
+                    axis: chain.joints[i].axis(0),
+                },
+                i + 1,
+            ),
+            ParamKind::D(i) => (
+                Screw::Translation {
+                    axis: chain.joints[i + 1].axis(2),
+                },
+                i + 1,
+            ),
+            ParamKind::ToolRotation(r) => {
+                let local_axis = match r {
+                    0 => Vector3::x(),
+                    1 => self.tool_rx.column(1).into_owned(),
+                    _ => self.tool_rxy.column(2).into_owned(),
+                };
+                (
+                    Screw::Rotation {
+                        axis: flange.rotation * local_axis,
+                        point_mm: flange.origin_mm,
+                    },
+                    JOINTS + 1,
+                )
+            }
+            ParamKind::ToolTranslation(t) => (
+                Screw::Translation {
+                    axis: chain.tool.axis(t),
                 },
                 JOINTS + 1,
-            )
-        }
-        ParamKind::ToolTranslation(t) => (
-            Screw::Translation {
-                axis: chain.tool.axis(t),
-            },
-            JOINTS + 1,
-        ),
-        ParamKind::WorldTranslation(_) | ParamKind::WorldRotation(_) | ParamKind::Compliance(_) => {
-            return None;
-        }
-    })
-}
-
-/// Per-row quantities every torque derivative uses (base frame, metres):
-/// `gravity_arm[i] = z_i × G_i` with `G_i` the first mass moment of bodies i..7
-/// about joint i, and `wrench_arm[i] = z_i × (tool − o_i)`.
-struct TorqueGeometry {
-    z: [Vector3<f64>; JOINTS],
-    gravity_arm: [Vector3<f64>; JOINTS],
-    wrench_arm: [Vector3<f64>; JOINTS],
-    tool_m: Vector3<f64>,
-}
-
-impl TorqueGeometry {
-    fn new(chain: &Chain, loads: &Loads) -> Self {
-        let tool_m = chain.tool.origin_mm * MM;
-        let z: [Vector3<f64>; JOINTS] = std::array::from_fn(|i| chain.joints[i + 1].axis(2));
-        let o = |i: usize| chain.joints[i + 1].origin_mm * MM;
-        TorqueGeometry {
-            gravity_arm: std::array::from_fn(|i| {
-                z[i].cross(&(loads.suffix_moment_kgm[i + 1] - o(i) * loads.suffix_mass_kg[i + 1]))
-            }),
-            wrench_arm: std::array::from_fn(|i| z[i].cross(&(tool_m - o(i)))),
-            z,
-            tool_m,
-        }
+            ),
+            ParamKind::WorldTranslation(_)
+            | ParamKind::WorldRotation(_)
+            | ParamKind::Compliance(_) => {
+                return None;
+            }
+        })
     }
 }
 
-/// dτ_i/dv (N·m per parameter unit) for a screw on the undeflected chain moving
-/// bodies `first_body..=7`.
+/// Per-row linear maps from a screw's twist to the extra SMR velocity its
+/// deflection change causes, `Σ_i k_i·(∂p/∂q_i)·dτ_i/dv`, one map per first moved
+/// body `s` (1..=7).
 ///
-/// For joints at or after `first_body`, the joint axis, the bodies and the wrench
-/// all move rigidly and only gravity stays put, so only the gravity term changes
-/// (as if gravity turned the other way): `−(u × g)·(z_i × G_i)`. For joints before
-/// it, the joint axis is fixed and the moved bodies' centres of gravity, the
-/// wrench's point of application and its direction change:
-/// `z_i·V + (u × f)·(z_i × (t − o_i))`, with `V` the same for every joint.
-fn torque_rates(
-    screw: &Screw,
-    first_body: usize,
-    geometry: &TorqueGeometry,
-    loads: &Loads,
-    gravity: &Vector3<f64>,
-) -> [f64; JOINTS] {
-    let f = &loads.force_base_n;
-    let mass_s = loads.suffix_mass_kg[first_body];
-    let moment_s = &loads.suffix_moment_kgm[first_body];
-    let mut rates = [0.0; JOINTS];
-    match screw {
-        Screw::Rotation { axis: u, point_mm } => {
-            let p_m = point_mm * MM;
-            let u_g = u.cross(gravity);
-            let u_f = u.cross(f);
-            let common = u.cross(&(moment_s - p_m * mass_s)).cross(gravity)
-                + u.cross(&(geometry.tool_m - p_m)).cross(f)
-                + u.cross(&loads.moment_base_nm);
-            for (i, rate) in rates.iter_mut().enumerate() {
-                let per_rad = if i + 1 >= first_body {
-                    -u_g.dot(&geometry.gravity_arm[i])
-                } else {
-                    geometry.z[i].dot(&common) + u_f.dot(&geometry.wrench_arm[i])
-                };
-                *rate = per_rad * DEG;
-            }
-        }
-        Screw::Translation { axis: u } => {
-            let common = u.cross(gravity) * mass_s + u.cross(f);
-            for (i, rate) in rates
-                .iter_mut()
-                .enumerate()
-                .take(first_body.saturating_sub(1))
-            {
-                *rate = geometry.z[i].dot(&common) * MM;
-            }
-        }
-    }
-    rates
+/// `dτ_i/dv` is linear in the screw's twist `(ω, v)` (rad and m per parameter unit,
+/// base frame, on the undeflected chain). For joints at or after `s` the joint axis,
+/// the moved bodies and the wrench all move rigidly and only gravity stays put:
+/// `dτ_i = −ω·(g × z_i × G_i)`, with `G_i` the first mass moment of bodies i..7 about
+/// joint i. For joints before `s` the joint axis is fixed and the moved bodies'
+/// centres of gravity, the wrench's point of application and its direction change:
+/// `dτ_i = (t×(f×z_i) + M×z_i + f×(z_i×(t−o_i)))·ω + (f×z_i)·v + h_i·(ω×G_s + m_s·v)`,
+/// with `h_i = g×z_i` and `m_s`, `G_s` the mass and first moment (about the base
+/// origin) of bodies s..7. Summing over joints turns both into prefix and suffix
+/// sums over `i`, so each parameter column costs three 3×3 products instead of a
+/// loop over the joints.
+struct DeflectionMaps {
+    /// Coefficient of `ω` (without the `G_s` term), per first moved body.
+    rotation: [Matrix3<f64>; JOINTS + 1],
+    /// Coefficient of `v`, per first moved body.
+    translation: [Matrix3<f64>; JOINTS + 1],
+    /// `Σ_{i<s} k_i·(∂p/∂q_i)·h_iᵀ`, applied to `ω × G_s`.
+    gravity: [Matrix3<f64>; JOINTS + 1],
+    /// `G_s`, kg·m.
+    moment_kgm: [Vector3<f64>; JOINTS + 1],
 }
 
-/// One row's prediction and its Jacobian columns for `selected`, written to
-/// `columns[j]` (mm per parameter unit, world frame).
-pub fn jacobian_row(
-    robot: &Robot,
-    p: &ParamValues,
-    q_deg: &[f64; JOINTS],
-    wrench: &Wrench,
-    selected: &[ParamId],
-    columns: &mut [Vector3<f64>],
-) -> Prediction {
-    assert_eq!(
-        selected.len(),
-        columns.len(),
-        "one column per selected parameter"
-    );
-    let undeflected = robot.chain(p, q_deg, &[0.0; JOINTS]);
-    let loads = robot.loads(&undeflected, wrench);
-    let deflections_deg: [f64; JOINTS] = std::array::from_fn(|i| p.0[36 + i] * loads.torques_nm[i]);
-    let deflected = robot.chain(p, q_deg, &deflections_deg);
-    let world = robot.world_from_base(p);
-    let tool_base = deflected.tool.origin_mm;
-    let position_mm = world.transform_point(&tool_base);
-
-    // d(position in base)/d(joint angle i) per degree, on the deflected chain.
-    let joint_rates: [Vector3<f64>; JOINTS] = std::array::from_fn(|i| {
-        let joint = &deflected.joints[i + 1];
-        joint.axis(2).cross(&(tool_base - joint.origin_mm)) * DEG
-    });
-    let gravity = Vector3::from(robot.spec().gravity_mps2);
-    let geometry = TorqueGeometry::new(&undeflected, &loads);
-
-    for (column, &id) in columns.iter_mut().zip(selected) {
-        *column = match id.kind() {
-            ParamKind::WorldTranslation(t) => world.axis(t),
-            ParamKind::WorldRotation(r) => world_rotation_rate(p, r).cross(&position_mm) * DEG,
-            ParamKind::Compliance(i) => world.rotation * joint_rates[i] * loads.torques_nm[i],
-            _ => {
-                let (screw, _) =
-                    chain_screw(id, &deflected).expect("geometric parameter has a screw");
-                let (torque_screw, first_body) =
-                    chain_screw(id, &undeflected).expect("geometric parameter has a screw");
-                let dtau = torque_rates(&torque_screw, first_body, &geometry, &loads, &gravity);
-                let mut rate = screw.velocity_at(&tool_base) * screw.per_unit();
-                for i in 0..JOINTS {
-                    rate += joint_rates[i] * (p.0[36 + i] * dtau[i]);
-                }
-                world.rotation * rate
-            }
+impl DeflectionMaps {
+    /// `deflection_rates[i] = k_i·∂p/∂q_i` (mm per N·m) on the deflected chain.
+    fn new(
+        undeflected: &Chain,
+        loads: &Loads,
+        gravity: &Vector3<f64>,
+        deflection_rates: &[Vector3<f64>; JOINTS],
+    ) -> Self {
+        let tool_m = undeflected.tool.origin_mm * MM;
+        let f = &loads.force_base_n;
+        let moment = &loads.moment_base_nm;
+        let mut before = [Matrix3::zeros(); 3];
+        let mut maps = DeflectionMaps {
+            rotation: [Matrix3::zeros(); JOINTS + 1],
+            translation: [Matrix3::zeros(); JOINTS + 1],
+            gravity: [Matrix3::zeros(); JOINTS + 1],
+            moment_kgm: std::array::from_fn(|s| loads.suffix_moment_kgm[s + 1]),
         };
+        // Joints before body s: prefix sums (index s − 1 holds joints 0..s−1).
+        let mut after = [Matrix3::zeros(); JOINTS];
+        for i in 0..JOINTS {
+            let s = i + 1;
+            let [rotation, translation, gravity_part] = &before;
+            maps.rotation[s - 1] = *rotation;
+            maps.translation[s - 1] = translation + gravity_part * loads.suffix_mass_kg[s];
+            maps.gravity[s - 1] = *gravity_part;
+
+            let joint = &undeflected.joints[s];
+            let z = joint.axis(2);
+            let o = joint.origin_mm * MM;
+            let rate = &deflection_rates[i];
+            let wrench_arm = z.cross(&(tool_m - o));
+            let rotation_coefficient =
+                tool_m.cross(&f.cross(&z)) + moment.cross(&z) + f.cross(&wrench_arm);
+            before[0] += rate * rotation_coefficient.transpose();
+            before[1] += rate * f.cross(&z).transpose();
+            before[2] += rate * gravity.cross(&z).transpose();
+
+            let gravity_arm = z.cross(&(loads.suffix_moment_kgm[s] - o * loads.suffix_mass_kg[s]));
+            after[i] = rate * (-gravity.cross(&gravity_arm)).transpose();
+        }
+        let [rotation, translation, gravity_part] = &before;
+        maps.rotation[JOINTS] = *rotation;
+        maps.translation[JOINTS] = translation + gravity_part * loads.suffix_mass_kg[JOINTS + 1];
+        maps.gravity[JOINTS] = *gravity_part;
+        // Joints at or after body s: suffix sums.
+        let mut suffix = Matrix3::zeros();
+        for i in (0..JOINTS).rev() {
+            suffix += after[i];
+            maps.rotation[i] += suffix;
+        }
+        maps
     }
-    Prediction {
-        position_mm,
-        torques_nm: loads.torques_nm,
-        deflections_deg,
+
+    /// Extra SMR velocity (mm per parameter unit, base frame) of a screw with twist
+    /// `(ω, v)` that moves bodies `first_body..=7`.
+    fn velocity(&self, first_body: usize, twist: &(Vector3<f64>, Vector3<f64>)) -> Vector3<f64> {
+        let s = first_body - 1;
+        let (omega, v) = twist;
+        self.rotation[s] * omega
+            + self.translation[s] * v
+            + self.gravity[s] * omega.cross(&self.moment_kgm[s])
     }
 }
 
-/// Axis (world frame, through the world origin) of world rotation `r` of eq. (3).
-fn world_rotation_rate(p: &ParamValues, r: usize) -> Vector3<f64> {
-    let v = &p.0;
-    let rx = super::frame::rot_x(v[3] * DEG);
-    match r {
-        0 => Vector3::x(),
-        1 => rx.column(1).into_owned(),
-        _ => (rx * super::frame::rot_y(v[4] * DEG))
-            .column(2)
-            .into_owned(),
+impl PreparedRobot<'_> {
+    /// One row's prediction and its Jacobian columns for `selected`, written to
+    /// `columns[j]` (mm per parameter unit, world frame).
+    pub fn jacobian_row(
+        &self,
+        q_deg: &[f64; JOINTS],
+        wrench: &Wrench,
+        selected: &[ParamId],
+        columns: &mut [Vector3<f64>],
+    ) -> Prediction {
+        assert_eq!(
+            selected.len(),
+            columns.len(),
+            "one column per selected parameter"
+        );
+        let LoadedChains {
+            undeflected,
+            loads,
+            deflections_deg,
+            deflected,
+        } = self.loaded_chains(q_deg, wrench);
+        let world = &self.world_from_base;
+        let tool_base = deflected.tool.origin_mm;
+        let position_mm = world.transform_point(&tool_base);
+
+        // d(position in base)/d(joint angle i) per degree, on the deflected chain.
+        let joint_rates: [Vector3<f64>; JOINTS] = std::array::from_fn(|i| {
+            let joint = &deflected.joints[i + 1];
+            joint.axis(2).cross(&(tool_base - joint.origin_mm)) * DEG
+        });
+        let deflection_rates: [Vector3<f64>; JOINTS] =
+            std::array::from_fn(|i| joint_rates[i] * self.compliance(i));
+        let gravity = Vector3::from(self.robot().spec().gravity_mps2);
+        let maps = DeflectionMaps::new(&undeflected, &loads, &gravity, &deflection_rates);
+
+        for (column, &id) in columns.iter_mut().zip(selected) {
+            *column = match id.kind() {
+                ParamKind::WorldTranslation(t) => world.axis(t),
+                ParamKind::WorldRotation(r) => {
+                    self.world_rotation_axes[r].cross(&position_mm) * DEG
+                }
+                ParamKind::Compliance(i) => world.rotation * joint_rates[i] * loads.torques_nm[i],
+                _ => {
+                    let (screw, _) = self
+                        .chain_screw(id, &deflected)
+                        .expect("geometric parameter has a screw");
+                    let (torque_screw, first_body) = self
+                        .chain_screw(id, &undeflected)
+                        .expect("geometric parameter has a screw");
+                    let rate = screw.velocity_at(&tool_base) * screw.per_unit()
+                        + maps.velocity(first_body, &torque_screw.twist_si());
+                    world.rotation * rate
+                }
+            };
+        }
+        Prediction {
+            position_mm,
+            torques_nm: loads.torques_nm,
+            deflections_deg,
+        }
     }
 }
 
@@ -301,10 +323,11 @@ pub fn batch_jacobian(
         };
         rows.len()
     ];
+    let prepared = robot.prepare(p);
     let fill = |(rows, (out, preds)): (&[ConfWrench], (&mut [f64], &mut [Prediction]))| {
         let mut columns = vec![Vector3::zeros(); m];
         for (k, row) in rows.iter().enumerate() {
-            preds[k] = jacobian_row(robot, p, &row.q_deg, &row.wrench, selected, &mut columns);
+            preds[k] = prepared.jacobian_row(&row.q_deg, &row.wrench, selected, &mut columns);
             for (j, column) in columns.iter().enumerate() {
                 for axis in 0..3 {
                     out[(3 * k + axis) * m + j] = column[axis];
@@ -332,9 +355,10 @@ pub fn batch_jacobian(
 
 /// Predictions for every row, in parallel chunks (no Jacobian).
 pub fn batch_predict(robot: &Robot, p: &ParamValues, rows: &[ConfWrench]) -> Vec<Prediction> {
+    let prepared = robot.prepare(p);
     rows.par_iter()
         .with_min_len(CHUNK_ROWS)
-        .map(|row| robot.predict(p, &row.q_deg, &row.wrench))
+        .map(|row| prepared.predict(&row.q_deg, &row.wrench))
         .collect()
 }
 
@@ -345,9 +369,10 @@ pub(crate) fn deflected_tool_and_joints(
     q_deg: &[f64; JOINTS],
     wrench: &Wrench,
 ) -> (Frame, [Frame; JOINTS + 1]) {
-    let (_, deflections) = robot.deflections(p, q_deg, wrench);
-    let chain = robot.chain(p, q_deg, &deflections);
-    let world = robot.world_from_base(p);
+    let prepared = robot.prepare(p);
+    let (_, deflections) = prepared.deflections(q_deg, wrench);
+    let chain = prepared.chain(q_deg, &deflections);
+    let world = &prepared.world_from_base;
     (
         world.compose(&chain.tool),
         chain.joints.map(|j| world.compose(&j)),
@@ -384,7 +409,7 @@ mod tests {
             let q = random_q(&robot, &mut rng);
             let w = random_wrench(&mut rng);
             let mut columns = vec![Vector3::zeros(); PARAM_COUNT];
-            jacobian_row(&robot, &p, &q, &w, &all, &mut columns);
+            robot.prepare(&p).jacobian_row(&q, &w, &all, &mut columns);
             for id in ParamId::all() {
                 let h = step(id);
                 let mut plus = p;
@@ -422,8 +447,9 @@ mod tests {
         let batch = batch_jacobian(&robot, &p, &rows, &selected);
         assert_eq!(batch.rows(), 600);
         let mut columns = vec![Vector3::zeros(); selected.len()];
+        let prepared = robot.prepare(&p);
         for (k, row) in rows.iter().enumerate() {
-            let pred = jacobian_row(&robot, &p, &row.q_deg, &row.wrench, &selected, &mut columns);
+            let pred = prepared.jacobian_row(&row.q_deg, &row.wrench, &selected, &mut columns);
             assert_eq!(pred, batch.predictions[k]);
             for (j, column) in columns.iter().enumerate() {
                 for axis in 0..3 {

@@ -11,8 +11,8 @@ pub mod params;
 
 pub use file::RobotSpec;
 pub use frame::Frame;
-pub use jacobian::{BatchJacobian, ConfWrench, batch_jacobian, batch_predict, jacobian_row};
-pub use model::{JOINTS, Prediction, Robot, Wrench};
+pub use jacobian::{BatchJacobian, ConfWrench, batch_jacobian, batch_predict};
+pub use model::{JOINTS, Prediction, PreparedRobot, Robot, Wrench};
 pub use params::{PARAM_COUNT, ParamId, ParamValues, Selection};
 
 #[cfg(test)]

@@ -11,10 +11,10 @@
 //! parameters (first order, as in the paper); the position is evaluated on the
 //! deflected chain.
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 use super::file::RobotSpec;
-use super::frame::{Frame, rot_x, rot_z};
+use super::frame::{Frame, rot_x};
 use super::params::{PARAM_COUNT, ParamValues};
 
 /// Number of joints; the model is for six-axis arms only.
@@ -74,10 +74,6 @@ pub(crate) struct Chain {
     /// `joints[0]` is the base itself, `joints[i]` is MDH frame i.
     pub joints: [Frame; JOINTS + 1],
     pub tool: Frame,
-    /// Tool-frame rotation about x, then about y, of eq. (4) (before the z rotation),
-    /// in the flange frame: the axes of the tool's beta and gamma parameters.
-    pub tool_rx: nalgebra::Matrix3<f64>,
-    pub tool_rxy: nalgebra::Matrix3<f64>,
 }
 
 /// Load state on the undeflected chain: what the Jacobian needs besides the torques.
@@ -155,39 +151,26 @@ impl Robot {
         )
     }
 
-    /// Forward chain in the base frame for joint commands `q_deg` plus extra joint
-    /// angles `extra_deg` (the compliance deflections, or zero).
-    pub(crate) fn chain(
-        &self,
-        p: &ParamValues,
-        q_deg: &[f64; JOINTS],
-        extra_deg: &[f64; JOINTS],
-    ) -> Chain {
+    /// This robot at one parameter set, with the set's constant geometry computed
+    /// once: the form every evaluation over many rows uses.
+    pub fn prepare(&self, p: &ParamValues) -> PreparedRobot<'_> {
         let v = &p.0;
-        let mut joints = [Frame::identity(); JOINTS + 1];
-        for i in 0..JOINTS {
-            let alpha = self.alpha_rad[i] + v[18 + i] * DEG;
-            let a = self.a_mm[i] + v[24 + i];
-            let theta = (q_deg[i] + v[12 + i] + extra_deg[i]) * DEG + self.theta_offset_rad[i];
-            let d = self.d_mm[i] + v[30 + i];
-            let rx = rot_x(alpha);
-            let local = Frame {
-                rotation: rx * rot_z(theta),
-                origin_mm: Vector3::new(a, 0.0, 0.0) + rx.column(2) * d,
-            };
-            joints[i + 1] = joints[i].compose(&local);
-        }
         let tool_rx = rot_x(v[9] * DEG);
-        let tool_rxy = tool_rx * super::frame::rot_y(v[10] * DEG);
-        let flange_from_tool = Frame::from_xyz_euler_then_translation(
-            [v[9] * DEG, v[10] * DEG, v[11] * DEG],
-            Vector3::new(v[6], v[7], v[8]),
-        );
-        Chain {
-            tool: joints[JOINTS].compose(&flange_from_tool),
-            joints,
+        PreparedRobot {
+            robot: self,
+            values: *p,
+            alpha_sin_cos: std::array::from_fn(|i| (self.alpha_rad[i] + v[18 + i] * DEG).sin_cos()),
+            a_mm: std::array::from_fn(|i| self.a_mm[i] + v[24 + i]),
+            d_mm: std::array::from_fn(|i| self.d_mm[i] + v[30 + i]),
+            theta_zero_rad: std::array::from_fn(|i| v[12 + i] * DEG + self.theta_offset_rad[i]),
+            flange_from_tool: Frame::from_xyz_euler_then_translation(
+                [v[9] * DEG, v[10] * DEG, v[11] * DEG],
+                Vector3::new(v[6], v[7], v[8]),
+            ),
+            tool_rxy: tool_rx * super::frame::rot_y(v[10] * DEG),
             tool_rx,
-            tool_rxy,
+            world_from_base: self.world_from_base(p),
+            world_rotation_axes: world_rotation_axes(p),
         }
     }
 
@@ -238,28 +221,21 @@ impl Robot {
         q_deg: &[f64; JOINTS],
         wrench: &Wrench,
     ) -> ([f64; JOINTS], [f64; JOINTS]) {
-        let undeflected = self.chain(p, q_deg, &[0.0; JOINTS]);
-        let torques = self.loads(&undeflected, wrench).torques_nm;
-        let deflections = std::array::from_fn(|i| p.0[36 + i] * torques[i]);
-        (torques, deflections)
+        self.prepare(p).deflections(q_deg, wrench)
     }
 
     /// Tool pose in the world frame on the loaded (deflected) robot.
     pub fn tool_in_world(&self, p: &ParamValues, q_deg: &[f64; JOINTS], wrench: &Wrench) -> Frame {
-        let (_, deflections) = self.deflections(p, q_deg, wrench);
-        self.world_from_base(p)
-            .compose(&self.chain(p, q_deg, &deflections).tool)
+        let prepared = self.prepare(p);
+        let (_, deflections) = prepared.deflections(q_deg, wrench);
+        prepared
+            .world_from_base
+            .compose(&prepared.chain(q_deg, &deflections).tool)
     }
 
     /// Paper eq. (17): the SMR position with torques and deflections.
     pub fn predict(&self, p: &ParamValues, q_deg: &[f64; JOINTS], wrench: &Wrench) -> Prediction {
-        let (torques_nm, deflections_deg) = self.deflections(p, q_deg, wrench);
-        let tool = self.chain(p, q_deg, &deflections_deg).tool;
-        Prediction {
-            position_mm: self.world_from_base(p).transform_point(&tool.origin_mm),
-            torques_nm,
-            deflections_deg,
-        }
+        self.prepare(p).predict(q_deg, wrench)
     }
 
     /// Frames of joints 0..=6 and of the tool in the base frame, unloaded: the
@@ -269,7 +245,7 @@ impl Robot {
         p: &ParamValues,
         q_deg: &[f64; JOINTS],
     ) -> ([Frame; JOINTS + 1], Frame) {
-        let chain = self.chain(p, q_deg, &[0.0; JOINTS]);
+        let chain = self.prepare(p).chain(q_deg, &[0.0; JOINTS]);
         (chain.joints, chain.tool)
     }
 
@@ -277,8 +253,155 @@ impl Robot {
     /// the frame the closed-form inverse kinematics solves for.
     pub fn nominal_flange_in_base(&self, q_deg: &[f64; JOINTS]) -> Frame {
         let zero = ParamValues([0.0; PARAM_COUNT]);
-        self.chain(&zero, q_deg, &[0.0; JOINTS]).joints[JOINTS]
+        self.prepare(&zero).chain(q_deg, &[0.0; JOINTS]).joints[JOINTS]
     }
+}
+
+/// Axes of the world frame's x, y, z rotations of eq. (3): x, then y after Rot(x),
+/// then z after Rot(x)·Rot(y).
+fn world_rotation_axes(p: &ParamValues) -> [Vector3<f64>; 3] {
+    let rx = rot_x(p.0[3] * DEG);
+    let rxy = rx * super::frame::rot_y(p.0[4] * DEG);
+    [
+        Vector3::x(),
+        rx.column(1).into_owned(),
+        rxy.column(2).into_owned(),
+    ]
+}
+
+/// A robot at one parameter set: the MDH link rotations about x and offsets, the
+/// tool and the world frames are fixed by the set, so they are computed once and a
+/// row only evaluates its six joint rotations (a third of the trigonometry).
+#[derive(Debug, Clone, Copy)]
+pub struct PreparedRobot<'r> {
+    robot: &'r Robot,
+    pub(crate) values: ParamValues,
+    /// (sin, cos) of each link twist alpha_i.
+    alpha_sin_cos: [(f64, f64); JOINTS],
+    a_mm: [f64; JOINTS],
+    d_mm: [f64; JOINTS],
+    /// Joint angle at q_i = 0: offset error plus the nominal theta offset.
+    theta_zero_rad: [f64; JOINTS],
+    flange_from_tool: Frame,
+    /// Tool rotation about x, then about y, of eq. (4) (before the z rotation), in
+    /// the flange frame: the axes of the tool's beta and gamma parameters.
+    pub(crate) tool_rx: Matrix3<f64>,
+    pub(crate) tool_rxy: Matrix3<f64>,
+    pub(crate) world_from_base: Frame,
+    /// Axes (world frame, through the world origin) of the world rotations of eq. (3).
+    pub(crate) world_rotation_axes: [Vector3<f64>; 3],
+}
+
+impl<'r> PreparedRobot<'r> {
+    pub fn robot(&self) -> &'r Robot {
+        self.robot
+    }
+
+    /// Compliance of joint `i`, deg/(N·m).
+    pub(crate) fn compliance(&self, joint: usize) -> f64 {
+        self.values.0[36 + joint]
+    }
+
+    /// Forward chain in the base frame for joint commands `q_deg` plus extra joint
+    /// angles `extra_deg` (the compliance deflections, or zero).
+    pub(crate) fn chain(&self, q_deg: &[f64; JOINTS], extra_deg: &[f64; JOINTS]) -> Chain {
+        self.chain_at(&std::array::from_fn(|i| {
+            ((q_deg[i] + extra_deg[i]) * DEG + self.theta_zero_rad[i]).sin_cos()
+        }))
+    }
+
+    /// Forward chain for the (sin, cos) of each joint angle.
+    fn chain_at(&self, joint_sin_cos: &[(f64, f64); JOINTS]) -> Chain {
+        let mut joints = [Frame::identity(); JOINTS + 1];
+        for i in 0..JOINTS {
+            let (sa, ca) = self.alpha_sin_cos[i];
+            let (st, ct) = joint_sin_cos[i];
+            // Rot(x, alpha) · Rot(z, theta) and Trans(x, a) · Rot(x, alpha) · Trans(z, d), expanded.
+            let local = Frame {
+                rotation: Matrix3::new(ct, -st, 0.0, ca * st, ca * ct, -sa, sa * st, sa * ct, ca),
+                origin_mm: Vector3::new(self.a_mm[i], -sa * self.d_mm[i], ca * self.d_mm[i]),
+            };
+            joints[i + 1] = joints[i].compose(&local);
+        }
+        Chain {
+            tool: joints[JOINTS].compose(&self.flange_from_tool),
+            joints,
+        }
+    }
+
+    /// Both chains of one conf-wrench row: the undeflected one with its loads, and
+    /// the deflected one. The deflected joint angles reuse the undeflected sines and
+    /// cosines through the angle-sum formula, which halves the trigonometry.
+    pub(crate) fn loaded_chains(&self, q_deg: &[f64; JOINTS], wrench: &Wrench) -> LoadedChains {
+        let undeflected_sin_cos: [(f64, f64); JOINTS] =
+            std::array::from_fn(|i| (q_deg[i] * DEG + self.theta_zero_rad[i]).sin_cos());
+        let undeflected = self.chain_at(&undeflected_sin_cos);
+        let loads = self.robot.loads(&undeflected, wrench);
+        let deflections_deg: [f64; JOINTS] =
+            std::array::from_fn(|i| self.compliance(i) * loads.torques_nm[i]);
+        let deflected = self.chain_at(&std::array::from_fn(|i| {
+            add_angle(undeflected_sin_cos[i], deflections_deg[i] * DEG)
+        }));
+        LoadedChains {
+            undeflected,
+            loads,
+            deflections_deg,
+            deflected,
+        }
+    }
+
+    /// Load torques (N·m) and deflections (deg) for one conf-wrench row.
+    pub fn deflections(
+        &self,
+        q_deg: &[f64; JOINTS],
+        wrench: &Wrench,
+    ) -> ([f64; JOINTS], [f64; JOINTS]) {
+        let undeflected = self.chain(q_deg, &[0.0; JOINTS]);
+        let torques = self.robot.loads(&undeflected, wrench).torques_nm;
+        let deflections = std::array::from_fn(|i| self.compliance(i) * torques[i]);
+        (torques, deflections)
+    }
+
+    /// Paper eq. (17): the SMR position with torques and deflections.
+    pub fn predict(&self, q_deg: &[f64; JOINTS], wrench: &Wrench) -> Prediction {
+        let chains = self.loaded_chains(q_deg, wrench);
+        Prediction {
+            position_mm: self
+                .world_from_base
+                .transform_point(&chains.deflected.tool.origin_mm),
+            torques_nm: chains.loads.torques_nm,
+            deflections_deg: chains.deflections_deg,
+        }
+    }
+}
+
+/// The chains of one loaded conf-wrench row (see [`PreparedRobot::loaded_chains`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct LoadedChains {
+    pub undeflected: Chain,
+    /// Loads on the undeflected chain (first order, as in the paper).
+    pub loads: Loads,
+    pub deflections_deg: [f64; JOINTS],
+    pub deflected: Chain,
+}
+
+/// (sin, cos) of `θ + δ` from (sin θ, cos θ): for the small compliance deflections δ
+/// the series of sin δ and cos δ are exact to rounding (next terms below 1e-17 for
+/// |δ| ≤ 0.05 rad) and much cheaper than another `sin_cos`.
+fn add_angle((sin_theta, cos_theta): (f64, f64), delta_rad: f64) -> (f64, f64) {
+    let (sin_delta, cos_delta) = if delta_rad.abs() <= 0.05 {
+        let d2 = delta_rad * delta_rad;
+        (
+            delta_rad * (1.0 - d2 / 6.0 * (1.0 - d2 / 20.0 * (1.0 - d2 / 42.0))),
+            1.0 - d2 / 2.0 * (1.0 - d2 / 12.0 * (1.0 - d2 / 30.0 * (1.0 - d2 / 56.0))),
+        )
+    } else {
+        delta_rad.sin_cos()
+    };
+    (
+        sin_theta * cos_delta + cos_theta * sin_delta,
+        cos_theta * cos_delta - sin_theta * sin_delta,
+    )
 }
 
 #[cfg(test)]
@@ -328,6 +451,26 @@ mod tests {
     }
 
     #[test]
+    fn angle_sum_equals_sin_cos_of_the_sum() {
+        use rand::Rng;
+        let mut rng = StdRng::seed_from_u64(4);
+        for _ in 0..10_000 {
+            let theta: f64 = rng.random_range(-7.0..7.0);
+            // Both sides of the series' 0.05 rad switch, and large deflections.
+            let delta: f64 = rng.random_range(-0.2..0.2);
+            let (s, c) = add_angle(theta.sin_cos(), delta);
+            // The reference rounds theta + delta itself (ulp 9e-16 near 7 rad).
+            let (s_ref, c_ref) = (theta + delta).sin_cos();
+            assert!(
+                (s - s_ref).abs() < 2e-15 && (c - c_ref).abs() < 2e-15,
+                "{theta} {delta}: {} {}",
+                s - s_ref,
+                c - c_ref
+            );
+        }
+    }
+
+    #[test]
     fn gravity_torque_on_joint_1_is_zero_for_a_level_base() {
         let robot = irb1600();
         let mut rng = StdRng::seed_from_u64(1);
@@ -349,7 +492,7 @@ mod tests {
             let w = random_wrench(&mut rng);
             let (with_load, _) = robot.deflections(&p, &q, &w);
             let (gravity_only, _) = robot.deflections(&p, &q, &Wrench::zero());
-            let chain = robot.chain(&p, &q, &[0.0; 6]);
+            let chain = robot.prepare(&p).chain(&q, &[0.0; 6]);
             let f = chain.tool.rotation * w.force_n;
             let m = chain.tool.rotation * w.moment_nm;
             for i in 0..6 {
@@ -376,7 +519,7 @@ mod tests {
             let loaded = robot.predict(&p, &q, &random_wrench(&mut rng));
             let kinematic = robot
                 .world_from_base(&p)
-                .transform_point(&robot.chain(&p, &q, &[0.0; 6]).tool.origin_mm);
+                .transform_point(&robot.prepare(&p).chain(&q, &[0.0; 6]).tool.origin_mm);
             assert_eq!(loaded.position_mm, kinematic);
             assert_eq!(loaded.deflections_deg, [0.0; 6]);
         }
