@@ -234,12 +234,14 @@ fn facet_normal(a: &SMatrix<f64, 6, CABLE_COUNT>, columns: &[usize]) -> Option<V
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::robot::frame::{rot_x, rot_y, rot_z};
+    use crate::robot::frame::{rot_x, rot_z};
     use nalgebra::{Matrix3, Rotation3, SVector};
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
 
     const CENTRE_MM: [f64; 3] = [900.0, 0.0, 900.0];
+    /// The laser tracker in the base frame (jobs/robots/irb1600_145.toml's world).
+    const TRACKER_MM: [f64; 3] = [-1326.0, -1362.0, 1476.0];
 
     fn pose(rotation: Matrix3<f64>, origin_mm: [f64; 3]) -> Frame {
         Frame {
@@ -248,18 +250,31 @@ mod tests {
         }
     }
 
-    /// The tilted tool of the default geometry's design check.
-    fn tilted() -> Matrix3<f64> {
-        rot_y(30f64.to_radians()) * rot_x(20f64.to_radians())
+    /// The platform orientation the default geometry is designed for: tool z from
+    /// `origin_mm` towards the tracker, tool x horizontal (the `poses` stage's
+    /// upright roll, rebuilt here so that this module does not depend on `design`).
+    fn facing_tracker(origin_mm: [f64; 3]) -> Matrix3<f64> {
+        let z = (Vector3::from(TRACKER_MM) - Vector3::from(origin_mm)).normalize();
+        let y = (Vector3::z() - z * z.z).normalize();
+        Matrix3::from_columns(&[y.cross(&z), y, z])
     }
 
-    /// A random pose in the 500 mm workspace cube, tool tilted up to ~35°.
+    /// A tool tilted 20° off the upright orientation and rolled 30°: the edge of
+    /// what the `poses` stage draws.
+    fn tilted() -> Matrix3<f64> {
+        facing_tracker(CENTRE_MM) * rot_x(20f64.to_radians()) * rot_z(30f64.to_radians())
+    }
+
+    /// A random pose in the 500 mm workspace cube, tool turned up to ~35° from the
+    /// upright orientation facing the tracker.
     fn random_pose(rng: &mut StdRng) -> Frame {
         let axis_angle = Vector3::from_fn(|_, _| rng.random_range(-0.35..0.35));
         let offset = Vector3::from_fn(|_, _| rng.random_range(-250.0..250.0));
+        let origin_mm = Vector3::from(CENTRE_MM) + offset;
         Frame {
-            rotation: *Rotation3::from_scaled_axis(axis_angle).matrix(),
-            origin_mm: Vector3::from(CENTRE_MM) + offset,
+            rotation: facing_tracker(origin_mm.into())
+                * *Rotation3::from_scaled_axis(axis_angle).matrix(),
+            origin_mm,
         }
     }
 
@@ -349,13 +364,24 @@ mod tests {
     }
 
     #[test]
-    fn huge_wrench_is_infeasible_with_negative_margin() {
+    fn wrench_beyond_the_total_tension_capacity_is_infeasible_with_negative_margin() {
+        // Eight unit force columns at max tension give at most 8 · t_max of force in
+        // any direction, whatever the geometry.
         let spec = CableRobotSpec::default();
-        let tool = pose(Matrix3::identity(), CENTRE_MM);
+        let tool = pose(facing_tracker(CENTRE_MM), CENTRE_MM);
+        let beyond = 8.0 * spec.max_tension_n + 1.0;
+        for wrench in [
+            [beyond, 0.0, 0.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, -beyond, 0.0, 0.0, 0.0],
+            [1e5, 0.0, 0.0, 0.0, 0.0, 0.0],
+        ] {
+            let verdict = check_wrench(&spec, &tool, wrench).unwrap();
+            assert!(!verdict.feasible, "{wrench:?}: {verdict:?}");
+            assert!(verdict.capacity_margin_n < 0.0, "{verdict:?}");
+            assert_eq!(verdict.tensions_n, [0.0; 8]);
+        }
         let verdict = check_wrench(&spec, &tool, [1e5, 0.0, 0.0, 0.0, 0.0, 0.0]).unwrap();
-        assert!(!verdict.feasible);
         assert!(verdict.capacity_margin_n < -1e4, "{verdict:?}");
-        assert_eq!(verdict.tensions_n, [0.0; 8]);
     }
 
     #[test]
@@ -417,28 +443,16 @@ mod tests {
 
     /// The design claim of `CableRobotSpec::default`: the whole ±120 N / ±10 N·m box
     /// (its 64 vertices; the wrench set is convex) is feasible at the workspace
-    /// centre, its eight corners and with a tilted tool.
+    /// centre, upright and with a tool tilted to the edge of the `poses` draws.
+    /// (Towards the workspace corners parts of the box fall out; the `wrenches`
+    /// stage redraws those, and tests/design.rs bounds the acceptance.)
     #[test]
-    fn default_geometry_covers_the_wrench_box_over_the_workspace() {
+    fn default_geometry_covers_the_wrench_box_at_the_workspace_centre() {
         let spec = CableRobotSpec::default();
-        let mut poses = vec![
-            pose(Matrix3::identity(), CENTRE_MM),
+        for tool in [
+            pose(facing_tracker(CENTRE_MM), CENTRE_MM),
             pose(tilted(), CENTRE_MM),
-        ];
-        for corner in 0..8 {
-            let offset = |bit: usize| {
-                if corner & (1 << bit) != 0 {
-                    250.0
-                } else {
-                    -250.0
-                }
-            };
-            poses.push(pose(
-                Matrix3::identity(),
-                [900.0 + offset(0), offset(1), 900.0 + offset(2)],
-            ));
-        }
-        for tool in &poses {
+        ] {
             for vertex in 0..64 {
                 let wrench: [f64; 6] = std::array::from_fn(|k| {
                     let limit = if k < 3 { 120.0 } else { 10.0 };
@@ -448,7 +462,7 @@ mod tests {
                         -limit
                     }
                 });
-                let verdict = check_wrench(&spec, tool, wrench).unwrap();
+                let verdict = check_wrench(&spec, &tool, wrench).unwrap();
                 assert!(verdict.feasible, "{wrench:?} at {tool:?}: {verdict:?}");
             }
         }
@@ -458,7 +472,7 @@ mod tests {
     fn most_wrenches_in_the_box_are_feasible_at_the_workspace_centre() {
         let spec = CableRobotSpec::default();
         let mut rng = StdRng::seed_from_u64(1);
-        for (name, rotation) in [("identity", Matrix3::identity()), ("tilted", tilted())] {
+        for (name, rotation) in [("upright", facing_tracker(CENTRE_MM)), ("tilted", tilted())] {
             let tool = pose(rotation, CENTRE_MM);
             let samples = 500;
             let start = std::time::Instant::now();
@@ -475,7 +489,7 @@ mod tests {
                 100.0 * fraction,
                 start.elapsed().as_secs_f64() * 1e6 / f64::from(samples)
             );
-            assert!(fraction > 0.5, "{name}: {fraction}");
+            assert!(fraction > 0.95, "{name}: {fraction}");
         }
     }
 
