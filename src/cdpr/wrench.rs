@@ -92,48 +92,101 @@ const DECISIVE_MARGIN_N: f64 = 1e-3;
 ///
 /// Errors: invalid spec, non-finite or non-rigid pose, non-finite wrench, a
 /// structure matrix of rank < 6 (the set has no interior), or a Clarabel failure.
+///
+/// Cost: the pose-dependent part (structure matrix, rank, 56 facets) is built each
+/// call; to check many wrenches at one pose build an [`AvailableWrenchSet`] once.
 pub fn check_wrench(
     spec: &CableRobotSpec,
     tool_in_base: &Frame,
     wrench: [f64; 6],
 ) -> Result<Feasibility, CdprError> {
-    spec.validate()?;
-    validate_pose(tool_in_base)?;
-    if let Some((index, &value)) = wrench.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-        return Err(CdprError::InvalidWrench { index, value });
+    AvailableWrenchSet::new(spec, tool_in_base)?.check(wrench)
+}
+
+/// The available wrench set of the CDPR at one tool pose, prepared for checking
+/// many wrenches: the scaled structure matrix and the facets of the zonotope
+/// (what [`check_wrench`] would otherwise rebuild for every wrench).
+#[derive(Debug, Clone)]
+pub struct AvailableWrenchSet {
+    /// Structure matrix with moment rows divided by the moment scale (m).
+    a_scaled: SMatrix<f64, 6, CABLE_COUNT>,
+    /// `(1, 1, 1, s, s, s)` with `s` the moment scale in metres.
+    unscale: Vector6<f64>,
+    /// Per non-degenerate facet direction: unit normal `n`, `h(n)` and `h(−n)`.
+    facets: Vec<(Vector6<f64>, f64, f64)>,
+    t_min: f64,
+    t_max: f64,
+}
+
+impl AvailableWrenchSet {
+    /// Validates the spec and the pose and builds the facets (56 generalized cross
+    /// products of 6×5 matrices; a few tens of µs).
+    ///
+    /// Errors: invalid spec, non-finite or non-rigid pose, a structure matrix of
+    /// rank < 6 (the set has no interior).
+    pub fn new(spec: &CableRobotSpec, tool_in_base: &Frame) -> Result<Self, CdprError> {
+        spec.validate()?;
+        validate_pose(tool_in_base)?;
+        // Scaled wrench space: moments divided by the moment scale in metres (N·m → N).
+        let s = spec.moment_scale_mm / 1000.0;
+        let unscale = Vector6::new(1.0, 1.0, 1.0, s, s, s);
+        let a_scaled = scaled_rows(structure_matrix(spec, tool_in_base), &unscale);
+        let rank = numerical_rank(&a_scaled);
+        if rank < 6 {
+            return Err(CdprError::RankDeficient { rank });
+        }
+        let (t_min, t_max) = (spec.min_tension_n, spec.max_tension_n);
+        let facets = facets(&a_scaled, t_min, t_max);
+        // Rank 6 means some five columns are independent, so no facet is only
+        // reachable at the edge of the two tolerances; report it as (numerically)
+        // rank 5.
+        if facets.is_empty() {
+            return Err(CdprError::RankDeficient { rank: 5 });
+        }
+        Ok(AvailableWrenchSet {
+            a_scaled,
+            unscale,
+            facets,
+            t_min,
+            t_max,
+        })
     }
 
-    // Scaled wrench space: moments divided by the moment scale in metres (N·m → N).
-    let s = spec.moment_scale_mm / 1000.0;
-    let unscale = Vector6::new(1.0, 1.0, 1.0, s, s, s);
-    let a = scaled_rows(structure_matrix(spec, tool_in_base), &unscale);
-    let w = Vector6::from(wrench).component_div(&unscale);
-
-    let rank = numerical_rank(&a);
-    if rank < 6 {
-        return Err(CdprError::RankDeficient { rank });
-    }
-    let (t_min, t_max) = (spec.min_tension_n, spec.max_tension_n);
-    // Rank 6 means some five columns are independent, so `None` is only reachable at
-    // the edge of the two tolerances; report it as (numerically) rank 5.
-    let capacity_margin_n =
-        capacity_margin(&a, &w, t_min, t_max).ok_or(CdprError::RankDeficient { rank: 5 })?;
-    // The margin is the exact signed distance to the available wrench set, so a
-    // clearly negative one already proves infeasibility (a few µs instead of a QP);
-    // the QP decides near the boundary and gives the tensions.
-    if capacity_margin_n < -DECISIVE_MARGIN_N {
-        return Ok(Feasibility {
-            feasible: false,
-            tensions_n: [0.0; CABLE_COUNT],
+    /// [`check_wrench`] at the prepared pose: the margin from the stored facets (56
+    /// dot products), then Clarabel's QP unless the margin already proves the wrench
+    /// infeasible.
+    ///
+    /// Errors: non-finite wrench, or a Clarabel failure.
+    pub fn check(&self, wrench: [f64; 6]) -> Result<Feasibility, CdprError> {
+        if let Some((index, &value)) = wrench.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            return Err(CdprError::InvalidWrench { index, value });
+        }
+        let w = Vector6::from(wrench).component_div(&self.unscale);
+        let capacity_margin_n = self
+            .facets
+            .iter()
+            .map(|(n, h_plus, h_minus)| {
+                let nw = n.dot(&w);
+                (h_plus - nw).min(h_minus + nw)
+            })
+            .fold(f64::INFINITY, f64::min);
+        // The margin is the exact signed distance to the available wrench set, so a
+        // clearly negative one already proves infeasibility (no QP); the QP decides
+        // near the boundary and gives the tensions.
+        if capacity_margin_n < -DECISIVE_MARGIN_N {
+            return Ok(Feasibility {
+                feasible: false,
+                tensions_n: [0.0; CABLE_COUNT],
+                capacity_margin_n,
+            });
+        }
+        let tensions = solver::min_norm_tensions(&self.a_scaled, &w, self.t_min, self.t_max)?;
+        Ok(Feasibility {
+            feasible: tensions.is_some(),
+            tensions_n: tensions.unwrap_or([0.0; CABLE_COUNT]),
             capacity_margin_n,
-        });
+        })
     }
-    let tensions = solver::min_norm_tensions(&a, &w, t_min, t_max)?;
-    Ok(Feasibility {
-        feasible: tensions.is_some(),
-        tensions_n: tensions.unwrap_or([0.0; CABLE_COUNT]),
-        capacity_margin_n,
-    })
 }
 
 /// Rows of `a` divided by `unscale` (moments in N·m → N).
@@ -178,36 +231,33 @@ fn numerical_rank(a: &SMatrix<f64, 6, CABLE_COUNT>) -> usize {
         .count()
 }
 
-/// Hyperplane-shifting capacity margin of `w` for the zonotope `a·[t_min, t_max]⁸`
-/// (see [`check_wrench`]); `None` if every choice of five columns is degenerate.
-fn capacity_margin(
+/// The facet directions of the zonotope `a·[t_min, t_max]⁸` (see [`check_wrench`]):
+/// for every non-degenerate choice of five columns, the unit normal `n` with the
+/// support values `h(n)` and `h(−n)`.
+fn facets(
     a: &SMatrix<f64, 6, CABLE_COUNT>,
-    w: &Vector6<f64>,
     t_min: f64,
     t_max: f64,
-) -> Option<f64> {
-    let mut margin: Option<f64> = None;
+) -> Vec<(Vector6<f64>, f64, f64)> {
     // Every 5-column choice, as an 8-bit mask with five bits set (56 of them).
-    for mask in (0u32..1 << CABLE_COUNT).filter(|m| m.count_ones() == 5) {
-        let columns: Vec<usize> = (0..CABLE_COUNT).filter(|i| mask & (1 << i) != 0).collect();
-        let Some(n) = facet_normal(a, &columns) else {
-            continue;
-        };
-        let projections = n.transpose() * a;
-        // h(n) and h(−n) = −Σ min(...); t_max > t_min ≥ 0.
-        let h_plus: f64 = projections
-            .iter()
-            .map(|&p| (p * t_min).max(p * t_max))
-            .sum();
-        let h_minus: f64 = -projections
-            .iter()
-            .map(|&p| (p * t_min).min(p * t_max))
-            .sum::<f64>();
-        let nw = n.dot(w);
-        let here = (h_plus - nw).min(h_minus + nw);
-        margin = Some(margin.map_or(here, |m| m.min(here)));
-    }
-    margin
+    (0u32..1 << CABLE_COUNT)
+        .filter(|m| m.count_ones() == 5)
+        .filter_map(|mask| {
+            let columns: Vec<usize> = (0..CABLE_COUNT).filter(|i| mask & (1 << i) != 0).collect();
+            let n = facet_normal(a, &columns)?;
+            let projections = n.transpose() * a;
+            // h(n) and h(−n) = −Σ min(...); t_max > t_min ≥ 0.
+            let h_plus: f64 = projections
+                .iter()
+                .map(|&p| (p * t_min).max(p * t_max))
+                .sum();
+            let h_minus: f64 = -projections
+                .iter()
+                .map(|&p| (p * t_min).min(p * t_max))
+                .sum::<f64>();
+            Some((n, h_plus, h_minus))
+        })
+        .collect()
 }
 
 /// Unit normal of the hyperplane spanned by five columns of `a`: the generalized
