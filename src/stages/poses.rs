@@ -98,7 +98,7 @@ static INFO: StageInfo = StageInfo {
     kind: "poses",
     uses_cable_robot: true,
     summary: "Robot configurations in the workspace box, SMR facing the tracker, collision-free",
-    code_version: 2,
+    code_version: 3,
     inputs: &[],
     outputs: &[TableSlot {
         name: "poses",
