@@ -1,6 +1,7 @@
 //! `poses`: robot configurations for the campaign (paper §IV.A steps (a)–(b)):
 //! target points in the cable robot's workspace box, SMR orientations facing the
-//! tracker within its acceptance angle, all inverse-kinematics solutions filtered
+//! tracker within its acceptance angle (platform upright within a roll range, the
+//! orientation the cable robot is designed for), all inverse-kinematics solutions filtered
 //! by joint limits, singularity distance, collisions (links, pulleys, cables,
 //! platform, floor) and line of sight; one survivor per point drawn at random.
 

@@ -169,14 +169,14 @@ impl Stage for WrenchesStage {
             for (n, (wrench, feasibility)) in found.kept.iter().enumerate() {
                 cw_id.push((k * wanted + n + 1) as i64);
                 config.push(config_id);
-                for i in 0..JOINTS {
-                    q[i].push(found.q_deg[i]);
+                for (column, value) in q.iter_mut().zip(found.q_deg) {
+                    column.push(value);
                 }
-                for i in 0..6 {
-                    w[i].push(wrench[i]);
+                for (column, value) in w.iter_mut().zip(wrench) {
+                    column.push(*value);
                 }
-                for (i, t) in feasibility.tensions_n.iter().enumerate() {
-                    tensions[i].push(*t);
+                for (column, value) in tensions.iter_mut().zip(feasibility.tensions_n) {
+                    column.push(value);
                 }
                 margin.push(feasibility.capacity_margin_n);
             }
