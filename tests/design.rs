@@ -130,3 +130,35 @@ fn an_unreachable_box_is_dropped_with_its_reason() {
     );
     assert!(stderr.contains("\"unreachable\": 24"), "{stderr}");
 }
+
+/// The design claim of the default cable robot and the `poses` roll range: the
+/// paper's 5 × 5 × 5 grid keeps at least 120 of its 125 points, every kept point
+/// gets its 7 wrenches, and at least 80 % of the wrench draws are feasible
+/// (measured: 122 points, 92–95 % of draws, over seeds).
+#[test]
+fn default_campaign_grid_keeps_its_points_and_most_wrench_draws() {
+    let out = tempfile::tempdir().unwrap();
+    let (code, stderr) = stage("poses", "points_per_axis = 5\n", &[], out.path());
+    assert_eq!(code, 0, "{stderr}");
+    let poses_path = out.path().join("poses.parquet");
+    let points = table::read_parquet(&poses_path).unwrap().height();
+    assert!(points >= 120, "{points} of 125 points kept");
+
+    let (code, stderr) = stage(
+        "wrenches",
+        "per_config = 7\n",
+        &[("poses", &poses_path)],
+        out.path(),
+    );
+    assert_eq!(code, 0, "{stderr}");
+    let candidates_path = out.path().join("candidates.parquet");
+    let candidates = table::read_parquet(&candidates_path).unwrap().height();
+    assert_eq!(candidates, 7 * points);
+    let facts = table::read_provenance(&candidates_path)
+        .unwrap()
+        .expect("egcal writes provenance")
+        .extra;
+    let draws: f64 = facts["draws"].parse().unwrap();
+    let acceptance = candidates as f64 / draws;
+    assert!(acceptance > 0.8, "{acceptance} of {draws} draws feasible");
+}

@@ -31,4 +31,4 @@ mod wrench;
 
 pub use error::CdprError;
 pub use spec::{CABLE_COUNT, CableRobotSpec};
-pub use wrench::{Feasibility, check_wrench, structure_matrix};
+pub use wrench::{AvailableWrenchSet, Feasibility, check_wrench, structure_matrix};

@@ -46,6 +46,9 @@ pub struct PoseProblem {
     pub edge_mm: f64,
     pub sampling: Sampling,
     pub acceptance_half_angle_deg: f64,
+    /// Tool roll about its z axis is drawn uniformly within ± this of the upright
+    /// roll (see [`upright_tool_frame`]); 180 draws any roll.
+    pub roll_half_range_deg: f64,
     pub orientation_attempts: usize,
     pub singularity: SingularityLimits,
     pub cell: Cell,
@@ -132,6 +135,31 @@ fn direction_in_cone(axis: &Vector3<f64>, half_angle_deg: f64, rng: &mut impl Rn
     frame.rotation * Vector3::new(sin_theta * phi.cos(), sin_theta * phi.sin(), cos_theta)
 }
 
+/// The tool frame with z along `facing` (unit, base frame), turned by `roll_rad`
+/// about z from the upright roll: tool y as close to base +z as the facing allows,
+/// so tool x is horizontal.
+///
+/// Why a reference roll: the platform (a cube on the tool) turns with the roll, and
+/// the cable robot's wrench-feasible set depends strongly on the platform's
+/// orientation relative to its frame, so a real cell holds the platform roughly at
+/// the orientation its frame was designed for and varies the roll only a little
+/// (`jobs/cdpr/default.toml` is designed for this reference).
+pub fn upright_tool_frame(facing: &Vector3<f64>, roll_rad: f64, origin_mm: Vector3<f64>) -> Frame {
+    let z = facing.normalize();
+    let up = Vector3::z();
+    let y = up - z * up.dot(&z);
+    if y.norm() < 1e-6 {
+        // Facing straight up or down: no upright roll, any reference will do.
+        return frame_with_z_along(&z, roll_rad, origin_mm);
+    }
+    let y = y.normalize();
+    let x = y.cross(&z);
+    Frame {
+        rotation: Matrix3::from_columns(&[x, y, z]) * crate::robot::frame::rot_z(roll_rad),
+        origin_mm,
+    }
+}
+
 /// How far a configuration is from the arm's three singularities:
 /// (|q5| in deg, wrist centre distance from axis 1 in mm, elbow bend in deg).
 pub fn singularity_margins(joints: &[Frame; JOINTS + 1], q_deg: &[f64; JOINTS]) -> (f64, f64, f64) {
@@ -193,8 +221,9 @@ fn generate_one(
     let world = robot.world_from_base(nominal);
     for _ in 0..problem.orientation_attempts {
         let facing = direction_in_cone(&to_tracker, problem.acceptance_half_angle_deg, rng);
-        let roll = rng.random_range(0.0..std::f64::consts::TAU);
-        let tool_in_base = frame_with_z_along(&facing, roll, *target);
+        let half_range = problem.roll_half_range_deg.to_radians();
+        let roll = rng.random_range(-half_range..=half_range);
+        let tool_in_base = upright_tool_frame(&facing, roll, *target);
         let flange = flange_target_in_base(robot, nominal, &world.compose(&tool_in_base));
         let solutions = match closed_form(robot, &flange) {
             Ok(s) => s,
@@ -274,6 +303,26 @@ mod tests {
         let [a, b, c] = xyz_euler_deg(&r);
         let back = rot_x(a.to_radians()) * rot_y(b.to_radians()) * rot_z(c.to_radians());
         assert!((back - r).norm() < 1e-12);
+    }
+
+    #[test]
+    fn upright_frame_is_a_rotation_with_horizontal_x_and_the_asked_roll() {
+        let facing = Vector3::new(-2226.0, -1362.0, 576.0).normalize();
+        let origin = Vector3::new(900.0, 0.0, 900.0);
+        let upright = upright_tool_frame(&facing, 0.0, origin);
+        let r = upright.rotation;
+        assert!((r.transpose() * r - Matrix3::identity()).norm() < 1e-12);
+        assert!((r.determinant() - 1.0).abs() < 1e-12);
+        assert!((r.column(2) - facing).norm() < 1e-12);
+        assert!(r[(2, 0)].abs() < 1e-12, "tool x is horizontal");
+        assert!(r[(2, 1)] > 0.0, "tool y points up");
+        let rolled = upright_tool_frame(&facing, 0.3, origin);
+        let angle = upright.axis(0).dot(&rolled.axis(0)).acos();
+        assert!((angle - 0.3).abs() < 1e-12);
+        assert_eq!(rolled.origin_mm, origin);
+        // Straight up: falls back to a valid frame.
+        let vertical = upright_tool_frame(&Vector3::z(), 0.0, origin).rotation;
+        assert!((vertical.column(2) - Vector3::z()).norm() < 1e-12);
     }
 
     #[test]

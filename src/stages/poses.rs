@@ -1,6 +1,7 @@
 //! `poses`: robot configurations for the campaign (paper §IV.A steps (a)–(b)):
 //! target points in the cable robot's workspace box, SMR orientations facing the
-//! tracker within its acceptance angle, all inverse-kinematics solutions filtered
+//! tracker within its acceptance angle (platform upright within a roll range, the
+//! orientation the cable robot is designed for), all inverse-kinematics solutions filtered
 //! by joint limits, singularity distance, collisions (links, pulleys, cables,
 //! platform, floor) and line of sight; one survivor per point drawn at random.
 
@@ -48,6 +49,11 @@ pub struct PosesSettings {
     pub tracker_mm: Option<[f64; 3]>,
     /// Largest angle between the SMR axis (tool z) and the direction to the tracker.
     pub acceptance_half_angle_deg: f64,
+    /// Tool roll about the SMR axis: uniform within ± this of the upright roll (tool
+    /// x horizontal, y up). Kept small because the cable robot's wrench-feasible set
+    /// depends strongly on the platform's orientation, and the default cable robot
+    /// is designed for the upright platform; 180 allows any roll.
+    pub roll_half_range_deg: f64,
     /// Orientations tried per point before it is dropped.
     pub orientation_attempts: usize,
     /// Smallest |q5| (wrist singularity).
@@ -76,7 +82,8 @@ impl Default for PosesSettings {
             edge_mm: 500.0,
             tracker_mm: None,
             acceptance_half_angle_deg: 40.0,
-            orientation_attempts: 50,
+            roll_half_range_deg: 30.0,
+            orientation_attempts: 200,
             min_wrist_deg: 5.0,
             min_shoulder_mm: 100.0,
             min_elbow_deg: 5.0,
@@ -92,7 +99,7 @@ static INFO: StageInfo = StageInfo {
     kind: "poses",
     uses_cable_robot: true,
     summary: "Robot configurations in the workspace box, SMR facing the tracker, collision-free",
-    code_version: 2,
+    code_version: 3,
     inputs: &[],
     outputs: &[TableSlot {
         name: "poses",
@@ -114,6 +121,20 @@ impl Stage for PosesStage {
         ctx: &StageContext,
         settings: &PosesSettings,
     ) -> Result<StageOutputs, StageError> {
+        for (key, value, upper) in [
+            (
+                "acceptance_half_angle_deg",
+                settings.acceptance_half_angle_deg,
+                90.0,
+            ),
+            ("roll_half_range_deg", settings.roll_half_range_deg, 180.0),
+        ] {
+            if !(0.0..=upper).contains(&value) {
+                return Err(StageError::Invalid(format!(
+                    "setting `{key}`: expected an angle in [0, {upper}] degrees, found {value}"
+                )));
+            }
+        }
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let tracker = match settings.tracker_mm {
             Some(t) => Vector3::from(t),
@@ -174,6 +195,7 @@ impl Stage for PosesStage {
             edge_mm: settings.edge_mm,
             sampling,
             acceptance_half_angle_deg: settings.acceptance_half_angle_deg,
+            roll_half_range_deg: settings.roll_half_range_deg,
             orientation_attempts: settings.orientation_attempts,
             singularity: SingularityLimits {
                 min_wrist_deg: settings.min_wrist_deg,

@@ -3,16 +3,21 @@
 //! normal distributions, clipped to the paper's ranges, kept only when tensions
 //! within bounds exist that produce them (decided by the cable robot's QP), redrawn
 //! otherwise up to a limit.
+//!
+//! Cost: one Clarabel QP per draw that is not clearly outside the wrench set (a
+//! few hundred µs); the pose-dependent facets are built once per configuration
+//! and configurations run in parallel.
 
 use polars::prelude::Column;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
-use crate::cdpr::check_wrench;
+use crate::cdpr::{AvailableWrenchSet, Feasibility};
 use crate::robot::{JOINTS, ParamValues};
 use crate::table::frame;
 use crate::table::schema::{
@@ -20,6 +25,15 @@ use crate::table::schema::{
 };
 
 pub struct WrenchesStage;
+
+/// What one configuration's draws produced.
+#[derive(Default)]
+struct ConfigWrenches {
+    q_deg: [f64; JOINTS],
+    /// Feasible wrenches in draw order, with their verdicts.
+    kept: Vec<([f64; 6], Feasibility)>,
+    attempts: usize,
+}
 
 /// Settings of `wrenches`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -58,7 +72,7 @@ static INFO: StageInfo = StageInfo {
     kind: "wrenches",
     uses_cable_robot: true,
     summary: "Feasible cable-robot wrenches per configuration: the conf-wrench candidates",
-    code_version: 2,
+    code_version: 3,
     inputs: &[TableSlot {
         name: "poses",
         schema: schema::poses,
@@ -96,7 +110,52 @@ impl Stage for WrenchesStage {
         let moment = Normal::new(0.0, settings.sigma_moment_nm)
             .map_err(|e| StageError::Invalid(format!("setting `sigma_moment_nm`: {e}")))?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
-        let mut rng = StdRng::seed_from_u64(ctx.seed);
+        let wanted = settings.per_config;
+        let max_attempts = settings.max_draws * wanted;
+        let draw = |rng: &mut StdRng| -> [f64; 6] {
+            std::array::from_fn(|i| {
+                if i < 3 {
+                    force
+                        .sample(rng)
+                        .clamp(-settings.max_force_n, settings.max_force_n)
+                } else {
+                    moment
+                        .sample(rng)
+                        .clamp(-settings.max_moment_nm, settings.max_moment_nm)
+                }
+            })
+        };
+        ctx.progress
+            .start(config_ids.len() as u64, "configurations");
+        // Configurations run in parallel, each with its own seeded stream (so the
+        // result does not depend on scheduling) and its wrench set built once.
+        let per_config: Vec<ConfigWrenches> = (0..config_ids.len())
+            .into_par_iter()
+            .map(|k| {
+                let config_id = config_ids[k];
+                let q_deg: [f64; JOINTS] = std::array::from_fn(|i| joints[i][k]);
+                let (_, tool) = ctx.robot.frames_in_base(&nominal, &q_deg);
+                let failed = |e| StageError::Failed(format!("config_id {config_id}: {e}"));
+                let set = AvailableWrenchSet::new(ctx.cable_robot, &tool).map_err(failed)?;
+                let mut rng = StdRng::seed_from_u64(
+                    ctx.seed ^ (k as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15),
+                );
+                let mut found = ConfigWrenches {
+                    q_deg,
+                    ..ConfigWrenches::default()
+                };
+                while found.kept.len() < wanted && found.attempts < max_attempts {
+                    found.attempts += 1;
+                    let wrench = draw(&mut rng);
+                    let feasibility = set.check(wrench).map_err(failed)?;
+                    if feasibility.feasible {
+                        found.kept.push((wrench, feasibility));
+                    }
+                }
+                Ok(found)
+            })
+            .collect::<Result<_, StageError>>()?;
+        ctx.progress.advance(config_ids.len() as u64);
 
         let mut cw_id = Vec::new();
         let mut config = Vec::new();
@@ -105,55 +164,30 @@ impl Stage for WrenchesStage {
         let mut tensions: Vec<Vec<f64>> = vec![Vec::new(); TENSION_COLUMNS.len()];
         let mut margin = Vec::new();
         let (mut draws, mut short_configs) = (0usize, 0usize);
-        ctx.progress
-            .start(config_ids.len() as u64, "configurations");
-        for (k, &config_id) in config_ids.iter().enumerate() {
-            let q_deg: [f64; JOINTS] = std::array::from_fn(|i| joints[i][k]);
-            let (_, tool) = ctx.robot.frames_in_base(&nominal, &q_deg);
-            let mut kept = 0;
-            let mut attempts = 0;
-            while kept < settings.per_config && attempts < settings.max_draws * settings.per_config
-            {
-                attempts += 1;
-                draws += 1;
-                let wrench: [f64; 6] = std::array::from_fn(|i| {
-                    if i < 3 {
-                        force
-                            .sample(&mut rng)
-                            .clamp(-settings.max_force_n, settings.max_force_n)
-                    } else {
-                        moment
-                            .sample(&mut rng)
-                            .clamp(-settings.max_moment_nm, settings.max_moment_nm)
-                    }
-                });
-                let feasibility = check_wrench(ctx.cable_robot, &tool, wrench)
-                    .map_err(|e| StageError::Failed(format!("config_id {config_id}: {e}")))?;
-                if !feasibility.feasible {
-                    continue;
-                }
-                kept += 1;
-                cw_id.push((k * settings.per_config + kept) as i64);
+        for (k, (found, &config_id)) in per_config.iter().zip(&config_ids).enumerate() {
+            draws += found.attempts;
+            for (n, (wrench, feasibility)) in found.kept.iter().enumerate() {
+                cw_id.push((k * wanted + n + 1) as i64);
                 config.push(config_id);
-                for i in 0..JOINTS {
-                    q[i].push(q_deg[i]);
+                for (column, value) in q.iter_mut().zip(found.q_deg) {
+                    column.push(value);
                 }
-                for i in 0..6 {
-                    w[i].push(wrench[i]);
+                for (column, value) in w.iter_mut().zip(wrench) {
+                    column.push(*value);
                 }
-                for (i, t) in feasibility.tensions_n.iter().enumerate() {
-                    tensions[i].push(*t);
+                for (column, value) in tensions.iter_mut().zip(feasibility.tensions_n) {
+                    column.push(value);
                 }
                 margin.push(feasibility.capacity_margin_n);
             }
-            if kept < settings.per_config {
+            if found.kept.len() < wanted {
                 short_configs += 1;
                 ctx.progress.note(&format!(
-                    "config_id {config_id}: only {kept} of {} feasible wrenches after {attempts} draws",
-                    settings.per_config
+                    "config_id {config_id}: only {} of {wanted} feasible wrenches after {} draws",
+                    found.kept.len(),
+                    found.attempts
                 ));
             }
-            ctx.progress.advance(k as u64 + 1);
         }
         let kept = cw_id.len();
         let mut columns = vec![Column::new("cw_id".into(), cw_id)];
