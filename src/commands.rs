@@ -88,7 +88,10 @@ fn stage_code(e: &StageError) -> u8 {
 
 /// `egcal run`.
 pub fn run(job: &Path, options: &RunOptions, quiet: bool) -> Result<String, CommandError> {
-    let plan = Plan::load(job)?;
+    let mut plan = Plan::load(job)?;
+    if let Some(day) = options.run_date {
+        plan.run_date = day;
+    }
     let reporter = Reporter::new(quiet);
     let outcomes = runner::run(&plan, options, &reporter)?;
     let ran = outcomes
@@ -105,8 +108,11 @@ pub fn run(job: &Path, options: &RunOptions, quiet: bool) -> Result<String, Comm
 }
 
 /// `egcal status`.
-pub fn status(job: &Path) -> Result<String, CommandError> {
-    let plan = Plan::load(job)?;
+pub fn status(job: &Path, run_date: Option<i64>) -> Result<String, CommandError> {
+    let mut plan = Plan::load(job)?;
+    if let Some(day) = run_date {
+        plan.run_date = day;
+    }
     let mut out = String::new();
     for s in runner::status(&plan)? {
         if s.cached {
@@ -275,6 +281,8 @@ pub struct FileStage<'a> {
     pub cable_robot_file: Option<&'a Path>,
     pub inputs: &'a [(String, PathBuf)],
     pub seed: u64,
+    /// Day relative time windows end on.
+    pub run_date: i64,
 }
 
 /// `egcal stage`: one stage kind on files, outputs to `DIR/<table>.parquet`.
@@ -314,7 +322,12 @@ pub fn stage(
             .map_err(|e| table::schema::io_error(&path, e))?;
         written.push(path.display().to_string());
     }
-    Ok(format!("{kind}: wrote {}", written.join(", ")))
+    let facts: String = outputs
+        .facts
+        .iter()
+        .map(|(name, value)| format!("\n  {name} = {value}"))
+        .collect();
+    Ok(format!("{kind}: wrote {}{facts}", written.join(", ")))
 }
 
 /// `egcal predict`: the `predict` stage on one input file, written to `output`.
@@ -338,6 +351,7 @@ pub fn predict(
         cable_robot_file: None,
         inputs: &inputs,
         seed: 0,
+        run_date: table::time::today(),
     };
     let (mut outputs, provenance) = run_on_files(&stage, &settings, "--model", &work_dir)?;
     let _ = std::fs::remove_dir_all(&work_dir);
@@ -367,6 +381,7 @@ fn run_on_files(
         cable_robot_file,
         inputs,
         seed,
+        run_date,
     } = *stage;
     let stage_kind = stages::lookup(kind).ok_or_else(|| {
         let known: Vec<&str> = stages::registry().iter().map(|k| k.info().kind).collect();
@@ -431,6 +446,7 @@ fn run_on_files(
         inputs: &tables,
         work_dir,
         job_dir: Path::new("."),
+        run_date,
         progress: &NoProgress,
     };
     let outputs = stage_kind

@@ -8,6 +8,7 @@ pub mod design;
 pub mod fsio;
 pub mod job;
 pub mod journal;
+pub mod logs;
 pub mod report;
 pub mod rig;
 pub mod robot;

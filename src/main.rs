@@ -39,9 +39,17 @@ enum Command {
         /// Stages run at once (default: the number of cores).
         #[arg(long, short)]
         jobs: Option<usize>,
+        /// Day relative time windows end on, YYYY-MM-DD (default: today, UTC).
+        #[arg(long, value_parser = parse_run_date)]
+        run_date: Option<i64>,
     },
     /// Dry run: each stage cached or stale, and why.
-    Status { job: PathBuf },
+    Status {
+        job: PathBuf,
+        /// As for `run`.
+        #[arg(long, value_parser = parse_run_date)]
+        run_date: Option<i64>,
+    },
     /// Print the stage graph (Mermaid, or DOT with --dot).
     Dag {
         job: PathBuf,
@@ -74,6 +82,9 @@ enum Command {
         out: PathBuf,
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Day relative time windows end on, YYYY-MM-DD (default: today, UTC).
+        #[arg(long, value_parser = parse_run_date)]
+        run_date: Option<i64>,
     },
     /// Predict positions, load torques and deflections for conf-wrench rows.
     Predict {
@@ -141,6 +152,7 @@ fn dispatch(cli: Cli) -> Result<String, CommandError> {
             from,
             force,
             jobs,
+            run_date,
         } => {
             let jobs =
                 jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
@@ -151,11 +163,12 @@ fn dispatch(cli: Cli) -> Result<String, CommandError> {
                     from,
                     force,
                     jobs,
+                    run_date,
                 },
                 cli.quiet,
             )
         }
-        Command::Status { job } => commands::status(&job),
+        Command::Status { job, run_date } => commands::status(&job, run_date),
         Command::Dag { job, dot } => commands::dag(&job, dot),
         Command::Check { job } => commands::check(&job),
         Command::Show { table, rows } => commands::show(&table, rows),
@@ -167,6 +180,7 @@ fn dispatch(cli: Cli) -> Result<String, CommandError> {
             settings,
             out,
             seed,
+            run_date,
         } => commands::stage(
             &commands::FileStage {
                 kind: &kind,
@@ -174,6 +188,7 @@ fn dispatch(cli: Cli) -> Result<String, CommandError> {
                 cable_robot_file: cable_robot.as_deref(),
                 inputs: &inputs,
                 seed,
+                run_date: run_date.unwrap_or_else(egcal::table::time::today),
             },
             settings.as_deref(),
             &out,
@@ -221,4 +236,8 @@ fn main() -> ExitCode {
             ExitCode::from(e.exit_code())
         }
     }
+}
+
+fn parse_run_date(text: &str) -> Result<i64, String> {
+    egcal::table::time::parse_date(text).ok_or_else(|| format!("`{text}` is not a date YYYY-MM-DD"))
 }

@@ -51,9 +51,17 @@ pub struct Plan {
     pub cable_robot: CableRobotSpec,
     /// In dependency order.
     pub stages: Vec<PlannedStage>,
+    /// The day (since 1970-01-01, UTC) relative time windows end on: today, or the
+    /// `--run-date` of a replay. Part of the cache key of stages that use it.
+    pub run_date: i64,
 }
 
 impl Plan {
+    /// The job file's folder: relative paths in settings resolve here.
+    pub fn job_dir(&self) -> &Path {
+        self.job_file.parent().unwrap_or(Path::new("."))
+    }
+
     /// Reads, parses and validates a job file.
     pub fn load(path: &Path) -> Result<Plan, JobProblems> {
         let text = std::fs::read_to_string(path).map_err(|e| {
@@ -256,6 +264,7 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
         robot,
         cable_robot,
         stages,
+        run_date: crate::table::time::today(),
     })
 }
 

@@ -43,6 +43,8 @@ pub struct RunOptions {
     pub force: bool,
     /// Stages run at once (at least 1).
     pub jobs: usize,
+    /// Overrides the plan's run date (a replay of an earlier night).
+    pub run_date: Option<i64>,
 }
 
 /// The parts of a cache key, kept so `status` can say what changed.
@@ -58,6 +60,9 @@ pub struct KeyParts {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cable_robot: Option<String>,
     pub seed: u64,
+    /// What the stage reads outside its tables (logged files, run date), if anything.
+    #[serde(default, skip_serializing_if = "serde_json::Value::is_null")]
+    pub external: serde_json::Value,
 }
 
 impl KeyParts {
@@ -345,8 +350,16 @@ fn key_parts(
     stage: &PlannedStage,
     inputs: BTreeMap<String, String>,
     robot_hash: &str,
-) -> KeyParts {
-    KeyParts {
+) -> Result<KeyParts, RunError> {
+    let external = stage
+        .kind
+        .external_key(&stage.settings, plan.job_dir(), plan.run_date)
+        .map_err(|source| RunError::Stage {
+            stage: stage.id.clone(),
+            kind: stage.kind.info().kind.to_string(),
+            source: Box::new(source),
+        })?;
+    Ok(KeyParts {
         kind: stage.kind.info().kind.to_string(),
         code_version: stage.kind.info().code_version,
         settings: stage.settings.clone(),
@@ -358,7 +371,8 @@ fn key_parts(
             .uses_cable_robot
             .then(|| hash_json(&plan.cable_robot)),
         seed: plan.seed,
-    }
+        external,
+    })
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -378,7 +392,7 @@ fn execute(
         source: Box::new(source),
     };
     let hashes = input_hashes(stage, plan, upstream)?;
-    let parts = key_parts(plan, stage, hashes.clone(), robot_hash);
+    let parts = key_parts(plan, stage, hashes.clone(), robot_hash)?;
     let key = parts.key();
     if !force {
         match layout.cache.lookup(&key) {
@@ -417,7 +431,8 @@ fn execute(
         seed: stage_seed(plan.seed, &stage.id),
         inputs: &inputs,
         work_dir: &work_dir,
-        job_dir: plan.job_file.parent().unwrap_or(Path::new(".")),
+        job_dir: plan.job_dir(),
+        run_date: plan.run_date,
         progress: &progress,
     };
     let stage_error = |source| RunError::Stage {
@@ -631,7 +646,7 @@ pub fn status(plan: &Plan) -> Result<Vec<StageStatus>, RunError> {
             stage,
             input_hashes(stage, plan, &upstream)?,
             &robot_hash,
-        );
+        )?;
         let key = parts.key();
         let (cached, reasons) = match layout.cache.lookup(&key) {
             Lookup::Hit(manifest) => {

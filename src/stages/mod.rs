@@ -12,6 +12,7 @@ pub mod measure;
 pub mod poses;
 pub mod predict;
 pub mod report;
+pub mod scan_logs;
 pub mod select;
 pub mod validate;
 pub mod wrenches;
@@ -87,6 +88,8 @@ pub struct StageContext<'a> {
     pub work_dir: &'a Path,
     /// The job file's folder: relative paths in settings (driver commands) resolve here.
     pub job_dir: &'a Path,
+    /// The run's date (day number, UTC): where relative time windows end.
+    pub run_date: i64,
     pub progress: &'a dyn Progress,
 }
 
@@ -129,6 +132,18 @@ pub trait Stage: Sync {
         ctx: &StageContext,
         settings: &Self::Settings,
     ) -> Result<StageOutputs, StageError>;
+
+    /// What the stage reads besides its bound tables and settings (logged files
+    /// found by a glob, the run date of a relative window), as a value the runner
+    /// hashes into the cache key. Most stages read nothing else: `Null`.
+    fn external_key(
+        &self,
+        _settings: &Self::Settings,
+        _job_dir: &Path,
+        _run_date: i64,
+    ) -> Result<serde_json::Value, StageError> {
+        Ok(serde_json::Value::Null)
+    }
 }
 
 /// A settings value that failed to parse, with its key relative to the stage table.
@@ -154,6 +169,13 @@ pub trait StageKind: Sync {
         ctx: &StageContext,
         canonical: &serde_json::Value,
     ) -> Result<StageOutputs, StageError>;
+    /// See [`Stage::external_key`].
+    fn external_key(
+        &self,
+        canonical: &serde_json::Value,
+        job_dir: &Path,
+        run_date: i64,
+    ) -> Result<serde_json::Value, StageError>;
 }
 
 impl<S: Stage> StageKind for S {
@@ -214,10 +236,22 @@ impl<S: Stage> StageKind for S {
         ctx: &StageContext,
         canonical: &serde_json::Value,
     ) -> Result<StageOutputs, StageError> {
-        let settings: S::Settings = serde_json::from_value(canonical.clone())
-            .map_err(|e| StageError::Invalid(format!("settings: {e}")))?;
-        Stage::run(self, ctx, &settings)
+        Stage::run(self, ctx, &typed_settings::<S>(canonical)?)
     }
+
+    fn external_key(
+        &self,
+        canonical: &serde_json::Value,
+        job_dir: &Path,
+        run_date: i64,
+    ) -> Result<serde_json::Value, StageError> {
+        Stage::external_key(self, &typed_settings::<S>(canonical)?, job_dir, run_date)
+    }
+}
+
+fn typed_settings<S: Stage>(canonical: &serde_json::Value) -> Result<S::Settings, StageError> {
+    serde_json::from_value(canonical.clone())
+        .map_err(|e| StageError::Invalid(format!("settings: {e}")))
 }
 
 fn parse_settings<T: DeserializeOwned>(raw: &toml::Table) -> Result<T, SettingsProblem> {
@@ -236,6 +270,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &identifiability::IdentifiabilityStage,
         &select::SelectStage,
         &measure::MeasureStage,
+        &scan_logs::ScanLogsStage,
         &identify::IdentifyStage,
         &validate::ValidateStage,
         &predict::PredictStage,

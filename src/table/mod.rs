@@ -6,6 +6,7 @@
 
 pub mod parameters;
 pub mod schema;
+pub mod time;
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -16,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use schema::io_error;
 pub use schema::{TableError, TableSchema};
+pub use time::{now_rfc3339, parse_rfc3339_us};
 
 /// The metadata key provenance is stored under.
 pub const PROVENANCE_KEY: &str = "egcal.provenance";
@@ -190,84 +192,9 @@ pub fn frame(columns: Vec<Column>) -> DataFrame {
     DataFrame::new(height, columns).expect("columns of equal length with unique names")
 }
 
-/// Current time as RFC 3339 UTC with seconds, without a date-time crate.
-pub fn now_rfc3339() -> String {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs() as i64);
-    rfc3339_from_unix(secs)
-}
-
-/// Parses `YYYY-MM-DDTHH:MM:SS[.ffffff]Z` to microseconds since the epoch.
-pub fn parse_rfc3339_us(text: &str) -> Option<i64> {
-    let text = text.strip_suffix('Z')?;
-    let (date, time) = text.split_once('T')?;
-    let mut d = date.splitn(3, '-').map(|p| p.parse::<i64>().ok());
-    let (year, month, day) = (d.next()??, d.next()??, d.next()??);
-    let (hms, fraction) = time.split_once('.').unwrap_or((time, ""));
-    let mut t = hms.splitn(3, ':').map(|p| p.parse::<i64>().ok());
-    let (hour, minute, second) = (t.next()??, t.next()??, t.next()??);
-    if !(1..=12).contains(&month)
-        || !(1..=31).contains(&day)
-        || hour > 23
-        || minute > 59
-        || second > 60
-    {
-        return None;
-    }
-    let micros = if fraction.is_empty() {
-        0
-    } else {
-        let digits: String = fraction
-            .chars()
-            .chain(std::iter::repeat('0'))
-            .take(6)
-            .collect();
-        digits.parse::<i64>().ok()?
-    };
-    // Howard Hinnant's days-from-civil.
-    let y = if month <= 2 { year - 1 } else { year };
-    let era = y.div_euclid(400);
-    let yoe = y.rem_euclid(400);
-    let mp = (month + 9) % 12;
-    let doy = (153 * mp + 2) / 5 + day - 1;
-    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
-    let days = era * 146_097 + doe - 719_468;
-    Some(((days * 86_400 + hour * 3600 + minute * 60 + second) * 1_000_000) + micros)
-}
-
-fn rfc3339_from_unix(secs: i64) -> String {
-    let days = secs.div_euclid(86_400);
-    let rem = secs.rem_euclid(86_400);
-    // Howard Hinnant's civil-from-days.
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let day = doy - (153 * mp + 2) / 5 + 1;
-    let month = if mp < 10 { mp + 3 } else { mp - 9 };
-    let year = yoe + era * 400 + i64::from(month <= 2);
-    format!(
-        "{year:04}-{month:02}-{day:02}T{:02}:{:02}:{:02}Z",
-        rem / 3600,
-        rem % 3600 / 60,
-        rem % 60
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn rfc3339_of_known_instants() {
-        assert_eq!(rfc3339_from_unix(0), "1970-01-01T00:00:00Z");
-        assert_eq!(rfc3339_from_unix(951_782_400), "2000-02-29T00:00:00Z");
-        // Reference: Python's datetime.fromtimestamp(1795000000, UTC).
-        assert_eq!(rfc3339_from_unix(1_795_000_000), "2026-11-18T11:06:40Z");
-    }
 
     #[test]
     fn provenance_round_trips_through_the_footer() {
@@ -293,22 +220,6 @@ mod tests {
             vec![("cw_id".to_string(), "i64".to_string())]
         );
         assert_eq!(read_parquet(&path).unwrap(), df);
-    }
-
-    #[test]
-    fn rfc3339_parses_back() {
-        for secs in [0, 951_782_400, 1_795_000_000, 1_767_225_600] {
-            assert_eq!(
-                parse_rfc3339_us(&rfc3339_from_unix(secs)),
-                Some(secs * 1_000_000)
-            );
-        }
-        assert_eq!(
-            parse_rfc3339_us("2026-01-01T00:00:00.5Z"),
-            Some(1_767_225_600_500_000)
-        );
-        assert_eq!(parse_rfc3339_us("2026-13-01T00:00:00Z"), None);
-        assert_eq!(parse_rfc3339_us("yesterday"), None);
     }
 
     #[test]

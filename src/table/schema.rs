@@ -36,7 +36,7 @@ impl ColumnType {
         }
     }
 
-    fn accepts(self, dtype: &DataType) -> bool {
+    pub fn accepts(self, dtype: &DataType) -> bool {
         match self {
             ColumnType::TimestampUs => matches!(dtype, DataType::Datetime(_, _)),
             other => &other.polars() == dtype,

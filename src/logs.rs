@@ -1,0 +1,389 @@
+//! Logged measurements: finding the files of a log folder or glob, pruning them by
+//! their Hive partitions (`robot_id=…/date=…/`), scanning the rest lazily with the
+//! robot and time-window filters pushed down, and sorting out bad data.
+//!
+//! A cell logs a few tracker checks a day, for years, so the folder grows without
+//! bound while a night's re-calibration needs two weeks of one robot: partitions
+//! outside the query are never opened, and inside the kept files polars reads only
+//! the measurement columns and the rows of the window. Bad data is expected in
+//! logs (a half-written file, a NaN from a glitch, a file delivered twice): it is
+//! counted per reason and dropped, or fails the scan, as the caller chooses.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+use polars::prelude::*;
+
+use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS, WRENCH_COLUMNS};
+use crate::table::time::date_string;
+
+/// Which rows a scan keeps.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LogQuery {
+    /// A folder searched recursively for `*.parquet`, or a glob pattern.
+    pub source: PathBuf,
+    pub robot_id: String,
+    /// First and last day (day numbers since 1970-01-01, UTC), both included.
+    pub first_day: i64,
+    pub last_day: i64,
+    /// Drop bad files and rows (counting them) instead of failing.
+    pub skip_bad_data: bool,
+}
+
+/// Why a scan failed.
+#[derive(Debug, thiserror::Error)]
+pub enum LogError {
+    #[error("{source_path}: {message}")]
+    Source {
+        source_path: PathBuf,
+        message: String,
+    },
+    #[error("{file}: {message} (set `bad_data = \"skip\"` to skip bad files)")]
+    BadFile { file: PathBuf, message: String },
+    #[error(
+        "{count} logged rows fail the measurements contract, first: {reason} (set `bad_data = \"skip\"` to drop bad rows)"
+    )]
+    BadRows { count: usize, reason: String },
+    #[error("reading the logs: {0}")]
+    Polars(#[from] PolarsError),
+}
+
+/// What a scan found and what it left out, for the stage log and metadata.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ScanReport {
+    pub files_found: usize,
+    /// Files whose partition folders are outside the query (never opened).
+    pub files_pruned: usize,
+    pub files_read: usize,
+    /// Unreadable or mistyped files, with the reason.
+    pub bad_files: Vec<(PathBuf, String)>,
+    /// Rows of the robot in the window before row checks.
+    pub rows_in_window: usize,
+    /// Dropped rows by reason (`null in x_mm`, `non-finite q3_deg`, `duplicate cw_id`).
+    pub dropped_rows: BTreeMap<String, usize>,
+    /// Robot ids the opened files hold, filled only when no row matched (to explain it).
+    pub robots_seen: BTreeSet<String>,
+}
+
+/// Rows kept by a scan, in the measurements contract (spec §6), sorted by
+/// `measured_at` then `cw_id`, and the report.
+#[derive(Debug)]
+pub struct LogScan {
+    pub measurements: DataFrame,
+    /// UTC day (since 1970-01-01) of each kept row, ascending.
+    pub days: Vec<i64>,
+    pub report: ScanReport,
+}
+
+/// Required float columns of a logged row.
+fn float_columns() -> impl Iterator<Item = &'static str> {
+    JOINT_COLUMNS
+        .into_iter()
+        .chain(WRENCH_COLUMNS)
+        .chain(POSITION_COLUMNS)
+}
+
+/// Every `*.parquet` file of the query's source, sorted; the ones whose Hive
+/// partitions contradict the query are counted in `pruned` and left out.
+pub fn discover(query: &LogQuery) -> Result<(Vec<PathBuf>, usize), LogError> {
+    let source_error = |message: String| LogError::Source {
+        source_path: query.source.clone(),
+        message,
+    };
+    let mut files = Vec::new();
+    if query.source.is_dir() {
+        walk(&query.source, &mut files).map_err(|e| source_error(e.to_string()))?;
+    } else {
+        let pattern = query.source.to_string_lossy();
+        let paths = glob::glob(&pattern).map_err(|e| source_error(format!("bad glob: {e}")))?;
+        for path in paths {
+            files.push(path.map_err(|e| source_error(e.to_string()))?);
+        }
+        if files.is_empty() && !pattern.contains(['*', '?', '[']) {
+            return Err(source_error(
+                "no such folder (expected a log folder or a glob)".into(),
+            ));
+        }
+    }
+    files.retain(|p| p.extension().is_some_and(|e| e == "parquet"));
+    files.sort();
+    let found = files.len();
+    files.retain(|path| partition_matches(path, query));
+    Ok((files.clone(), found - files.len()))
+}
+
+fn walk(dir: &Path, files: &mut Vec<PathBuf>) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        if path.is_dir() {
+            walk(&path, files)?;
+        } else {
+            files.push(path);
+        }
+    }
+    Ok(())
+}
+
+/// False when a `robot_id=` or `date=` folder of the path excludes it.
+fn partition_matches(path: &Path, query: &LogQuery) -> bool {
+    path.components().all(|part| {
+        let part = part.as_os_str().to_string_lossy();
+        match part.split_once('=') {
+            Some(("robot_id", id)) => id == query.robot_id,
+            Some(("date", date)) => crate::table::time::parse_date(date)
+                .is_none_or(|day| (query.first_day..=query.last_day).contains(&day)),
+            _ => true,
+        }
+    })
+}
+
+/// Scans `files` (from [`discover`]) for the query's rows.
+pub fn scan(query: &LogQuery, files: &[PathBuf], pruned: usize) -> Result<LogScan, LogError> {
+    let mut report = ScanReport {
+        files_found: files.len() + pruned,
+        files_pruned: pruned,
+        ..ScanReport::default()
+    };
+    let from_us = query.first_day * 86_400_000_000;
+    let to_us = (query.last_day + 1) * 86_400_000_000;
+    let mut opened = Vec::new();
+    for file in files {
+        match open(file) {
+            Ok(frame) => {
+                opened.push(frame);
+                report.files_read += 1;
+            }
+            Err(message) if query.skip_bad_data => report.bad_files.push((file.clone(), message)),
+            Err(message) => {
+                return Err(LogError::BadFile {
+                    file: file.clone(),
+                    message,
+                });
+            }
+        }
+    }
+    let rows = if opened.is_empty() {
+        empty_rows()
+    } else {
+        let all = concat(opened, UnionArgs::default())?;
+        let rows = all
+            .clone()
+            .filter(
+                col("robot_id")
+                    .eq(lit(query.robot_id.clone()))
+                    .and(col("measured_at").gt_eq(lit(from_us)))
+                    .and(col("measured_at").lt(lit(to_us))),
+            )
+            .sort(["measured_at", "cw_id"], SortMultipleOptions::default())
+            .collect()?;
+        if rows.height() == 0 {
+            // Only to explain an empty result: which robots the files do hold.
+            let ids = all.select([col("robot_id").unique()]).collect()?;
+            report.robots_seen = ids
+                .column("robot_id")?
+                .str()?
+                .iter()
+                .flatten()
+                .map(str::to_string)
+                .collect();
+        }
+        rows
+    };
+    report.rows_in_window = rows.height();
+    let rows = drop_bad_rows(rows, query.skip_bad_data, &mut report)?;
+    let days = rows
+        .column("measured_at")?
+        .i64()?
+        .iter()
+        .map(|t| t.unwrap_or_default().div_euclid(86_400_000_000))
+        .collect();
+    Ok(LogScan {
+        measurements: to_contract(rows)?,
+        days,
+        report,
+    })
+}
+
+/// A lazy frame of one file's measurement columns (`measured_at` as µs, `robot_id`
+/// from the data or else the partition folder). Reads only the footer.
+fn open(file: &Path) -> Result<LazyFrame, String> {
+    let path = PlRefPath::try_from_path(file).map_err(|e| e.to_string())?;
+    let args = ScanArgsParquet {
+        hive_options: HiveOptions {
+            enabled: Some(false),
+            ..HiveOptions::default()
+        },
+        ..ScanArgsParquet::default()
+    };
+    let mut frame = LazyFrame::scan_parquet(path, args).map_err(|e| e.to_string())?;
+    let schema = frame
+        .collect_schema()
+        .map_err(|e| format!("not a readable Parquet file: {e}"))?;
+    let contract = schema::measurements();
+    let mut columns = vec![col("cw_id")];
+    for name in std::iter::once("cw_id").chain(float_columns()) {
+        let spec = contract.column(name).expect("contract column");
+        match schema.get(name) {
+            None => return Err(format!("missing required column `{name}`")),
+            Some(dtype) if !spec.dtype.accepts(dtype) => {
+                return Err(format!(
+                    "column `{name}` is {dtype}, expected {}",
+                    spec.dtype.polars()
+                ));
+            }
+            Some(_) if name == "cw_id" => {}
+            Some(_) => columns.push(col(name)),
+        }
+    }
+    columns.push(match schema.get("config_id") {
+        Some(DataType::Int64) => col("config_id"),
+        Some(other) => return Err(format!("column `config_id` is {other}, expected i64")),
+        None => lit(NULL).cast(DataType::Int64).alias("config_id"),
+    });
+    let partition_robot = file.components().find_map(|part| {
+        let part = part.as_os_str().to_string_lossy();
+        part.strip_prefix("robot_id=").map(str::to_string)
+    });
+    columns.push(match (schema.get("robot_id"), &partition_robot) {
+        (Some(DataType::String), _) => col("robot_id"),
+        (Some(other), _) => return Err(format!("column `robot_id` is {other}, expected str")),
+        (None, Some(id)) => lit(id.clone()).alias("robot_id"),
+        (None, None) => {
+            return Err("no `robot_id` column and no `robot_id=` partition folder".into());
+        }
+    });
+    let micros_per_unit = match schema.get("measured_at") {
+        Some(DataType::Datetime(unit, _)) => match unit {
+            TimeUnit::Nanoseconds => -1000,
+            TimeUnit::Microseconds => 1,
+            TimeUnit::Milliseconds => 1000,
+        },
+        Some(other) => {
+            return Err(format!(
+                "column `measured_at` is {other}, expected a timestamp"
+            ));
+        }
+        None => return Err("no `measured_at` column (time windows need it)".into()),
+    };
+    let physical = col("measured_at").cast(DataType::Int64);
+    columns.push(
+        match micros_per_unit {
+            -1000 => physical / lit(1000i64),
+            1 => physical,
+            factor => physical * lit(factor as i64),
+        }
+        .alias("measured_at"),
+    );
+    Ok(frame.select(columns))
+}
+
+fn empty_rows() -> DataFrame {
+    let mut columns = vec![Column::new("cw_id".into(), Vec::<i64>::new())];
+    columns.extend(float_columns().map(|n| Column::new(n.into(), Vec::<f64>::new())));
+    columns.push(Column::new("config_id".into(), Vec::<i64>::new()));
+    columns.push(Column::new("robot_id".into(), Vec::<String>::new()));
+    columns.push(Column::new("measured_at".into(), Vec::<i64>::new()));
+    crate::table::frame(columns)
+}
+
+/// Removes rows with a null or non-finite required value and repeated `cw_id`s
+/// (the first, oldest row is kept), counting each row under its first problem.
+fn drop_bad_rows(
+    rows: DataFrame,
+    skip: bool,
+    report: &mut ScanReport,
+) -> Result<DataFrame, LogError> {
+    let height = rows.height();
+    let mut reason: Vec<Option<String>> = vec![None; height];
+    let ids = rows.column("cw_id")?.i64()?.clone();
+    let times = rows.column("measured_at")?.i64()?.clone();
+    for (row, (id, time)) in ids.iter().zip(times.iter()).enumerate() {
+        if id.is_none() {
+            reason[row] = Some("null cw_id".into());
+        } else if time.is_none() {
+            reason[row] = Some("null measured_at".into());
+        }
+    }
+    for name in float_columns() {
+        let values = rows.column(name)?.f64()?.clone();
+        for (row, value) in values.iter().enumerate() {
+            if reason[row].is_some() {
+                continue;
+            }
+            reason[row] = match value {
+                None => Some(format!("null {name}")),
+                Some(v) if !v.is_finite() => Some(format!("non-finite {name}")),
+                Some(_) => None,
+            };
+        }
+    }
+    let mut seen = std::collections::HashSet::new();
+    for (row, id) in ids.iter().enumerate() {
+        if let (None, Some(id)) = (&reason[row], id)
+            && !seen.insert(id)
+        {
+            reason[row] = Some("duplicate cw_id".into());
+        }
+    }
+    let bad: Vec<(usize, &String)> = reason
+        .iter()
+        .enumerate()
+        .filter_map(|(row, r)| r.as_ref().map(|r| (row, r)))
+        .collect();
+    if let Some((row, first)) = bad.first()
+        && !skip
+    {
+        let id = ids.get(*row).map_or("null".into(), |id| id.to_string());
+        let day = times
+            .get(*row)
+            .map_or("?".into(), |t| date_string(t.div_euclid(86_400_000_000)));
+        return Err(LogError::BadRows {
+            count: bad.len(),
+            reason: format!("{first} (cw_id {id}, logged {day})"),
+        });
+    }
+    for (_, r) in &bad {
+        *report.dropped_rows.entry((*r).clone()).or_default() += 1;
+    }
+    let keep: BooleanChunked = reason.iter().map(|r| Some(r.is_none())).collect();
+    Ok(rows.filter(&keep)?)
+}
+
+/// `measured_at` back to a UTC µs timestamp, as in the measurements contract.
+fn to_contract(mut rows: DataFrame) -> Result<DataFrame, LogError> {
+    let stamps = rows.column("measured_at")?.cast(&DataType::Datetime(
+        TimeUnit::Microseconds,
+        Some(TimeZone::UTC),
+    ))?;
+    rows.replace("measured_at", stamps)?;
+    Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn query(robot: &str) -> LogQuery {
+        LogQuery {
+            source: PathBuf::from("logs"),
+            robot_id: robot.into(),
+            first_day: crate::table::time::parse_date("2026-11-08").unwrap(),
+            last_day: crate::table::time::parse_date("2026-11-21").unwrap(),
+            skip_bad_data: true,
+        }
+    }
+
+    #[test]
+    fn partitions_outside_the_query_are_pruned() {
+        let q = query("r1");
+        let keeps = |p: &str| partition_matches(Path::new(p), &q);
+        assert!(keeps("logs/robot_id=r1/date=2026-11-08/a.parquet"));
+        assert!(keeps("logs/robot_id=r1/date=2026-11-21/a.parquet"));
+        assert!(!keeps("logs/robot_id=r1/date=2026-11-22/a.parquet"));
+        assert!(!keeps("logs/robot_id=r1/date=2026-11-07/a.parquet"));
+        assert!(!keeps("logs/robot_id=r2/date=2026-11-10/a.parquet"));
+        // Not partitioned, or an unparsable date: opened and filtered by the data.
+        assert!(keeps("logs/2026/a.parquet"));
+        assert!(keeps("logs/robot_id=r1/date=latest/a.parquet"));
+    }
+}

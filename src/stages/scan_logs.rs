@@ -1,0 +1,319 @@
+//! `scan_logs`: the logged measurements of one robot over a time window, as the
+//! `measurements` table of a nightly re-calibration, with a time-split `selection`
+//! (identify on the older days, validate on the newest) — see [`crate::logs`].
+//!
+//! The window is relative to the run date (`last = "14d"`: the run date and the 13
+//! days before it) or absolute (`from`/`to`). The files found and their content
+//! hashes, and the run date, are part of the cache key: a new log file or a new
+//! night re-runs the stage, an unchanged folder does not.
+
+use std::path::{Path, PathBuf};
+
+use polars::prelude::*;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use crate::logs::{self, LogQuery, ScanReport};
+use crate::table::schema;
+use crate::table::time::{date_string, parse_date};
+
+pub struct ScanLogsStage;
+
+/// What to do with unreadable files and rows that break the measurements contract.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum BadData {
+    /// Count them by reason, leave them out, carry on.
+    #[default]
+    Skip,
+    /// Stop the run at the first bad file or with the count of bad rows.
+    Fail,
+}
+
+/// Settings of `scan_logs`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScanLogsSettings {
+    /// Log folder (searched recursively for `*.parquet`; `robot_id=…` and
+    /// `date=YYYY-MM-DD` folders prune) or a glob, relative to the job file.
+    pub logs: String,
+    /// The robot whose rows to keep.
+    pub robot_id: String,
+    /// Window of whole days ending on the run date, e.g. `"14d"`. Ignored when
+    /// `from` is set.
+    pub last: String,
+    /// First day of an absolute window, `YYYY-MM-DD`.
+    pub from: Option<String>,
+    /// Last day of an absolute window (included), `YYYY-MM-DD`; default the run date.
+    pub to: Option<String>,
+    /// Newest logged days held out of identification (role `validation`).
+    pub holdout_days: u32,
+    /// Fewest identification (older-day) rows the window must hold.
+    pub min_rows: usize,
+    pub bad_data: BadData,
+}
+
+impl Default for ScanLogsSettings {
+    fn default() -> Self {
+        ScanLogsSettings {
+            logs: String::new(),
+            robot_id: String::new(),
+            last: "14d".into(),
+            from: None,
+            to: None,
+            holdout_days: 1,
+            min_rows: 30,
+            bad_data: BadData::Skip,
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "scan_logs",
+    uses_cable_robot: false,
+    summary: "Logged measurements of one robot over a time window, split by day for validation",
+    code_version: 1,
+    inputs: &[],
+    outputs: &[
+        TableSlot {
+            name: "measurements",
+            schema: schema::measurements,
+            required: true,
+            meaning: "the robot's good logged rows in the window, oldest first",
+        },
+        TableSlot {
+            name: "selection",
+            schema: schema::selection,
+            required: true,
+            meaning: "calibration = older days, validation = the newest holdout_days",
+        },
+    ],
+};
+
+impl ScanLogsSettings {
+    fn query(&self, job_dir: &Path, run_date: i64) -> Result<LogQuery, StageError> {
+        let invalid = |message: String| StageError::Invalid(message);
+        if self.logs.is_empty() {
+            return Err(invalid(
+                "setting `logs` is required: a log folder or glob".into(),
+            ));
+        }
+        if self.robot_id.is_empty() {
+            return Err(invalid("setting `robot_id` is required".into()));
+        }
+        let date = |key: &str, text: &str| {
+            parse_date(text).ok_or_else(|| {
+                invalid(format!(
+                    "setting `{key}`: `{text}` is not a date YYYY-MM-DD"
+                ))
+            })
+        };
+        let last_day = match &self.to {
+            Some(to) => date("to", to)?,
+            None => run_date,
+        };
+        let first_day = match &self.from {
+            Some(from) => date("from", from)?,
+            None => {
+                let days = self
+                    .last
+                    .strip_suffix('d')
+                    .and_then(|n| n.parse::<i64>().ok())
+                    .filter(|n| *n >= 1)
+                    .ok_or_else(|| {
+                        invalid(format!(
+                            "setting `last`: `{}` is not a number of days like \"14d\"",
+                            self.last
+                        ))
+                    })?;
+                last_day - days + 1
+            }
+        };
+        if first_day > last_day {
+            return Err(invalid(format!(
+                "the window {} .. {} is empty",
+                date_string(first_day),
+                date_string(last_day)
+            )));
+        }
+        Ok(LogQuery {
+            source: job_dir.join(&self.logs),
+            robot_id: self.robot_id.clone(),
+            first_day,
+            last_day,
+            skip_bad_data: self.bad_data == BadData::Skip,
+        })
+    }
+}
+
+impl Stage for ScanLogsStage {
+    type Settings = ScanLogsSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn external_key(
+        &self,
+        settings: &ScanLogsSettings,
+        job_dir: &Path,
+        run_date: i64,
+    ) -> Result<serde_json::Value, StageError> {
+        let query = settings.query(job_dir, run_date)?;
+        let (files, _) = logs::discover(&query).map_err(|e| StageError::Failed(e.to_string()))?;
+        let hashes = files
+            .iter()
+            .map(|file| {
+                crate::fsio::hash_file(file)
+                    .map(|hash| (relative(file, &query.source), hash))
+                    .map_err(|e| StageError::Failed(format!("{}: {e}", file.display())))
+            })
+            .collect::<Result<std::collections::BTreeMap<_, _>, _>>()?;
+        Ok(serde_json::json!({
+            "window": [date_string(query.first_day), date_string(query.last_day)],
+            "files": hashes,
+        }))
+    }
+
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &ScanLogsSettings,
+    ) -> Result<StageOutputs, StageError> {
+        let query = settings.query(ctx.job_dir, ctx.run_date)?;
+        let failed = |e: logs::LogError| StageError::Failed(e.to_string());
+        let (files, pruned) = logs::discover(&query).map_err(failed)?;
+        let scan = logs::scan(&query, &files, pruned).map_err(failed)?;
+        let window = format!(
+            "{} .. {}",
+            date_string(query.first_day),
+            date_string(query.last_day)
+        );
+        for (file, reason) in &scan.report.bad_files {
+            ctx.progress
+                .note(&format!("skipped {}: {reason}", file.display()));
+        }
+        let measurements = scan.measurements;
+        if measurements.height() == 0 {
+            return Err(StageError::Failed(no_rows_message(
+                &query,
+                &window,
+                &scan.report,
+            )));
+        }
+        let days = &scan.days;
+        let mut distinct = days.to_vec();
+        distinct.dedup();
+        let holdout = settings.holdout_days as usize;
+        if distinct.len() <= holdout {
+            return Err(StageError::Failed(format!(
+                "robot `{}` has logs on {} day(s) in {window}; holding out {holdout} needs at least {}",
+                query.robot_id,
+                distinct.len(),
+                holdout + 1
+            )));
+        }
+        let first_holdout_day = distinct[distinct.len() - holdout];
+        let calibration_rows = days.iter().filter(|d| **d < first_holdout_day).count();
+        if calibration_rows < settings.min_rows {
+            return Err(StageError::Failed(format!(
+                "robot `{}` has {calibration_rows} identification rows in {window} before the hold-out day {}, fewer than min_rows = {}",
+                query.robot_id,
+                date_string(first_holdout_day),
+                settings.min_rows
+            )));
+        }
+        let roles: Vec<&str> = days
+            .iter()
+            .map(|d| {
+                if *d < first_holdout_day {
+                    "calibration"
+                } else {
+                    "validation"
+                }
+            })
+            .collect();
+        let ids = measurements
+            .column("cw_id")
+            .map_err(|e| StageError::Failed(e.to_string()))?
+            .clone();
+        let selection = crate::table::frame(vec![
+            ids,
+            Column::new("role".into(), roles),
+            Column::new("order".into(), (0..days.len() as i64).collect::<Vec<_>>()),
+        ]);
+        let mut outputs = StageOutputs::default();
+        let report = &scan.report;
+        let facts = [
+            ("window", window),
+            (
+                "files",
+                format!(
+                    "{} found, {} pruned by partition, {} read",
+                    report.files_found, report.files_pruned, report.files_read
+                ),
+            ),
+            ("bad_files", report.bad_files.len().to_string()),
+            ("rows_in_window", report.rows_in_window.to_string()),
+            ("calibration_rows", calibration_rows.to_string()),
+            (
+                "validation_rows",
+                (days.len() - calibration_rows).to_string(),
+            ),
+            ("holdout_from", date_string(first_holdout_day)),
+        ];
+        for (name, value) in facts {
+            outputs.facts.insert(name.into(), value);
+        }
+        for (reason, count) in &report.dropped_rows {
+            outputs
+                .facts
+                .insert(format!("dropped: {reason}"), count.to_string());
+        }
+        for (file, reason) in &report.bad_files {
+            outputs.facts.insert(
+                format!("bad file: {}", relative(file, &query.source)),
+                reason.clone(),
+            );
+        }
+        outputs.tables.insert("measurements".into(), measurements);
+        outputs.tables.insert("selection".into(), selection);
+        Ok(outputs)
+    }
+}
+
+/// Explains an empty scan: nothing there, or rows of other robots only.
+fn no_rows_message(query: &LogQuery, window: &str, report: &ScanReport) -> String {
+    let mut message = format!(
+        "no logged rows of robot `{}` in {window} under {} ({} file(s) found, {} pruned by partition, {} read",
+        query.robot_id,
+        query.source.display(),
+        report.files_found,
+        report.files_pruned,
+        report.files_read
+    );
+    if !report.bad_files.is_empty() {
+        message += &format!(", {} unreadable", report.bad_files.len());
+    }
+    message += ")";
+    let others: Vec<&str> = report
+        .robots_seen
+        .iter()
+        .map(String::as_str)
+        .filter(|r| *r != query.robot_id)
+        .collect();
+    if !others.is_empty() {
+        message += &format!("; the files read hold robot(s) {}", others.join(", "));
+    }
+    message
+}
+
+/// `file` relative to the log source folder, for stable keys and short messages.
+fn relative(file: &Path, source: &Path) -> String {
+    file.strip_prefix(source)
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| file.to_path_buf())
+        .display()
+        .to_string()
+}
