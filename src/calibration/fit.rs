@@ -20,7 +20,7 @@
 //! up, not converged, after `max_iterations` steps tried.
 //!
 //! Each step solves the column-scaled least-squares problem with a QR
-//! factorisation (faer) rather than the normal equations of eq. (25): the same
+//! factorisation (faer, sequential: see [`dense`]) rather than the normal equations of eq. (25): the same
 //! solution, without squaring the condition number. Columns are scaled to unit
 //! norm, so Marquardt's damping `λ·diag(JᵀJ)` becomes `λ·I`, appended as rows.
 //!
@@ -29,9 +29,9 @@
 //! every step).
 
 use faer::Mat;
-use faer::prelude::*;
 use nalgebra::Vector3;
 
+use super::dense;
 use crate::robot::{
     BatchJacobian, ConfWrench, PARAM_COUNT, ParamId, ParamValues, Robot, batch_jacobian,
     batch_predict,
@@ -290,7 +290,7 @@ fn solve_step(point: &Point, m: usize, damping: f64) -> Step {
             0.0
         }
     });
-    let y = a.qr().solve_lstsq(&rhs);
+    let y = dense::lstsq(a.as_ref(), rhs.as_ref());
     let delta: Vec<f64> = (0..m).map(|j| y[(j, 0)] * scale[j]).collect();
     let mut step_mm: f64 = 0.0;
     let mut predicted_reduction = 0.0;
@@ -447,9 +447,8 @@ fn statistics(point: &Point, free: &[ParamId]) -> Result<Statistics, FitError> {
         .sum();
     let sigma2 = weighted_rss / (equations - m) as f64;
     let (scaled, scale) = scaled_jacobian(&point.batch.jacobian, &point.weights, equations, m);
-    let svd = scaled.thin_svd().map_err(|_| FitError::Singular)?;
-    let s = svd.S().column_vector();
-    let v = svd.V();
+    let (s, v) = dense::svd(scaled.as_ref(), true).map_err(|_| FitError::Singular)?;
+    let v = v.ok_or(FitError::Singular)?;
     let s_max = (0..m).map(|k| s[k]).fold(0.0, f64::max);
     let s_min = (0..m).map(|k| s[k]).fold(f64::INFINITY, f64::min);
     if !(s_min > 1e-12 * s_max) {

@@ -2,6 +2,7 @@
 //! data can identify) and the least-squares fit (Levenberg–Marquardt or the paper's
 //! Gauss–Newton) with standard errors. Knows nothing of tables or stages.
 
+mod dense;
 pub mod fit;
 pub mod rank;
 
