@@ -273,7 +273,7 @@ fn moves(dir: &Path) -> Vec<i64> {
 #[test]
 fn a_garbage_reply_stops_the_campaign_with_a_clear_error_and_keeps_every_measured_row() {
     for (mode, says) in [
-        ("text", "expected value at line 1 column 1: \"tracker: warming up"),
+        ("text", ": \"tracker: warming up, please wait\"; the 3 rows"),
         ("shape", "invalid length 2, expected an array of length 3"),
         // Not UTF-8: shown replaced and escaped, not taken for the driver's death.
         ("binary", "\"\u{fffd}\u{fffd}\\0\\u{1} garbage\""),
