@@ -133,9 +133,7 @@ fn identify(c: &mut Criterion) {
         fit: FitOptions::default(),
     };
     c.bench_function("identify all four models, 50 rows", |b| {
-        b.iter(|| {
-            ModelName::ALL.map(|model| calibrate(&robot, model, &rows, &measured, &options))
-        })
+        b.iter(|| ModelName::ALL.map(|model| calibrate(&robot, model, &rows, &measured, &options)))
     });
 }
 
@@ -173,25 +171,28 @@ fn simulate(c: &mut Criterion) {
     );
     let cable_robot = CableRobotSpec::default();
     let settings = MeasureSettings::default();
-    c.bench_function("measure stage on the simulator, 875 rows, with journal", |b| {
-        b.iter_batched(
-            || tempfile::tempdir().expect("temporary folder"),
-            |work| {
-                let ctx = StageContext {
-                    robot: &robot,
-                    cable_robot: &cable_robot,
-                    seed: 5,
-                    inputs: &inputs,
-                    work_dir: work.path(),
-                    job_dir: work.path(),
-                    progress: &NoProgress,
-                };
-                let outputs = MeasureStage.run(&ctx, &settings).expect("campaign");
-                (outputs, work)
-            },
-            BatchSize::PerIteration,
-        )
-    });
+    c.bench_function(
+        "measure stage on the simulator, 875 rows, with journal",
+        |b| {
+            b.iter_batched(
+                || tempfile::tempdir().expect("temporary folder"),
+                |work| {
+                    let ctx = StageContext {
+                        robot: &robot,
+                        cable_robot: &cable_robot,
+                        seed: 5,
+                        inputs: &inputs,
+                        work_dir: work.path(),
+                        job_dir: work.path(),
+                        progress: &NoProgress,
+                    };
+                    let outputs = MeasureStage.run(&ctx, &settings).expect("campaign");
+                    (outputs, work)
+                },
+                BatchSize::PerIteration,
+            )
+        },
+    );
 }
 
 criterion_group! {

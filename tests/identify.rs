@@ -345,8 +345,8 @@ loss = "huber"
     }
 
     let out = dir.path().join("out/identify");
-    let residuals = table::read_checked(&out.join("residuals.parquet"), &schema::residuals())
-        .unwrap();
+    let residuals =
+        table::read_checked(&out.join("residuals.parquet"), &schema::residuals()).unwrap();
     assert_eq!(residuals.height(), 4 * 40);
     let models = schema::str_values(&residuals, "model", Path::new("r")).unwrap();
     let ids = schema::i64_values(&residuals, "cw_id", Path::new("r")).unwrap();

@@ -287,7 +287,10 @@ fn a_garbage_reply_stops_the_campaign_with_a_clear_error_and_keeps_every_measure
             says,
             "the 3 rows measured so far are kept",
         ] {
-            assert!(stderr.contains(expected), "{mode}: `{expected}` not in {stderr}");
+            assert!(
+                stderr.contains(expected),
+                "{mode}: `{expected}` not in {stderr}"
+            );
         }
         assert!(!dir.path().join("out/measure/measurements.parquet").exists());
 

@@ -7,10 +7,10 @@
 //! rows (`benches/identify.rs`). These wrappers call faer's low-level routines with
 //! `Par::Seq` instead, leaving the global setting alone for other modules.
 
+use faer::diag::Diag;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::svd::{ComputeSvdVectors, SvdError};
 use faer::linalg::{qr, svd};
-use faer::diag::Diag;
 use faer::{Conj, Mat, MatRef, Par};
 
 /// Least-squares solution `x` of `a·x ≈ b` (`a` with at least as many rows as
@@ -122,9 +122,9 @@ mod tests {
         let a = example();
         let (values, v) = svd(a.as_ref(), true).unwrap();
         let reference = a.thin_svd().unwrap();
-        for k in 0..3 {
+        for (k, value) in values.iter().enumerate() {
             let want = reference.S().column_vector()[k];
-            assert!((values[k] - want).abs() < 1e-12 * want);
+            assert!((value - want).abs() < 1e-12 * want);
         }
         // Columns of V agree up to sign.
         let v = v.unwrap();

@@ -451,7 +451,7 @@ fn statistics(point: &Point, free: &[ParamId]) -> Result<Statistics, FitError> {
     let v = v.ok_or(FitError::Singular)?;
     let s_max = (0..m).map(|k| s[k]).fold(0.0, f64::max);
     let s_min = (0..m).map(|k| s[k]).fold(f64::INFINITY, f64::min);
-    if !(s_min > 1e-12 * s_max) {
+    if !s_min.is_finite() || s_min <= 1e-12 * s_max {
         return Err(FitError::Singular);
     }
     // Scaled covariance without σ²: C = V·S⁻²·Vᵀ.
@@ -488,8 +488,7 @@ fn scaled_jacobian(
     rows: usize,
     m: usize,
 ) -> (Mat<f64>, Vec<f64>) {
-    let weighted =
-        Mat::<f64>::from_fn(rows, m, |r, j| jacobian[r * m + j] * weights[r / 3].sqrt());
+    let weighted = Mat::<f64>::from_fn(rows, m, |r, j| jacobian[r * m + j] * weights[r / 3].sqrt());
     let scale: Vec<f64> = (0..m)
         .map(|j| {
             let norm = weighted.col(j).norm_l2();

@@ -294,8 +294,7 @@ impl Stage for IdentifyStage {
                     settings.max_iterations
                 ));
             }
-            for (key, value) in model_facts(model, &result, &ids, settings.outlier_threshold_mm)
-            {
+            for (key, value) in model_facts(model, &result, &ids, settings.outlier_threshold_mm) {
                 ctx.progress.note(&format!("{model}: {key} = {value}"));
                 outputs.facts.insert(format!("{model}_{key}"), value);
             }
