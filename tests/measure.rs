@@ -212,3 +212,130 @@ fn a_driver_timeout_fails_that_row_only_and_late_replies_are_ignored() {
     );
     assert_eq!(measurements(dir.path()).height(), 14);
 }
+
+/// A driver that answers like a rig, logs every `move_joints` to a file, and
+/// answers `measure` for one row with garbage: `text` (not JSON), `shape` (a
+/// position with two coordinates), `binary` (not even UTF-8) or nothing wrong (`none`).
+const GARBAGE_DRIVER: &str = r#"
+import json, sys
+mode, bad_row, log = sys.argv[1], int(sys.argv[2]), open(sys.argv[3], "a")
+for line in sys.stdin:
+    request = json.loads(line)
+    method, rid = request["method"], request["id"]
+    result = {}
+    if method == "hello":
+        result = {"protocol": 1, "name": "garbage test driver"}
+    elif method == "move_joints":
+        row, q = request["params"]["cw_id"], request["params"]["q_deg"]
+        log.write(f"{row}\n")
+        log.flush()
+    elif method == "read_joints":
+        result = {"q_deg": q}
+    elif method == "read_wrench":
+        result = {"wrench": [0.0] * 6}
+    elif method == "measure":
+        if row == bad_row and mode == "text":
+            print("tracker: warming up, please wait", flush=True)
+            continue
+        if row == bad_row and mode == "shape":
+            print(json.dumps({"id": rid, "result": {"position_mm": [1.0, 2.0]}}), flush=True)
+            continue
+        if row == bad_row and mode == "binary":
+            sys.stdout.buffer.write(b"\xff\xfe\x00\x01 garbage\n")
+            sys.stdout.flush()
+            continue
+        result = {"position_mm": [sum(q), 1.0, 2.0]}
+    elif method == "shutdown":
+        print(json.dumps({"id": rid, "result": {}}), flush=True)
+        break
+    print(json.dumps({"id": rid, "result": result}), flush=True)
+"#;
+
+/// The measure stage's settings for [`GARBAGE_DRIVER`] in `dir`.
+fn garbage_driver_settings(dir: &Path, mode: &str, bad_row: i64) -> String {
+    let script = dir.join("driver.py");
+    std::fs::write(&script, GARBAGE_DRIVER).unwrap();
+    format!(
+        "driver = \"external\"\ncommand = [\"python3\", \"{}\", \"{mode}\", \"{bad_row}\", \"{}\"]\ntimeout_s = 10.0",
+        script.display(),
+        dir.join("moves.log").display()
+    )
+}
+
+fn moves(dir: &Path) -> Vec<i64> {
+    std::fs::read_to_string(dir.join("moves.log"))
+        .unwrap_or_default()
+        .lines()
+        .map(|l| l.parse().unwrap())
+        .collect()
+}
+
+#[test]
+fn a_garbage_reply_stops_the_campaign_with_a_clear_error_and_keeps_every_measured_row() {
+    for (mode, says) in [
+        ("text", ": \"tracker: warming up, please wait\"; the 3 rows"),
+        ("shape", "invalid length 2, expected an array of length 3"),
+        // Not UTF-8: shown replaced and escaped, not taken for the driver's death.
+        ("binary", "\"\u{fffd}\u{fffd}\\0\\u{1} garbage\""),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let job = measure_job(dir.path(), &garbage_driver_settings(dir.path(), mode, 4));
+        let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+        assert_eq!(code, 3, "{mode}: {stderr}");
+        for expected in [
+            "cw_id 4 (input row 3): driver sent a malformed reply to `measure`",
+            says,
+            "the 3 rows measured so far are kept",
+        ] {
+            assert!(
+                stderr.contains(expected),
+                "{mode}: `{expected}` not in {stderr}"
+            );
+        }
+        assert!(!dir.path().join("out/measure/measurements.parquet").exists());
+
+        // A fixed driver resumes after the 3 rows; none is measured twice or lost.
+        let job = measure_job(dir.path(), &garbage_driver_settings(dir.path(), "none", 0));
+        let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+        assert_eq!(code, 0, "{mode}: {stderr}");
+        assert!(
+            stderr.contains("resuming: 3 of 15 rows already measured"),
+            "{mode}: {stderr}"
+        );
+        let df = measurements(dir.path());
+        let ids = table::schema::i64_values(&df, "cw_id", Path::new("m")).unwrap();
+        assert_eq!(ids, (1..=15).collect::<Vec<i64>>(), "{mode}");
+        // Row 4 is moved to again (its garbage reading was not recorded), no other.
+        assert_eq!(
+            moves(dir.path()),
+            [1, 2, 3, 4, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15],
+            "{mode}"
+        );
+    }
+}
+
+#[test]
+fn an_unsafe_wrench_is_refused_before_the_move_and_the_rows_before_it_are_kept() {
+    let dir = tempfile::tempdir().unwrap();
+    let driver = garbage_driver_settings(dir.path(), "none", 0);
+    // cw_id 9 asks for fx = −118.8 N, beyond a 114 N bound; rows 1–8 are within it.
+    let job = measure_job(dir.path(), &format!("{driver}\nmax_force_n = 114.0"));
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 3, "{stderr}");
+    assert!(
+        stderr.contains("safety stop before cw_id 9 (input row 8): fx_n = -118.7")
+            && stderr.contains("exceeds the bound ±114"),
+        "{stderr}"
+    );
+    // The driver never saw the unsafe row.
+    assert_eq!(moves(dir.path()), (1..=8).collect::<Vec<i64>>());
+
+    let job = measure_job(dir.path(), &driver);
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stderr.contains("resuming: 8 of 15 rows already measured"),
+        "{stderr}"
+    );
+    assert_eq!(measurements(dir.path()).height(), 15);
+}

@@ -1,7 +1,8 @@
 //! Calibration maths above the robot model: rank analysis (which parameters the
-//! data can identify) and the Gauss–Newton fit with standard errors. Knows nothing
-//! of tables or stages.
+//! data can identify) and the least-squares fit (Levenberg–Marquardt or the paper's
+//! Gauss–Newton) with standard errors. Knows nothing of tables or stages.
 
+mod dense;
 pub mod fit;
 pub mod rank;
 
@@ -9,7 +10,7 @@ use nalgebra::Vector3;
 
 use crate::robot::{ConfWrench, ParamId, ParamValues, Robot};
 use crate::table::parameters::{ModelName, ParamStatus, ParameterSet};
-use fit::{Fit, FitError, FitOptions, Iteration};
+use fit::{Fit, FitError, FitOptions, Iteration, Stop};
 use rank::RankAnalysis;
 
 /// Options of a whole calibration.
@@ -21,6 +22,9 @@ pub struct CalibrationOptions {
     pub fit: FitOptions,
 }
 
+/// Parameter pairs reported as the strongest correlations.
+pub const CORRELATIONS_REPORTED: usize = 5;
+
 /// One model's identification.
 #[derive(Debug, Clone)]
 pub struct ModelResult {
@@ -28,6 +32,22 @@ pub struct ModelResult {
     pub trace: Vec<Iteration>,
     pub rank: Option<RankAnalysis>,
     pub converged: bool,
+    /// `measured − predicted` per row with the model's values (mm).
+    pub residuals_mm: Vec<Vector3<f64>>,
+    /// The loss's weight of each row (1 where nothing is fitted).
+    pub weights: Vec<f64>,
+    /// Fit diagnostics; `None` where nothing is fitted (the nominal model).
+    pub diagnostics: Option<Diagnostics>,
+}
+
+/// What the fit says about its own reliability.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Diagnostics {
+    pub stop: Stop,
+    /// σ_max / σ_min of the column-scaled, weighted Jacobian at the solution.
+    pub condition_number: f64,
+    /// The most correlated parameter pairs, strongest |ρ| first.
+    pub correlations: Vec<(ParamId, ParamId, f64)>,
 }
 
 /// Identifies one model from the rows and measured positions.
@@ -37,6 +57,9 @@ pub struct ModelResult {
 ///   any calibration).
 /// * `kinematic`: every identifiable candidate except compliances (held at zero).
 /// * `elastogeometric`: every identifiable candidate.
+///
+/// Dependent candidates (rank analysis at nominal, paper §III.D) stay at nominal
+/// with status `dependent`; parameters outside the model keep status `fixed`.
 pub fn calibrate(
     robot: &Robot,
     model: ModelName,
@@ -63,21 +86,19 @@ pub fn calibrate(
     };
     let mut set = ParameterSet::fixed(model, nominal);
     if candidates.is_empty() {
+        let residuals_mm = fit::residuals(robot, &nominal, rows, measured);
         return Ok(ModelResult {
             set,
             trace: Vec::new(),
             rank: None,
             converged: true,
+            weights: vec![1.0; residuals_mm.len()],
+            residuals_mm,
+            diagnostics: None,
         });
     }
     let rank = rank::analyse(robot, &nominal, rows, &candidates, options.rank_tolerance);
-    let Fit {
-        values,
-        std_errors,
-        trace,
-        converged,
-        ..
-    } = fit::fit(
+    let fit: Fit = fit::fit(
         robot,
         &nominal,
         rows,
@@ -85,8 +106,13 @@ pub fn calibrate(
         &rank.independent,
         &options.fit,
     )?;
-    set.values = values;
-    set.std_errors = std_errors;
+    let diagnostics = Diagnostics {
+        stop: fit.stop,
+        condition_number: fit.condition_number,
+        correlations: fit.strongest_correlations(CORRELATIONS_REPORTED),
+    };
+    set.values = fit.values;
+    set.std_errors = fit.std_errors;
     for id in &rank.independent {
         set.status[id.index()] = ParamStatus::Identified;
     }
@@ -95,8 +121,11 @@ pub fn calibrate(
     }
     Ok(ModelResult {
         set,
-        trace,
+        trace: fit.trace,
         rank: Some(rank),
-        converged,
+        converged: fit.converged,
+        residuals_mm: fit.residuals_mm,
+        weights: fit.weights,
+        diagnostics: Some(diagnostics),
     })
 }

@@ -11,8 +11,8 @@
 //! is cross-checked with the SVD of the same matrix at the same tolerance.
 
 use faer::Mat;
-use faer::prelude::*;
 
+use super::dense;
 use crate::robot::{ConfWrench, ParamId, ParamValues, Robot, batch_jacobian, params::ParamKind};
 
 /// Result of a rank analysis.
@@ -96,20 +96,21 @@ pub fn analyse(
         }
     }
 
-    // Which kept columns each dropped one is a combination of.
+    // Which kept columns each dropped one is a combination of (one QR, every
+    // dropped column a right-hand side).
     let kept_matrix = Mat::<f64>::from_fn(n, kept.len(), |r, j| unit[(r, kept[j])]);
-    let qr = kept_matrix.qr();
+    let dropped_matrix = Mat::<f64>::from_fn(n, dropped.len(), |r, d| unit[(r, dropped[d])]);
+    let coefficients = if kept.is_empty() || dropped.is_empty() {
+        Mat::<f64>::zeros(0, dropped.len())
+    } else {
+        dense::lstsq(kept_matrix.as_ref(), dropped_matrix.as_ref())
+    };
     let mut dependent: Vec<(ParamId, Vec<ParamId>)> = dropped
         .iter()
-        .map(|&c| {
-            let rhs = Mat::<f64>::from_fn(n, 1, |r, _| unit[(r, c)]);
-            let coefficients = if kept.is_empty() {
-                Mat::<f64>::zeros(0, 1)
-            } else {
-                qr.solve_lstsq(&rhs)
-            };
+        .enumerate()
+        .map(|(d, &c)| {
             let mut partners: Vec<ParamId> = (0..kept.len())
-                .filter(|&j| coefficients[(j, 0)].abs() > 1e-3)
+                .filter(|&j| coefficients[(j, d)].abs() > 1e-3)
                 .map(|j| ordered[kept[j]])
                 .collect();
             partners.sort();
@@ -118,7 +119,10 @@ pub fn analyse(
         .collect();
     dependent.sort_by_key(|(id, _)| *id);
 
-    let singular_values = unit.singular_values().unwrap_or_default();
+    let mut singular_values = dense::svd(unit.as_ref(), false)
+        .map(|(values, _)| values)
+        .unwrap_or_default();
+    singular_values.sort_by(|a, b| b.total_cmp(a));
     let sigma_max = singular_values.first().copied().unwrap_or(0.0);
     let svd_rank = singular_values
         .iter()

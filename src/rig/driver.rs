@@ -49,10 +49,20 @@ impl ExternalDriver {
             .ok_or_else(|| RigError::Fatal("driver has no stdout".into()))?;
         let (sender, lines) = channel();
         std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines() {
-                let Ok(line) = line else { break };
-                if sender.send(line).is_err() {
-                    break;
+            // Bytes, not `lines()`: a reply that is not UTF-8 must reach the JSON
+            // check as a malformed reply, not end the stream as if the driver died.
+            let mut stdout = BufReader::new(stdout);
+            let mut buffer = Vec::new();
+            loop {
+                buffer.clear();
+                match stdout.read_until(b'\n', &mut buffer) {
+                    Ok(0) | Err(_) => break,
+                    Ok(_) => {
+                        let line = String::from_utf8_lossy(&buffer).trim_end().to_string();
+                        if sender.send(line).is_err() {
+                            break;
+                        }
+                    }
                 }
             }
         });
@@ -111,7 +121,8 @@ impl ExternalDriver {
             };
             let reply: Reply = serde_json::from_str(&line).map_err(|e| {
                 RigError::Fatal(format!(
-                    "driver sent a malformed reply to `{method}`: {e}: {line}"
+                    "driver sent a malformed reply to `{method}`: {e}: {}",
+                    excerpt(&line)
                 ))
             })?;
             if reply.id < id {
@@ -189,6 +200,16 @@ impl Drop for ExternalDriver {
         }
         let _ = self.child.kill();
         let _ = self.child.wait();
+    }
+}
+
+/// A reply line for an error message: quoted with control characters escaped (a
+/// garbage reply may hold any bytes), and cut short.
+fn excerpt(line: &str) -> String {
+    const SHOWN_CHARS: usize = 200;
+    match line.char_indices().nth(SHOWN_CHARS) {
+        Some((end, _)) => format!("{:?}… ({} bytes)", &line[..end], line.len()),
+        None => format!("{line:?}"),
     }
 }
 

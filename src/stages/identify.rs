@@ -1,9 +1,14 @@
 //! `identify`: kinematic and elasto-geometric identification (paper §III) from
 //! measured rows — all of them, or those a `selection` marks `calibration`.
 //!
-//! Writes the `parameters` table (spec §6) with one set per requested model and the
-//! Gauss–Newton trace. Dependent parameters are found numerically by rank analysis
-//! at nominal and held at nominal (status `dependent`).
+//! Writes the `parameters` table (spec §6) with one set per requested model, the
+//! residuals of each model on its rows, and the convergence trace. Dependent
+//! parameters are found numerically by rank analysis at nominal and held at
+//! nominal (status `dependent`).
+//!
+//! The log and the output metadata (facts) carry, per fitted model, why the
+//! iteration stopped, the condition number of the scaled Jacobian, the strongest
+//! parameter correlations and the rows beyond the outlier threshold.
 
 use std::collections::HashSet;
 
@@ -16,14 +21,37 @@ use super::{
     InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot,
     conf_wrench_rows,
 };
-use crate::calibration::fit::FitOptions;
-use crate::calibration::{CalibrationOptions, calibrate};
+use crate::calibration::fit::{Algorithm, FitOptions, Loss};
+use crate::calibration::{CalibrationOptions, ModelResult, calibrate};
 use crate::robot::{ConfWrench, ParamId, ParamValues};
 use crate::table::frame;
 use crate::table::parameters::{self, ModelName};
 use crate::table::schema::{self, f64_values, i64_values, str_values};
 
 pub struct IdentifyStage;
+
+/// How the fit steps (see `calibration::fit`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum AlgorithmSetting {
+    /// Levenberg–Marquardt with column scaling: damped steps, taken only when the
+    /// cost drops; stops on `stop_step_mm`, `stop_relative_cost` or `max_iterations`.
+    LevenbergMarquardt,
+    /// The paper's iteration (§III.B, eq. (25)): undamped Gauss–Newton steps, all
+    /// taken; stops on `stop_step_mm` or `max_iterations`.
+    Paper,
+}
+
+/// The cost of a row's residual.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum LossSetting {
+    /// Squared residuals: the paper's estimator, which the standard errors assume.
+    LeastSquares,
+    /// Huber on each row's residual norm with threshold `outlier_threshold_mm`
+    /// (iteratively reweighted): rows beyond it weigh threshold / residual.
+    Huber,
+}
 
 /// Settings of `identify`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -35,9 +63,24 @@ pub struct IdentifySettings {
     pub candidates: Vec<String>,
     /// Relative tolerance of the rank analysis on the column-scaled Jacobian.
     pub rank_tolerance: f64,
+    /// levenberg_marquardt (robust default) or paper (eq. (25) as published).
+    pub algorithm: AlgorithmSetting,
+    /// Steps tried at most, rejected Levenberg–Marquardt steps included.
     pub max_iterations: usize,
-    /// Stop when a step changes no predicted position by more than this (mm).
+    /// Stop when a step changes no predicted position by more than this (mm). The
+    /// paper used 0.05 mm.
     pub stop_step_mm: f64,
+    /// Levenberg–Marquardt: stop when an accepted step lowers the cost by less than
+    /// this fraction.
+    pub stop_relative_cost: f64,
+    /// least_squares (default) or huber. Off by default: with Gaussian tracker noise
+    /// least squares is the efficient estimator and its standard errors are exact,
+    /// and a fixed threshold in mm would treat the kinematic model's systematic
+    /// load errors (about 1 mm) as outliers.
+    pub loss: LossSetting,
+    /// Rows whose residual norm exceeds this are reported as outliers (always) and
+    /// downweighted (with loss = huber) (mm). About 15 times the tracker noise.
+    pub outlier_threshold_mm: f64,
 }
 
 impl Default for IdentifySettings {
@@ -49,9 +92,40 @@ impl Default for IdentifySettings {
                 .collect(),
             candidates: Vec::new(),
             rank_tolerance: 1e-6,
+            algorithm: AlgorithmSetting::LevenbergMarquardt,
             max_iterations: 30,
             stop_step_mm: 1e-4,
+            stop_relative_cost: 1e-10,
+            loss: LossSetting::LeastSquares,
+            outlier_threshold_mm: 0.5,
         }
+    }
+}
+
+impl IdentifySettings {
+    /// The fit options these settings describe.
+    pub fn fit_options(&self) -> Result<FitOptions, StageError> {
+        if !(self.outlier_threshold_mm > 0.0 && self.outlier_threshold_mm.is_finite()) {
+            return Err(StageError::Invalid(format!(
+                "setting `outlier_threshold_mm`: must be a positive number of mm, found {}",
+                self.outlier_threshold_mm
+            )));
+        }
+        Ok(FitOptions {
+            algorithm: match self.algorithm {
+                AlgorithmSetting::LevenbergMarquardt => Algorithm::LevenbergMarquardt,
+                AlgorithmSetting::Paper => Algorithm::Paper,
+            },
+            loss: match self.loss {
+                LossSetting::LeastSquares => Loss::LeastSquares,
+                LossSetting::Huber => Loss::Huber {
+                    threshold_mm: self.outlier_threshold_mm,
+                },
+            },
+            max_iterations: self.max_iterations,
+            stop_step_mm: self.stop_step_mm,
+            stop_relative_cost: self.stop_relative_cost,
+        })
     }
 }
 
@@ -59,7 +133,7 @@ static INFO: StageInfo = StageInfo {
     kind: "identify",
     uses_cable_robot: false,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -85,7 +159,13 @@ static INFO: StageInfo = StageInfo {
             name: "identification_trace",
             schema: schema::identification_trace,
             required: true,
-            meaning: "Gauss–Newton iterations per model",
+            meaning: "steps tried per model (rms, max, step, damping, accepted)",
+        },
+        TableSlot {
+            name: "residuals",
+            schema: schema::residuals,
+            required: true,
+            meaning: "each model's residual and weight on each calibration row",
         },
     ],
 };
@@ -183,19 +263,16 @@ impl Stage for IdentifyStage {
         let options = CalibrationOptions {
             candidates: parse_candidates(&settings.candidates)?,
             rank_tolerance: settings.rank_tolerance,
-            fit: FitOptions {
-                max_iterations: settings.max_iterations,
-                stop_step_mm: settings.stop_step_mm,
-            },
+            fit: settings.fit_options()?,
         };
         let keep = match ctx.inputs.get("selection") {
             Some(selection) => Some(ids_with_role(selection, "calibration")?),
             None => None,
         };
         let MeasuredRows {
+            ids,
             rows,
             positions: measured,
-            ..
         } = measured_rows(ctx.input("measurements")?, keep.as_ref())?;
         if rows.is_empty() {
             return Err(StageError::Invalid(
@@ -203,57 +280,199 @@ impl Stage for IdentifyStage {
             ));
         }
         let mut sets = Vec::new();
-        let (mut t_model, mut t_iter, mut t_rms, mut t_max, mut t_step) =
-            (vec![], vec![], vec![], vec![], vec![]);
+        let mut trace = TraceColumns::default();
+        let mut residuals = ResidualColumns::default();
         let mut outputs = StageOutputs::default();
         for model in models {
             ctx.progress
                 .note(&format!("identifying {model} on {} rows", rows.len()));
             let result = calibrate(ctx.robot, model, &rows, &measured, &options)
                 .map_err(|e| StageError::Failed(format!("{model}: {e}")))?;
-            if let Some(rank) = &result.rank {
-                outputs.facts.insert(
-                    format!("{model}_identified"),
-                    format!(
-                        "{} of {} (svd rank {})",
-                        rank.independent.len(),
-                        rank.independent.len() + rank.dependent.len(),
-                        rank.svd_rank
-                    ),
-                );
-            }
             if !result.converged {
                 ctx.progress.note(&format!(
                     "{model}: not converged after {} iterations",
                     settings.max_iterations
                 ));
             }
-            for it in &result.trace {
-                t_model.push(model.as_str());
-                t_iter.push(it.iteration as i64);
-                t_rms.push(it.rms_mm);
-                t_max.push(it.max_mm);
-                t_step.push(it.step_mm);
+            for (key, value) in model_facts(model, &result, &ids, settings.outlier_threshold_mm) {
+                ctx.progress.note(&format!("{model}: {key} = {value}"));
+                outputs.facts.insert(format!("{model}_{key}"), value);
             }
+            trace.push(model, &result);
+            residuals.push(model, &result, &ids, settings.outlier_threshold_mm);
             sets.push(result.set);
         }
         let nominal = ParamValues::nominal(ctx.robot.spec());
         outputs
             .tables
             .insert("parameters".into(), parameters::to_frame(&nominal, &sets));
-        outputs.tables.insert(
-            "identification_trace".into(),
-            frame(vec![
-                Column::new("model".into(), t_model),
-                Column::new("iteration".into(), t_iter),
-                Column::new("rms_mm".into(), t_rms),
-                Column::new("max_mm".into(), t_max),
-                Column::new("step_mm".into(), t_step),
-            ]),
-        );
+        outputs
+            .tables
+            .insert("identification_trace".into(), trace.into_frame());
+        outputs
+            .tables
+            .insert("residuals".into(), residuals.into_frame());
         outputs
             .facts
             .insert("calibration_rows".into(), rows.len().to_string());
         Ok(outputs)
+    }
+}
+
+/// What the log and the metadata say about one model's fit.
+fn model_facts(
+    model: ModelName,
+    result: &ModelResult,
+    ids: &[i64],
+    outlier_threshold_mm: f64,
+) -> Vec<(&'static str, String)> {
+    let mut facts = Vec::new();
+    if let Some(rank) = &result.rank {
+        facts.push((
+            "identified",
+            format!(
+                "{} of {} (svd rank {})",
+                rank.independent.len(),
+                rank.independent.len() + rank.dependent.len(),
+                rank.svd_rank
+            ),
+        ));
+    }
+    if let Some(diagnostics) = &result.diagnostics {
+        facts.push((
+            "stop",
+            format!(
+                "{} after {} steps",
+                diagnostics.stop.as_str(),
+                result.trace.len()
+            ),
+        ));
+        facts.push((
+            "condition_number",
+            format!("{:.3e}", diagnostics.condition_number),
+        ));
+        facts.push((
+            "correlations",
+            diagnostics
+                .correlations
+                .iter()
+                .map(|(a, b, rho)| format!("{a}/{b}={rho:+.4}"))
+                .collect::<Vec<_>>()
+                .join(","),
+        ));
+    }
+    if model != ModelName::Nominal {
+        let outliers: Vec<String> = ids
+            .iter()
+            .zip(&result.residuals_mm)
+            .filter(|(_, r)| r.norm() > outlier_threshold_mm)
+            .map(|(id, r)| format!("{id}:{:.3}", r.norm()))
+            .collect();
+        let shown = outliers
+            .iter()
+            .take(OUTLIERS_LISTED)
+            .cloned()
+            .collect::<Vec<_>>()
+            .join(",");
+        let more = outliers.len().saturating_sub(OUTLIERS_LISTED);
+        facts.push((
+            "outliers",
+            format!(
+                "{} rows beyond {outlier_threshold_mm} mm{}{shown}{}",
+                outliers.len(),
+                if outliers.is_empty() {
+                    ""
+                } else {
+                    " (cw_id:r_mm) "
+                },
+                if more > 0 {
+                    format!(" and {more} more")
+                } else {
+                    String::new()
+                }
+            ),
+        ));
+    }
+    facts
+}
+
+/// Outlier rows named in the log and metadata per model (all are in `residuals`).
+const OUTLIERS_LISTED: usize = 10;
+
+/// Columns of `identification_trace`.
+#[derive(Default)]
+struct TraceColumns {
+    model: Vec<&'static str>,
+    iteration: Vec<i64>,
+    rms_mm: Vec<f64>,
+    max_mm: Vec<f64>,
+    step_mm: Vec<f64>,
+    damping: Vec<Option<f64>>,
+    accepted: Vec<bool>,
+}
+
+impl TraceColumns {
+    fn push(&mut self, model: ModelName, result: &ModelResult) {
+        for it in &result.trace {
+            self.model.push(model.as_str());
+            self.iteration.push(it.iteration as i64);
+            self.rms_mm.push(it.rms_mm);
+            self.max_mm.push(it.max_mm);
+            self.step_mm.push(it.step_mm);
+            self.damping.push(it.damping);
+            self.accepted.push(it.accepted);
+        }
+    }
+
+    fn into_frame(self) -> polars::prelude::DataFrame {
+        frame(vec![
+            Column::new("model".into(), self.model),
+            Column::new("iteration".into(), self.iteration),
+            Column::new("rms_mm".into(), self.rms_mm),
+            Column::new("max_mm".into(), self.max_mm),
+            Column::new("step_mm".into(), self.step_mm),
+            Column::new("damping".into(), self.damping),
+            Column::new("accepted".into(), self.accepted),
+        ])
+    }
+}
+
+/// Columns of `residuals`.
+#[derive(Default)]
+struct ResidualColumns {
+    cw_id: Vec<i64>,
+    model: Vec<&'static str>,
+    xyz_mm: [Vec<f64>; 3],
+    r_mm: Vec<f64>,
+    weight: Vec<f64>,
+    outlier: Vec<bool>,
+}
+
+impl ResidualColumns {
+    fn push(&mut self, model: ModelName, result: &ModelResult, ids: &[i64], threshold_mm: f64) {
+        for ((id, r), w) in ids.iter().zip(&result.residuals_mm).zip(&result.weights) {
+            self.cw_id.push(*id);
+            self.model.push(model.as_str());
+            for axis in 0..3 {
+                self.xyz_mm[axis].push(r[axis]);
+            }
+            self.r_mm.push(r.norm());
+            self.weight.push(*w);
+            self.outlier.push(r.norm() > threshold_mm);
+        }
+    }
+
+    fn into_frame(self) -> polars::prelude::DataFrame {
+        let [x, y, z] = self.xyz_mm;
+        frame(vec![
+            Column::new("cw_id".into(), self.cw_id),
+            Column::new("model".into(), self.model),
+            Column::new("rx_mm".into(), x),
+            Column::new("ry_mm".into(), y),
+            Column::new("rz_mm".into(), z),
+            Column::new("r_mm".into(), self.r_mm),
+            Column::new("weight".into(), self.weight),
+            Column::new("outlier".into(), self.outlier),
+        ])
     }
 }

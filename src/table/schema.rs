@@ -461,7 +461,7 @@ pub fn selection() -> TableSchema {
 pub fn identification_trace() -> TableSchema {
     TableSchema {
         kind: "identification_trace",
-        description: "Gauss–Newton iterations of each identified model.",
+        description: "Steps tried by each identification (Levenberg–Marquardt or the paper's Gauss–Newton).",
         columns: vec![
             col(
                 "model",
@@ -498,7 +498,63 @@ pub fn identification_trace() -> TableSchema {
                 true,
                 "largest position change the step predicts",
             ),
+            col(
+                "damping",
+                ColumnType::Float64,
+                "",
+                false,
+                "Levenberg–Marquardt damping λ relative to the unit-norm columns; null for the paper's undamped step",
+            ),
+            col(
+                "accepted",
+                ColumnType::Boolean,
+                "",
+                false,
+                "whether the step was taken (Levenberg–Marquardt rejects steps that raise the cost)",
+            ),
         ],
+        unique: None,
+    }
+}
+
+/// Per-row residuals of each identified model on its calibration rows.
+pub fn residuals() -> TableSchema {
+    let mut columns = vec![
+        col(
+            "cw_id",
+            ColumnType::Int64,
+            "",
+            true,
+            "conf-wrench combination id",
+        ),
+        col("model", ColumnType::Utf8, "", true, "parameter set"),
+    ];
+    for (name, meaning) in [
+        ("rx_mm", "x residual (measured − predicted), world frame"),
+        ("ry_mm", "y residual (measured − predicted), world frame"),
+        ("rz_mm", "z residual (measured − predicted), world frame"),
+        ("r_mm", "Euclidean norm of the residual"),
+    ] {
+        columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
+    }
+    columns.push(col(
+        "weight",
+        ColumnType::Float64,
+        "",
+        true,
+        "the loss's weight of the row at the solution (1 for least squares; Huber: threshold / r_mm beyond the threshold)",
+    ));
+    columns.push(col(
+        "outlier",
+        ColumnType::Boolean,
+        "",
+        true,
+        "r_mm exceeds the outlier threshold",
+    ));
+    TableSchema {
+        kind: "residuals",
+        description: "Residuals of each model on the rows it was identified from (paper eq. (23)).",
+        columns,
         unique: None,
     }
 }
@@ -822,6 +878,7 @@ pub fn all() -> Vec<TableSchema> {
         predictions(),
         selection(),
         identification_trace(),
+        residuals(),
         identifiability(),
         observability(),
         errors(),

@@ -1,0 +1,212 @@
+//! Benchmarks of identification and the simulated campaign (issue #5):
+//! identification of 50 measured rows with 32 identifiable parameters (target
+//! < 5 ms) and the in-process simulator over 875 conf-wrench rows (target < 0.2 s),
+//! both without Parquet I/O. Run:
+//! `CARGO_TARGET_DIR=/tmp/egcal-release-identify cargo bench --bench identify`.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
+use egcal::calibration::fit::{Algorithm, FitOptions};
+use egcal::calibration::{CalibrationOptions, calibrate};
+use egcal::cdpr::CableRobotSpec;
+use egcal::rig::Rig;
+use egcal::rig::simulator::{Simulator, SimulatorSettings};
+use egcal::robot::{ConfWrench, ParamId, ParamValues, Robot, RobotSpec, Wrench};
+use egcal::stages::measure::{MeasureSettings, MeasureStage};
+use egcal::stages::{InputTable, NoProgress, Stage, StageContext};
+use egcal::table::frame;
+use egcal::table::parameters::ModelName;
+use egcal::table::schema::{JOINT_COLUMNS, WRENCH_COLUMNS};
+use nalgebra::Vector3;
+use polars::prelude::Column;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+
+fn robot() -> (Robot, ParamValues) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let spec = RobotSpec::load(&root.join("jobs/robots/irb1600_145.toml")).expect("robot file");
+    let truth = ParamValues::load_overrides(&spec, &root.join("jobs/truth/irb1600_paper.toml"))
+        .expect("truth");
+    (Robot::new(spec), truth)
+}
+
+/// Random rows within the joint limits, wrenches within the paper's ±120 N, ±10 N·m.
+fn rows(robot: &Robot, n: usize) -> Vec<ConfWrench> {
+    let mut rng = StdRng::seed_from_u64(1);
+    (0..n)
+        .map(|_| ConfWrench {
+            q_deg: std::array::from_fn(|i| {
+                let [lo, hi] = robot.limits_deg(i);
+                rng.random_range(lo..hi)
+            }),
+            wrench: Wrench::from_array(std::array::from_fn(|i| {
+                let bound = if i < 3 { 120.0 } else { 10.0 };
+                rng.random_range(-bound..bound)
+            })),
+        })
+        .collect()
+}
+
+fn wrench_array(w: &Wrench) -> [f64; 6] {
+    [
+        w.force_n.x,
+        w.force_n.y,
+        w.force_n.z,
+        w.moment_nm.x,
+        w.moment_nm.y,
+        w.moment_nm.z,
+    ]
+}
+
+/// Measures every row on the simulator (the rig's own sequence of calls) and
+/// returns the rows as read back (encoders, sensor) with the tracker positions.
+fn campaign(
+    robot: &Robot,
+    truth: &ParamValues,
+    rows: &[ConfWrench],
+) -> (Vec<ConfWrench>, Vec<Vector3<f64>>) {
+    let mut rig = Simulator::new(robot.clone(), *truth, SimulatorSettings::default(), 5)
+        .expect("default simulator settings");
+    let mut read = Vec::with_capacity(rows.len());
+    let mut measured = Vec::with_capacity(rows.len());
+    for (k, row) in rows.iter().enumerate() {
+        rig.move_joints(k as i64, row.q_deg).expect("move");
+        rig.apply_wrench(wrench_array(&row.wrench)).expect("wrench");
+        let wrench = rig.read_wrench().expect("sensor");
+        let q_deg = rig.read_joints().expect("encoders");
+        let p = rig.measure().expect("tracker");
+        rig.release_wrench().expect("release");
+        read.push(ConfWrench {
+            q_deg,
+            wrench: Wrench::from_array(wrench),
+        });
+        measured.push(Vector3::from(p));
+    }
+    (read, measured)
+}
+
+fn identify(c: &mut Criterion) {
+    let (robot, truth) = robot();
+    let (rows, measured) = campaign(&robot, &truth, &rows(&robot, 50));
+    for (name, algorithm) in [
+        ("levenberg-marquardt", Algorithm::LevenbergMarquardt),
+        ("paper", Algorithm::Paper),
+    ] {
+        let options = CalibrationOptions {
+            candidates: ParamId::all().collect(),
+            rank_tolerance: 1e-6,
+            fit: FitOptions {
+                algorithm,
+                ..FitOptions::default()
+            },
+        };
+        let check = calibrate(
+            &robot,
+            ModelName::Elastogeometric,
+            &rows,
+            &measured,
+            &options,
+        )
+        .expect("identifiable");
+        assert_eq!(check.rank.as_ref().map(|r| r.independent.len()), Some(32));
+        assert!(check.converged);
+        c.bench_function(
+            &format!("identify elastogeometric, 50 rows, 32 of 42 parameters, {name}"),
+            |b| {
+                b.iter(|| {
+                    calibrate(
+                        &robot,
+                        ModelName::Elastogeometric,
+                        &rows,
+                        &measured,
+                        &options,
+                    )
+                })
+            },
+        );
+    }
+    let options = CalibrationOptions {
+        candidates: ParamId::all().collect(),
+        rank_tolerance: 1e-6,
+        fit: FitOptions::default(),
+    };
+    c.bench_function("identify all four models, 50 rows", |b| {
+        b.iter(|| ModelName::ALL.map(|model| calibrate(&robot, model, &rows, &measured, &options)))
+    });
+}
+
+fn simulate(c: &mut Criterion) {
+    let (robot, truth) = robot();
+    let rows = rows(&robot, 875);
+    c.bench_function("simulator rig, 875 rows", |b| {
+        b.iter(|| campaign(&robot, &truth, &rows))
+    });
+}
+
+/// The whole measure stage on an in-memory table: rig plus journal (one fsync per
+/// row, which dominates: about 3.5 ms each on this machine's disk), no Parquet.
+fn measure_stage(c: &mut Criterion) {
+    let (robot, _) = robot();
+    let rows = rows(&robot, 875);
+    let mut columns = vec![Column::new("cw_id".into(), (1..=875).collect::<Vec<i64>>())];
+    for (i, name) in JOINT_COLUMNS.iter().enumerate() {
+        columns.push(Column::new(
+            (*name).into(),
+            rows.iter().map(|r| r.q_deg[i]).collect::<Vec<f64>>(),
+        ));
+    }
+    for (i, name) in WRENCH_COLUMNS.iter().enumerate() {
+        columns.push(Column::new(
+            (*name).into(),
+            rows.iter()
+                .map(|r| wrench_array(&r.wrench)[i])
+                .collect::<Vec<f64>>(),
+        ));
+    }
+    let mut inputs = BTreeMap::new();
+    inputs.insert(
+        "conf_wrenches".to_string(),
+        InputTable {
+            path: "conf_wrenches.parquet".into(),
+            df: frame(columns),
+        },
+    );
+    let cable_robot = CableRobotSpec::default();
+    let settings = MeasureSettings::default();
+    c.bench_function(
+        "measure stage on the simulator, 875 rows, with journal",
+        |b| {
+            b.iter_batched(
+                || tempfile::tempdir().expect("temporary folder"),
+                |work| {
+                    let ctx = StageContext {
+                        robot: &robot,
+                        cable_robot: &cable_robot,
+                        seed: 5,
+                        inputs: &inputs,
+                        work_dir: work.path(),
+                        job_dir: work.path(),
+                        progress: &NoProgress,
+                    };
+                    let outputs = MeasureStage.run(&ctx, &settings).expect("campaign");
+                    (outputs, work)
+                },
+                BatchSize::PerIteration,
+            )
+        },
+    );
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(20);
+    targets = identify, simulate
+}
+criterion_group! {
+    name = slow;
+    config = Criterion::default().sample_size(10);
+    targets = measure_stage
+}
+criterion_main!(benches, slow);

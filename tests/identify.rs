@@ -1,0 +1,395 @@
+//! Identification against a known truth (the spec's Table II parameters on
+//! simulated rows): exact recovery without noise, honest standard errors with
+//! noise, the kinematic model's load-correlated residuals, the two algorithms'
+//! agreement, the Huber loss's outlier handling, and the stage's outputs and
+//! metadata through `egcal run`.
+
+mod common;
+
+use std::path::Path;
+
+use egcal::calibration::fit::{Algorithm, FitOptions, Loss};
+use egcal::calibration::{CalibrationOptions, ModelResult, calibrate};
+use egcal::robot::{ConfWrench, ParamId, ParamValues, Robot, RobotSpec, Selection, Wrench};
+use egcal::table::parameters::{ModelName, ParamStatus};
+use egcal::table::{self, schema};
+use nalgebra::Vector3;
+use polars::prelude::Column;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, Normal};
+
+fn robot_and_truth() -> (Robot, ParamValues) {
+    let root = common::root();
+    let spec = RobotSpec::load(&root.join("jobs/robots/irb1600_145.toml")).unwrap();
+    let truth =
+        ParamValues::load_overrides(&spec, &root.join("jobs/truth/irb1600_paper.toml")).unwrap();
+    (Robot::new(spec), truth)
+}
+
+/// Random rows within the joint limits with the paper's wrench ranges.
+fn random_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
+    let mut rng = StdRng::seed_from_u64(seed);
+    (0..n)
+        .map(|_| ConfWrench {
+            q_deg: std::array::from_fn(|i| {
+                let [lo, hi] = robot.limits_deg(i);
+                rng.random_range(lo..hi)
+            }),
+            wrench: Wrench::from_array(std::array::from_fn(|i| {
+                let bound = if i < 3 { 120.0 } else { 10.0 };
+                rng.random_range(-bound..bound)
+            })),
+        })
+        .collect()
+}
+
+fn positions(robot: &Robot, p: &ParamValues, rows: &[ConfWrench]) -> Vec<Vector3<f64>> {
+    egcal::robot::batch_predict(robot, p, rows)
+        .iter()
+        .map(|p| p.position_mm)
+        .collect()
+}
+
+/// Exact positions plus Gaussian tracker noise (mm per axis).
+fn noisy(exact: &[Vector3<f64>], sigma_mm: f64, seed: u64) -> Vec<Vector3<f64>> {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let normal = Normal::new(0.0, sigma_mm).unwrap();
+    exact
+        .iter()
+        .map(|p| p + Vector3::from_fn(|_, _| normal.sample(&mut rng)))
+        .collect()
+}
+
+fn options(fit: FitOptions) -> CalibrationOptions {
+    CalibrationOptions {
+        candidates: ParamId::all().collect(),
+        rank_tolerance: 1e-6,
+        fit,
+    }
+}
+
+fn identify(
+    robot: &Robot,
+    model: ModelName,
+    rows: &[ConfWrench],
+    measured: &[Vector3<f64>],
+    fit: FitOptions,
+) -> ModelResult {
+    calibrate(robot, model, rows, measured, &options(fit)).unwrap()
+}
+
+fn identified(result: &ModelResult) -> Vec<ParamId> {
+    ParamId::all()
+        .filter(|id| result.set.status[id.index()] == ParamStatus::Identified)
+        .collect()
+}
+
+#[test]
+fn noiseless_identification_recovers_the_truth_and_predicts_held_out_rows() {
+    let (robot, truth) = robot_and_truth();
+    let nominal = ParamValues::nominal(robot.spec());
+    let rows = random_rows(&robot, 21, 60);
+    let fit = FitOptions {
+        stop_step_mm: 1e-9,
+        ..FitOptions::default()
+    };
+    let result = identify(
+        &robot,
+        ModelName::Elastogeometric,
+        &rows,
+        &positions(&robot, &truth, &rows),
+        fit,
+    );
+    assert!(result.converged, "{:?}", result.trace);
+    assert_eq!(identified(&result), Selection::spec_identifiable().ids());
+    for id in ParamId::all() {
+        let (got, want) = (result.set.values.get(id), truth.get(id));
+        match result.set.status[id.index()] {
+            // To 1e-6 of the parameter's unit; compliances (~1e-4 deg/(N·m)) also
+            // to 1e-6 relative.
+            ParamStatus::Identified => {
+                let tolerance = if id.is_compliance() {
+                    1e-6 * want.abs()
+                } else {
+                    1e-6
+                };
+                assert!((got - want).abs() < tolerance, "{id}: {got} vs {want}");
+                assert!(result.set.std_errors[id.index()].is_some());
+            }
+            // Held at nominal (the spec's truth leaves them there), no standard error.
+            ParamStatus::Dependent => {
+                assert_eq!(got, nominal.get(id), "{id}");
+                assert_eq!(result.set.std_errors[id.index()], None);
+            }
+            ParamStatus::Fixed => panic!("{id}: fixed in the elasto-geometric model"),
+        }
+    }
+    let held_out = random_rows(&robot, 22, 200);
+    let predicted = positions(&robot, &result.set.values, &held_out);
+    let actual = positions(&robot, &truth, &held_out);
+    let worst = predicted
+        .iter()
+        .zip(&actual)
+        .map(|(p, a)| (p - a).norm())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-6, "held-out error {worst} mm");
+}
+
+#[test]
+fn noisy_estimates_lie_within_four_standard_errors_of_the_truth() {
+    let (robot, truth) = robot_and_truth();
+    for seed in 1..=5 {
+        let rows = random_rows(&robot, 100 + seed, 50);
+        let measured = noisy(&positions(&robot, &truth, &rows), 0.03, 200 + seed);
+        let result = identify(
+            &robot,
+            ModelName::Elastogeometric,
+            &rows,
+            &measured,
+            FitOptions::default(),
+        );
+        assert!(result.converged, "seed {seed}: {:?}", result.trace);
+        for id in identified(&result) {
+            let se = result.set.std_errors[id.index()].unwrap();
+            let z = (result.set.values.get(id) - truth.get(id)) / se;
+            assert!(z.abs() < 4.0, "seed {seed}, {id}: {z:.2} standard errors");
+        }
+    }
+}
+
+/// Pearson correlation and its t statistic (n − 2 degrees of freedom).
+fn correlation_t(x: &[f64], y: &[f64]) -> (f64, f64) {
+    let n = x.len() as f64;
+    let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+    let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
+    let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
+    let syy: f64 = y.iter().map(|b| (b - my).powi(2)).sum();
+    let rho = sxy / (sxx * syy).sqrt();
+    (rho, rho * ((n - 2.0) / (1.0 - rho * rho)).sqrt())
+}
+
+#[test]
+fn kinematic_residuals_grow_with_the_applied_load_and_elastogeometric_ones_do_not() {
+    let (robot, truth) = robot_and_truth();
+    let rows = random_rows(&robot, 31, 120);
+    let measured = noisy(&positions(&robot, &truth, &rows), 0.02, 32);
+    let force_n: Vec<f64> = rows.iter().map(|r| r.wrench.force_n.norm()).collect();
+    let residual_norms = |model| -> Vec<f64> {
+        identify(&robot, model, &rows, &measured, FitOptions::default())
+            .residuals_mm
+            .iter()
+            .map(|r| r.norm())
+            .collect()
+    };
+    // Regression of each row's residual norm on the applied force's magnitude:
+    // the kinematic model cannot explain the joint deflections, so its residuals
+    // scale with the load; the elasto-geometric model leaves only tracker noise.
+    let (rho, t) = correlation_t(&force_n, &residual_norms(ModelName::Kinematic));
+    assert!(t > 5.0, "kinematic: ρ = {rho:.3}, t = {t:.2}");
+    let (rho, t) = correlation_t(&force_n, &residual_norms(ModelName::Elastogeometric));
+    assert!(t.abs() < 3.0, "elasto-geometric: ρ = {rho:.3}, t = {t:.2}");
+}
+
+#[test]
+fn levenberg_marquardt_and_the_paper_s_iteration_reach_the_same_optimum() {
+    let (robot, truth) = robot_and_truth();
+    let rows = random_rows(&robot, 41, 50);
+    let measured = noisy(&positions(&robot, &truth, &rows), 0.03, 42);
+    let run = |algorithm| {
+        identify(
+            &robot,
+            ModelName::Elastogeometric,
+            &rows,
+            &measured,
+            FitOptions {
+                algorithm,
+                stop_step_mm: 1e-8,
+                ..FitOptions::default()
+            },
+        )
+    };
+    let (lm, paper) = (run(Algorithm::LevenbergMarquardt), run(Algorithm::Paper));
+    assert!(lm.converged && paper.converged);
+    for id in identified(&lm) {
+        let se = lm.set.std_errors[id.index()].unwrap();
+        let difference = lm.set.values.get(id) - paper.set.values.get(id);
+        assert!(
+            difference.abs() < 1e-4 * se,
+            "{id}: differs by {difference} ({se} standard error)"
+        );
+    }
+}
+
+#[test]
+fn huber_loss_downweights_an_injected_outlier() {
+    let (robot, truth) = robot_and_truth();
+    let rows = random_rows(&robot, 51, 60);
+    let mut measured = noisy(&positions(&robot, &truth, &rows), 0.02, 52);
+    let outlier = 17;
+    measured[outlier] += Vector3::new(3.0, -2.0, 1.5);
+    let threshold_mm = 0.5;
+    let least_squares = identify(
+        &robot,
+        ModelName::Elastogeometric,
+        &rows,
+        &measured,
+        FitOptions::default(),
+    );
+    let huber = identify(
+        &robot,
+        ModelName::Elastogeometric,
+        &rows,
+        &measured,
+        FitOptions {
+            loss: Loss::Huber { threshold_mm },
+            ..FitOptions::default()
+        },
+    );
+    assert!(huber.converged, "{:?}", huber.trace);
+    // Least squares spreads the error over the fit but still leaves the row beyond
+    // the threshold (so it is reported); Huber gives it a small weight, and only it.
+    assert!(least_squares.residuals_mm[outlier].norm() > threshold_mm);
+    assert!(least_squares.weights.iter().all(|w| *w == 1.0));
+    assert!(
+        huber.weights[outlier] < 0.2,
+        "weight {}",
+        huber.weights[outlier]
+    );
+    for (k, w) in huber.weights.iter().enumerate() {
+        assert!(k == outlier || *w == 1.0, "row {k} has weight {w}");
+    }
+    // And the held-out predictions are closer to the truth.
+    let held_out = random_rows(&robot, 53, 200);
+    let actual = positions(&robot, &truth, &held_out);
+    let rms_error = |result: &ModelResult| {
+        let predicted = positions(&robot, &result.set.values, &held_out);
+        (predicted
+            .iter()
+            .zip(&actual)
+            .map(|(p, a)| (p - a).norm_squared())
+            .sum::<f64>()
+            / held_out.len() as f64)
+            .sqrt()
+    };
+    let (ls_error, huber_error) = (rms_error(&least_squares), rms_error(&huber));
+    assert!(
+        huber_error < 0.5 * ls_error,
+        "held-out RMS: huber {huber_error} mm, least squares {ls_error} mm"
+    );
+}
+
+#[test]
+fn the_stage_writes_residuals_and_logs_conditioning_correlations_and_outliers() {
+    let dir = tempfile::tempdir().unwrap();
+    let (robot, truth) = robot_and_truth();
+    let rows = random_rows(&robot, 61, 40);
+    let mut measured = noisy(&positions(&robot, &truth, &rows), 0.02, 62);
+    measured[5] += Vector3::new(0.0, 0.0, 4.0);
+    let mut columns = vec![Column::new("cw_id".into(), (1..=40).collect::<Vec<i64>>())];
+    for (i, name) in schema::JOINT_COLUMNS.iter().enumerate() {
+        let values: Vec<f64> = rows.iter().map(|r| r.q_deg[i]).collect();
+        columns.push(Column::new((*name).into(), values));
+    }
+    for (i, name) in schema::WRENCH_COLUMNS.iter().enumerate() {
+        let values: Vec<f64> = rows
+            .iter()
+            .map(|r| {
+                if i < 3 {
+                    r.wrench.force_n[i]
+                } else {
+                    r.wrench.moment_nm[i - 3]
+                }
+            })
+            .collect();
+        columns.push(Column::new((*name).into(), values));
+    }
+    for (axis, name) in schema::POSITION_COLUMNS.iter().enumerate() {
+        let values: Vec<f64> = measured.iter().map(|p| p[axis]).collect();
+        columns.push(Column::new((*name).into(), values));
+    }
+    let input = dir.path().join("measurements.parquet");
+    table::write_parquet(&mut table::frame(columns), &input, None).unwrap();
+    let job = dir.path().join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            r#"[job]
+name = "identify"
+seed = 1
+robot = "{robot}"
+output = "out"
+
+[[stages]]
+id = "identify"
+kind = "identify"
+inputs = {{ measurements = "{input}" }}
+loss = "huber"
+"#,
+            robot = common::root()
+                .join("jobs/robots/irb1600_145.toml")
+                .display(),
+            input = input.display(),
+        ),
+    )
+    .unwrap();
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    for expected in [
+        "identify: elastogeometric: condition_number = ",
+        "identify: elastogeometric: correlations = ",
+        "identify: elastogeometric: outliers = 1 rows beyond 0.5 mm (cw_id:r_mm) 6:",
+        "identify: elastogeometric: stop = ",
+    ] {
+        assert!(stderr.contains(expected), "`{expected}` not in\n{stderr}");
+    }
+
+    let out = dir.path().join("out/identify");
+    let residuals =
+        table::read_checked(&out.join("residuals.parquet"), &schema::residuals()).unwrap();
+    assert_eq!(residuals.height(), 4 * 40);
+    let models = schema::str_values(&residuals, "model", Path::new("r")).unwrap();
+    let ids = schema::i64_values(&residuals, "cw_id", Path::new("r")).unwrap();
+    let weights = schema::f64_values(&residuals, "weight", Path::new("r")).unwrap();
+    let row = (0..residuals.height())
+        .find(|&k| models[k].as_deref() == Some("elastogeometric") && ids[k] == 6)
+        .unwrap();
+    assert!(weights[row] < 0.2, "weight {}", weights[row]);
+
+    // The same facts are in the output's metadata.
+    let provenance = table::read_provenance(&out.join("parameters.parquet"))
+        .unwrap()
+        .unwrap();
+    let correlations = &provenance.extra["elastogeometric_correlations"];
+    assert_eq!(correlations.split(',').count(), 5, "{correlations}");
+    let condition: f64 = provenance.extra["elastogeometric_condition_number"]
+        .parse()
+        .unwrap();
+    assert!(condition > 1.0 && condition.is_finite());
+
+    // Dependent parameters stay at nominal with status `dependent`.
+    let parameters = table::read_parquet(&out.join("parameters.parquet")).unwrap();
+    let sets = egcal::table::parameters::from_frame(
+        &parameters,
+        Path::new("p"),
+        &ParamValues::nominal(robot.spec()),
+    )
+    .unwrap();
+    let eg = sets
+        .iter()
+        .find(|s| s.model == ModelName::Elastogeometric)
+        .unwrap();
+    let dd3 = ParamId::from_name("dd3").unwrap();
+    assert_eq!(eg.status[dd3.index()], ParamStatus::Dependent);
+    assert_eq!(
+        eg.values.get(dd3),
+        ParamValues::nominal(robot.spec()).get(dd3)
+    );
+
+    let trace = table::read_checked(
+        &out.join("identification_trace.parquet"),
+        &schema::identification_trace(),
+    )
+    .unwrap();
+    assert!(trace.column("damping").is_ok() && trace.column("accepted").is_ok());
+}
