@@ -71,9 +71,8 @@ fn paper_size(c: &mut Criterion) {
         .collect();
     fast_s.sort_by(f64::total_cmp);
     let (_, fast_result) = timed(|| detmax::detmax(&cands, &fast).expect("selection"));
-    let (naive_s, naive_result) = timed(|| {
-        detmax::detmax(&cands, &options(50, Method::Naive)).expect("selection")
-    });
+    let (naive_s, naive_result) =
+        timed(|| detmax::detmax(&cands, &options(50, Method::Naive)).expect("selection"));
     println!(
         "summary: 875 candidates, n = 50: fast {:.2} ms (median of 5), naive {:.2} s, ratio {:.0}; \
          exchanges {} / {}; O1 start {:.6}, fast {:.9}, naive {:.9}; same selection: {}",
