@@ -3,4 +3,5 @@
 
 pub mod collision;
 pub mod detmax;
+pub mod observability;
 pub mod poses;

@@ -1,6 +1,8 @@
-//! `select`: picks the n conf-wrench rows that maximise the observability index O1
-//! of the identifiable parameters (paper §IV.B). The other rows become the
-//! validation set. See `design::detmax` for the algorithm and the column scaling.
+//! `select`: picks the n conf-wrench rows that maximise an observability index (O1
+//! by default, the paper's; O2–O5 selectable) of the identifiable parameters by
+//! DETMAX (paper §IV.B). The other rows become the validation set. See
+//! `design::detmax` for the algorithm, its fast and naive engines and the column
+//! scaling, `design::observability` for the indices.
 
 use polars::prelude::Column;
 use schemars::JsonSchema;
@@ -10,7 +12,7 @@ use super::{
     Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
 };
 use crate::calibration::rank;
-use crate::design::detmax::{Candidates, detmax};
+use crate::design::detmax::{Candidates, Criterion, DetmaxError, Method, Options, detmax};
 use crate::robot::{ParamId, ParamValues, batch_jacobian};
 use crate::table::frame;
 use crate::table::schema::{self, str_values};
@@ -27,8 +29,17 @@ pub struct SelectSettings {
     pub max_iterations: usize,
     /// Rank tolerance when no identifiability input is bound.
     pub rank_tolerance: f64,
-    /// Independent random starts; the selection with the highest O1 is kept.
+    /// Independent random starts; the selection with the highest criterion is kept.
     pub restarts: usize,
+    /// Observability index to maximise: O1 (Borm & Menq, the paper's), O2 (σmin/σmax),
+    /// O3 (σmin), O4 (σmin²/σmax) or O5 (1/Σ 1/σ).
+    pub criterion: Criterion,
+    /// `fast`: determinant-lemma trials and Woodbury updates; `naive`: a fresh SVD per
+    /// trial, as in the paper (slow; for verification).
+    pub method: Method,
+    /// Fast method with O2–O5: per addition, the criterion is evaluated exactly on
+    /// this many outsiders, those with the best O1 gain; 0 evaluates all.
+    pub shortlist: usize,
 }
 
 impl Default for SelectSettings {
@@ -38,6 +49,9 @@ impl Default for SelectSettings {
             max_iterations: 1000,
             rank_tolerance: 1e-6,
             restarts: 4,
+            criterion: Criterion::O1,
+            method: Method::Fast,
+            shortlist: 64,
         }
     }
 }
@@ -45,8 +59,8 @@ impl Default for SelectSettings {
 static INFO: StageInfo = StageInfo {
     kind: "select",
     uses_cable_robot: false,
-    summary: "DETMAX selection of calibration rows by the observability index O1",
-    code_version: 1,
+    summary: "DETMAX selection of calibration rows by an observability index (O1 by default)",
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "candidates",
@@ -72,7 +86,7 @@ static INFO: StageInfo = StageInfo {
             name: "observability",
             schema: schema::observability,
             required: true,
-            meaning: "each exchange and O1 after it",
+            meaning: "each exchange and O1 after it; with another criterion also `criterion` and `criterion_value`",
         },
     ],
 };
@@ -122,23 +136,37 @@ impl Stage for SelectStage {
                 rank::analyse(ctx.robot, &nominal, &rows, &all, settings.rank_tolerance).independent
             }
         };
+        if parameters.is_empty() {
+            return Err(StageError::Invalid(
+                "no parameter to make observable: the identifiability input marks none identifiable"
+                    .into(),
+            ));
+        }
         let jacobian = batch_jacobian(ctx.robot, &nominal, &rows, &parameters);
         let (candidates, _) =
             Candidates::from_jacobian(&jacobian.jacobian, rows.len(), parameters.len());
         let mut results = Vec::new();
         for restart in 0..settings.restarts.max(1) as u64 {
-            let seed = ctx
-                .seed
-                .wrapping_add(restart.wrapping_mul(0x9e37_79b9_7f4a_7c15));
-            results.push(
-                detmax(&candidates, settings.n, seed, settings.max_iterations)
-                    .map_err(|e| StageError::Invalid(format!("setting `n`: {e}")))?,
-            );
+            let options = Options {
+                n: settings.n,
+                criterion: settings.criterion,
+                method: settings.method,
+                max_iterations: settings.max_iterations,
+                shortlist: settings.shortlist,
+                seed: ctx
+                    .seed
+                    .wrapping_add(restart.wrapping_mul(0x9e37_79b9_7f4a_7c15)),
+            };
+            results.push(detmax(&candidates, &options).map_err(|e| match e {
+                DetmaxError::Singular => StageError::Invalid(e.to_string()),
+                _ => StageError::Invalid(format!("setting `n`: {e}")),
+            })?);
         }
-        let o1_per_start: Vec<String> = results.iter().map(|r| format!("{:.6}", r.o1)).collect();
+        let value_per_start: Vec<String> =
+            results.iter().map(|r| format!("{:.6}", r.value)).collect();
         let result = results
             .into_iter()
-            .max_by(|a, b| a.o1.total_cmp(&b.o1))
+            .max_by(|a, b| a.value.total_cmp(&b.value))
             .expect("at least one start");
         if !result.converged {
             ctx.progress.note(&format!(
@@ -157,11 +185,26 @@ impl Stage for SelectStage {
         let mut added = vec![None];
         let mut removed = vec![None];
         let mut o1 = vec![result.o1_start];
+        let mut value = vec![result.value_start];
         for exchange in &result.trace {
             iteration.push(exchange.iteration as i64);
             added.push(Some(ids[exchange.added]));
             removed.push(Some(ids[exchange.removed]));
             o1.push(exchange.o1);
+            value.push(exchange.value);
+        }
+        let mut trace = vec![
+            Column::new("iteration".into(), iteration),
+            Column::new("added_cw_id".into(), added),
+            Column::new("removed_cw_id".into(), removed),
+            Column::new("o1".into(), o1),
+        ];
+        if settings.criterion != Criterion::O1 {
+            trace.push(Column::new(
+                "criterion".into(),
+                vec![settings.criterion.name(); value.len()],
+            ));
+            trace.push(Column::new("criterion_value".into(), value));
         }
         let mut outputs = StageOutputs::default();
         outputs.tables.insert(
@@ -169,17 +212,10 @@ impl Stage for SelectStage {
             frame(vec![
                 Column::new("cw_id".into(), ids.clone()),
                 Column::new("role".into(), role),
+                Column::new("order".into(), order),
             ]),
         );
-        outputs.tables.insert(
-            "observability".into(),
-            frame(vec![
-                Column::new("iteration".into(), iteration),
-                Column::new("added_cw_id".into(), added),
-                Column::new("removed_cw_id".into(), removed),
-                Column::new("o1".into(), o1),
-            ]),
-        );
+        outputs.tables.insert("observability".into(), frame(trace));
         outputs
             .facts
             .insert("parameters".into(), parameters.len().to_string());
@@ -199,9 +235,27 @@ impl Stage for SelectStage {
         outputs
             .facts
             .insert("exchanges".into(), result.trace.len().to_string());
-        outputs
-            .facts
-            .insert("o1_per_start".into(), o1_per_start.join(" "));
+        outputs.facts.insert(
+            "criterion".into(),
+            format!(
+                "{}, {} method",
+                settings.criterion.name(),
+                match settings.method {
+                    Method::Fast => "fast",
+                    Method::Naive => "naive",
+                }
+            ),
+        );
+        outputs.facts.insert(
+            format!("{}_per_start", settings.criterion.name().to_lowercase()),
+            value_per_start.join(" "),
+        );
+        if settings.criterion != Criterion::O1 {
+            outputs.facts.insert(
+                settings.criterion.name().to_lowercase(),
+                format!("{:.6}", result.value),
+            );
+        }
         Ok(outputs)
     }
 }
