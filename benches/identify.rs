@@ -188,6 +188,7 @@ fn measure_stage(c: &mut Criterion) {
                         inputs: &inputs,
                         work_dir: work.path(),
                         job_dir: work.path(),
+                        run_date: 0,
                         progress: &NoProgress,
                     };
                     let outputs = MeasureStage.run(&ctx, &settings).expect("campaign");
