@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use polars::prelude::*;
 
 use crate::cdpr::CableRobotSpec;
+use crate::gate::Decision;
 use crate::job::{InputSource, JobProblems, Plan};
 use crate::robot::{Robot, RobotSpec};
 use crate::runner::{self, RunError, RunOptions, progress::Reporter};
@@ -44,6 +45,55 @@ pub mod exit {
     pub const STAGE_FAILED: u8 = 3;
     /// Another run holds the output folder's lock.
     pub const LOCKED: u8 = 5;
+    /// A gate stage published a new calibration (the run itself succeeded).
+    pub const GATE_PUBLISHED: u8 = 10;
+    /// A gate stage refused a candidate that should have replaced the calibration
+    /// in service: a person should look (the run itself succeeded).
+    pub const GATE_REFUSED: u8 = 11;
+}
+
+/// What a successful command prints, and its exit code: [`exit::OK`], or a gate
+/// stage's decision.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Finished {
+    pub message: String,
+    pub code: u8,
+}
+
+impl From<String> for Finished {
+    fn from(message: String) -> Self {
+        Finished {
+            message,
+            code: exit::OK,
+        }
+    }
+}
+
+/// The exit code of gate decisions, the most urgent first: refused, published, kept.
+fn gate_code(decisions: &[Decision]) -> u8 {
+    if decisions.contains(&Decision::Refused) {
+        exit::GATE_REFUSED
+    } else if decisions.contains(&Decision::Published) {
+        exit::GATE_PUBLISHED
+    } else {
+        exit::OK
+    }
+}
+
+/// The decision a gate stage wrote into `dir/decision.parquet`.
+fn gate_decision(dir: &Path) -> Result<Decision, CommandError> {
+    let path = dir.join("decision.parquet");
+    let df = table::read_checked(&path, &table::schema::gate_decision())?;
+    let values = table::schema::str_values(&df, "decision", &path)?;
+    let text = values.first().cloned().flatten().unwrap_or_default();
+    Decision::parse(&text).ok_or_else(|| {
+        CommandError::Table(Box::new(TableError::BadValue {
+            file: path,
+            column: "decision".into(),
+            row: 0,
+            message: format!("expected kept, published or refused, found `{text}`"),
+        }))
+    })
 }
 
 impl From<TableError> for CommandError {
@@ -87,7 +137,7 @@ fn stage_code(e: &StageError) -> u8 {
 }
 
 /// `egcal run`.
-pub fn run(job: &Path, options: &RunOptions, quiet: bool) -> Result<String, CommandError> {
+pub fn run(job: &Path, options: &RunOptions, quiet: bool) -> Result<Finished, CommandError> {
     let mut plan = Plan::load(job)?;
     if let Some(day) = options.run_date {
         plan.run_date = day;
@@ -98,13 +148,28 @@ pub fn run(job: &Path, options: &RunOptions, quiet: bool) -> Result<String, Comm
         .iter()
         .filter(|(_, o)| matches!(o, runner::Outcome::Ran { .. }))
         .count();
-    Ok(format!(
+    let mut message = format!(
         "{}: {} stage(s), {ran} ran, {} cached; outputs in {}",
         plan.name,
         outcomes.len(),
         outcomes.len() - ran,
         plan.output_dir.display()
-    ))
+    );
+    let mut decisions = Vec::new();
+    for (id, _) in &outcomes {
+        let is_gate = plan
+            .stage_index(id)
+            .is_some_and(|i| plan.stages[i].kind.info().kind == "gate");
+        if is_gate {
+            let decision = gate_decision(&plan.output_dir.join(id))?;
+            write!(message, "\n{id}: {}", decision.as_str()).expect("write to string");
+            decisions.push(decision);
+        }
+    }
+    Ok(Finished {
+        message,
+        code: gate_code(&decisions),
+    })
 }
 
 /// `egcal status`.
@@ -290,7 +355,7 @@ pub fn stage(
     stage: &FileStage,
     settings_file: Option<&Path>,
     out_dir: &Path,
-) -> Result<String, CommandError> {
+) -> Result<Finished, CommandError> {
     let kind = stage.kind;
     let raw_settings: toml::Table = match settings_file {
         None => toml::Table::new(),
@@ -327,7 +392,49 @@ pub fn stage(
         .iter()
         .map(|(name, value)| format!("\n  {name} = {value}"))
         .collect();
-    Ok(format!("{kind}: wrote {}{facts}", written.join(", ")))
+    let code = if kind == "gate" {
+        gate_code(&[gate_decision(out_dir)?])
+    } else {
+        exit::OK
+    };
+    Ok(Finished {
+        message: format!("{kind}: wrote {}{facts}", written.join(", ")),
+        code,
+    })
+}
+
+/// `egcal publish`: puts a parameters table in service by hand (the first
+/// calibration of a cell, or a rollback): `dir/current.parquet`, the previous one
+/// kept as `retired-<date>.parquet`.
+pub fn publish(parameters: &Path, dir: &Path, day: i64) -> Result<String, CommandError> {
+    let checked = table::read_checked(parameters, &table::schema::parameters())?;
+    if checked.height() == 0 {
+        return Err(CommandError::Usage(format!(
+            "{}: the parameters table is empty",
+            parameters.display()
+        )));
+    }
+    let bytes = std::fs::read(parameters)
+        .map_err(|e| CommandError::Usage(format!("cannot read {}: {e}", parameters.display())))?;
+    let installed = crate::publish::install(dir, &bytes, day).map_err(|e| {
+        CommandError::Run(Box::new(RunError::Io {
+            context: format!("publishing into {}", dir.display()),
+            source: e,
+        }))
+    })?;
+    Ok(match installed.retired {
+        Some(retired) => format!(
+            "published {} as {}; the previous one is {}",
+            parameters.display(),
+            installed.current.display(),
+            retired.display()
+        ),
+        None => format!(
+            "published {} as {}",
+            parameters.display(),
+            installed.current.display()
+        ),
+    })
 }
 
 /// `egcal predict`: the `predict` stage on one input file, written to `output`.

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use egcal::commands::{self, CommandError, exit};
+use egcal::commands::{self, CommandError, Finished};
 use egcal::runner::RunOptions;
 
 #[derive(Parser)]
@@ -117,6 +117,17 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         seed: u64,
     },
+    /// Put a parameters table in service: DIR/current.parquet, keeping the previous
+    /// one as DIR/retired-<date>.parquet (a cell's first calibration, or a rollback).
+    Publish {
+        parameters: PathBuf,
+        /// Calibration folder (the gate's `publish_dir`).
+        #[arg(long)]
+        to: PathBuf,
+        /// Date the replaced file is retired under, YYYY-MM-DD (default: today, UTC).
+        #[arg(long, value_parser = parse_run_date)]
+        date: Option<i64>,
+    },
     /// Stage kinds with their inputs, outputs and settings (with defaults).
     ListStages,
     /// Cache maintenance.
@@ -144,7 +155,7 @@ fn parse_input(text: &str) -> Result<(String, PathBuf), String> {
     Ok((name.to_string(), PathBuf::from(path)))
 }
 
-fn dispatch(cli: Cli) -> Result<String, CommandError> {
+fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
     match cli.command {
         Command::Run {
             job,
@@ -168,10 +179,10 @@ fn dispatch(cli: Cli) -> Result<String, CommandError> {
                 cli.quiet,
             )
         }
-        Command::Status { job, run_date } => commands::status(&job, run_date),
-        Command::Dag { job, dot } => commands::dag(&job, dot),
-        Command::Check { job } => commands::check(&job),
-        Command::Show { table, rows } => commands::show(&table, rows),
+        Command::Status { job, run_date } => commands::status(&job, run_date).map(Finished::from),
+        Command::Dag { job, dot } => commands::dag(&job, dot).map(Finished::from),
+        Command::Check { job } => commands::check(&job).map(Finished::from),
+        Command::Show { table, rows } => commands::show(&table, rows).map(Finished::from),
         Command::Stage {
             kind,
             robot,
@@ -199,7 +210,8 @@ fn dispatch(cli: Cli) -> Result<String, CommandError> {
             model,
             input,
             output,
-        } => commands::predict(&robot, params.as_deref(), &model, &input, &output),
+        } => commands::predict(&robot, params.as_deref(), &model, &input, &output)
+            .map(Finished::from),
         Command::SimDriver {
             robot,
             truth,
@@ -212,24 +224,35 @@ fn dispatch(cli: Cli) -> Result<String, CommandError> {
             &truth_model,
             settings.as_deref(),
             seed,
-        ),
-        Command::ListStages => Ok(commands::list_stages()),
+        )
+        .map(Finished::from),
+        Command::Publish {
+            parameters,
+            to,
+            date,
+        } => commands::publish(
+            &parameters,
+            &to,
+            date.unwrap_or_else(egcal::table::time::today),
+        )
+        .map(Finished::from),
+        Command::ListStages => Ok(commands::list_stages().into()),
         Command::Cache {
             action: CacheAction::Gc { job },
-        } => commands::cache_gc(&job),
-        Command::Schemas { out } => commands::write_schemas(&out),
+        } => commands::cache_gc(&job).map(Finished::from),
+        Command::Schemas { out } => commands::write_schemas(&out).map(Finished::from),
     }
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match dispatch(cli) {
-        Ok(message) => {
+        Ok(Finished { message, code }) => {
             let message = message.trim_end();
             if !message.is_empty() {
                 println!("{message}");
             }
-            ExitCode::from(exit::OK)
+            ExitCode::from(code)
         }
         Err(e) => {
             eprintln!("error: {e}");

@@ -38,6 +38,7 @@ impl Default for IdentifiabilitySettings {
 static INFO: StageInfo = StageInfo {
     kind: "identifiability",
     uses_cable_robot: false,
+    updates_input: None,
     summary: "Rank analysis: which parameters the candidate rows can identify, and what dependent ones combine with",
     code_version: 2,
     inputs: &[TableSlot {

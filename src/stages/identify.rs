@@ -132,6 +132,7 @@ impl IdentifySettings {
 static INFO: StageInfo = StageInfo {
     kind: "identify",
     uses_cable_robot: false,
+    updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
     code_version: 2,
     inputs: &[

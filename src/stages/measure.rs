@@ -11,7 +11,7 @@
 
 use std::collections::HashMap;
 
-use polars::prelude::{Column, DataType, TimeUnit, TimeZone};
+use polars::prelude::{Column, DataFrame, DataType, TimeUnit, TimeZone};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
@@ -90,6 +90,7 @@ impl Default for MeasureSettings {
 static INFO: StageInfo = StageInfo {
     kind: "measure",
     uses_cable_robot: false,
+    updates_input: None,
     summary: "Measurement campaign on a rig (simulator or external driver), resumable",
     code_version: 1,
     inputs: &[
@@ -126,13 +127,7 @@ static INFO: StageInfo = StageInfo {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "status", rename_all = "snake_case")]
 enum Entry {
-    Measured {
-        cw_id: i64,
-        q_deg: [f64; 6],
-        wrench: [f64; 6],
-        position_mm: [f64; 3],
-        measured_at_us: i64,
-    },
+    Measured(Reading),
     Failed {
         cw_id: i64,
         attempts: u32,
@@ -141,10 +136,23 @@ enum Entry {
     },
 }
 
+/// What the rig read for one conf-wrench row.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub(crate) struct Reading {
+    pub cw_id: i64,
+    /// Encoder reading (deg).
+    pub q_deg: [f64; 6],
+    /// Force/torque sensor reading (N, N·m).
+    pub wrench: [f64; 6],
+    /// Tracker reading (mm).
+    pub position_mm: [f64; 3],
+    pub measured_at_us: i64,
+}
+
 impl Entry {
     fn cw_id(&self) -> i64 {
         match self {
-            Entry::Measured { cw_id, .. } | Entry::Failed { cw_id, .. } => *cw_id,
+            Entry::Measured(Reading { cw_id, .. }) | Entry::Failed { cw_id, .. } => *cw_id,
         }
     }
 }
@@ -199,7 +207,7 @@ impl Stage for MeasureStage {
             latest.insert(entry.cw_id(), entry);
         }
         let done = |latest: &HashMap<i64, Entry>, id: i64| {
-            matches!(latest.get(&id), Some(Entry::Measured { .. }))
+            matches!(latest.get(&id), Some(Entry::Measured(_)))
         };
         let todo: Vec<usize> = (0..ids.len()).filter(|&k| !done(&latest, ids[k])).collect();
         if todo.len() < ids.len() {
@@ -244,7 +252,7 @@ impl Stage for MeasureStage {
             let entry = loop {
                 attempts += 1;
                 match measure_row(rig.as_mut(), ids[k], &rows[k]) {
-                    Ok(entry) => break entry,
+                    Ok(reading) => break Entry::Measured(reading),
                     Err(RigError::Transient(reason)) if attempts <= settings.retries => {
                         ctx.progress
                             .note(&format!("cw_id {}: {reason}; retrying", ids[k]));
@@ -265,7 +273,7 @@ impl Stage for MeasureStage {
                             ids[k],
                             latest
                                 .values()
-                                .filter(|e| matches!(e, Entry::Measured { .. }))
+                                .filter(|e| matches!(e, Entry::Measured(_)))
                                 .count(),
                             journal.path().display()
                         )));
@@ -343,7 +351,11 @@ fn check_safety(
 }
 
 /// One conf-wrench row on the rig, in the lab's order.
-fn measure_row(rig: &mut dyn Rig, cw_id: i64, row: &ConfWrench) -> Result<Entry, RigError> {
+pub(crate) fn measure_row(
+    rig: &mut dyn Rig,
+    cw_id: i64,
+    row: &ConfWrench,
+) -> Result<Reading, RigError> {
     rig.move_joints(cw_id, row.q_deg)?;
     let commanded = [
         row.wrench.force_n.x,
@@ -368,7 +380,7 @@ fn measure_row(rig: &mut dyn Rig, cw_id: i64, row: &ConfWrench) -> Result<Entry,
             "rig returned a non-finite reading".into(),
         ));
     }
-    Ok(Entry::Measured {
+    Ok(Reading {
         cw_id,
         q_deg,
         wrench,
@@ -399,62 +411,18 @@ fn tables(
     latest: &HashMap<i64, Entry>,
     robot_id: Option<&str>,
 ) -> StageOutputs {
-    let mut measured: Vec<(usize, &Entry)> = Vec::new();
+    let mut measured: Vec<(&Reading, Option<i64>)> = Vec::new();
     let mut failed: Vec<&Entry> = Vec::new();
     for (k, id) in ids.iter().enumerate() {
         match latest.get(id) {
-            Some(e @ Entry::Measured { .. }) => measured.push((k, e)),
+            Some(Entry::Measured(reading)) => {
+                measured.push((reading, config_ids.and_then(|c| c[k])))
+            }
             Some(e @ Entry::Failed { .. }) => failed.push(e),
             None => {}
         }
     }
-    let mut cw = Vec::new();
-    let mut q = vec![Vec::new(); 6];
-    let mut w = vec![Vec::new(); 6];
-    let mut p = vec![Vec::new(); 3];
-    let mut at = Vec::new();
-    let mut config = Vec::new();
-    for (k, entry) in &measured {
-        if let Entry::Measured {
-            cw_id,
-            q_deg,
-            wrench,
-            position_mm,
-            measured_at_us,
-        } = entry
-        {
-            cw.push(*cw_id);
-            for i in 0..6 {
-                q[i].push(q_deg[i]);
-                w[i].push(wrench[i]);
-            }
-            for i in 0..3 {
-                p[i].push(position_mm[i]);
-            }
-            at.push(*measured_at_us);
-            config.push(config_ids.and_then(|c| c[*k]));
-        }
-    }
-    let mut columns = vec![Column::new("cw_id".into(), cw)];
-    for (name, values) in JOINT_COLUMNS.iter().zip(q) {
-        columns.push(Column::new((*name).into(), values));
-    }
-    for (name, values) in WRENCH_COLUMNS.iter().zip(w) {
-        columns.push(Column::new((*name).into(), values));
-    }
-    for (name, values) in POSITION_COLUMNS.iter().zip(p) {
-        columns.push(Column::new((*name).into(), values));
-    }
-    if config_ids.is_some() {
-        columns.push(Column::new("config_id".into(), config));
-    }
-    if let Some(robot_id) = robot_id {
-        columns.push(Column::new(
-            "robot_id".into(),
-            vec![robot_id; measured.len()],
-        ));
-    }
-    columns.push(timestamps("measured_at", at));
+    let measurements = measurements_frame(&measured, config_ids.is_some(), robot_id);
 
     let mut f_id = Vec::new();
     let mut f_attempts = Vec::new();
@@ -481,9 +449,57 @@ fn tables(
         timestamps("failed_at", f_at),
     ]);
     let mut outputs = StageOutputs::default();
-    outputs.tables.insert("measurements".into(), frame(columns));
+    outputs.tables.insert("measurements".into(), measurements);
     outputs
         .tables
         .insert("measurement_failures".into(), failures);
     outputs
+}
+
+/// The `measurements` table (spec §6) of readings in the given order, with their
+/// configuration ids when `with_config_id`, and the robot id when known.
+pub(crate) fn measurements_frame(
+    readings: &[(&Reading, Option<i64>)],
+    with_config_id: bool,
+    robot_id: Option<&str>,
+) -> DataFrame {
+    let mut cw = Vec::new();
+    let mut q = vec![Vec::new(); 6];
+    let mut w = vec![Vec::new(); 6];
+    let mut p = vec![Vec::new(); 3];
+    let mut at = Vec::new();
+    let mut config = Vec::new();
+    for (reading, config_id) in readings {
+        cw.push(reading.cw_id);
+        for i in 0..6 {
+            q[i].push(reading.q_deg[i]);
+            w[i].push(reading.wrench[i]);
+        }
+        for (column, value) in p.iter_mut().zip(reading.position_mm) {
+            column.push(value);
+        }
+        at.push(reading.measured_at_us);
+        config.push(*config_id);
+    }
+    let mut columns = vec![Column::new("cw_id".into(), cw)];
+    for (name, values) in JOINT_COLUMNS.iter().zip(q) {
+        columns.push(Column::new((*name).into(), values));
+    }
+    for (name, values) in WRENCH_COLUMNS.iter().zip(w) {
+        columns.push(Column::new((*name).into(), values));
+    }
+    for (name, values) in POSITION_COLUMNS.iter().zip(p) {
+        columns.push(Column::new((*name).into(), values));
+    }
+    if with_config_id {
+        columns.push(Column::new("config_id".into(), config));
+    }
+    if let Some(robot_id) = robot_id {
+        columns.push(Column::new(
+            "robot_id".into(),
+            vec![robot_id; readings.len()],
+        ));
+    }
+    columns.push(timestamps("measured_at", at));
+    frame(columns)
 }

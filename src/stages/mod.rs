@@ -6,6 +6,7 @@
 //! (serde + JSON Schema + defaults) is the single source for job-file parsing,
 //! `egcal list-stages`, the job-file JSON Schema and the cache key.
 
+pub mod gate;
 pub mod identifiability;
 pub mod identify;
 pub mod measure;
@@ -14,6 +15,7 @@ pub mod predict;
 pub mod report;
 pub mod scan_logs;
 pub mod select;
+pub mod simulate_logs;
 pub mod validate;
 pub mod wrenches;
 
@@ -51,6 +53,10 @@ pub struct StageInfo {
     /// Whether the stage reads the job's cable-robot geometry (then its hash is
     /// part of the cache key).
     pub uses_cable_robot: bool,
+    /// An input file the stage may replace on purpose (the gate publishes over the
+    /// calibration in service), so the runner does not report it as changed under
+    /// the stage. Its new content re-keys the stage on the next run.
+    pub updates_input: Option<&'static str>,
 }
 
 /// A checked input table and the file it came from.
@@ -270,9 +276,11 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &identifiability::IdentifiabilityStage,
         &select::SelectStage,
         &measure::MeasureStage,
+        &simulate_logs::SimulateLogsStage,
         &scan_logs::ScanLogsStage,
         &identify::IdentifyStage,
         &validate::ValidateStage,
+        &gate::GateStage,
         &predict::PredictStage,
         &report::ReportStage,
     ]

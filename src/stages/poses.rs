@@ -98,6 +98,7 @@ impl Default for PosesSettings {
 static INFO: StageInfo = StageInfo {
     kind: "poses",
     uses_cable_robot: true,
+    updates_input: None,
     summary: "Robot configurations in the workspace box, SMR facing the tracker, collision-free",
     code_version: 3,
     inputs: &[],

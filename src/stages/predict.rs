@@ -37,6 +37,7 @@ impl Default for PredictSettings {
 static INFO: StageInfo = StageInfo {
     kind: "predict",
     uses_cable_robot: false,
+    updates_input: None,
     summary: "Forward model: SMR position, load torques and deflections for conf-wrench rows",
     code_version: 1,
     inputs: &[

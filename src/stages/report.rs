@@ -50,6 +50,7 @@ pub const REPORT_FILE: &str = "report.html";
 static INFO: StageInfo = StageInfo {
     kind: "report",
     uses_cable_robot: false,
+    updates_input: None,
     summary: "Self-contained HTML report (report.html): Table III, Fig. 4 and 7, parameters, traces, tests, provenance",
     code_version: 1,
     inputs: &[

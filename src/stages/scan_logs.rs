@@ -72,6 +72,7 @@ impl Default for ScanLogsSettings {
 static INFO: StageInfo = StageInfo {
     kind: "scan_logs",
     uses_cable_robot: false,
+    updates_input: None,
     summary: "Logged measurements of one robot over a time window, split by day for validation",
     code_version: 1,
     inputs: &[],

@@ -59,6 +59,7 @@ impl Default for SelectSettings {
 static INFO: StageInfo = StageInfo {
     kind: "select",
     uses_cable_robot: false,
+    updates_input: None,
     summary: "DETMAX selection of calibration rows by an observability index (O1 by default)",
     code_version: 2,
     inputs: &[

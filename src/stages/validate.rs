@@ -27,6 +27,7 @@ pub struct ValidateSettings {}
 static INFO: StageInfo = StageInfo {
     kind: "validate",
     uses_cable_robot: false,
+    updates_input: None,
     summary: "Validation errors per model, statistics (Table III) and pairwise hypothesis tests",
     code_version: 1,
     inputs: &[

@@ -71,6 +71,7 @@ impl Default for WrenchesSettings {
 static INFO: StageInfo = StageInfo {
     kind: "wrenches",
     uses_cable_robot: true,
+    updates_input: None,
     summary: "Feasible cable-robot wrenches per configuration: the conf-wrench candidates",
     code_version: 3,
     inputs: &[TableSlot {

@@ -869,6 +869,184 @@ pub const DEFLECTION_COLUMNS: [&str; 6] = [
 ];
 
 /// Every table kind, for schema generation and `egcal show`.
+/// The nightly gate's decision: one row.
+pub fn gate_decision() -> TableSchema {
+    let mut columns = vec![
+        col(
+            "decision",
+            ColumnType::Utf8,
+            "",
+            true,
+            "kept, published or refused",
+        ),
+        col(
+            "reasons",
+            ColumnType::Utf8,
+            "",
+            true,
+            "why, one sentence per line",
+        ),
+        col("model", ColumnType::Utf8, "", true, "the model compared"),
+        col(
+            "holdout_rows",
+            ColumnType::Int64,
+            "",
+            true,
+            "hold-out rows compared",
+        ),
+        col(
+            "in_service_mean_mm",
+            ColumnType::Float64,
+            "mm",
+            true,
+            "in-service set's mean hold-out error",
+        ),
+        col(
+            "candidate_mean_mm",
+            ColumnType::Float64,
+            "mm",
+            true,
+            "candidate's mean hold-out error",
+        ),
+        col(
+            "t_statistic",
+            ColumnType::Float64,
+            "",
+            false,
+            "paired t of in-service minus candidate errors; null when all differences are equal",
+        ),
+        col("dof", ColumnType::Float64, "", false, "degrees of freedom"),
+        col(
+            "p_value",
+            ColumnType::Float64,
+            "",
+            false,
+            "two-sided p-value",
+        ),
+    ];
+    for (name, meaning) in [
+        (
+            "mean_position_change_mm",
+            "mean predicted position change over the reference poses",
+        ),
+        (
+            "max_position_change_mm",
+            "largest predicted position change over the reference poses",
+        ),
+    ] {
+        columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
+    }
+    columns.push(col(
+        "drift_since",
+        ColumnType::Utf8,
+        "",
+        false,
+        "first day (YYYY-MM-DD) of a significant rise of the in-service error in the window",
+    ));
+    columns.push(col(
+        "published_as",
+        ColumnType::Utf8,
+        "",
+        false,
+        "the installed file, when published",
+    ));
+    columns.push(col(
+        "retired_as",
+        ColumnType::Utf8,
+        "",
+        false,
+        "where the replaced calibration was kept, when published",
+    ));
+    TableSchema {
+        kind: "gate_decision",
+        description: "Whether the night's candidate calibration replaced the one in service, and why.",
+        columns,
+        unique: None,
+    }
+}
+
+/// Per-parameter change between the in-service set and the candidate.
+pub fn parameter_changes() -> TableSchema {
+    TableSchema {
+        kind: "parameter_changes",
+        description: "Candidate minus in-service value of each parameter either set identifies, in units of its standard error.",
+        columns: vec![
+            col("name", ColumnType::Utf8, "", true, "parameter (spec §3)"),
+            col("unit", ColumnType::Utf8, "", true, "unit of the values"),
+            col(
+                "in_service",
+                ColumnType::Float64,
+                "",
+                true,
+                "in-service value",
+            ),
+            col(
+                "candidate",
+                ColumnType::Float64,
+                "",
+                true,
+                "candidate value",
+            ),
+            col(
+                "change",
+                ColumnType::Float64,
+                "",
+                true,
+                "candidate − in-service",
+            ),
+            col(
+                "std_error",
+                ColumnType::Float64,
+                "",
+                false,
+                "√(se_candidate² + se_in_service²) of the available standard errors",
+            ),
+            col(
+                "z",
+                ColumnType::Float64,
+                "",
+                false,
+                "change / std_error; |z| > 3 is a change the data sees",
+            ),
+        ],
+        unique: Some("name"),
+    }
+}
+
+/// Per-day errors of both sets over the scanned window.
+pub fn daily_errors() -> TableSchema {
+    TableSchema {
+        kind: "daily_errors",
+        description: "Mean error norm per logged day of the in-service set and the candidate.",
+        columns: vec![
+            col("date", ColumnType::Utf8, "", true, "day (UTC), YYYY-MM-DD"),
+            col("rows", ColumnType::Int64, "", true, "rows logged that day"),
+            col(
+                "role",
+                ColumnType::Utf8,
+                "",
+                true,
+                "calibration or validation (the day's rows in the selection)",
+            ),
+            col(
+                "in_service_mean_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "in-service set's mean error",
+            ),
+            col(
+                "candidate_mean_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "candidate's mean error",
+            ),
+        ],
+        unique: Some("date"),
+    }
+}
+
 pub fn all() -> Vec<TableSchema> {
     vec![
         conf_wrenches(),
@@ -886,6 +1064,9 @@ pub fn all() -> Vec<TableSchema> {
         tests(),
         poses(),
         candidates(),
+        gate_decision(),
+        parameter_changes(),
+        daily_errors(),
     ]
 }
 

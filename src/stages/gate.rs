@@ -1,0 +1,525 @@
+//! `gate`: the acceptance gate of a nightly re-calibration (see [`crate::gate`]).
+//!
+//! Compares the night's candidate parameters with the set in service on the
+//! scanned window: each parameter's change in units of its standard error, the
+//! predicted position change over reference poses, the hold-out error of both with
+//! a paired t-test, and each day's error (where a rise of the in-service error
+//! shows the day the robot changed). Then decides, and when it publishes, installs
+//! the candidate's file as `<publish_dir>/current.parquet` ([`crate::publish`]).
+//!
+//! This is the one stage with an effect outside its output folder: publishing is
+//! its purpose. A cached gate does not publish again, which is right: a cache hit
+//! means the same candidate against the same in-service file, already decided.
+//! The decision also sets the exit code of `egcal run` (see the README).
+
+use std::collections::{BTreeMap, HashSet};
+use std::path::PathBuf;
+
+use polars::prelude::{Column, DataType};
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::identify::{MeasuredRows, ids_with_role, measured_rows};
+use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use crate::gate::{self, ChangePoint, Decision, Holdout, Rules};
+use crate::robot::{ConfWrench, ParamId, ParamValues, batch_predict};
+use crate::table::parameters::{self, ModelName, ParamStatus, ParameterSet};
+use crate::table::time::date_string;
+use crate::table::{frame, schema};
+
+pub struct GateStage;
+
+/// Settings of `gate`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct GateSettings {
+    /// The model of both tables that is compared and put in service.
+    pub model: String,
+    /// Significance level of the paired t-test on hold-out errors.
+    pub alpha: f64,
+    /// Smallest mean hold-out improvement worth publishing (mm).
+    pub min_improvement_mm: f64,
+    /// The in-service set has drifted when the candidate moves a reference pose's
+    /// predicted position by more than this (mm).
+    pub drift_threshold_mm: f64,
+    /// Fewest hold-out rows the comparison needs.
+    pub min_holdout_rows: usize,
+    /// Calibration folder, relative to the job file: a published candidate becomes
+    /// `current.parquet` there. Empty: decide and report only.
+    pub publish_dir: String,
+}
+
+impl Default for GateSettings {
+    fn default() -> Self {
+        GateSettings {
+            model: ModelName::Elastogeometric.as_str().into(),
+            alpha: 0.01,
+            min_improvement_mm: 0.02,
+            drift_threshold_mm: 0.15,
+            min_holdout_rows: 20,
+            publish_dir: String::new(),
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "gate",
+    uses_cable_robot: false,
+    updates_input: Some("in_service"),
+    summary: "Compare the night's calibration with the one in service; publish it only when it is better or the old one drifted",
+    code_version: 1,
+    inputs: &[
+        TableSlot {
+            name: "measurements",
+            schema: schema::measurements,
+            required: true,
+            meaning: "the scanned window's rows (with measured_at for the daily errors)",
+        },
+        TableSlot {
+            name: "selection",
+            schema: schema::selection,
+            required: true,
+            meaning: "rows with role = validation are the hold-out",
+        },
+        TableSlot {
+            name: "candidate",
+            schema: schema::parameters,
+            required: true,
+            meaning: "the night's identified parameters",
+        },
+        TableSlot {
+            name: "in_service",
+            schema: schema::parameters,
+            required: true,
+            meaning: "the calibration in service (usually <publish_dir>/current.parquet)",
+        },
+        TableSlot {
+            name: "reference",
+            schema: schema::conf_wrenches,
+            required: false,
+            meaning: "poses and loads where position changes matter; the window's rows when absent",
+        },
+    ],
+    outputs: &[
+        TableSlot {
+            name: "decision",
+            schema: schema::gate_decision,
+            required: true,
+            meaning: "kept, published or refused, with the reasons and numbers",
+        },
+        TableSlot {
+            name: "parameter_changes",
+            schema: schema::parameter_changes,
+            required: true,
+            meaning: "each identified parameter's change in units of its standard error",
+        },
+        TableSlot {
+            name: "daily_errors",
+            schema: schema::daily_errors,
+            required: true,
+            meaning: "mean error of both sets per logged day",
+        },
+    ],
+};
+
+impl GateSettings {
+    fn rules(&self) -> Result<Rules, StageError> {
+        let positive = |key: &str, v: f64| {
+            if v > 0.0 && v.is_finite() {
+                Ok(v)
+            } else {
+                Err(StageError::Invalid(format!(
+                    "setting `{key}`: expected a positive number, found {v}"
+                )))
+            }
+        };
+        if !(self.alpha > 0.0 && self.alpha < 1.0) {
+            return Err(StageError::Invalid(format!(
+                "setting `alpha`: expected a level between 0 and 1, found {}",
+                self.alpha
+            )));
+        }
+        Ok(Rules {
+            alpha: self.alpha,
+            min_improvement_mm: positive("min_improvement_mm", self.min_improvement_mm)?,
+            drift_threshold_mm: positive("drift_threshold_mm", self.drift_threshold_mm)?,
+        })
+    }
+}
+
+fn model_set(
+    table: &InputTable,
+    model: ModelName,
+    nominal: &ParamValues,
+) -> Result<ParameterSet, StageError> {
+    let sets = parameters::from_frame(&table.df, &table.path, nominal)?;
+    let available: Vec<&str> = sets.iter().map(|s| s.model.as_str()).collect();
+    sets.iter()
+        .find(|s| s.model == model)
+        .cloned()
+        .ok_or_else(|| {
+            StageError::Invalid(format!(
+                "{}: no `{model}` parameters (the table has: {}); set `model`",
+                table.path.display(),
+                available.join(", ")
+            ))
+        })
+}
+
+/// Error norms of `values` on the rows (mm).
+fn error_norms(ctx: &StageContext, values: &ParamValues, rows: &MeasuredRows) -> Vec<f64> {
+    batch_predict(ctx.robot, values, &rows.rows)
+        .iter()
+        .zip(&rows.positions)
+        .map(|(p, m)| (p.position_mm - m).norm())
+        .collect()
+}
+
+/// UTC day of each row from `measured_at`, when the table has it.
+fn row_days(table: &InputTable) -> Result<Option<Vec<i64>>, StageError> {
+    let Ok(column) = table.df.column("measured_at") else {
+        return Ok(None);
+    };
+    let micros = column
+        .cast(&DataType::Int64)
+        .and_then(|c| c.i64().cloned())
+        .map_err(|e| StageError::Invalid(format!("{}: measured_at: {e}", table.path.display())))?;
+    Ok(Some(
+        micros
+            .iter()
+            .map(|us| us.map_or(i64::MIN, |us| us.div_euclid(86_400_000_000)))
+            .collect(),
+    ))
+}
+
+impl Stage for GateStage {
+    type Settings = GateSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn run(&self, ctx: &StageContext, settings: &GateSettings) -> Result<StageOutputs, StageError> {
+        let rules = settings.rules()?;
+        let model: ModelName = settings
+            .model
+            .parse()
+            .map_err(|e: String| StageError::Invalid(format!("setting `model`: {e}")))?;
+        let nominal = ParamValues::nominal(ctx.robot.spec());
+        let candidate_table = ctx.input("candidate")?;
+        let candidate = model_set(candidate_table, model, &nominal)?;
+        let in_service = model_set(ctx.input("in_service")?, model, &nominal)?;
+
+        let measurements = ctx.input("measurements")?;
+        let window = measured_rows(measurements, None)?;
+        let holdout_ids = ids_with_role(ctx.input("selection")?, "validation")?;
+        let holdout = measured_rows(measurements, Some(&holdout_ids))?;
+        if holdout.ids.len() < settings.min_holdout_rows.max(2) {
+            return Err(StageError::Invalid(format!(
+                "the hold-out has {} rows, fewer than min_holdout_rows = {}: widen the window or hold out more days",
+                holdout.ids.len(),
+                settings.min_holdout_rows.max(2)
+            )));
+        }
+        let comparison = Holdout::compare(
+            &error_norms(ctx, &in_service.values, &holdout),
+            &error_norms(ctx, &candidate.values, &holdout),
+        )
+        .map_err(|e| StageError::Failed(format!("hold-out comparison: {e}")))?;
+
+        let reference: Vec<ConfWrench> = match ctx.inputs.get("reference") {
+            Some(table) => super::conf_wrench_rows(table)?.1,
+            None => window.rows.clone(),
+        };
+        let changes: Vec<f64> = batch_predict(ctx.robot, &in_service.values, &reference)
+            .iter()
+            .zip(batch_predict(ctx.robot, &candidate.values, &reference))
+            .map(|(a, b)| (a.position_mm - b.position_mm).norm())
+            .collect();
+        let max_change = changes.iter().copied().fold(0.0, f64::max);
+        let mean_change = changes.iter().sum::<f64>() / changes.len().max(1) as f64;
+
+        let (decision, mut reasons) = gate::decide(&comparison, max_change, &rules);
+        let daily = Daily::new(
+            row_days(measurements)?,
+            &window,
+            &holdout_ids,
+            &error_norms(ctx, &in_service.values, &window),
+            &error_norms(ctx, &candidate.values, &window),
+        );
+        let drift = daily.change_point(&rules);
+        if let Some(point) = &drift {
+            reasons.push(format!(
+                "the in-service error rose from {:.3} mm to {:.3} mm on {} (Welch t = {:.1}, p = {:.1e})",
+                point.mean_before_mm,
+                point.mean_after_mm,
+                date_string(point.day),
+                point.welch_t.statistic,
+                point.welch_t.p_value
+            ));
+            if daily.calibration_days_from(point.day) && daily.calibration_days_before(point.day) {
+                reasons.push(format!(
+                    "the candidate was identified on days before and after {}: a window starting then would fit the robot as it is now",
+                    date_string(point.day)
+                ));
+            }
+        }
+
+        let mut published_as = None;
+        let mut retired_as = None;
+        if decision == Decision::Published && !settings.publish_dir.is_empty() {
+            let dir = ctx.job_dir.join(&settings.publish_dir);
+            let bytes = std::fs::read(&candidate_table.path).map_err(|e| {
+                StageError::Failed(format!("reading {}: {e}", candidate_table.path.display()))
+            })?;
+            let installed = crate::publish::install(&dir, &bytes, ctx.run_date).map_err(|e| {
+                StageError::Failed(format!("publishing into {}: {e}", dir.display()))
+            })?;
+            reasons.push(format!("published as {}", installed.current.display()));
+            published_as = Some(installed.current.display().to_string());
+            retired_as = installed.retired.map(|p: PathBuf| p.display().to_string());
+        }
+
+        for reason in &reasons {
+            ctx.progress.note(reason);
+        }
+        let mut outputs = StageOutputs::default();
+        outputs
+            .facts
+            .insert("decision".into(), decision.as_str().into());
+        outputs.facts.insert(
+            "holdout_mean_mm".into(),
+            format!(
+                "{:.3} -> {:.3}",
+                comparison.in_service_mean_mm, comparison.candidate_mean_mm
+            ),
+        );
+        outputs
+            .facts
+            .insert("max_position_change_mm".into(), format!("{max_change:.3}"));
+        let t = comparison.paired_t;
+        let decision_row = frame(vec![
+            Column::new("decision".into(), [decision.as_str()]),
+            Column::new("reasons".into(), [reasons.join("\n")]),
+            Column::new("model".into(), [model.as_str()]),
+            Column::new("holdout_rows".into(), [comparison.rows as i64]),
+            Column::new("in_service_mean_mm".into(), [comparison.in_service_mean_mm]),
+            Column::new("candidate_mean_mm".into(), [comparison.candidate_mean_mm]),
+            Column::new("t_statistic".into(), [t.map(|t| t.statistic)]),
+            Column::new("dof".into(), [t.and_then(|t| t.dof)]),
+            Column::new("p_value".into(), [t.map(|t| t.p_value)]),
+            Column::new("mean_position_change_mm".into(), [mean_change]),
+            Column::new("max_position_change_mm".into(), [max_change]),
+            Column::new(
+                "drift_since".into(),
+                [drift.as_ref().map(|p| date_string(p.day))],
+            ),
+            Column::new("published_as".into(), [published_as]),
+            Column::new("retired_as".into(), [retired_as]),
+        ]);
+        outputs.files.insert(
+            "decision.md".into(),
+            summary(decision, model, &reasons, &candidate, &in_service).into_bytes(),
+        );
+        outputs.tables.insert("decision".into(), decision_row);
+        outputs.tables.insert(
+            "parameter_changes".into(),
+            parameter_changes(&candidate, &in_service),
+        );
+        outputs
+            .tables
+            .insert("daily_errors".into(), daily.into_frame());
+        Ok(outputs)
+    }
+}
+
+/// Rows grouped by logged day.
+struct Daily {
+    /// Day → (rows, is a hold-out day, in-service error sum, candidate error sum).
+    days: BTreeMap<i64, (usize, bool, f64, f64)>,
+    /// Per row: day and in-service error, for the change point.
+    row_days: Vec<i64>,
+    in_service_mm: Vec<f64>,
+}
+
+impl Daily {
+    fn new(
+        days: Option<Vec<i64>>,
+        window: &MeasuredRows,
+        holdout: &HashSet<i64>,
+        in_service_mm: &[f64],
+        candidate_mm: &[f64],
+    ) -> Daily {
+        let mut grouped = BTreeMap::new();
+        let Some(days) = days else {
+            return Daily {
+                days: grouped,
+                row_days: Vec::new(),
+                in_service_mm: Vec::new(),
+            };
+        };
+        for (k, id) in window.ids.iter().enumerate() {
+            let entry = grouped.entry(days[k]).or_insert((0, false, 0.0, 0.0));
+            entry.0 += 1;
+            entry.1 |= holdout.contains(id);
+            entry.2 += in_service_mm[k];
+            entry.3 += candidate_mm[k];
+        }
+        Daily {
+            days: grouped,
+            row_days: days,
+            in_service_mm: in_service_mm.to_vec(),
+        }
+    }
+
+    fn change_point(&self, rules: &Rules) -> Option<ChangePoint> {
+        gate::change_point(
+            &self.row_days,
+            &self.in_service_mm,
+            rules.alpha,
+            rules.min_improvement_mm,
+        )
+    }
+
+    fn calibration_days_from(&self, day: i64) -> bool {
+        self.days.range(day..).any(|(_, d)| !d.1)
+    }
+
+    fn calibration_days_before(&self, day: i64) -> bool {
+        self.days.range(..day).any(|(_, d)| !d.1)
+    }
+
+    fn into_frame(self) -> polars::prelude::DataFrame {
+        let mut date = Vec::new();
+        let mut rows = Vec::new();
+        let mut role = Vec::new();
+        let mut in_service = Vec::new();
+        let mut candidate = Vec::new();
+        for (day, (n, is_holdout, old, new)) in self.days {
+            date.push(date_string(day));
+            rows.push(n as i64);
+            role.push(if is_holdout {
+                "validation"
+            } else {
+                "calibration"
+            });
+            in_service.push(old / n as f64);
+            candidate.push(new / n as f64);
+        }
+        frame(vec![
+            Column::new("date".into(), date),
+            Column::new("rows".into(), rows),
+            Column::new("role".into(), role),
+            Column::new("in_service_mean_mm".into(), in_service),
+            Column::new("candidate_mean_mm".into(), candidate),
+        ])
+    }
+}
+
+/// Parameters either set identifies, with the change in standard errors.
+fn changed_parameters(
+    candidate: &ParameterSet,
+    in_service: &ParameterSet,
+) -> Vec<(ParamId, f64, Option<f64>)> {
+    ParamId::all()
+        .filter(|id| {
+            candidate.status[id.index()] == ParamStatus::Identified
+                || in_service.status[id.index()] == ParamStatus::Identified
+        })
+        .map(|id| {
+            let change = candidate.values.get(id) - in_service.values.get(id);
+            let errors: Vec<f64> = [
+                candidate.std_errors[id.index()],
+                in_service.std_errors[id.index()],
+            ]
+            .into_iter()
+            .flatten()
+            .collect();
+            let std_error = (!errors.is_empty())
+                .then(|| errors.iter().map(|e| e * e).sum::<f64>().sqrt())
+                .filter(|se| *se > 0.0);
+            (id, change, std_error)
+        })
+        .collect()
+}
+
+fn parameter_changes(
+    candidate: &ParameterSet,
+    in_service: &ParameterSet,
+) -> polars::prelude::DataFrame {
+    let rows = changed_parameters(candidate, in_service);
+    frame(vec![
+        Column::new(
+            "name".into(),
+            rows.iter().map(|r| r.0.name()).collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "unit".into(),
+            rows.iter().map(|r| r.0.unit()).collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "in_service".into(),
+            rows.iter()
+                .map(|r| in_service.values.get(r.0))
+                .collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "candidate".into(),
+            rows.iter()
+                .map(|r| candidate.values.get(r.0))
+                .collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "change".into(),
+            rows.iter().map(|r| r.1).collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "std_error".into(),
+            rows.iter().map(|r| r.2).collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "z".into(),
+            rows.iter()
+                .map(|r| r.2.map(|se| r.1 / se))
+                .collect::<Vec<_>>(),
+        ),
+    ])
+}
+
+/// Parameters listed in the summary, largest |z| first.
+const CHANGES_LISTED: usize = 5;
+
+/// The human-readable decision (`decision.md`): what cron mails or CI shows.
+fn summary(
+    decision: Decision,
+    model: ModelName,
+    reasons: &[String],
+    candidate: &ParameterSet,
+    in_service: &ParameterSet,
+) -> String {
+    let mut text = format!(
+        "# Calibration gate: {}\n\nModel compared: {model}.\n\n",
+        decision.as_str()
+    );
+    for reason in reasons {
+        text.push_str(&format!("- {reason}\n"));
+    }
+    let mut changes = changed_parameters(candidate, in_service);
+    changes.retain(|c| c.2.is_some());
+    changes.sort_by(|a, b| {
+        let z = |c: &(ParamId, f64, Option<f64>)| (c.1 / c.2.unwrap_or(1.0)).abs();
+        z(b).total_cmp(&z(a))
+    });
+    if !changes.is_empty() {
+        text.push_str("\nLargest parameter changes (candidate − in service):\n\n| parameter | change | z |\n|---|---|---|\n");
+        for (id, change, se) in changes.iter().take(CHANGES_LISTED) {
+            let z = se.map_or(f64::NAN, |se| change / se);
+            text.push_str(&format!(
+                "| {} | {change:+.5} {} | {z:+.1} |\n",
+                id.name(),
+                id.unit()
+            ));
+        }
+    }
+    text
+}

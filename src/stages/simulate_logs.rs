@@ -1,0 +1,406 @@
+//! `simulate_logs`: a robot cell's daily check logs, written by the simulator, so
+//! the nightly re-calibration (`jobs/nightly.toml`) has real input without a cell.
+//!
+//! Each day the simulated robot measures `rows_per_day` conf-wrench rows drawn from
+//! the input pool, and the rows are written as the cell would log them: one
+//! Parquet file per robot and day under `robot_id=<id>/date=<YYYY-MM-DD>/`. The
+//! robot's true parameters move over the days, as real robots do: a slow drift per
+//! day (thermal growth of a link) and steps on given dates (a joint offset after a
+//! collision). A `commissioning` table holds the whole pool measured the day before
+//! the logs start, on the undrifted robot: the data of the calibration put in
+//! service first.
+
+use std::collections::BTreeMap;
+
+use polars::prelude::ParquetWriter;
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+use rand::seq::SliceRandom;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::measure::{Reading, measure_row, measurements_frame};
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use crate::rig::simulator::{Simulator, SimulatorSettings};
+use crate::rig::{Rig, RigError};
+use crate::robot::{ConfWrench, ParamId, ParamValues};
+use crate::table::schema;
+use crate::table::time::{date_string, parse_date};
+
+pub struct SimulateLogsStage;
+
+/// A parameter that changes by the same amount every day.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Drift {
+    /// Parameter name (spec §3), e.g. `da2`.
+    pub parameter: String,
+    /// Change per day, in the parameter's unit (mm, deg, rad/(N·m)).
+    pub per_day: f64,
+}
+
+/// A parameter that changes at once on a date and stays changed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Step {
+    pub parameter: String,
+    /// First day with the change, `YYYY-MM-DD`.
+    pub date: String,
+    /// Change in the parameter's unit.
+    pub change: f64,
+}
+
+/// Settings of `simulate_logs`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimulateLogsSettings {
+    /// The robot whose logs these are (the `robot_id` column and partition).
+    pub robot_id: String,
+    /// First logged day, `YYYY-MM-DD`. A fixed date keeps the logs reproducible.
+    pub first_day: String,
+    /// Logged days.
+    pub days: u32,
+    /// Rows measured per day, drawn from the pool without repetition within a day.
+    pub rows_per_day: usize,
+    /// Hour of the day (UTC) the daily check starts.
+    pub start_hour_utc: f64,
+    /// Seconds between rows of a day's check.
+    pub seconds_per_row: f64,
+    /// Model of the `truth` input the robot starts from.
+    pub truth_model: String,
+    /// This robot's own differences from the truth table (parameter name → change
+    /// in its unit): two robots of a cell are not the same individual.
+    pub offsets: BTreeMap<String, f64>,
+    pub drifts: Vec<Drift>,
+    pub steps: Vec<Step>,
+    /// Noise and unmodelled errors of the rig.
+    pub simulator: SimulatorSettings,
+}
+
+impl Default for SimulateLogsSettings {
+    fn default() -> Self {
+        SimulateLogsSettings {
+            robot_id: String::new(),
+            first_day: String::new(),
+            days: 30,
+            rows_per_day: 50,
+            start_hour_utc: 2.0,
+            seconds_per_row: 30.0,
+            truth_model: "elastogeometric".into(),
+            offsets: BTreeMap::new(),
+            drifts: Vec::new(),
+            steps: Vec::new(),
+            simulator: SimulatorSettings::default(),
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "simulate_logs",
+    uses_cable_robot: false,
+    updates_input: None,
+    summary: "Daily check logs of a simulated robot whose parameters drift, as Hive-partitioned Parquet",
+    code_version: 1,
+    inputs: &[
+        TableSlot {
+            name: "conf_wrenches",
+            schema: schema::conf_wrenches,
+            required: true,
+            meaning: "the pool of check rows (cw_id, q1_deg..q6_deg, commanded wrench)",
+        },
+        TableSlot {
+            name: "truth",
+            schema: schema::parameters,
+            required: false,
+            meaning: "the robot's true parameters before any drift (nominal when absent)",
+        },
+    ],
+    outputs: &[TableSlot {
+        name: "commissioning",
+        schema: schema::measurements,
+        required: true,
+        meaning: "the whole pool measured the day before the logs start, undrifted",
+    }],
+};
+
+/// Day ids are `day number · ROWS_PER_DAY_LIMIT + row`, unique over a robot's logs.
+const ROWS_PER_DAY_LIMIT: usize = 10_000;
+/// Attempts per row when the simulated tracker loses the beam.
+const ATTEMPTS: u32 = 5;
+
+/// A parameter change over time, resolved against the parameter list.
+enum Change {
+    Drift {
+        id: ParamId,
+        per_day: f64,
+    },
+    Step {
+        id: ParamId,
+        from_day: i64,
+        change: f64,
+    },
+}
+
+impl SimulateLogsSettings {
+    fn first_day(&self) -> Result<i64, StageError> {
+        parse_date(&self.first_day).ok_or_else(|| {
+            StageError::Invalid(format!(
+                "setting `first_day`: expected a date YYYY-MM-DD, found `{}`",
+                self.first_day
+            ))
+        })
+    }
+
+    fn changes(&self) -> Result<Vec<Change>, StageError> {
+        let mut changes = Vec::new();
+        for (k, drift) in self.drifts.iter().enumerate() {
+            changes.push(Change::Drift {
+                id: parameter(&format!("drifts[{k}].parameter"), &drift.parameter)?,
+                per_day: finite(&format!("drifts[{k}].per_day"), drift.per_day)?,
+            });
+        }
+        for (k, step) in self.steps.iter().enumerate() {
+            changes.push(Change::Step {
+                id: parameter(&format!("steps[{k}].parameter"), &step.parameter)?,
+                from_day: parse_date(&step.date).ok_or_else(|| {
+                    StageError::Invalid(format!(
+                        "setting `steps[{k}].date`: expected a date YYYY-MM-DD, found `{}`",
+                        step.date
+                    ))
+                })?,
+                change: finite(&format!("steps[{k}].change"), step.change)?,
+            });
+        }
+        Ok(changes)
+    }
+}
+
+fn parameter(key: &str, name: &str) -> Result<ParamId, StageError> {
+    ParamId::from_name(name).ok_or_else(|| {
+        StageError::Invalid(format!(
+            "setting `{key}`: unknown parameter `{name}`{}",
+            crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
+        ))
+    })
+}
+
+fn finite(key: &str, value: f64) -> Result<f64, StageError> {
+    if value.is_finite() {
+        Ok(value)
+    } else {
+        Err(StageError::Invalid(format!(
+            "setting `{key}`: expected a finite number, found {value}"
+        )))
+    }
+}
+
+/// The robot's true parameters on `day`, `days_in` days after the first logged day.
+fn truth_on(base: &ParamValues, changes: &[Change], day: i64, days_in: i64) -> ParamValues {
+    let mut values = *base;
+    for change in changes {
+        match *change {
+            Change::Drift { id, per_day } => {
+                values.set(id, values.get(id) + per_day * days_in as f64);
+            }
+            Change::Step {
+                id,
+                from_day,
+                change,
+            } if day >= from_day => values.set(id, values.get(id) + change),
+            Change::Step { .. } => {}
+        }
+    }
+    values
+}
+
+impl Stage for SimulateLogsStage {
+    type Settings = SimulateLogsSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &SimulateLogsSettings,
+    ) -> Result<StageOutputs, StageError> {
+        let invalid = |m: String| StageError::Invalid(m);
+        if settings.robot_id.is_empty() || settings.robot_id.contains(['/', '\\', '=']) {
+            return Err(invalid(format!(
+                "setting `robot_id`: expected a name without `/`, `\\` or `=`, found `{}`",
+                settings.robot_id
+            )));
+        }
+        let first_day = settings.first_day()?;
+        let changes = settings.changes()?;
+        let check_seconds = settings.start_hour_utc * 3600.0
+            + settings.rows_per_day as f64 * settings.seconds_per_row;
+        let fits_a_day = settings.start_hour_utc >= 0.0
+            && settings.seconds_per_row > 0.0
+            && check_seconds < 86_400.0;
+        if !fits_a_day {
+            return Err(invalid(format!(
+                "settings `start_hour_utc` = {} and `rows_per_day` x `seconds_per_row` = {} x {} s: the daily check must start at or after 0 h and end within its day",
+                settings.start_hour_utc, settings.rows_per_day, settings.seconds_per_row
+            )));
+        }
+        let (pool_ids, pool) = super::conf_wrench_rows(ctx.input("conf_wrenches")?)?;
+        let day_limit = ROWS_PER_DAY_LIMIT.min(pool.len());
+        if settings.rows_per_day == 0 || settings.rows_per_day > day_limit {
+            return Err(invalid(format!(
+                "setting `rows_per_day`: expected 1 to {day_limit} (the pool has {} rows), found {}",
+                pool.len(),
+                settings.rows_per_day
+            )));
+        }
+        let mut base = super::model_values(ctx, "truth", "truth_model", &settings.truth_model)?;
+        for (name, change) in &settings.offsets {
+            let id = parameter(&format!("offsets.{name}"), name)?;
+            base.set(
+                id,
+                base.get(id) + finite(&format!("offsets.{name}"), *change)?,
+            );
+        }
+
+        let mut outputs = StageOutputs::default();
+        let day_rows = |day: i64, truth: ParamValues, rows: &[usize]| {
+            self.day(ctx, settings, day, truth, &pool, rows)
+        };
+        let commissioning_day = first_day - 1;
+        let all: Vec<usize> = (0..pool.len()).collect();
+        let readings = day_rows(commissioning_day, base, &all)?;
+        let with_pool_ids: Vec<(&Reading, Option<i64>)> = readings
+            .iter()
+            .zip(&all)
+            .map(|(r, &k)| (r, Some(pool_ids[k])))
+            .collect();
+        outputs.tables.insert(
+            "commissioning".into(),
+            measurements_frame(&with_pool_ids, true, Some(&settings.robot_id)),
+        );
+
+        ctx.progress.start(u64::from(settings.days), "days");
+        for days_in in 0..i64::from(settings.days) {
+            let day = first_day + days_in;
+            let mut order = all.clone();
+            order.shuffle(&mut StdRng::seed_from_u64(ctx.seed ^ day as u64));
+            order.truncate(settings.rows_per_day);
+            let truth = truth_on(&base, &changes, day, days_in);
+            let readings = day_rows(day, truth, &order)?;
+            let rows: Vec<(&Reading, Option<i64>)> = readings
+                .iter()
+                .zip(&order)
+                .map(|(r, &k)| (r, Some(pool_ids[k])))
+                .collect();
+            let mut df = measurements_frame(&rows, true, Some(&settings.robot_id));
+            let mut bytes = Vec::new();
+            ParquetWriter::new(&mut bytes)
+                .finish(&mut df)
+                .map_err(|e| StageError::Failed(format!("writing the log of {day}: {e}")))?;
+            outputs.files.insert(
+                format!(
+                    "robot_id={}/date={}/part-0.parquet",
+                    settings.robot_id,
+                    date_string(day)
+                ),
+                bytes,
+            );
+            ctx.progress.advance(days_in as u64 + 1);
+        }
+        outputs.facts.insert(
+            "logged".into(),
+            format!(
+                "{} days from {} x {} rows",
+                settings.days, settings.first_day, settings.rows_per_day
+            ),
+        );
+        Ok(outputs)
+    }
+}
+
+impl SimulateLogsStage {
+    /// The readings of pool rows `rows` on `day`, by a simulator of `truth` seeded
+    /// by the day, timed from the day's check start.
+    fn day(
+        &self,
+        ctx: &StageContext,
+        settings: &SimulateLogsSettings,
+        day: i64,
+        truth: ParamValues,
+        pool: &[ConfWrench],
+        rows: &[usize],
+    ) -> Result<Vec<Reading>, StageError> {
+        let simulator = SimulatorSettings {
+            clock_start: format!("{}T00:00:00Z", date_string(day)),
+            seconds_per_row: settings.seconds_per_row,
+            ..settings.simulator.clone()
+        };
+        let mut rig = Simulator::new(
+            ctx.robot.clone(),
+            truth,
+            simulator,
+            ctx.seed ^ (day as u64).rotate_left(32),
+        )
+        .map_err(StageError::Invalid)?;
+        let start_us = (settings.start_hour_utc * 3600e6) as i64;
+        let mut readings = Vec::with_capacity(rows.len());
+        for (k, &row) in rows.iter().enumerate() {
+            let cw_id = day * ROWS_PER_DAY_LIMIT as i64 + k as i64;
+            let mut attempts = 0;
+            let mut reading = loop {
+                attempts += 1;
+                match measure_row(&mut rig, cw_id, &pool[row]) {
+                    Ok(reading) => break reading,
+                    Err(RigError::Transient(_)) if attempts < ATTEMPTS => {
+                        rig.release_wrench()
+                            .map_err(|e| StageError::Failed(e.to_string()))?;
+                    }
+                    Err(e) => {
+                        return Err(StageError::Failed(format!(
+                            "{} cw_id {cw_id}: {e}",
+                            date_string(day)
+                        )));
+                    }
+                }
+            };
+            reading.measured_at_us = day * 86_400_000_000
+                + start_us
+                + (k as f64 * settings.seconds_per_row * 1e6) as i64;
+            readings.push(reading);
+        }
+        Ok(readings)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::test_support::{irb1600, truth_params};
+
+    #[test]
+    fn drift_grows_daily_and_steps_hold_from_their_date() {
+        let robot = irb1600();
+        let base = truth_params(&robot);
+        let a2 = ParamId::from_name("da2").unwrap();
+        let theta2 = ParamId::from_name("dtheta2").unwrap();
+        let step_day = parse_date("2026-11-10").unwrap();
+        let changes = [
+            Change::Drift {
+                id: a2,
+                per_day: 0.01,
+            },
+            Change::Step {
+                id: theta2,
+                from_day: step_day,
+                change: 0.05,
+            },
+        ];
+        let before = truth_on(&base, &changes, step_day - 1, 9);
+        let on = truth_on(&base, &changes, step_day, 10);
+        assert!((before.get(a2) - base.get(a2) - 0.09).abs() < 1e-12);
+        assert!((on.get(a2) - base.get(a2) - 0.10).abs() < 1e-12);
+        assert_eq!(before.get(theta2), base.get(theta2));
+        assert!((on.get(theta2) - base.get(theta2) - 0.05).abs() < 1e-12);
+    }
+}
