@@ -1,10 +1,23 @@
 //! Data-driven stage tests: every `fixtures/<kind>/<case>/case.toml` runs its stage
 //! kind through `egcal stage` on the case's input tables and settings, then either
-//! compares each `expected/<table>.parquet` with the output (floats within the
-//! case's tolerance, relative to max(1, |expected|); everything else exactly; only
-//! the expected columns) or checks the expected error text and a non-zero exit.
+//! checks the expected error text and a non-zero exit, or checks the outputs:
 //!
-//! Expected tables come from independent sources (see `fixtures/tools/`).
+//! * `[expect] tolerance = …`: each `expected/<table>.parquet` is compared with the
+//!   output table of that name (floats within the tolerance, relative to
+//!   max(1, |expected|); everything else exactly; only the expected columns);
+//! * `[expect] file = "report.html"` and `contains = ["…", …]`: a file the stage
+//!   writes besides its tables must contain each string (for stages whose output
+//!   is not a table);
+//! * `[expect] stdout = ["…", …]`: strings egcal's output must contain (the
+//!   stage's facts, e.g. how many files a scan pruned).
+//!
+//! `[expect] error` is one string or a list of strings that stderr must contain.
+//!
+//! The stage runs with the case folder as its working directory, which
+//! `egcal stage` resolves relative settings paths against (as a job resolves them
+//! against the job file's folder), so a case's `logs = "logs"` names its own folder.
+//!
+//! Expected tables and strings come from independent sources (see `fixtures/tools/`).
 
 mod common;
 
@@ -27,7 +40,38 @@ struct Case {
 #[serde(deny_unknown_fields)]
 struct Expect {
     tolerance: Option<f64>,
-    error: Option<String>,
+    error: Option<Strings>,
+    file: Option<String>,
+    #[serde(default)]
+    contains: Vec<String>,
+    #[serde(default)]
+    stdout: Vec<String>,
+}
+
+/// One string or a list of them.
+#[derive(serde::Deserialize)]
+#[serde(untagged)]
+enum Strings {
+    One(String),
+    Many(Vec<String>),
+}
+
+impl Strings {
+    fn all(&self) -> &[String] {
+        match self {
+            Strings::One(one) => std::slice::from_ref(one),
+            Strings::Many(many) => many,
+        }
+    }
+}
+
+/// The strings of `wanted` that `text` lacks.
+fn missing<'a>(text: &str, wanted: &'a [String]) -> Vec<&'a str> {
+    wanted
+        .iter()
+        .filter(|w| !text.contains(w.as_str()))
+        .map(String::as_str)
+        .collect()
 }
 
 fn cases() -> Vec<PathBuf> {
@@ -81,30 +125,55 @@ fn run_case(dir: &Path) -> Result<(), String> {
         args.push(format!("{name}={}", dir.join(file).display()));
     }
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let (code, stdout, stderr) = common::run(&args, out.path());
-    if let Some(error) = &case.expect.error {
+    let (code, stdout, stderr) = common::run(&args, dir);
+    let expect = &case.expect;
+    if let Some(error) = &expect.error {
+        let error = error.all();
         if code == 0 {
             return Err(format!(
-                "expected an error containing `{error}`, but it succeeded: {stdout}"
+                "expected an error containing {error:?}, but it succeeded: {stdout}"
             ));
         }
-        if !stderr.contains(error.as_str()) {
-            return Err(format!("expected `{error}` in:\n{stderr}"));
+        let lacking = missing(&stderr, error);
+        if !lacking.is_empty() {
+            return Err(format!("expected {lacking:?} in:\n{stderr}"));
         }
         return Ok(());
     }
     if code != 0 {
         return Err(format!("exit {code}:\n{stderr}"));
     }
-    let tolerance = case
-        .expect
-        .tolerance
-        .ok_or("[expect] needs tolerance or error")?;
-    for expected in std::fs::read_dir(dir.join("expected")).unwrap().flatten() {
-        let name = expected.file_name().to_string_lossy().into_owned();
-        let want = egcal::table::read_parquet(&expected.path()).map_err(|e| e.to_string())?;
-        let got = egcal::table::read_parquet(&out.path().join(&name)).map_err(|e| e.to_string())?;
-        compare(&want, &got, tolerance).map_err(|e| format!("{name}: {e}"))?;
+    if expect.tolerance.is_none() && expect.file.is_none() {
+        return Err("[expect] needs error, tolerance or file".into());
+    }
+    if expect.file.is_none() && !expect.contains.is_empty() {
+        return Err("[expect] contains needs `file`".into());
+    }
+    if let Some(tolerance) = expect.tolerance {
+        let expected =
+            std::fs::read_dir(dir.join("expected")).map_err(|e| format!("expected/: {e}"))?;
+        for expected in expected.flatten() {
+            let name = expected.file_name().to_string_lossy().into_owned();
+            let want = egcal::table::read_parquet(&expected.path()).map_err(|e| e.to_string())?;
+            let got =
+                egcal::table::read_parquet(&out.path().join(&name)).map_err(|e| e.to_string())?;
+            compare(&want, &got, tolerance).map_err(|e| format!("{name}: {e}"))?;
+        }
+    }
+    if let Some(file) = &expect.file {
+        if expect.contains.is_empty() {
+            return Err("[expect] file needs `contains`".into());
+        }
+        let text =
+            std::fs::read_to_string(out.path().join(file)).map_err(|e| format!("{file}: {e}"))?;
+        let lacking = missing(&text, &expect.contains);
+        if !lacking.is_empty() {
+            return Err(format!("{file} lacks {lacking:?}"));
+        }
+    }
+    let lacking = missing(&stdout, &expect.stdout);
+    if !lacking.is_empty() {
+        return Err(format!("expected {lacking:?} in the output:\n{stdout}"));
     }
     Ok(())
 }

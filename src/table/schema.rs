@@ -596,7 +596,7 @@ pub fn identifiability() -> TableSchema {
 pub fn observability() -> TableSchema {
     TableSchema {
         kind: "observability",
-        description: "Each DETMAX exchange: the row added, the row removed, and O1 after it (iteration 0 is the random start).",
+        description: "Each DETMAX exchange: the row added, the row removed, and O1 after it (iteration 0 is the random start); with a criterion other than O1 also that criterion's value.",
         columns: vec![
             col("iteration", ColumnType::Int64, "", true, "exchange number"),
             col("added_cw_id", ColumnType::Int64, "", false, "row added"),
@@ -607,6 +607,20 @@ pub fn observability() -> TableSchema {
                 "",
                 true,
                 "observability index O1 of the selection (columns scaled to unit norm over all candidates)",
+            ),
+            col(
+                "criterion",
+                ColumnType::Utf8,
+                "",
+                false,
+                "the index DETMAX maximised (O2–O5); present only when it is not O1",
+            ),
+            col(
+                "criterion_value",
+                ColumnType::Float64,
+                "",
+                false,
+                "that index of the selection after the exchange (same column scaling as `o1`)",
             ),
         ],
         unique: None,
