@@ -61,7 +61,8 @@ pub struct ScanReport {
     pub rows_in_window: usize,
     /// Dropped rows by reason (`null in x_mm`, `non-finite q3_deg`, `duplicate cw_id`).
     pub dropped_rows: BTreeMap<String, usize>,
-    /// Robot ids the opened files hold, filled only when no row matched (to explain it).
+    /// Robot ids of the `robot_id=` folders, and, when no row matched, of the
+    /// opened files' rows (to explain an empty result).
     pub robots_seen: BTreeSet<String>,
 }
 
@@ -83,16 +84,32 @@ fn float_columns() -> impl Iterator<Item = &'static str> {
         .chain(POSITION_COLUMNS)
 }
 
+/// The log files a query opens, and what partition pruning left out.
+#[derive(Debug, Clone, Default)]
+pub struct Discovered {
+    /// Files to open, sorted.
+    pub files: Vec<PathBuf>,
+    /// Files whose Hive partitions contradict the query.
+    pub pruned: usize,
+    /// Robot ids of the `robot_id=` folders seen, kept or not (to explain an
+    /// empty result without opening other robots' files).
+    pub partition_robots: BTreeSet<String>,
+    /// The folder partitions are read below: the log folder, or a glob's literal
+    /// leading part. Folders above it never prune (`/data/date=2020-01-01/logs`).
+    pub root: PathBuf,
+}
+
 /// Every `*.parquet` file of the query's source, sorted; the ones whose Hive
-/// partitions contradict the query are counted in `pruned` and left out.
-pub fn discover(query: &LogQuery) -> Result<(Vec<PathBuf>, usize), LogError> {
+/// partitions contradict the query are counted and left out.
+pub fn discover(query: &LogQuery) -> Result<Discovered, LogError> {
     let source_error = |message: String| LogError::Source {
         source_path: query.source.clone(),
         message,
     };
     let mut files = Vec::new();
-    if query.source.is_dir() {
+    let root = if query.source.is_dir() {
         walk(&query.source, &mut files).map_err(|e| source_error(e.to_string()))?;
+        query.source.clone()
     } else {
         let pattern = query.source.to_string_lossy();
         let paths = glob::glob(&pattern).map_err(|e| source_error(format!("bad glob: {e}")))?;
@@ -104,12 +121,27 @@ pub fn discover(query: &LogQuery) -> Result<(Vec<PathBuf>, usize), LogError> {
                 "no such folder (expected a log folder or a glob)".into(),
             ));
         }
-    }
+        query
+            .source
+            .components()
+            .take_while(|c| !c.as_os_str().to_string_lossy().contains(['*', '?', '[']))
+            .collect()
+    };
     files.retain(|p| p.extension().is_some_and(|e| e == "parquet"));
     files.sort();
     let found = files.len();
-    files.retain(|path| partition_matches(path, query));
-    Ok((files.clone(), found - files.len()))
+    let mut partition_robots = BTreeSet::new();
+    files.retain(|path| {
+        let below = path.strip_prefix(&root).unwrap_or(path);
+        partition_robots.extend(partition_robot(below));
+        partition_matches(below, query)
+    });
+    Ok(Discovered {
+        pruned: found - files.len(),
+        files,
+        partition_robots,
+        root,
+    })
 }
 
 fn walk(dir: &Path, files: &mut Vec<PathBuf>) -> std::io::Result<()> {
@@ -124,7 +156,16 @@ fn walk(dir: &Path, files: &mut Vec<PathBuf>) -> std::io::Result<()> {
     Ok(())
 }
 
-/// False when a `robot_id=` or `date=` folder of the path excludes it.
+/// The robot of a `robot_id=` folder in `path` (relative to the search root).
+fn partition_robot(path: &Path) -> Option<String> {
+    path.components().find_map(|part| {
+        let part = part.as_os_str().to_string_lossy();
+        part.strip_prefix("robot_id=").map(str::to_string)
+    })
+}
+
+/// False when a `robot_id=` or `date=` folder of the path (relative to the search
+/// root) excludes it.
 fn partition_matches(path: &Path, query: &LogQuery) -> bool {
     path.components().all(|part| {
         let part = part.as_os_str().to_string_lossy();
@@ -138,17 +179,19 @@ fn partition_matches(path: &Path, query: &LogQuery) -> bool {
 }
 
 /// Scans `files` (from [`discover`]) for the query's rows.
-pub fn scan(query: &LogQuery, files: &[PathBuf], pruned: usize) -> Result<LogScan, LogError> {
+pub fn scan(query: &LogQuery, found: &Discovered) -> Result<LogScan, LogError> {
     let mut report = ScanReport {
-        files_found: files.len() + pruned,
-        files_pruned: pruned,
+        files_found: found.files.len() + found.pruned,
+        files_pruned: found.pruned,
+        robots_seen: found.partition_robots.clone(),
         ..ScanReport::default()
     };
     let from_us = query.first_day * 86_400_000_000;
     let to_us = (query.last_day + 1) * 86_400_000_000;
     let mut opened = Vec::new();
-    for file in files {
-        match open(file) {
+    for file in &found.files {
+        let below = file.strip_prefix(&found.root).unwrap_or(file);
+        match open(file, partition_robot(below)) {
             Ok(frame) => {
                 opened.push(frame);
                 report.files_read += 1;
@@ -179,13 +222,13 @@ pub fn scan(query: &LogQuery, files: &[PathBuf], pruned: usize) -> Result<LogSca
         if rows.height() == 0 {
             // Only to explain an empty result: which robots the files do hold.
             let ids = all.select([col("robot_id").unique()]).collect()?;
-            report.robots_seen = ids
-                .column("robot_id")?
-                .str()?
-                .iter()
-                .flatten()
-                .map(str::to_string)
-                .collect();
+            report.robots_seen.extend(
+                ids.column("robot_id")?
+                    .str()?
+                    .iter()
+                    .flatten()
+                    .map(str::to_string),
+            );
         }
         rows
     };
@@ -205,8 +248,8 @@ pub fn scan(query: &LogQuery, files: &[PathBuf], pruned: usize) -> Result<LogSca
 }
 
 /// A lazy frame of one file's measurement columns (`measured_at` as µs, `robot_id`
-/// from the data or else the partition folder). Reads only the footer.
-fn open(file: &Path) -> Result<LazyFrame, String> {
+/// from the data or else the partition folder's). Reads only the footer.
+fn open(file: &Path, partition_robot: Option<String>) -> Result<LazyFrame, String> {
     let path = PlRefPath::try_from_path(file).map_err(|e| e.to_string())?;
     let args = ScanArgsParquet {
         hive_options: HiveOptions {
@@ -239,10 +282,6 @@ fn open(file: &Path) -> Result<LazyFrame, String> {
         Some(DataType::Int64) => col("config_id"),
         Some(other) => return Err(format!("column `config_id` is {other}, expected i64")),
         None => lit(NULL).cast(DataType::Int64).alias("config_id"),
-    });
-    let partition_robot = file.components().find_map(|part| {
-        let part = part.as_os_str().to_string_lossy();
-        part.strip_prefix("robot_id=").map(str::to_string)
     });
     columns.push(match (schema.get("robot_id"), &partition_robot) {
         (Some(DataType::String), _) => col("robot_id"),
@@ -385,5 +424,26 @@ mod tests {
         // Not partitioned, or an unparsable date: opened and filtered by the data.
         assert!(keeps("logs/2026/a.parquet"));
         assert!(keeps("logs/robot_id=r1/date=latest/a.parquet"));
+    }
+
+    #[test]
+    fn folders_above_the_log_folder_never_prune() {
+        let dir = tempfile::tempdir().unwrap();
+        let logs = dir.path().join("date=2020-01-01/robot_id=old/logs");
+        for part in ["robot_id=r1/date=2026-11-10", "robot_id=r2/date=2026-11-10"] {
+            std::fs::create_dir_all(logs.join(part)).unwrap();
+            std::fs::write(logs.join(part).join("a.parquet"), b"").unwrap();
+        }
+        for source in [logs.clone(), logs.join("*/*/*.parquet")] {
+            let found = discover(&LogQuery {
+                source,
+                ..query("r1")
+            })
+            .unwrap();
+            assert_eq!(found.files.len(), 1, "{found:?}");
+            assert_eq!(found.pruned, 1);
+            let robots: Vec<&str> = found.partition_robots.iter().map(String::as_str).collect();
+            assert_eq!(robots, ["r1", "r2"]);
+        }
     }
 }

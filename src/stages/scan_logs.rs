@@ -162,7 +162,9 @@ impl Stage for ScanLogsStage {
         run_date: i64,
     ) -> Result<serde_json::Value, StageError> {
         let query = settings.query(job_dir, run_date)?;
-        let (files, _) = logs::discover(&query).map_err(|e| StageError::Failed(e.to_string()))?;
+        let files = logs::discover(&query)
+            .map_err(|e| StageError::Failed(e.to_string()))?
+            .files;
         let hashes = files
             .iter()
             .map(|file| {
@@ -184,8 +186,8 @@ impl Stage for ScanLogsStage {
     ) -> Result<StageOutputs, StageError> {
         let query = settings.query(ctx.job_dir, ctx.run_date)?;
         let failed = |e: logs::LogError| StageError::Failed(e.to_string());
-        let (files, pruned) = logs::discover(&query).map_err(failed)?;
-        let scan = logs::scan(&query, &files, pruned).map_err(failed)?;
+        let found = logs::discover(&query).map_err(failed)?;
+        let scan = logs::scan(&query, &found).map_err(failed)?;
         let window = format!(
             "{} .. {}",
             date_string(query.first_day),
@@ -305,7 +307,7 @@ fn no_rows_message(query: &LogQuery, window: &str, report: &ScanReport) -> Strin
         .filter(|r| *r != query.robot_id)
         .collect();
     if !others.is_empty() {
-        message += &format!("; the files read hold robot(s) {}", others.join(", "));
+        message += &format!("; the logs hold robot(s) {}", others.join(", "));
     }
     message
 }
