@@ -197,9 +197,11 @@ pub fn decide(
                 rules.min_improvement_mm
             ));
         }
-        if drifted {
-            reasons.push(format!("the in-service set has drifted: {drift_line}"));
-        }
+        reasons.push(if drifted {
+            format!("the in-service set has drifted: {drift_line}")
+        } else {
+            drift_line
+        });
         Decision::Published
     } else {
         reasons.push(if significant {
