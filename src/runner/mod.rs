@@ -484,7 +484,7 @@ fn execute(
     let facts: Vec<String> = outputs
         .facts
         .iter()
-        .map(|(k, v)| format!("{k}={v}"))
+        .map(|(k, v)| format!("{k}={}", shortened(v)))
         .collect();
     reporter.line(&format!(
         "{}: done in {seconds:.2} s {}",
@@ -492,6 +492,17 @@ fn execute(
         facts.join(" ")
     ));
     Ok((Done { key, manifest }, Outcome::Ran { seconds }))
+}
+
+/// Longest fact value shown on a stage's "done" line; the whole value is in the
+/// stage log above it and in the tables' metadata (`egcal show`).
+const FACT_SHOWN_CHARS: usize = 48;
+
+fn shortened(value: &str) -> String {
+    match value.char_indices().nth(FACT_SHOWN_CHARS) {
+        Some((end, _)) => format!("{}…", &value[..end]),
+        None => value.to_string(),
+    }
 }
 
 /// Every declared output present and matching its schema: a stage bug is caught
