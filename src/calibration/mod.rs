@@ -1,10 +1,14 @@
 //! Calibration maths above the robot model: rank analysis (which parameters the
 //! data can identify) and the least-squares fit (Levenberg–Marquardt or the paper's
 //! Gauss–Newton) with standard errors. Knows nothing of tables or stages.
+//!
+//! Both work on any number of rows in bounded memory: each pass over the rows is
+//! chunked, parallel, and reduced to a small triangular factor ([`stream`]).
 
 mod dense;
 pub mod fit;
 pub mod rank;
+pub mod stream;
 
 use nalgebra::Vector3;
 
@@ -97,7 +101,14 @@ pub fn calibrate(
             diagnostics: None,
         });
     }
-    let rank = rank::analyse(robot, &nominal, rows, &candidates, options.rank_tolerance);
+    let rank = rank::analyse(
+        robot,
+        &nominal,
+        rows,
+        &candidates,
+        options.rank_tolerance,
+        options.fit.chunk_rows,
+    );
     let fit: Fit = fit::fit(
         robot,
         &nominal,

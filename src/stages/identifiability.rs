@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use super::{
     Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
 };
-use crate::calibration::rank;
+use crate::calibration::{rank, stream};
 use crate::robot::{ParamId, ParamValues};
 use crate::table::{frame, schema};
 
@@ -77,6 +77,7 @@ impl Stage for IdentifiabilityStage {
             &rows,
             &candidates,
             settings.rank_tolerance,
+            stream::CHUNK_ROWS,
         );
         let mut names = Vec::new();
         let mut units = Vec::new();

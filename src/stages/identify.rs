@@ -22,6 +22,7 @@ use super::{
     conf_wrench_rows,
 };
 use crate::calibration::fit::{Algorithm, FitOptions, Loss};
+use crate::calibration::stream;
 use crate::calibration::{CalibrationOptions, ModelResult, calibrate};
 use crate::robot::{ConfWrench, ParamId, ParamValues};
 use crate::table::frame;
@@ -125,6 +126,7 @@ impl IdentifySettings {
             max_iterations: self.max_iterations,
             stop_step_mm: self.stop_step_mm,
             stop_relative_cost: self.stop_relative_cost,
+            chunk_rows: stream::CHUNK_ROWS,
         })
     }
 }
