@@ -39,7 +39,7 @@ static INFO: StageInfo = StageInfo {
     kind: "identifiability",
     uses_cable_robot: false,
     summary: "Rank analysis: which parameters the candidate rows can identify, and what dependent ones combine with",
-    code_version: 2,
+    code_version: 3,
     inputs: &[TableSlot {
         name: "candidates",
         schema: schema::conf_wrenches,

@@ -135,7 +135,7 @@ static INFO: StageInfo = StageInfo {
     kind: "identify",
     uses_cable_robot: false,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "measurements",
