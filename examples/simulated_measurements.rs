@@ -29,7 +29,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut rig = Simulator::new(robot.clone(), truth, SimulatorSettings::default(), 5)?;
     let mut rng = StdRng::seed_from_u64(1);
     // Columns: cw_id, six joints, six wrench components, three positions.
-    let mut values: Vec<Vec<f64>> = vec![Vec::with_capacity(rows); 15];
+    let mut values: Vec<Vec<f64>> = (0..15).map(|_| Vec::with_capacity(rows)).collect();
     for k in 0..rows {
         let q_deg: [f64; 6] = std::array::from_fn(|i| {
             let [lo, hi] = robot.limits_deg(i);
