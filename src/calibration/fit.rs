@@ -50,6 +50,7 @@ use faer::Mat;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
+use super::rank::{self, RankAnalysis};
 use super::{dense, stream};
 use crate::robot::{ConfWrench, PARAM_COUNT, ParamId, ParamValues, Robot};
 
@@ -255,6 +256,9 @@ fn max_or_nan(a: f64, b: f64) -> f64 {
 struct Sums {
     /// Triangular factor of the rows' `[√W·J | √W·r]`, `(m+1) × (m+1)`.
     factor: Mat<f64>,
+    /// When asked for, the factor of the unweighted `[J | r]` where it differs
+    /// (`None`: every row has weight 1, so it is `factor`).
+    unweighted: Option<Mat<f64>>,
     /// The loss (mm²).
     cost: f64,
     /// Σ w·‖r‖² (mm²).
@@ -270,8 +274,16 @@ struct Sums {
 
 impl Sums {
     fn join(self, other: Sums) -> Sums {
+        let unweighted = match (&self.unweighted, &other.unweighted) {
+            (None, None) => None,
+            (a, b) => Some(stream::stack(
+                a.as_ref().unwrap_or(&self.factor),
+                b.as_ref().unwrap_or(&other.factor),
+            )),
+        };
         Sums {
             factor: stream::stack(&self.factor, &other.factor),
+            unweighted,
             cost: self.cost + other.cost,
             weighted_rss: self.weighted_rss + other.weighted_rss,
             rss: self.rss + other.rss,
@@ -291,8 +303,14 @@ struct Point {
 
 impl Point {
     /// One pass over the rows at `values`. With `previous` (the rows of the point
-    /// this one is a step from), also the largest change of predicted position.
-    fn at(problem: &Problem<'_>, values: ParamValues, previous: Option<&[RowFit]>) -> Point {
+    /// this one is a step from), also the largest change of predicted position;
+    /// with `unweighted`, also the factor without the loss's weights.
+    fn at(
+        problem: &Problem<'_>,
+        values: ParamValues,
+        previous: Option<&[RowFit]>,
+        unweighted: bool,
+    ) -> Point {
         let Problem {
             robot,
             rows,
@@ -304,6 +322,7 @@ impl Point {
         let prepared = robot.prepare(&values);
         let leaf = |range: Range<usize>, out: &mut [RowFit]| {
             let mut block = Mat::<f64>::zeros(3 * range.len(), m + 1);
+            let mut plain = unweighted.then(|| Mat::<f64>::zeros(3 * range.len(), m + 1));
             let mut columns = vec![Vector3::zeros(); m];
             let (mut cost, mut weighted_rss, mut rss, mut max_mm, mut step_mm) =
                 (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -323,6 +342,12 @@ impl Point {
                         block[(equation, j)] = root_weight * column[axis];
                     }
                     block[(equation, m)] = root_weight * residual_mm[axis];
+                    if let Some(plain) = plain.as_mut() {
+                        for (j, column) in columns.iter().enumerate() {
+                            plain[(equation, j)] = column[axis];
+                        }
+                        plain[(equation, m)] = residual_mm[axis];
+                    }
                 }
                 cost += options.loss.cost(norm);
                 weighted_rss += weight * norm * norm;
@@ -338,8 +363,12 @@ impl Point {
                     weight,
                 };
             }
+            let all_weights_one = out.iter().all(|row| row.weight == 1.0);
             Sums {
                 factor: dense::triangular_factor(block),
+                unweighted: plain
+                    .filter(|_| !all_weights_one)
+                    .map(dense::triangular_factor),
                 cost,
                 weighted_rss,
                 rss,
@@ -351,6 +380,7 @@ impl Point {
         let sums = stream::reduce_chunks(&mut out, options.chunk_rows, &leaf, &Sums::join)
             .unwrap_or_else(|| Sums {
                 factor: Mat::zeros(m + 1, m + 1),
+                unweighted: None,
                 cost: 0.0,
                 weighted_rss: 0.0,
                 rss: 0.0,
@@ -362,6 +392,28 @@ impl Point {
             rows: out,
             sums,
         }
+    }
+
+    /// The same point with the Jacobian restricted to the columns `to` (a subset
+    /// of `from`, the columns it was evaluated with). Those columns of the factor,
+    /// with the residual column, are `Qᵀ` times the original columns, so their own
+    /// factor is the restricted matrix's: no pass over the rows.
+    fn restricted(mut self, from: &[ParamId], to: &[ParamId]) -> Point {
+        let index: Vec<usize> = to
+            .iter()
+            .map(|id| {
+                from.iter()
+                    .position(|c| c == id)
+                    .expect("restricted to a subset of the columns")
+            })
+            .collect();
+        let (factor, k) = (&self.sums.factor, from.len());
+        let selected = Mat::<f64>::from_fn(k + 1, to.len() + 1, |i, j| {
+            factor[(i, index.get(j).copied().unwrap_or(k))]
+        });
+        self.sums.factor = dense::triangular_factor(selected);
+        self.sums.unweighted = None;
+        self
     }
 
     /// Residual RMS per coordinate and largest residual norm (mm).
@@ -471,21 +523,7 @@ pub fn fit(
     free: &[ParamId],
     options: &FitOptions,
 ) -> Result<Fit, FitError> {
-    let m = free.len();
-    let equations = 3 * rows.len();
-    if rows.len() != measured.len() {
-        return Err(FitError::LengthMismatch {
-            rows: rows.len(),
-            measured: measured.len(),
-        });
-    }
-    if equations <= m {
-        return Err(FitError::TooFewRows {
-            rows: rows.len(),
-            equations,
-            parameters: m,
-        });
-    }
+    check_sizes(rows, measured, free.len())?;
     let problem = Problem {
         robot,
         rows,
@@ -493,7 +531,77 @@ pub fn fit(
         free,
         options,
     };
-    let mut point = Point::at(&problem, *start, None);
+    let point = Point::at(&problem, *start, None, false);
+    iterate(&problem, point)
+}
+
+/// Rank analysis of `candidates` at `start` ([`rank`]) and the fit of the
+/// identifiable ones from there, as [`fit`] does.
+///
+/// The first pass serves both: it factors the Jacobian of every candidate with the
+/// residuals, unweighted for the rank analysis (and weighted, where the loss
+/// down-weights rows, for the fit), and the start point of the fit takes the
+/// identifiable columns of that factor ([`Point::restricted`]). So the rank
+/// analysis costs no pass of its own.
+pub fn fit_identifiable(
+    robot: &Robot,
+    start: &ParamValues,
+    rows: &[ConfWrench],
+    measured: &[Vector3<f64>],
+    candidates: &[ParamId],
+    rank_tolerance: f64,
+    options: &FitOptions,
+) -> Result<(RankAnalysis, Fit), FitError> {
+    check_sizes(rows, measured, 0)?;
+    let ordered = rank::priority_order(candidates);
+    let all = Problem {
+        robot,
+        rows,
+        measured,
+        free: &ordered,
+        options,
+    };
+    let first = Point::at(&all, *start, None, true);
+    let unweighted = first.sums.unweighted.as_ref().unwrap_or(&first.sums.factor);
+    let analysis = rank::analyse_factor(
+        unweighted.as_ref().subcols(0, ordered.len()),
+        &ordered,
+        rank_tolerance,
+    );
+    let free = analysis.independent.clone();
+    check_sizes(rows, measured, free.len())?;
+    let problem = Problem { free: &free, ..all };
+    let point = first.restricted(&ordered, &free);
+    Ok((analysis, iterate(&problem, point)?))
+}
+
+/// One row per measured position, and more equations than free parameters.
+fn check_sizes(
+    rows: &[ConfWrench],
+    measured: &[Vector3<f64>],
+    parameters: usize,
+) -> Result<(), FitError> {
+    if rows.len() != measured.len() {
+        return Err(FitError::LengthMismatch {
+            rows: rows.len(),
+            measured: measured.len(),
+        });
+    }
+    let equations = 3 * rows.len();
+    if equations <= parameters {
+        return Err(FitError::TooFewRows {
+            rows: rows.len(),
+            equations,
+            parameters,
+        });
+    }
+    Ok(())
+}
+
+/// The iteration from its first point (see the module docs).
+fn iterate(problem: &Problem<'_>, mut point: Point) -> Result<Fit, FitError> {
+    let (free, options) = (problem.free, problem.options);
+    let m = free.len();
     let mut trace = Vec::new();
     let mut stop = Stop::MaxIterations;
     // Marquardt's λ relative to the unit diagonal of the scaled JᵀJ; ν is Nielsen's
@@ -528,7 +636,7 @@ pub fn fit(
         for (id, dv) in free.iter().zip(&step.delta) {
             candidate.0[id.index()] += dv;
         }
-        let next = Point::at(&problem, candidate, Some(&point.rows));
+        let next = Point::at(problem, candidate, Some(&point.rows), false);
         let mut record = Iteration {
             iteration,
             rms_mm,
@@ -871,7 +979,7 @@ mod tests {
             free: free.ids(),
             options: &options,
         };
-        let point = Point::at(&problem, start, None);
+        let point = Point::at(&problem, start, None, false);
         let system = System::new(&point, m);
 
         // The dense problem, built independently.
@@ -931,6 +1039,66 @@ mod tests {
                     free.ids()[j]
                 );
             }
+        }
+    }
+
+    /// The rank analysis taken from the fit's first pass (weighted rows, since the
+    /// Huber loss down-weights every row at nominal) and the fit started from that
+    /// pass's restricted factor equal a separate rank pass and a separate fit.
+    #[test]
+    fn the_rank_analysis_shares_the_fit_s_first_pass() {
+        let robot = irb1600();
+        let truth = truth_params(&robot);
+        let nominal = ParamValues::nominal(robot.spec());
+        let rows = random_rows(&robot, 16, 300);
+        let mut rng = StdRng::seed_from_u64(17);
+        let normal = rand_distr::Normal::new(0.0, 0.02).unwrap();
+        let measured: Vec<Vector3<f64>> = batch_predict(&robot, &truth, &rows)
+            .iter()
+            .map(|p| {
+                p.position_mm
+                    + Vector3::from_fn(|_, _| rand_distr::Distribution::sample(&normal, &mut rng))
+            })
+            .collect();
+        let options = FitOptions {
+            algorithm: Algorithm::Paper,
+            loss: Loss::Huber { threshold_mm: 0.5 },
+            stop_step_mm: 1e-10,
+            chunk_rows: 64,
+            ..FitOptions::default()
+        };
+        let all: Vec<ParamId> = ParamId::all().collect();
+        let (analysis, shared) =
+            fit_identifiable(&robot, &nominal, &rows, &measured, &all, 1e-6, &options).unwrap();
+        let separate_analysis = rank::analyse(&robot, &nominal, &rows, &all, 1e-6, 64);
+        assert_eq!(analysis.independent, Selection::spec_identifiable().ids());
+        assert_eq!(analysis.independent, separate_analysis.independent);
+        assert_eq!(analysis.dependent, separate_analysis.dependent);
+        for (a, b) in analysis
+            .singular_values
+            .iter()
+            .zip(&separate_analysis.singular_values)
+        {
+            assert!((a - b).abs() < 1e-12 * separate_analysis.singular_values[0]);
+        }
+        let separate = fit(
+            &robot,
+            &nominal,
+            &rows,
+            &measured,
+            &analysis.independent,
+            &options,
+        )
+        .unwrap();
+        assert!(shared.converged && separate.converged);
+        assert_eq!(shared.trace.len(), separate.trace.len());
+        for id in &analysis.independent {
+            let (a, b) = (shared.values.get(*id), separate.values.get(*id));
+            let se = separate.std_errors[id.index()].unwrap();
+            assert!(
+                (a - b).abs() <= 1e-12 * b.abs() + 1e-10 * se,
+                "{id}: {a} vs {b}"
+            );
         }
     }
 }

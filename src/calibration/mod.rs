@@ -14,7 +14,7 @@ use nalgebra::Vector3;
 
 use crate::robot::{ConfWrench, ParamId, ParamValues, Robot};
 use crate::table::parameters::{ModelName, ParamStatus, ParameterSet};
-use fit::{Fit, FitError, FitOptions, Iteration, Stop};
+use fit::{FitError, FitOptions, Iteration, Stop};
 use rank::RankAnalysis;
 
 /// Options of a whole calibration.
@@ -101,20 +101,13 @@ pub fn calibrate(
             diagnostics: None,
         });
     }
-    let rank = rank::analyse(
-        robot,
-        &nominal,
-        rows,
-        &candidates,
-        options.rank_tolerance,
-        options.fit.chunk_rows,
-    );
-    let fit: Fit = fit::fit(
+    let (rank, fit) = fit::fit_identifiable(
         robot,
         &nominal,
         rows,
         measured,
-        &rank.independent,
+        &candidates,
+        options.rank_tolerance,
         &options.fit,
     )?;
     let diagnostics = Diagnostics {

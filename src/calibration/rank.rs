@@ -66,15 +66,25 @@ pub fn analyse(
     tolerance: f64,
     chunk_rows: usize,
 ) -> RankAnalysis {
-    let mut ordered: Vec<ParamId> = candidates.to_vec();
-    ordered.sort_by_key(|id| priority(*id));
+    let ordered = priority_order(candidates);
     let factor = stream::jacobian_factor(robot, at, rows, &ordered, chunk_rows);
     analyse_factor(factor.as_ref(), &ordered, tolerance)
 }
 
-/// The analysis from the triangular factor `R` of the Jacobian whose columns are
-/// `ordered` (in priority order).
-fn analyse_factor(factor: MatRef<'_, f64>, ordered: &[ParamId], tolerance: f64) -> RankAnalysis {
+/// The candidates in the order the analysis takes them.
+pub(crate) fn priority_order(candidates: &[ParamId]) -> Vec<ParamId> {
+    let mut ordered: Vec<ParamId> = candidates.to_vec();
+    ordered.sort_by_key(|id| priority(*id));
+    ordered
+}
+
+/// The analysis from a triangular factor `R` of the Jacobian whose columns are
+/// `ordered` (from [`priority_order`]): `RᵀR = JᵀJ`, any number of rows.
+pub(crate) fn analyse_factor(
+    factor: MatRef<'_, f64>,
+    ordered: &[ParamId],
+    tolerance: f64,
+) -> RankAnalysis {
     let m = ordered.len();
     let norms: Vec<f64> = (0..m).map(|c| factor.col(c).norm_l2()).collect();
     let max_norm = norms.iter().cloned().fold(0.0, f64::max);
