@@ -541,7 +541,7 @@ pub fn fit(
 /// The first pass serves both: it factors the Jacobian of every candidate with the
 /// residuals, unweighted for the rank analysis (and weighted, where the loss
 /// down-weights rows, for the fit), and the start point of the fit takes the
-/// identifiable columns of that factor ([`Point::restricted`]). So the rank
+/// identifiable columns of that factor (`Point::restricted`). So the rank
 /// analysis costs no pass of its own.
 pub fn fit_identifiable(
     robot: &Robot,

@@ -14,7 +14,8 @@
 //! cross-checked with the SVD of the same matrix at the same tolerance.
 //!
 //! All of this works on the `m × m` triangular factor `R` of the Jacobian, built
-//! in one chunked pass over the rows ([`stream::jacobian_factor`]): since
+//! in one chunked pass over the rows ([`stream::jacobian_factor`], or in
+//! `calibrate` the fit's first pass, [`fit_identifiable`](super::fit::fit_identifiable)): since
 //! `J = Q·R` with orthonormal `Q`, column norms, inner products, least-squares
 //! fits of one column on others and singular values are the same for `R` as for
 //! `J`, so the result is the dense analysis's without holding `J`.
