@@ -1,17 +1,57 @@
-//! Sequential dense linear algebra for the calibration's small problems (up to a
-//! few thousand rows, at most 42 columns).
+//! Sequential dense linear algebra for the calibration's small problems: one
+//! chunk's block of equations (a few thousand rows, at most 43 columns) and the
+//! `m × m` factors the passes reduce to.
 //!
 //! faer's high-level solvers (`Mat::qr`, `thin_svd`, ...) run with its global
 //! parallelism, rayon on every core by default. At this size the thread hand-offs
 //! cost more than the arithmetic: they took over half the time of identifying 50
-//! rows (`benches/identify.rs`). These wrappers call faer's low-level routines with
-//! `Par::Seq` instead, leaving the global setting alone for other modules.
+//! rows (`benches/identify.rs`), and the chunks already run in parallel. These
+//! wrappers call faer's low-level routines with `Par::Seq` instead, leaving the
+//! global setting alone for other modules.
 
 use faer::diag::Diag;
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::svd::{ComputeSvdVectors, SvdError};
 use faer::linalg::{qr, svd};
 use faer::{Conj, Mat, MatRef, Par};
+
+/// Householder block size for a chunk's factor: on 3072 × 32 Jacobian blocks
+/// faer's recommended 32 took 0.79 s per million rows on one core, 8 took 0.67 s
+/// (4 and 16 in between); the tall, narrow panels favour short blocks.
+const FACTOR_BLOCK: usize = 8;
+
+/// The upper-triangular factor `R` of `a`'s QR (Householder, no pivoting):
+/// `ncols × ncols` with `RᵀR = aᵀa`, zero rows below `nrows` when `a` is wider
+/// than tall. Factorises `a` in place.
+///
+/// faer skips a column whose remaining part is below rounding (≈ 16·ε·nrows of
+/// its norm) and eliminates the next one in its row; the upper part is then still
+/// a valid factor, with that column's rounding-level remainder on its row.
+pub fn triangular_factor(mut a: Mat<f64>) -> Mat<f64> {
+    let (m, n) = a.shape();
+    if m.min(n) == 0 {
+        return Mat::zeros(n, n);
+    }
+    let par = Par::Seq;
+    let block_size = qr::no_pivoting::factor::recommended_block_size::<f64>(m, n).min(FACTOR_BLOCK);
+    let mut coefficients = Mat::<f64>::zeros(block_size, n.min(m));
+    qr::no_pivoting::factor::qr_in_place(
+        a.as_mut(),
+        coefficients.as_mut(),
+        par,
+        MemStack::new(&mut MemBuffer::new(
+            qr::no_pivoting::factor::qr_in_place_scratch::<f64>(
+                m,
+                n,
+                block_size,
+                par,
+                Default::default(),
+            ),
+        )),
+        Default::default(),
+    );
+    Mat::<f64>::from_fn(n, n, |i, j| if i <= j && i < m { a[(i, j)] } else { 0.0 })
+}
 
 /// Least-squares solution `x` of `a·x ≈ b` (`a` with at least as many rows as
 /// columns) by Householder QR, one column of `x` per column of `b`.
@@ -137,5 +177,33 @@ mod tests {
             assert!((x - y).abs() < 1e-12 * y);
         }
         assert!(none.is_none());
+    }
+
+    /// `RᵀR = AᵀA`, also when faer skips dependent columns (a repeated and a zero
+    /// column) and when `A` has fewer rows than columns.
+    #[test]
+    fn triangular_factor_keeps_the_gram_matrix() {
+        let base = example();
+        let dependent = Mat::<f64>::from_fn(7, 5, |i, j| match j {
+            0 | 1 => base[(i, j)],
+            2 => base[(i, 0)],
+            3 => 0.0,
+            _ => base[(i, 2)],
+        });
+        for a in [
+            example(),
+            dependent.clone(),
+            dependent.subrows(0, 3).to_owned(),
+        ] {
+            let r = triangular_factor(a.clone());
+            assert_eq!(r.shape(), (a.ncols(), a.ncols()));
+            let (rtr, ata) = (r.transpose() * &r, a.transpose() * &a);
+            assert!((&rtr - &ata).norm_l2() < 1e-13 * ata.norm_l2());
+            for i in 0..r.nrows() {
+                for j in 0..i {
+                    assert_eq!(r[(i, j)], 0.0);
+                }
+            }
+        }
     }
 }

@@ -1,6 +1,6 @@
 //! Parameter identification on the linearised model (paper §III.B, eqs. (18)–(25)),
-//! with standard errors, the condition number and parameter correlations from the
-//! final Jacobian.
+//! with standard errors, the condition number and parameter correlations at the
+//! solution.
 //!
 //! Two algorithms share one step solver:
 //!
@@ -12,30 +12,47 @@
 //!   or a badly conditioned model cannot make it diverge. On well-posed data it
 //!   takes the Gauss–Newton steps and reaches the same optimum.
 //!
-//! Stop criteria ([`Stop`]): both algorithms stop when the *undamped* step of
-//! eq. (25) would move no predicted position by more than `stop_step_mm` (that
-//! step vanishes exactly at a stationary point, whatever the damping, so a large
-//! λ cannot fake convergence); Levenberg–Marquardt also stops when an accepted
-//! step lowers the cost by less than the fraction `stop_relative_cost`; both give
-//! up, not converged, after `max_iterations` steps tried.
+//! Every parameter vector the iteration visits costs one parallel pass over the
+//! rows in chunks ([`stream`]): each chunk computes its rows' predictions,
+//! residuals, loss weights and Jacobian rows and reduces the weighted equations
+//! `[√W·J | √W·r]` to their `(m+1) × (m+1)` triangular factor, combined across
+//! chunks. Only the per-row residuals and weights are kept, never the `3n × m`
+//! Jacobian. Steps, predicted cost reductions, standard errors, the condition
+//! number and correlations all come from that factor, exactly as from a QR of the
+//! whole matrix: each step solves the column-scaled problem `min ‖R·D·y − c‖`
+//! (`δ = D·y`, `D` scaling the columns of `√W·J` to unit norm) rather than the
+//! normal equations of eq. (25), the same solution without squaring the condition
+//! number. With unit-norm columns Marquardt's damping `λ·diag(JᵀJ)` becomes `λ·I`,
+//! appended as rows to the `m × m` system.
 //!
-//! Each step solves the column-scaled least-squares problem with a QR
-//! factorisation (faer, sequential: see [`dense`]) rather than the normal equations of eq. (25): the same
-//! solution, without squaring the condition number. Columns are scaled to unit
-//! norm, so Marquardt's damping `λ·diag(JᵀJ)` becomes `λ·I`, appended as rows.
+//! Stop criteria ([`Stop`]): both algorithms stop when an *undamped* step of
+//! eq. (25) moved no predicted position by more than `stop_step_mm` — the largest
+//! change over the rows between the predictions at the trial point and at the
+//! current one, which the trial's pass computes anyway. (Before the passes were
+//! streamed this was the change the linearisation predicts, `J_k·δ` per row,
+//! which needs the whole Jacobian; for steps that small the two agree to second
+//! order.) The undamped step vanishes exactly at a stationary point whatever the
+//! damping, so a large λ cannot fake convergence. Levenberg–Marquardt tries it
+//! instead of its damped step when its root-mean-square predicted change over the
+//! rows, `‖R·δ‖/√n` from the factor, is below `stop_step_mm`: a necessary
+//! condition, since with loss weights ≤ 1 that RMS cannot exceed the largest
+//! change. Levenberg–Marquardt also stops when an accepted step lowers the cost by
+//! less than the fraction `stop_relative_cost`; both give up, not converged, after
+//! `max_iterations` steps tried.
 //!
 //! An optional Huber loss on each row's residual norm is minimised by iteratively
-//! reweighted least squares (the weights are recomputed from the residuals before
-//! every step).
+//! reweighted least squares (the weights are recomputed from the residuals at
+//! every point).
+
+use std::ops::Range;
 
 use faer::Mat;
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
-use super::dense;
-use crate::robot::{
-    BatchJacobian, ConfWrench, PARAM_COUNT, ParamId, ParamValues, Robot, batch_jacobian,
-    batch_predict,
-};
+use super::rank::{self, RankAnalysis};
+use super::{dense, stream};
+use crate::robot::{ConfWrench, PARAM_COUNT, ParamId, ParamValues, Robot};
 
 /// How each step is taken and accepted.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -58,7 +75,8 @@ pub enum Loss {
 }
 
 impl Loss {
-    /// The IRLS weight of a row with residual norm `r_mm` (1 inside the threshold).
+    /// The IRLS weight of a row with residual norm `r_mm` (1 inside the threshold,
+    /// below 1 beyond it).
     pub fn weight(self, r_mm: f64) -> f64 {
         match self {
             Loss::Huber { threshold_mm } if r_mm > threshold_mm => threshold_mm / r_mm,
@@ -84,11 +102,15 @@ pub struct FitOptions {
     pub loss: Loss,
     /// Upper bound on steps tried (rejected Levenberg–Marquardt steps count).
     pub max_iterations: usize,
-    /// Stop when the largest predicted position change of a step is below this (mm).
+    /// Stop when an undamped step changes no predicted position by more than this (mm).
     pub stop_step_mm: f64,
     /// Levenberg–Marquardt only: stop when an accepted step lowers the cost by
     /// less than this fraction.
     pub stop_relative_cost: f64,
+    /// Rows per chunk of a pass (also of [`calibrate`](super::calibrate)'s rank
+    /// analysis): [`stream::CHUNK_ROWS`] by default. Results depend on it only
+    /// through rounding.
+    pub chunk_rows: usize,
 }
 
 impl Default for FitOptions {
@@ -99,6 +121,7 @@ impl Default for FitOptions {
             max_iterations: 30,
             stop_step_mm: 1e-4,
             stop_relative_cost: 1e-10,
+            chunk_rows: stream::CHUNK_ROWS,
         }
     }
 }
@@ -110,7 +133,8 @@ pub struct Iteration {
     /// Residual norms before the step.
     pub rms_mm: f64,
     pub max_mm: f64,
-    /// Largest position change the step predicts.
+    /// Largest change of a predicted position the step made: predictions at the
+    /// trial point against those before the step.
     pub step_mm: f64,
     /// Levenberg–Marquardt damping λ relative to the unit-norm columns; `None` for
     /// the paper's undamped step.
@@ -123,7 +147,7 @@ pub struct Iteration {
 /// Why the iteration ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Stop {
-    /// A step moved no predicted position by more than `stop_step_mm`.
+    /// An undamped step moved no predicted position by more than `stop_step_mm`.
     Step,
     /// An accepted step lowered the cost by less than `stop_relative_cost`.
     CostChange,
@@ -197,125 +221,300 @@ pub enum FitError {
     Singular,
 }
 
-/// Residuals `measured − predicted` per row.
+/// Residuals `measured − predicted` per row, in parallel.
 pub fn residuals(
     robot: &Robot,
     p: &ParamValues,
     rows: &[ConfWrench],
     measured: &[Vector3<f64>],
 ) -> Vec<Vector3<f64>> {
-    batch_predict(robot, p, rows)
-        .iter()
+    let prepared = robot.prepare(p);
+    rows.par_iter()
         .zip(measured)
-        .map(|(pred, meas)| meas - pred.position_mm)
+        .with_min_len(stream::CHUNK_ROWS)
+        .map(|(row, meas)| meas - prepared.predict(&row.q_deg, &row.wrench).position_mm)
         .collect()
 }
 
-/// RMS per coordinate and largest norm of residuals (mm).
-pub fn norms(residuals: &[Vector3<f64>]) -> (f64, f64) {
-    let n = residuals.len().max(1) as f64;
-    let rms = (residuals.iter().map(|r| r.norm_squared()).sum::<f64>() / (3.0 * n)).sqrt();
-    let max = residuals.iter().map(|r| r.norm()).fold(0.0, f64::max);
-    (rms, max)
+/// One row's residual `measured − predicted` (mm) and loss weight at a point.
+#[derive(Debug, Clone, Copy, Default)]
+struct RowFit {
+    residual_mm: Vector3<f64>,
+    weight: f64,
 }
 
-/// Model, residuals, weights and cost at one parameter vector.
+/// The larger of two values, NaN if either is (so a non-finite row cannot hide).
+fn max_or_nan(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.max(b)
+    }
+}
+
+/// What some rows contribute at a point: one chunk's, or neighbouring chunks' combined.
+struct Sums {
+    /// Triangular factor of the rows' `[√W·J | √W·r]`, `(m+1) × (m+1)`.
+    factor: Mat<f64>,
+    /// When asked for, the factor of the unweighted `[J | r]` where it differs
+    /// (`None`: every row has weight 1, so it is `factor`).
+    unweighted: Option<Mat<f64>>,
+    /// The loss (mm²).
+    cost: f64,
+    /// Σ w·‖r‖² (mm²).
+    weighted_rss: f64,
+    /// Σ ‖r‖² (mm²).
+    rss: f64,
+    /// Largest ‖r‖ (mm).
+    max_mm: f64,
+    /// Largest change of a predicted position from the previous point (mm; 0
+    /// without one).
+    step_mm: f64,
+}
+
+impl Sums {
+    fn join(self, other: Sums) -> Sums {
+        let unweighted = match (&self.unweighted, &other.unweighted) {
+            (None, None) => None,
+            (a, b) => Some(stream::stack(
+                a.as_ref().unwrap_or(&self.factor),
+                b.as_ref().unwrap_or(&other.factor),
+            )),
+        };
+        Sums {
+            factor: stream::stack(&self.factor, &other.factor),
+            unweighted,
+            cost: self.cost + other.cost,
+            weighted_rss: self.weighted_rss + other.weighted_rss,
+            rss: self.rss + other.rss,
+            max_mm: max_or_nan(self.max_mm, other.max_mm),
+            step_mm: max_or_nan(self.step_mm, other.step_mm),
+        }
+    }
+}
+
+/// The model at one parameter vector: each row's residual and weight, and the
+/// factor and sums of all rows.
 struct Point {
     values: ParamValues,
-    batch: BatchJacobian,
-    residuals: Vec<Vector3<f64>>,
-    weights: Vec<f64>,
-    cost: f64,
+    rows: Vec<RowFit>,
+    sums: Sums,
 }
 
 impl Point {
+    /// One pass over the rows at `values`. With `previous` (the rows of the point
+    /// this one is a step from), also the largest change of predicted position;
+    /// with `unweighted`, also the factor without the loss's weights.
     fn at(
-        robot: &Robot,
+        problem: &Problem<'_>,
         values: ParamValues,
-        rows: &[ConfWrench],
-        measured: &[Vector3<f64>],
-        free: &[ParamId],
-        loss: Loss,
+        previous: Option<&[RowFit]>,
+        unweighted: bool,
     ) -> Point {
-        let batch = batch_jacobian(robot, &values, rows, free);
-        let residuals: Vec<Vector3<f64>> = batch
-            .predictions
-            .iter()
-            .zip(measured)
-            .map(|(p, meas)| meas - p.position_mm)
-            .collect();
-        let weights = residuals.iter().map(|r| loss.weight(r.norm())).collect();
-        let cost = residuals.iter().map(|r| loss.cost(r.norm())).sum();
+        let Problem {
+            robot,
+            rows,
+            measured,
+            free,
+            options,
+        } = *problem;
+        let m = free.len();
+        let prepared = robot.prepare(&values);
+        let leaf = |range: Range<usize>, out: &mut [RowFit]| {
+            let mut block = Mat::<f64>::zeros(3 * range.len(), m + 1);
+            let mut plain = unweighted.then(|| Mat::<f64>::zeros(3 * range.len(), m + 1));
+            let mut columns = vec![Vector3::zeros(); m];
+            let (mut cost, mut weighted_rss, mut rss, mut max_mm, mut step_mm) =
+                (0.0, 0.0, 0.0, 0.0, 0.0);
+            for (k, (row, meas)) in rows[range.clone()]
+                .iter()
+                .zip(&measured[range.clone()])
+                .enumerate()
+            {
+                let prediction = prepared.jacobian_row(&row.q_deg, &row.wrench, free, &mut columns);
+                let residual_mm = meas - prediction.position_mm;
+                let norm = residual_mm.norm();
+                let weight = options.loss.weight(norm);
+                let root_weight = weight.sqrt();
+                for axis in 0..3 {
+                    let equation = 3 * k + axis;
+                    for (j, column) in columns.iter().enumerate() {
+                        block[(equation, j)] = root_weight * column[axis];
+                    }
+                    block[(equation, m)] = root_weight * residual_mm[axis];
+                    if let Some(plain) = plain.as_mut() {
+                        for (j, column) in columns.iter().enumerate() {
+                            plain[(equation, j)] = column[axis];
+                        }
+                        plain[(equation, m)] = residual_mm[axis];
+                    }
+                }
+                cost += options.loss.cost(norm);
+                weighted_rss += weight * norm * norm;
+                rss += norm * norm;
+                max_mm = max_or_nan(max_mm, norm);
+                if let Some(previous) = previous {
+                    // r = measured − predicted: the prediction moved by r_before − r_now.
+                    let before = previous[range.start + k].residual_mm;
+                    step_mm = max_or_nan(step_mm, (before - residual_mm).norm());
+                }
+                out[k] = RowFit {
+                    residual_mm,
+                    weight,
+                };
+            }
+            let all_weights_one = out.iter().all(|row| row.weight == 1.0);
+            Sums {
+                factor: dense::triangular_factor(block),
+                unweighted: plain
+                    .filter(|_| !all_weights_one)
+                    .map(dense::triangular_factor),
+                cost,
+                weighted_rss,
+                rss,
+                max_mm,
+                step_mm,
+            }
+        };
+        let mut out = vec![RowFit::default(); rows.len()];
+        let sums = stream::reduce_chunks(&mut out, options.chunk_rows, &leaf, &Sums::join)
+            .unwrap_or_else(|| Sums {
+                factor: Mat::zeros(m + 1, m + 1),
+                unweighted: None,
+                cost: 0.0,
+                weighted_rss: 0.0,
+                rss: 0.0,
+                max_mm: 0.0,
+                step_mm: 0.0,
+            });
         Point {
             values,
-            batch,
-            residuals,
-            weights,
-            cost,
+            rows: out,
+            sums,
         }
     }
+
+    /// The same point with the Jacobian restricted to the columns `to` (a subset
+    /// of `from`, the columns it was evaluated with). Those columns of the factor,
+    /// with the residual column, are `Qᵀ` times the original columns, so their own
+    /// factor is the restricted matrix's: no pass over the rows.
+    fn restricted(mut self, from: &[ParamId], to: &[ParamId]) -> Point {
+        let index: Vec<usize> = to
+            .iter()
+            .map(|id| {
+                from.iter()
+                    .position(|c| c == id)
+                    .expect("restricted to a subset of the columns")
+            })
+            .collect();
+        let (factor, k) = (&self.sums.factor, from.len());
+        let selected = Mat::<f64>::from_fn(k + 1, to.len() + 1, |i, j| {
+            factor[(i, index.get(j).copied().unwrap_or(k))]
+        });
+        self.sums.factor = dense::triangular_factor(selected);
+        self.sums.unweighted = None;
+        self
+    }
+
+    /// Residual RMS per coordinate and largest residual norm (mm).
+    fn norms(&self) -> (f64, f64) {
+        let equations = (3 * self.rows.len()).max(1) as f64;
+        ((self.sums.rss / equations).sqrt(), self.sums.max_mm)
+    }
+}
+
+/// What a fit works on.
+#[derive(Clone, Copy)]
+struct Problem<'a> {
+    robot: &'a Robot,
+    rows: &'a [ConfWrench],
+    measured: &'a [Vector3<f64>],
+    free: &'a [ParamId],
+    options: &'a FitOptions,
+}
+
+/// A point's column-scaled least-squares problem `min ‖R·D·y − c‖`, `δ = D·y`.
+struct System {
+    /// `R·D`: the factor of `√W·J` with columns scaled to unit norm, `m × m`.
+    scaled: Mat<f64>,
+    /// `c = Q₁ᵀ·√W·r`, `m × 1`.
+    rhs: Mat<f64>,
+    /// `D`: the scale of each column's parameter (1 for a column of zeros).
+    scale: Vec<f64>,
+    /// Rows of the data, for the RMS change.
+    rows: usize,
 }
 
 /// A step from a [`Point`] and what the linear model predicts of it.
 struct Step {
     delta: Vec<f64>,
-    /// Largest predicted position change over the rows (mm).
-    step_mm: f64,
+    /// Root-mean-square predicted position change over the rows, weighted (mm):
+    /// `‖R·δ‖/√n`, never above the largest change.
+    rms_change_mm: f64,
     /// Cost reduction the weighted linear model predicts (mm²).
     predicted_reduction: f64,
 }
 
-/// Solves `min Σ w_k‖r_k − J_k δ‖² + λ‖D⁻¹δ‖²` by QR of the column-scaled, weighted
-/// Jacobian with `√λ·I` appended (λ = 0: the Gauss–Newton step of eq. (25)).
-fn solve_step(point: &Point, m: usize, damping: f64) -> Step {
-    let n = point.residuals.len();
-    let equations = 3 * n;
-    let jacobian = &point.batch.jacobian;
-    let (scaled, scale) = scaled_jacobian(jacobian, &point.weights, equations, m);
-    let extra = if damping > 0.0 { m } else { 0 };
-    let root_damping = damping.sqrt();
-    let a = Mat::<f64>::from_fn(equations + extra, m, |row, j| {
-        if row < equations {
-            scaled[(row, j)]
-        } else if row - equations == j {
-            root_damping
-        } else {
-            0.0
+impl System {
+    fn new(point: &Point, m: usize) -> System {
+        let factor = &point.sums.factor;
+        // The factor's columns have the norms of √W·J's.
+        let scale: Vec<f64> = (0..m)
+            .map(|j| {
+                let norm = factor.col(j).norm_l2();
+                if norm > 0.0 { 1.0 / norm } else { 1.0 }
+            })
+            .collect();
+        System {
+            scaled: Mat::from_fn(m, m, |i, j| factor[(i, j)] * scale[j]),
+            rhs: Mat::from_fn(m, 1, |i, _| factor[(i, m)]),
+            scale,
+            rows: point.rows.len(),
         }
-    });
-    let rhs = Mat::<f64>::from_fn(equations + extra, 1, |row, _| {
-        if row < equations {
-            point.weights[row / 3].sqrt() * point.residuals[row / 3][row % 3]
-        } else {
-            0.0
-        }
-    });
-    let y = dense::lstsq(a.as_ref(), rhs.as_ref());
-    let delta: Vec<f64> = (0..m).map(|j| y[(j, 0)] * scale[j]).collect();
-    let mut step_mm: f64 = 0.0;
-    let mut predicted_reduction = 0.0;
-    for k in 0..n {
-        let mut change = Vector3::<f64>::zeros();
-        for axis in 0..3 {
-            let row = &jacobian[(3 * k + axis) * m..(3 * k + axis + 1) * m];
-            change[axis] = row.iter().zip(&delta).map(|(j, d)| j * d).sum();
-        }
-        step_mm = step_mm.max(change.norm());
-        let r = &point.residuals[k];
-        predicted_reduction +=
-            0.5 * point.weights[k] * (r.norm_squared() - (r - change).norm_squared());
     }
-    Step {
-        delta,
-        step_mm,
-        predicted_reduction,
+
+    /// Solves `min ‖R·D·y − c‖² + λ‖y‖²` by QR with `√λ·I` appended (λ = 0: the
+    /// Gauss–Newton step of eq. (25)).
+    fn step(&self, damping: f64) -> Step {
+        let m = self.scale.len();
+        let y = if damping > 0.0 {
+            let root_damping = damping.sqrt();
+            let a = Mat::<f64>::from_fn(2 * m, m, |i, j| {
+                if i < m {
+                    self.scaled[(i, j)]
+                } else if i - m == j {
+                    root_damping
+                } else {
+                    0.0
+                }
+            });
+            let b =
+                Mat::<f64>::from_fn(2 * m, 1, |i, _| if i < m { self.rhs[(i, 0)] } else { 0.0 });
+            dense::lstsq(a.as_ref(), b.as_ref())
+        } else {
+            dense::lstsq(self.scaled.as_ref(), self.rhs.as_ref())
+        };
+        // u = R·D·y = Q₁ᵀ·√W·J·δ; ‖c‖² − ‖c − u‖² = uᵀ(2c − u) without cancellation.
+        let (mut predicted_reduction, mut change_squared) = (0.0, 0.0);
+        for i in 0..m {
+            let u: f64 = (i..m).map(|j| self.scaled[(i, j)] * y[(j, 0)]).sum();
+            predicted_reduction += 0.5 * u * (2.0 * self.rhs[(i, 0)] - u);
+            change_squared += u * u;
+        }
+        Step {
+            delta: (0..m).map(|j| y[(j, 0)] * self.scale[j]).collect(),
+            rms_change_mm: (change_squared / self.rows.max(1) as f64).sqrt(),
+            predicted_reduction,
+        }
     }
 }
 
 /// Fits the `free` parameters, starting from `start`, to the measured positions.
 ///
-/// Cost: one Jacobian of all rows per step tried, one QR of a `3n × m` matrix per
-/// step (two for a damped step), and one SVD at the end.
+/// Cost: one parallel pass over the rows (predictions and Jacobian rows, reduced
+/// chunk by chunk) per step tried plus one at the start, and `m × m` work per
+/// step. Memory: O(n) for the per-row residuals and weights of two points, O(m²)
+/// per chunk in flight; never the `3n × m` Jacobian.
 pub fn fit(
     robot: &Robot,
     start: &ParamValues,
@@ -324,63 +523,133 @@ pub fn fit(
     free: &[ParamId],
     options: &FitOptions,
 ) -> Result<Fit, FitError> {
-    let m = free.len();
-    let equations = 3 * rows.len();
+    check_sizes(rows, measured, free.len())?;
+    let problem = Problem {
+        robot,
+        rows,
+        measured,
+        free,
+        options,
+    };
+    let point = Point::at(&problem, *start, None, false);
+    iterate(&problem, point)
+}
+
+/// Rank analysis of `candidates` at `start` ([`rank`]) and the fit of the
+/// identifiable ones from there, as [`fit`] does.
+///
+/// The first pass serves both: it factors the Jacobian of every candidate with the
+/// residuals, unweighted for the rank analysis (and weighted, where the loss
+/// down-weights rows, for the fit), and the start point of the fit takes the
+/// identifiable columns of that factor (`Point::restricted`). So the rank
+/// analysis costs no pass of its own.
+pub fn fit_identifiable(
+    robot: &Robot,
+    start: &ParamValues,
+    rows: &[ConfWrench],
+    measured: &[Vector3<f64>],
+    candidates: &[ParamId],
+    rank_tolerance: f64,
+    options: &FitOptions,
+) -> Result<(RankAnalysis, Fit), FitError> {
+    check_sizes(rows, measured, 0)?;
+    let ordered = rank::priority_order(candidates);
+    let all = Problem {
+        robot,
+        rows,
+        measured,
+        free: &ordered,
+        options,
+    };
+    let first = Point::at(&all, *start, None, true);
+    let unweighted = first.sums.unweighted.as_ref().unwrap_or(&first.sums.factor);
+    let analysis = rank::analyse_factor(
+        unweighted.as_ref().subcols(0, ordered.len()),
+        &ordered,
+        rank_tolerance,
+    );
+    let free = analysis.independent.clone();
+    check_sizes(rows, measured, free.len())?;
+    let problem = Problem { free: &free, ..all };
+    let point = first.restricted(&ordered, &free);
+    Ok((analysis, iterate(&problem, point)?))
+}
+
+/// One row per measured position, and more equations than free parameters.
+fn check_sizes(
+    rows: &[ConfWrench],
+    measured: &[Vector3<f64>],
+    parameters: usize,
+) -> Result<(), FitError> {
     if rows.len() != measured.len() {
         return Err(FitError::LengthMismatch {
             rows: rows.len(),
             measured: measured.len(),
         });
     }
-    if equations <= m {
+    let equations = 3 * rows.len();
+    if equations <= parameters {
         return Err(FitError::TooFewRows {
             rows: rows.len(),
             equations,
-            parameters: m,
+            parameters,
         });
     }
-    let evaluate = |values| Point::at(robot, values, rows, measured, free, options.loss);
-    let mut point = evaluate(*start);
+    Ok(())
+}
+
+/// The iteration from its first point (see the module docs).
+fn iterate(problem: &Problem<'_>, mut point: Point) -> Result<Fit, FitError> {
+    let (free, options) = (problem.free, problem.options);
+    let m = free.len();
     let mut trace = Vec::new();
     let mut stop = Stop::MaxIterations;
     // Marquardt's λ relative to the unit diagonal of the scaled JᵀJ; ν is Nielsen's
     // growth factor after rejections (Madsen, Nielsen & Tingleff 2004, §3.2).
     let (mut damping, mut growth) = (1e-3, 2.0);
+    // Levenberg–Marquardt: the undamped step from this point raised the cost, so
+    // damped steps follow until one is taken.
+    let mut undamped_rejected = false;
     for iteration in 1..=options.max_iterations {
-        let (rms_mm, max_mm) = norms(&point.residuals);
-        if !point.cost.is_finite() {
+        if !point.sums.cost.is_finite() {
             return Err(FitError::Diverged(iteration));
         }
+        let (rms_mm, max_mm) = point.norms();
+        let system = System::new(&point, m);
         // The Gauss–Newton step of eq. (25) decides convergence for both algorithms:
         // it vanishes exactly at a stationary point, whatever the damping.
-        let gauss_newton = solve_step(&point, m, 0.0);
-        if !gauss_newton.step_mm.is_finite() {
+        let gauss_newton = system.step(0.0);
+        if !gauss_newton.delta.iter().all(|d| d.is_finite()) {
             return Err(FitError::Diverged(iteration));
         }
-        let converged = gauss_newton.step_mm < options.stop_step_mm;
         let (step, damping_used) = match options.algorithm {
-            Algorithm::LevenbergMarquardt if !converged => {
-                (solve_step(&point, m, damping), Some(damping))
-            }
-            Algorithm::LevenbergMarquardt => (gauss_newton, Some(0.0)),
             Algorithm::Paper => (gauss_newton, None),
+            Algorithm::LevenbergMarquardt
+                if gauss_newton.rms_change_mm < options.stop_step_mm && !undamped_rejected =>
+            {
+                (gauss_newton, Some(0.0))
+            }
+            Algorithm::LevenbergMarquardt => (system.step(damping), Some(damping)),
         };
-        let mut record = Iteration {
-            iteration,
-            rms_mm,
-            max_mm,
-            step_mm: step.step_mm,
-            damping: damping_used,
-            accepted: true,
-        };
+        let undamped = damping_used.is_none_or(|d| d == 0.0);
         let mut candidate = point.values;
         for (id, dv) in free.iter().zip(&step.delta) {
             candidate.0[id.index()] += dv;
         }
+        let next = Point::at(problem, candidate, Some(&point.rows), false);
+        let mut record = Iteration {
+            iteration,
+            rms_mm,
+            max_mm,
+            step_mm: next.sums.step_mm,
+            damping: damping_used,
+            accepted: true,
+        };
+        let converged = undamped && next.sums.step_mm < options.stop_step_mm;
         if converged || options.algorithm == Algorithm::Paper {
             // Paper steps (f)–(g): take the step, stop once it no longer moves the
-            // model. Levenberg–Marquardt takes the last (tiny) Gauss–Newton step too.
-            point = evaluate(candidate);
+            // model. Levenberg–Marquardt takes its last (tiny) undamped step too.
+            point = next;
             trace.push(record);
             if converged {
                 stop = Stop::Step;
@@ -388,12 +657,13 @@ pub fn fit(
             }
             continue;
         }
-        let next = evaluate(candidate);
-        let gain = (point.cost - next.cost) / step.predicted_reduction;
-        if next.cost.is_finite() && gain > 0.0 {
-            let relative = (point.cost - next.cost) / point.cost.max(f64::MIN_POSITIVE);
+        let gain = (point.sums.cost - next.sums.cost) / step.predicted_reduction;
+        if next.sums.cost.is_finite() && gain > 0.0 {
+            let relative =
+                (point.sums.cost - next.sums.cost) / point.sums.cost.max(f64::MIN_POSITIVE);
             damping *= (1.0 - (2.0 * gain - 1.0).powi(3)).max(1.0 / 3.0);
             growth = 2.0;
+            undamped_rejected = false;
             point = next;
             trace.push(record);
             if relative < options.stop_relative_cost {
@@ -403,21 +673,29 @@ pub fn fit(
         } else {
             damping *= growth;
             growth *= 2.0;
+            undamped_rejected |= undamped;
             record.accepted = false;
             trace.push(record);
         }
     }
-    if !point.cost.is_finite() {
+    if !point.sums.cost.is_finite() {
         return Err(FitError::Diverged(trace.len()));
     }
-    let statistics = statistics(&point, free)?;
+    let system = System::new(&point, m);
+    let statistics = statistics(&point, &system, free)?;
+    let residual_rms_mm = point.norms().0;
+    let (residuals_mm, weights) = point
+        .rows
+        .iter()
+        .map(|row| (row.residual_mm, row.weight))
+        .unzip();
     Ok(Fit {
         values: point.values,
         std_errors: statistics.std_errors,
         trace,
-        residual_rms_mm: norms(&point.residuals).0,
-        residuals_mm: point.residuals,
-        weights: point.weights,
+        residual_rms_mm,
+        residuals_mm,
+        weights,
         stop,
         converged: stop != Stop::MaxIterations,
         condition_number: statistics.condition_number,
@@ -433,21 +711,16 @@ struct Statistics {
 }
 
 /// Covariance `σ²·(JᵀWJ)⁻¹` at the solution with `σ² = Σ w_k‖r_k‖² / (3n − m)`,
-/// from the SVD of the scaled, weighted Jacobian `U·S·Vᵀ`: `Cov ∝ V·S⁻²·Vᵀ`, which
-/// stays accurate where forming JᵀJ would square the condition number. For the
-/// Huber loss this is the usual IRLS approximation.
-fn statistics(point: &Point, free: &[ParamId]) -> Result<Statistics, FitError> {
+/// from the SVD of the scaled factor `R·D = U·S·Vᵀ` (the same singular values and
+/// `V` as the scaled, weighted Jacobian's): `Cov ∝ V·S⁻²·Vᵀ`, which stays accurate
+/// where forming JᵀJ would square the condition number. For the Huber loss this is
+/// the usual IRLS approximation.
+fn statistics(point: &Point, system: &System, free: &[ParamId]) -> Result<Statistics, FitError> {
     let m = free.len();
-    let equations = 3 * point.residuals.len();
-    let weighted_rss: f64 = point
-        .residuals
-        .iter()
-        .zip(&point.weights)
-        .map(|(r, w)| w * r.norm_squared())
-        .sum();
-    let sigma2 = weighted_rss / (equations - m) as f64;
-    let (scaled, scale) = scaled_jacobian(&point.batch.jacobian, &point.weights, equations, m);
-    let (s, v) = dense::svd(scaled.as_ref(), true).map_err(|_| FitError::Singular)?;
+    let equations = 3 * point.rows.len();
+    let sigma2 = point.sums.weighted_rss / (equations - m) as f64;
+    let scale = &system.scale;
+    let (s, v) = dense::svd(system.scaled.as_ref(), true).map_err(|_| FitError::Singular)?;
     let v = v.ok_or(FitError::Singular)?;
     let s_max = (0..m).map(|k| s[k]).fold(0.0, f64::max);
     let s_min = (0..m).map(|k| s[k]).fold(f64::INFINITY, f64::min);
@@ -480,30 +753,11 @@ fn statistics(point: &Point, free: &[ParamId]) -> Result<Statistics, FitError> {
     })
 }
 
-/// The Jacobian with rows weighted by `√w` and columns scaled to unit norm, and the
-/// scale of each column's parameter.
-fn scaled_jacobian(
-    jacobian: &[f64],
-    weights: &[f64],
-    rows: usize,
-    m: usize,
-) -> (Mat<f64>, Vec<f64>) {
-    let weighted = Mat::<f64>::from_fn(rows, m, |r, j| jacobian[r * m + j] * weights[r / 3].sqrt());
-    let scale: Vec<f64> = (0..m)
-        .map(|j| {
-            let norm = weighted.col(j).norm_l2();
-            if norm > 0.0 { 1.0 / norm } else { 1.0 }
-        })
-        .collect();
-    let scaled = Mat::<f64>::from_fn(rows, m, |r, j| weighted[(r, j)] * scale[j]);
-    (scaled, scale)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::robot::Selection;
     use crate::robot::test_support::{irb1600, random_q, random_wrench, truth_params};
+    use crate::robot::{Selection, batch_jacobian, batch_predict};
     use rand::SeedableRng;
     use rand::rngs::StdRng;
 
@@ -674,5 +928,177 @@ mod tests {
         assert_eq!(top.len(), 5);
         assert!(top.windows(2).all(|w| w[0].2.abs() >= w[1].2.abs()));
         assert!(fit.condition_number >= 1.0 && fit.condition_number.is_finite());
+    }
+
+    /// The streamed Gauss–Newton step of eq. (25) and a damped step equal an
+    /// independent dense solution at the same linearisation point: the full
+    /// weighted Jacobian from `batch_jacobian`, solved by faer's own QR
+    /// (`Mat::qr().solve_lstsq`). Same point and rows, so only rounding may differ:
+    /// 2500 noisy rows in chunks of 300 (nine chunks, the last of 100 rows), with
+    /// Huber weights that differ from row to row.
+    #[test]
+    fn streamed_steps_equal_the_dense_least_squares_solution() {
+        use faer::prelude::*;
+        let robot = irb1600();
+        let truth = truth_params(&robot);
+        let rows = random_rows(&robot, 14, 2500);
+        let mut rng = StdRng::seed_from_u64(15);
+        let normal = rand_distr::Normal::new(0.0, 0.02).unwrap();
+        let measured: Vec<Vector3<f64>> = batch_predict(&robot, &truth, &rows)
+            .iter()
+            .map(|p| {
+                p.position_mm
+                    + Vector3::from_fn(|_, _| rand_distr::Distribution::sample(&normal, &mut rng))
+            })
+            .collect();
+        let free = Selection::spec_identifiable();
+        let m = free.len();
+        // Linearise near the truth, with the Huber threshold at the median residual
+        // so that about half the rows are down-weighted.
+        let mut start = truth;
+        for (name, change) in [("x_w", 0.3), ("dtheta2", 0.02), ("da3", -0.2), ("k2", 2e-5)] {
+            let id = ParamId::from_name(name).unwrap();
+            start.set(id, start.get(id) + change);
+        }
+        let mut norms: Vec<f64> = residuals(&robot, &start, &rows, &measured)
+            .iter()
+            .map(|r| r.norm())
+            .collect();
+        norms.sort_by(f64::total_cmp);
+        let options = FitOptions {
+            loss: Loss::Huber {
+                threshold_mm: norms[norms.len() / 2],
+            },
+            chunk_rows: 300,
+            ..FitOptions::default()
+        };
+        let problem = Problem {
+            robot: &robot,
+            rows: &rows,
+            measured: &measured,
+            free: free.ids(),
+            options: &options,
+        };
+        let point = Point::at(&problem, start, None, false);
+        let system = System::new(&point, m);
+
+        // The dense problem, built independently.
+        let batch = batch_jacobian(&robot, &start, &rows, free.ids());
+        let equations = 3 * rows.len();
+        let residual = |k: usize| measured[k] - batch.predictions[k].position_mm;
+        let weights: Vec<f64> = (0..rows.len())
+            .map(|k| options.loss.weight(residual(k).norm()))
+            .collect();
+        assert!(weights.iter().any(|w| *w < 0.9) && weights.contains(&1.0));
+        let a = Mat::<f64>::from_fn(equations, m, |i, j| {
+            weights[i / 3].sqrt() * batch.entry(i, j)
+        });
+        let b = Mat::<f64>::from_fn(equations, 1, |i, _| {
+            weights[i / 3].sqrt() * residual(i / 3)[i % 3]
+        });
+        let column_norms: Vec<f64> = (0..m).map(|j| a.col(j).norm_l2()).collect();
+        for damping in [0.0_f64, 1e-3] {
+            // min ‖A·δ − b‖² + λ‖D⁻¹δ‖² with D⁻¹ the column norms of A.
+            let dense: Vec<f64> = if damping == 0.0 {
+                let x = a.qr().solve_lstsq(&b);
+                (0..m).map(|j| x[(j, 0)]).collect()
+            } else {
+                let stacked = Mat::<f64>::from_fn(equations + m, m, |i, j| {
+                    if i < equations {
+                        a[(i, j)] / column_norms[j]
+                    } else if i - equations == j {
+                        damping.sqrt()
+                    } else {
+                        0.0
+                    }
+                });
+                let rhs = Mat::<f64>::from_fn(equations + m, 1, |i, _| {
+                    if i < equations { b[(i, 0)] } else { 0.0 }
+                });
+                let y = stacked.qr().solve_lstsq(&rhs);
+                (0..m).map(|j| y[(j, 0)] / column_norms[j]).collect()
+            };
+            let streamed = system.step(damping).delta;
+            // Compared in scaled units (parameter change times its column norm:
+            // mm of position change), relative to the whole step.
+            let scaled = |d: &[f64]| -> Vec<f64> {
+                d.iter().zip(&column_norms).map(|(x, n)| x * n).collect()
+            };
+            let (s, d) = (scaled(&streamed), scaled(&dense));
+            let size = d.iter().map(|x| x * x).sum::<f64>().sqrt();
+            let worst = s
+                .iter()
+                .zip(&d)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f64::max);
+            assert!(worst <= 1e-9 * size, "λ = {damping}: {worst} of {size}");
+            for (j, (x, y)) in streamed.iter().zip(&dense).enumerate() {
+                assert!(
+                    (x - y).abs() <= 1e-9 * y.abs(),
+                    "λ = {damping}, {}: {x} vs {y}",
+                    free.ids()[j]
+                );
+            }
+        }
+    }
+
+    /// The rank analysis taken from the fit's first pass (weighted rows, since the
+    /// Huber loss down-weights every row at nominal) and the fit started from that
+    /// pass's restricted factor equal a separate rank pass and a separate fit.
+    #[test]
+    fn the_rank_analysis_shares_the_fit_s_first_pass() {
+        let robot = irb1600();
+        let truth = truth_params(&robot);
+        let nominal = ParamValues::nominal(robot.spec());
+        let rows = random_rows(&robot, 16, 300);
+        let mut rng = StdRng::seed_from_u64(17);
+        let normal = rand_distr::Normal::new(0.0, 0.02).unwrap();
+        let measured: Vec<Vector3<f64>> = batch_predict(&robot, &truth, &rows)
+            .iter()
+            .map(|p| {
+                p.position_mm
+                    + Vector3::from_fn(|_, _| rand_distr::Distribution::sample(&normal, &mut rng))
+            })
+            .collect();
+        let options = FitOptions {
+            algorithm: Algorithm::Paper,
+            loss: Loss::Huber { threshold_mm: 0.5 },
+            stop_step_mm: 1e-10,
+            chunk_rows: 64,
+            ..FitOptions::default()
+        };
+        let all: Vec<ParamId> = ParamId::all().collect();
+        let (analysis, shared) =
+            fit_identifiable(&robot, &nominal, &rows, &measured, &all, 1e-6, &options).unwrap();
+        let separate_analysis = rank::analyse(&robot, &nominal, &rows, &all, 1e-6, 64);
+        assert_eq!(analysis.independent, Selection::spec_identifiable().ids());
+        assert_eq!(analysis.independent, separate_analysis.independent);
+        assert_eq!(analysis.dependent, separate_analysis.dependent);
+        for (a, b) in analysis
+            .singular_values
+            .iter()
+            .zip(&separate_analysis.singular_values)
+        {
+            assert!((a - b).abs() < 1e-12 * separate_analysis.singular_values[0]);
+        }
+        let separate = fit(
+            &robot,
+            &nominal,
+            &rows,
+            &measured,
+            &analysis.independent,
+            &options,
+        )
+        .unwrap();
+        assert!(shared.converged && separate.converged);
+        assert_eq!(shared.trace.len(), separate.trace.len());
+        for id in &analysis.independent {
+            let (a, b) = (shared.values.get(*id), separate.values.get(*id));
+            let se = separate.std_errors[id.index()].unwrap();
+            assert!(
+                (a - b).abs() <= 1e-12 * b.abs() + 1e-10 * se,
+                "{id}: {a} vs {b}"
+            );
+        }
     }
 }

@@ -1,16 +1,20 @@
 //! Calibration maths above the robot model: rank analysis (which parameters the
 //! data can identify) and the least-squares fit (Levenberg–Marquardt or the paper's
 //! Gauss–Newton) with standard errors. Knows nothing of tables or stages.
+//!
+//! Both work on any number of rows in bounded memory: each pass over the rows is
+//! chunked, parallel, and reduced to a small triangular factor ([`stream`]).
 
 mod dense;
 pub mod fit;
 pub mod rank;
+pub mod stream;
 
 use nalgebra::Vector3;
 
 use crate::robot::{ConfWrench, ParamId, ParamValues, Robot};
 use crate::table::parameters::{ModelName, ParamStatus, ParameterSet};
-use fit::{Fit, FitError, FitOptions, Iteration, Stop};
+use fit::{FitError, FitOptions, Iteration, Stop};
 use rank::RankAnalysis;
 
 /// Options of a whole calibration.
@@ -97,13 +101,13 @@ pub fn calibrate(
             diagnostics: None,
         });
     }
-    let rank = rank::analyse(robot, &nominal, rows, &candidates, options.rank_tolerance);
-    let fit: Fit = fit::fit(
+    let (rank, fit) = fit::fit_identifiable(
         robot,
         &nominal,
         rows,
         measured,
-        &rank.independent,
+        &candidates,
+        options.rank_tolerance,
         &options.fit,
     )?;
     let diagnostics = Diagnostics {

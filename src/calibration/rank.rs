@@ -7,20 +7,31 @@
 //! component orthogonal to the kept ones exceeds `tolerance` (sequential QR
 //! without pivoting, i.e. Gram–Schmidt, reorthogonalised). The order decides
 //! *which* member of a dependent group is held at nominal; it reproduces the
-//! spec's choice (dtheta1 goes with gamma_w, dd3 with dd2, ...). The numerical rank
-//! is cross-checked with the SVD of the same matrix at the same tolerance.
+//! spec's choice (dtheta1 goes with gamma_w, dd3 with dd2, ...). A column with no
+//! effect at all (norm below `tolerance` times the largest) is unidentifiable on
+//! its own and combined with nothing: scaling its rounding noise to unit norm
+//! would make it look like a mix of everything. The numerical rank is
+//! cross-checked with the SVD of the same matrix at the same tolerance.
+//!
+//! All of this works on the `m × m` triangular factor `R` of the Jacobian, built
+//! in one chunked pass over the rows ([`stream::jacobian_factor`], or in
+//! `calibrate` the fit's first pass, [`fit_identifiable`](super::fit::fit_identifiable)): since
+//! `J = Q·R` with orthonormal `Q`, column norms, inner products, least-squares
+//! fits of one column on others and singular values are the same for `R` as for
+//! `J`, so the result is the dense analysis's without holding `J`.
 
-use faer::Mat;
+use faer::{Mat, MatRef};
 
-use super::dense;
-use crate::robot::{ConfWrench, ParamId, ParamValues, Robot, batch_jacobian, params::ParamKind};
+use super::{dense, stream};
+use crate::robot::{ConfWrench, ParamId, ParamValues, Robot, params::ParamKind};
 
 /// Result of a rank analysis.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RankAnalysis {
     /// Identifiable parameters, in the spec's order.
     pub independent: Vec<ParamId>,
-    /// Each dependent parameter with the identifiable ones it is combined with.
+    /// Each dependent parameter with the identifiable ones it is combined with
+    /// (none for a parameter with no effect at all on the rows).
     pub dependent: Vec<(ParamId, Vec<ParamId>)>,
     /// Singular values of the column-scaled Jacobian, descending.
     pub singular_values: Vec<f64>,
@@ -45,24 +56,45 @@ fn priority(id: ParamId) -> usize {
 }
 
 /// Rank analysis of `candidates` over `rows` at parameter values `at`.
+///
+/// Cost: one parallel pass over the rows in chunks of `chunk_rows`
+/// ([`stream::CHUNK_ROWS`] unless testing), then `m × m` work.
 pub fn analyse(
     robot: &Robot,
     at: &ParamValues,
     rows: &[ConfWrench],
     candidates: &[ParamId],
     tolerance: f64,
+    chunk_rows: usize,
 ) -> RankAnalysis {
+    let ordered = priority_order(candidates);
+    let factor = stream::jacobian_factor(robot, at, rows, &ordered, chunk_rows);
+    analyse_factor(factor.as_ref(), &ordered, tolerance)
+}
+
+/// The candidates in the order the analysis takes them.
+pub(crate) fn priority_order(candidates: &[ParamId]) -> Vec<ParamId> {
     let mut ordered: Vec<ParamId> = candidates.to_vec();
     ordered.sort_by_key(|id| priority(*id));
-    let jacobian = batch_jacobian(robot, at, rows, &ordered);
-    let n = jacobian.rows();
+    ordered
+}
+
+/// The analysis from a triangular factor `R` of the Jacobian whose columns are
+/// `ordered` (from [`priority_order`]): `RᵀR = JᵀJ`, any number of rows.
+pub(crate) fn analyse_factor(
+    factor: MatRef<'_, f64>,
+    ordered: &[ParamId],
+    tolerance: f64,
+) -> RankAnalysis {
     let m = ordered.len();
-    let scaled = Mat::<f64>::from_fn(n, m, |r, c| jacobian.entry(r, c));
-    let norms: Vec<f64> = (0..m).map(|c| scaled.col(c).norm_l2()).collect();
+    let norms: Vec<f64> = (0..m).map(|c| factor.col(c).norm_l2()).collect();
     let max_norm = norms.iter().cloned().fold(0.0, f64::max);
-    let unit = Mat::<f64>::from_fn(n, m, |r, c| {
-        if norms[c] > 0.0 {
-            scaled[(r, c)] / norms[c]
+    // Unit columns; a column without effect stays zero, so its rounding noise
+    // counts neither in the partners' fits nor in the SVD rank.
+    let has_effect = |c: usize| norms[c] > tolerance * max_norm;
+    let unit = Mat::<f64>::from_fn(factor.nrows(), m, |r, c| {
+        if has_effect(c) {
+            factor[(r, c)] / norms[c]
         } else {
             0.0
         }
@@ -71,13 +103,13 @@ pub fn analyse(
     let mut basis: Vec<Vec<f64>> = Vec::new();
     let mut kept: Vec<usize> = Vec::new();
     let mut dropped: Vec<usize> = Vec::new();
+    let mut without_effect: Vec<usize> = Vec::new();
     for c in 0..m {
-        // A column with no effect at all (relative to the strongest) is unobservable.
-        if norms[c] <= tolerance * max_norm {
-            dropped.push(c);
+        if !has_effect(c) {
+            without_effect.push(c);
             continue;
         }
-        let mut residual: Vec<f64> = (0..n).map(|r| unit[(r, c)]).collect();
+        let mut residual: Vec<f64> = unit.col(c).iter().copied().collect();
         for _ in 0..2 {
             for q in &basis {
                 let dot: f64 = q.iter().zip(&residual).map(|(a, b)| a * b).sum();
@@ -96,10 +128,11 @@ pub fn analyse(
         }
     }
 
-    // Which kept columns each dropped one is a combination of (one QR, every
-    // dropped column a right-hand side).
-    let kept_matrix = Mat::<f64>::from_fn(n, kept.len(), |r, j| unit[(r, kept[j])]);
-    let dropped_matrix = Mat::<f64>::from_fn(n, dropped.len(), |r, d| unit[(r, dropped[d])]);
+    // Which kept columns each dropped one is a combination of (one least-squares
+    // solve, every dropped column a right-hand side).
+    let rows = unit.nrows();
+    let kept_matrix = Mat::<f64>::from_fn(rows, kept.len(), |r, j| unit[(r, kept[j])]);
+    let dropped_matrix = Mat::<f64>::from_fn(rows, dropped.len(), |r, d| unit[(r, dropped[d])]);
     let coefficients = if kept.is_empty() || dropped.is_empty() {
         Mat::<f64>::zeros(0, dropped.len())
     } else {
@@ -116,6 +149,7 @@ pub fn analyse(
             partners.sort();
             (ordered[c], partners)
         })
+        .chain(without_effect.iter().map(|&c| (ordered[c], Vec::new())))
         .collect();
     dependent.sort_by_key(|(id, _)| *id);
 
@@ -159,7 +193,7 @@ mod tests {
             })
             .collect();
         let all: Vec<ParamId> = ParamId::all().collect();
-        let analysis = analyse(&robot, &nominal, &rows, &all, 1e-6);
+        let analysis = analyse(&robot, &nominal, &rows, &all, 1e-6, stream::CHUNK_ROWS);
         let names: Vec<&str> = analysis.independent.iter().map(|p| p.name()).collect();
         assert_eq!(
             analysis.independent,
@@ -200,8 +234,47 @@ mod tests {
             })
             .collect();
         let all: Vec<ParamId> = ParamId::all().collect();
-        let analysis = analyse(&robot, &nominal, &rows, &all, 1e-6);
+        let analysis = analyse(&robot, &nominal, &rows, &all, 1e-6, stream::CHUNK_ROWS);
         let k1 = ParamId::from_name("k1").unwrap();
-        assert!(analysis.dependent.iter().any(|(d, _)| *d == k1));
+        // k1 has no effect at all: unidentifiable, and combined with nothing (it
+        // was reported with about 30 "partners" fitted to its rounding noise).
+        let (_, partners) = analysis.dependent.iter().find(|(d, _)| *d == k1).unwrap();
+        assert!(partners.is_empty(), "{partners:?}");
+        // Every other dependent parameter still names what it combines with.
+        let dd3 = ParamId::from_name("dd3").unwrap();
+        let (_, partners) = analysis.dependent.iter().find(|(d, _)| *d == dd3).unwrap();
+        assert_eq!(partners, &vec![ParamId::from_name("dd2").unwrap()]);
+    }
+
+    #[test]
+    fn a_zero_column_is_unidentifiable_with_no_partners() {
+        let names = ["x_w", "y_w", "z_w", "k1"];
+        let ordered: Vec<ParamId> = names
+            .iter()
+            .map(|n| ParamId::from_name(n).unwrap())
+            .collect();
+        // Columns: x_w, y_w, their sum (z_w: dependent on both), and k1 at
+        // rounding level (no effect).
+        let j = Mat::<f64>::from_fn(9, 4, |r, c| {
+            let x = (r as f64 + 1.0).sin();
+            let y = (2.0 * r as f64 + 0.5).cos();
+            match c {
+                0 => x,
+                1 => y,
+                2 => x + y,
+                _ => 1e-17 * (r as f64).cos(),
+            }
+        });
+        let factor = dense::triangular_factor(j);
+        let analysis = analyse_factor(factor.as_ref(), &ordered, 1e-6);
+        assert_eq!(analysis.independent, ordered[..2].to_vec());
+        assert_eq!(
+            analysis.dependent,
+            vec![
+                (ordered[2], vec![ordered[0], ordered[1]]),
+                (ordered[3], Vec::new())
+            ]
+        );
+        assert_eq!(analysis.svd_rank, 2);
     }
 }

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use super::{
     Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
 };
-use crate::calibration::rank;
+use crate::calibration::{rank, stream};
 use crate::robot::{ParamId, ParamValues};
 use crate::table::{frame, schema};
 
@@ -40,7 +40,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Rank analysis: which parameters the candidate rows can identify, and what dependent ones combine with",
-    code_version: 2,
+    code_version: 3,
     inputs: &[TableSlot {
         name: "candidates",
         schema: schema::conf_wrenches,
@@ -78,6 +78,7 @@ impl Stage for IdentifiabilityStage {
             &rows,
             &candidates,
             settings.rank_tolerance,
+            stream::CHUNK_ROWS,
         );
         let mut names = Vec::new();
         let mut units = Vec::new();

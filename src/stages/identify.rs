@@ -13,7 +13,7 @@
 use std::collections::HashSet;
 
 use nalgebra::Vector3;
-use polars::prelude::Column;
+use polars::prelude::{Column, DataFrame};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
@@ -22,6 +22,7 @@ use super::{
     conf_wrench_rows,
 };
 use crate::calibration::fit::{Algorithm, FitOptions, Loss};
+use crate::calibration::stream;
 use crate::calibration::{CalibrationOptions, ModelResult, calibrate};
 use crate::robot::{ConfWrench, ParamId, ParamValues};
 use crate::table::frame;
@@ -125,6 +126,7 @@ impl IdentifySettings {
             max_iterations: self.max_iterations,
             stop_step_mm: self.stop_step_mm,
             stop_relative_cost: self.stop_relative_cost,
+            chunk_rows: stream::CHUNK_ROWS,
         })
     }
 }
@@ -134,7 +136,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -180,6 +182,8 @@ pub struct MeasuredRows {
 }
 
 /// The measured rows of a table, optionally only those whose id is in `keep`.
+/// All rows are converted once and filtered in place, so a large table is not
+/// copied twice.
 pub fn measured_rows(
     table: &InputTable,
     keep: Option<&HashSet<i64>>,
@@ -189,16 +193,27 @@ pub fn measured_rows(
         .iter()
         .map(|c| f64_values(&table.df, c, &table.path))
         .collect::<Result<Vec<_>, _>>()?;
-    let mut out = MeasuredRows::default();
-    for k in 0..ids.len() {
-        if keep.is_none_or(|keep| keep.contains(&ids[k])) {
-            out.ids.push(ids[k]);
-            out.rows.push(rows[k]);
-            out.positions
-                .push(Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]));
-        }
+    let positions = (0..ids.len())
+        .map(|k| Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]))
+        .collect();
+    let mut out = MeasuredRows {
+        ids,
+        rows,
+        positions,
+    };
+    if let Some(keep) = keep {
+        let wanted: Vec<bool> = out.ids.iter().map(|id| keep.contains(id)).collect();
+        retain_wanted(&mut out.ids, &wanted);
+        retain_wanted(&mut out.rows, &wanted);
+        retain_wanted(&mut out.positions, &wanted);
     }
     Ok(out)
+}
+
+/// Keeps the elements whose flag in `wanted` (one per element) is set.
+fn retain_wanted<T>(values: &mut Vec<T>, wanted: &[bool]) {
+    let mut flags = wanted.iter();
+    values.retain(|_| flags.next().copied().unwrap_or(false));
 }
 
 /// The cw_ids a selection table gives `role`.
@@ -282,7 +297,7 @@ impl Stage for IdentifyStage {
         }
         let mut sets = Vec::new();
         let mut trace = TraceColumns::default();
-        let mut residuals = ResidualColumns::default();
+        let mut residuals: Option<DataFrame> = None;
         let mut outputs = StageOutputs::default();
         for model in models {
             ctx.progress
@@ -300,7 +315,21 @@ impl Stage for IdentifyStage {
                 outputs.facts.insert(format!("{model}_{key}"), value);
             }
             trace.push(model, &result);
-            residuals.push(model, &result, &ids, settings.outlier_threshold_mm);
+            let part = residual_frame(
+                model,
+                &result.residuals_mm,
+                &result.weights,
+                &ids,
+                settings.outlier_threshold_mm,
+            );
+            match residuals.as_mut() {
+                // Appends the columns' chunks; no copy.
+                Some(all) => {
+                    all.vstack_mut(&part)
+                        .expect("residual frames share one schema");
+                }
+                None => residuals = Some(part),
+            }
             sets.push(result.set);
         }
         let nominal = ParamValues::nominal(ctx.robot.spec());
@@ -310,9 +339,9 @@ impl Stage for IdentifyStage {
         outputs
             .tables
             .insert("identification_trace".into(), trace.into_frame());
-        outputs
-            .tables
-            .insert("residuals".into(), residuals.into_frame());
+        let residuals =
+            residuals.unwrap_or_else(|| residual_frame(ModelName::Nominal, &[], &[], &[], 0.0));
+        outputs.tables.insert("residuals".into(), residuals);
         outputs
             .facts
             .insert("calibration_rows".into(), rows.len().to_string());
@@ -363,29 +392,25 @@ fn model_facts(
         ));
     }
     if model != ModelName::Nominal {
-        let outliers: Vec<String> = ids
-            .iter()
-            .zip(&result.residuals_mm)
-            .filter(|(_, r)| r.norm() > outlier_threshold_mm)
-            .map(|(id, r)| format!("{id}:{:.3}", r.norm()))
-            .collect();
-        let shown = outliers
-            .iter()
+        // Counted over all rows, formatted only for those listed.
+        let beyond = || {
+            ids.iter()
+                .zip(&result.residuals_mm)
+                .map(|(id, r)| (*id, r.norm()))
+                .filter(|(_, r_mm)| *r_mm > outlier_threshold_mm)
+        };
+        let count = beyond().count();
+        let shown = beyond()
             .take(OUTLIERS_LISTED)
-            .cloned()
+            .map(|(id, r_mm)| format!("{id}:{r_mm:.3}"))
             .collect::<Vec<_>>()
             .join(",");
-        let more = outliers.len().saturating_sub(OUTLIERS_LISTED);
+        let more = count.saturating_sub(OUTLIERS_LISTED);
         facts.push((
             "outliers",
             format!(
-                "{} rows beyond {outlier_threshold_mm} mm{}{shown}{}",
-                outliers.len(),
-                if outliers.is_empty() {
-                    ""
-                } else {
-                    " (cw_id:r_mm) "
-                },
+                "{count} rows beyond {outlier_threshold_mm} mm{}{shown}{}",
+                if count == 0 { "" } else { " (cw_id:r_mm) " },
                 if more > 0 {
                     format!(" and {more} more")
                 } else {
@@ -438,42 +463,27 @@ impl TraceColumns {
     }
 }
 
-/// Columns of `residuals`.
-#[derive(Default)]
-struct ResidualColumns {
-    cw_id: Vec<i64>,
-    model: Vec<&'static str>,
-    xyz_mm: [Vec<f64>; 3],
-    r_mm: Vec<f64>,
-    weight: Vec<f64>,
-    outlier: Vec<bool>,
-}
-
-impl ResidualColumns {
-    fn push(&mut self, model: ModelName, result: &ModelResult, ids: &[i64], threshold_mm: f64) {
-        for ((id, r), w) in ids.iter().zip(&result.residuals_mm).zip(&result.weights) {
-            self.cw_id.push(*id);
-            self.model.push(model.as_str());
-            for axis in 0..3 {
-                self.xyz_mm[axis].push(r[axis]);
-            }
-            self.r_mm.push(r.norm());
-            self.weight.push(*w);
-            self.outlier.push(r.norm() > threshold_mm);
-        }
-    }
-
-    fn into_frame(self) -> polars::prelude::DataFrame {
-        let [x, y, z] = self.xyz_mm;
-        frame(vec![
-            Column::new("cw_id".into(), self.cw_id),
-            Column::new("model".into(), self.model),
-            Column::new("rx_mm".into(), x),
-            Column::new("ry_mm".into(), y),
-            Column::new("rz_mm".into(), z),
-            Column::new("r_mm".into(), self.r_mm),
-            Column::new("weight".into(), self.weight),
-            Column::new("outlier".into(), self.outlier),
-        ])
-    }
+/// The `residuals` rows of one model. Built as soon as the model is fitted, with
+/// exact sizes, so that a million rows per model cost only the table's own
+/// columns (about 64 bytes a row) and no growing buffers.
+fn residual_frame(
+    model: ModelName,
+    residuals_mm: &[Vector3<f64>],
+    weights: &[f64],
+    ids: &[i64],
+    threshold_mm: f64,
+) -> DataFrame {
+    let axis = |a: usize| -> Vec<f64> { residuals_mm.iter().map(|r| r[a]).collect() };
+    let norms: Vec<f64> = residuals_mm.iter().map(|r| r.norm()).collect();
+    let outlier: Vec<bool> = norms.iter().map(|r| *r > threshold_mm).collect();
+    frame(vec![
+        Column::new("cw_id".into(), ids),
+        Column::new("model".into(), vec![model.as_str(); ids.len()]),
+        Column::new("rx_mm".into(), axis(0)),
+        Column::new("ry_mm".into(), axis(1)),
+        Column::new("rz_mm".into(), axis(2)),
+        Column::new("r_mm".into(), norms),
+        Column::new("weight".into(), weights),
+        Column::new("outlier".into(), outlier),
+    ])
 }

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 use super::{
     Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
 };
-use crate::calibration::rank;
+use crate::calibration::{rank, stream};
 use crate::design::detmax::{Candidates, Criterion, DetmaxError, Method, Options, detmax};
 use crate::robot::{ParamId, ParamValues, batch_jacobian};
 use crate::table::frame;
@@ -134,7 +134,15 @@ impl Stage for SelectStage {
             }
             None => {
                 let all: Vec<ParamId> = ParamId::all().collect();
-                rank::analyse(ctx.robot, &nominal, &rows, &all, settings.rank_tolerance).independent
+                rank::analyse(
+                    ctx.robot,
+                    &nominal,
+                    &rows,
+                    &all,
+                    settings.rank_tolerance,
+                    stream::CHUNK_ROWS,
+                )
+                .independent
             }
         };
         if parameters.is_empty() {

@@ -496,7 +496,7 @@ pub fn identification_trace() -> TableSchema {
                 ColumnType::Float64,
                 "mm",
                 true,
-                "largest position change the step predicts",
+                "largest change of a predicted position the step made (at the trial point against before the step)",
             ),
             col(
                 "damping",
@@ -585,7 +585,7 @@ pub fn identifiability() -> TableSchema {
                 ColumnType::Utf8,
                 "",
                 false,
-                "for a dependent parameter: the identifiable ones it is combined with",
+                "for a dependent parameter: the identifiable ones it is combined with (empty for a parameter with no effect at all on these rows)",
             ),
         ],
         unique: Some("name"),
