@@ -333,10 +333,19 @@ impl Stage for GateStage {
     }
 }
 
+/// One logged day's rows.
+#[derive(Default)]
+struct Day {
+    rows: usize,
+    /// Whether any of its rows is held out.
+    holdout: bool,
+    in_service_sum_mm: f64,
+    candidate_sum_mm: f64,
+}
+
 /// Rows grouped by logged day.
 struct Daily {
-    /// Day → (rows, is a hold-out day, in-service error sum, candidate error sum).
-    days: BTreeMap<i64, (usize, bool, f64, f64)>,
+    days: BTreeMap<i64, Day>,
     /// Per row: day and in-service error, for the change point.
     row_days: Vec<i64>,
     in_service_mm: Vec<f64>,
@@ -359,11 +368,11 @@ impl Daily {
             };
         };
         for (k, id) in window.ids.iter().enumerate() {
-            let entry = grouped.entry(days[k]).or_insert((0, false, 0.0, 0.0));
-            entry.0 += 1;
-            entry.1 |= holdout.contains(id);
-            entry.2 += in_service_mm[k];
-            entry.3 += candidate_mm[k];
+            let day: &mut Day = grouped.entry(days[k]).or_default();
+            day.rows += 1;
+            day.holdout |= holdout.contains(id);
+            day.in_service_sum_mm += in_service_mm[k];
+            day.candidate_sum_mm += candidate_mm[k];
         }
         Daily {
             days: grouped,
@@ -382,11 +391,11 @@ impl Daily {
     }
 
     fn calibration_days_from(&self, day: i64) -> bool {
-        self.days.range(day..).any(|(_, d)| !d.1)
+        self.days.range(day..).any(|(_, d)| !d.holdout)
     }
 
     fn calibration_days_before(&self, day: i64) -> bool {
-        self.days.range(..day).any(|(_, d)| !d.1)
+        self.days.range(..day).any(|(_, d)| !d.holdout)
     }
 
     fn into_frame(self) -> polars::prelude::DataFrame {
@@ -395,16 +404,17 @@ impl Daily {
         let mut role = Vec::new();
         let mut in_service = Vec::new();
         let mut candidate = Vec::new();
-        for (day, (n, is_holdout, old, new)) in self.days {
+        for (day, sums) in self.days {
+            let n = sums.rows as f64;
             date.push(date_string(day));
-            rows.push(n as i64);
-            role.push(if is_holdout {
+            rows.push(sums.rows as i64);
+            role.push(if sums.holdout {
                 "validation"
             } else {
                 "calibration"
             });
-            in_service.push(old / n as f64);
-            candidate.push(new / n as f64);
+            in_service.push(sums.in_service_sum_mm / n);
+            candidate.push(sums.candidate_sum_mm / n);
         }
         frame(vec![
             Column::new("date".into(), date),
