@@ -12,6 +12,8 @@
 //!   stage's facts, e.g. how many files a scan pruned).
 //!
 //! `[expect] error` is one string or a list of strings that stderr must contain.
+//! A successful stage exits 0 unless `[expect] exit` says otherwise (a `gate`
+//! that publishes exits 10).
 //!
 //! The stage runs with the case folder as its working directory, which
 //! `egcal stage` resolves relative settings paths against (as a job resolves them
@@ -46,6 +48,8 @@ struct Expect {
     contains: Vec<String>,
     #[serde(default)]
     stdout: Vec<String>,
+    #[serde(default)]
+    exit: i32,
 }
 
 /// One string or a list of them.
@@ -140,8 +144,8 @@ fn run_case(dir: &Path) -> Result<(), String> {
         }
         return Ok(());
     }
-    if code != 0 {
-        return Err(format!("exit {code}:\n{stderr}"));
+    if code != expect.exit {
+        return Err(format!("exit {code}, expected {}:\n{stderr}", expect.exit));
     }
     if expect.tolerance.is_none() && expect.file.is_none() {
         return Err("[expect] needs error, tolerance or file".into());
