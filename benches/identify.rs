@@ -8,7 +8,6 @@
 
 use std::cell::OnceCell;
 use std::collections::BTreeMap;
-use std::path::Path;
 use std::time::{Duration, Instant};
 
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
@@ -17,7 +16,7 @@ use egcal::calibration::{CalibrationOptions, calibrate};
 use egcal::cdpr::CableRobotSpec;
 use egcal::rig::Rig;
 use egcal::rig::simulator::{Simulator, SimulatorSettings};
-use egcal::robot::{ConfWrench, ParamId, ParamValues, Robot, RobotSpec, Wrench};
+use egcal::robot::{ConfWrench, ParamId, ParamValues, Robot, Wrench};
 use egcal::stages::measure::{MeasureSettings, MeasureStage};
 use egcal::stages::{InputTable, NoProgress, Stage, StageContext};
 use egcal::table::frame;
@@ -25,33 +24,10 @@ use egcal::table::parameters::ModelName;
 use egcal::table::schema::{JOINT_COLUMNS, WRENCH_COLUMNS};
 use nalgebra::Vector3;
 use polars::prelude::Column;
-use rand::rngs::StdRng;
-use rand::{Rng, SeedableRng};
 
-fn robot() -> (Robot, ParamValues) {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let spec = RobotSpec::load(&root.join("jobs/robots/irb1600_145.toml")).expect("robot file");
-    let truth = ParamValues::load_overrides(&spec, &root.join("jobs/truth/irb1600_paper.toml"))
-        .expect("truth");
-    (Robot::new(spec), truth)
-}
-
-/// Random rows within the joint limits, wrenches within the paper's ±120 N, ±10 N·m.
-fn rows(robot: &Robot, n: usize) -> Vec<ConfWrench> {
-    let mut rng = StdRng::seed_from_u64(1);
-    (0..n)
-        .map(|_| ConfWrench {
-            q_deg: std::array::from_fn(|i| {
-                let [lo, hi] = robot.limits_deg(i);
-                rng.random_range(lo..hi)
-            }),
-            wrench: Wrench::from_array(std::array::from_fn(|i| {
-                let bound = if i < 3 { 120.0 } else { 10.0 };
-                rng.random_range(-bound..bound)
-            })),
-        })
-        .collect()
-}
+#[path = "../tests/common/sample.rs"]
+mod sample;
+use sample::{random_rows, robot_and_truth};
 
 fn wrench_array(w: &Wrench) -> [f64; 6] {
     [
@@ -92,8 +68,8 @@ fn campaign(
 }
 
 fn identify(c: &mut Criterion) {
-    let (robot, truth) = robot();
-    let (rows, measured) = campaign(&robot, &truth, &rows(&robot, 50));
+    let (robot, truth) = robot_and_truth();
+    let (rows, measured) = campaign(&robot, &truth, &random_rows(&robot, 1, 50));
     for (name, algorithm) in [
         ("levenberg-marquardt", Algorithm::LevenbergMarquardt),
         ("paper", Algorithm::Paper),
@@ -150,7 +126,7 @@ const LARGE_ROWS: usize = 1_000_000;
 /// chunks, never the 3·10⁶ × 42 Jacobian. The rows are simulated (about 2 s) and
 /// checked once, and only when this benchmark is selected.
 fn identify_large(c: &mut Criterion) {
-    let (robot, truth) = robot();
+    let (robot, truth) = robot_and_truth();
     let options = CalibrationOptions {
         candidates: ParamId::all().collect(),
         rank_tolerance: 1e-6,
@@ -159,7 +135,7 @@ fn identify_large(c: &mut Criterion) {
     let data = OnceCell::new();
     let prepare = || {
         let started = Instant::now();
-        let (rows, measured) = campaign(&robot, &truth, &rows(&robot, LARGE_ROWS));
+        let (rows, measured) = campaign(&robot, &truth, &random_rows(&robot, 1, LARGE_ROWS));
         let simulated_s = started.elapsed().as_secs_f64();
         let started = Instant::now();
         let check = calibrate(
@@ -200,8 +176,8 @@ fn identify_large(c: &mut Criterion) {
 }
 
 fn simulate(c: &mut Criterion) {
-    let (robot, truth) = robot();
-    let rows = rows(&robot, 875);
+    let (robot, truth) = robot_and_truth();
+    let rows = random_rows(&robot, 1, 875);
     c.bench_function("simulator rig, 875 rows", |b| {
         b.iter(|| campaign(&robot, &truth, &rows))
     });
@@ -210,8 +186,8 @@ fn simulate(c: &mut Criterion) {
 /// The whole measure stage on an in-memory table: rig plus journal (one fsync per
 /// row, which dominates: about 3.5 ms each on this machine's disk), no Parquet.
 fn measure_stage(c: &mut Criterion) {
-    let (robot, _) = robot();
-    let rows = rows(&robot, 875);
+    let (robot, _) = robot_and_truth();
+    let rows = random_rows(&robot, 1, 875);
     let mut columns = vec![Column::new("cw_id".into(), (1..=875).collect::<Vec<i64>>())];
     for (i, name) in JOINT_COLUMNS.iter().enumerate() {
         columns.push(Column::new(

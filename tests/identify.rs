@@ -11,43 +11,18 @@ use std::path::Path;
 
 use egcal::calibration::fit::{self, Algorithm, FitOptions, Loss};
 use egcal::calibration::{CalibrationOptions, ModelResult, calibrate};
-use egcal::robot::{
-    ConfWrench, ParamId, ParamValues, Robot, RobotSpec, Selection, Wrench, batch_jacobian,
-};
+use egcal::robot::{ConfWrench, ParamId, ParamValues, Robot, Selection, batch_jacobian};
 use egcal::table::parameters::{ModelName, ParamStatus};
 use egcal::table::{self, schema};
 use faer::Mat;
 use faer::prelude::*;
 use nalgebra::Vector3;
 use polars::prelude::Column;
+use rand::SeedableRng;
 use rand::rngs::StdRng;
-use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
-fn robot_and_truth() -> (Robot, ParamValues) {
-    let root = common::root();
-    let spec = RobotSpec::load(&root.join("jobs/robots/irb1600_145.toml")).unwrap();
-    let truth =
-        ParamValues::load_overrides(&spec, &root.join("jobs/truth/irb1600_paper.toml")).unwrap();
-    (Robot::new(spec), truth)
-}
-
-/// Random rows within the joint limits with the paper's wrench ranges.
-fn random_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
-    let mut rng = StdRng::seed_from_u64(seed);
-    (0..n)
-        .map(|_| ConfWrench {
-            q_deg: std::array::from_fn(|i| {
-                let [lo, hi] = robot.limits_deg(i);
-                rng.random_range(lo..hi)
-            }),
-            wrench: Wrench::from_array(std::array::from_fn(|i| {
-                let bound = if i < 3 { 120.0 } else { 10.0 };
-                rng.random_range(-bound..bound)
-            })),
-        })
-        .collect()
-}
+use common::sample::{random_rows, robot_and_truth};
 
 fn positions(robot: &Robot, p: &ParamValues, rows: &[ConfWrench]) -> Vec<Vector3<f64>> {
     egcal::robot::batch_predict(robot, p, rows)
