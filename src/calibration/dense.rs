@@ -20,20 +20,11 @@ use faer::{Conj, Mat, MatRef, Par};
 /// (4 and 16 in between); the tall, narrow panels favour short blocks.
 const FACTOR_BLOCK: usize = 8;
 
-/// The upper-triangular factor `R` of `a`'s QR (Householder, no pivoting):
-/// `ncols × ncols` with `RᵀR = aᵀa`, zero rows below `nrows` when `a` is wider
-/// than tall. Factorises `a` in place.
-///
-/// faer skips a column whose remaining part is below rounding (≈ 16·ε·nrows of
-/// its norm) and eliminates the next one in its row; the upper part is then still
-/// a valid factor, with that column's rounding-level remainder on its row.
-pub fn triangular_factor(mut a: Mat<f64>) -> Mat<f64> {
+/// Householder QR of `a` in place, sequentially: `R` in the upper part, the
+/// reflectors below it; returns the block reflectors' coefficients.
+fn householder_in_place(a: &mut Mat<f64>, block_size: usize) -> Mat<f64> {
     let (m, n) = a.shape();
-    if m.min(n) == 0 {
-        return Mat::zeros(n, n);
-    }
     let par = Par::Seq;
-    let block_size = qr::no_pivoting::factor::recommended_block_size::<f64>(m, n).min(FACTOR_BLOCK);
     let mut coefficients = Mat::<f64>::zeros(block_size, n.min(m));
     qr::no_pivoting::factor::qr_in_place(
         a.as_mut(),
@@ -50,6 +41,23 @@ pub fn triangular_factor(mut a: Mat<f64>) -> Mat<f64> {
         )),
         Default::default(),
     );
+    coefficients
+}
+
+/// The upper-triangular factor `R` of `a`'s QR (Householder, no pivoting):
+/// `ncols × ncols` with `RᵀR = aᵀa`, zero rows below `nrows` when `a` is wider
+/// than tall. Factorises `a` in place.
+///
+/// faer skips a column whose remaining part is below rounding (≈ 16·ε·nrows of
+/// its norm) and eliminates the next one in its row; the upper part is then still
+/// a valid factor, with that column's rounding-level remainder on its row.
+pub fn triangular_factor(mut a: Mat<f64>) -> Mat<f64> {
+    let (m, n) = a.shape();
+    if m.min(n) == 0 {
+        return Mat::zeros(n, n);
+    }
+    let block_size = qr::no_pivoting::factor::recommended_block_size::<f64>(m, n).min(FACTOR_BLOCK);
+    householder_in_place(&mut a, block_size);
     Mat::<f64>::from_fn(n, n, |i, j| if i <= j && i < m { a[(i, j)] } else { 0.0 })
 }
 
@@ -60,22 +68,7 @@ pub fn lstsq(a: MatRef<'_, f64>, b: MatRef<'_, f64>) -> Mat<f64> {
     let par = Par::Seq;
     let block_size = qr::no_pivoting::factor::recommended_block_size::<f64>(m, n);
     let mut factors = a.to_owned();
-    let mut coefficients = Mat::<f64>::zeros(block_size, n.min(m));
-    qr::no_pivoting::factor::qr_in_place(
-        factors.as_mut(),
-        coefficients.as_mut(),
-        par,
-        MemStack::new(&mut MemBuffer::new(
-            qr::no_pivoting::factor::qr_in_place_scratch::<f64>(
-                m,
-                n,
-                block_size,
-                par,
-                Default::default(),
-            ),
-        )),
-        Default::default(),
-    );
+    let coefficients = householder_in_place(&mut factors, block_size);
     // Householder basis: strictly lower part with a unit diagonal; R: upper part.
     let basis = Mat::<f64>::from_fn(m, n, |i, j| match i.cmp(&j) {
         std::cmp::Ordering::Greater => factors[(i, j)],
