@@ -257,6 +257,9 @@ pub const WRENCH_COLUMNS: [&str; 6] = ["fx_n", "fy_n", "fz_n", "mx_nm", "my_nm",
 pub const JOINT_COLUMNS: [&str; 6] = ["q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg"];
 pub const POSITION_COLUMNS: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
 
+/// Per-point tracker uncertainty columns of `measurements` (spec §7), mm.
+pub const SIGMA_COLUMNS: [&str; 3] = ["sigma_x_mm", "sigma_y_mm", "sigma_z_mm"];
+
 fn wrench_columns(columns: &mut Vec<ColumnSpec>) {
     for name in WRENCH_COLUMNS {
         let unit = if name.starts_with('f') { "N" } else { "N·m" };
@@ -330,6 +333,22 @@ pub fn measurements() -> TableSchema {
         false,
         "time of the tracker reading",
     ));
+    columns.push(col(
+        "target_id",
+        ColumnType::Utf8,
+        "",
+        false,
+        "which SMR (nest) was measured; one target when absent (spec §7)",
+    ));
+    for name in SIGMA_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm",
+            false,
+            "the tracker's 1-σ uncertainty of the point along this axis, > 0; rows are weighted by 1/σ² (spec §7)",
+        ));
+    }
     TableSchema {
         kind: "measurements",
         description: "Complete measured rows (spec §6). Incomplete rows go to measurement_failures, never here.",
