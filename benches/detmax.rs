@@ -34,6 +34,7 @@ fn candidates(count: usize, seed: u64) -> Candidates {
                 let bound = if i < 3 { 120.0 } else { 10.0 };
                 rng.random_range(-bound..bound)
             })),
+            target: 0,
         })
         .collect();
     let parameters = Selection::spec_identifiable();

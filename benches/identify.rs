@@ -11,7 +11,7 @@ use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
-use egcal::calibration::fit::{Algorithm, FitOptions};
+use egcal::calibration::fit::{Algorithm, FitOptions, Observations};
 use egcal::calibration::{CalibrationOptions, calibrate};
 use egcal::cdpr::CableRobotSpec;
 use egcal::rig::Rig;
@@ -61,6 +61,7 @@ fn campaign(
         read.push(ConfWrench {
             q_deg,
             wrench: Wrench::from_array(wrench),
+            target: 0,
         });
         measured.push(Vector3::from(p));
     }
@@ -74,21 +75,11 @@ fn identify(c: &mut Criterion) {
         ("levenberg-marquardt", Algorithm::LevenbergMarquardt),
         ("paper", Algorithm::Paper),
     ] {
-        let options = CalibrationOptions {
-            candidates: ParamId::all().collect(),
-            rank_tolerance: 1e-6,
-            fit: FitOptions {
+        let options = CalibrationOptions::new(ParamId::all().collect(), FitOptions {
                 algorithm,
                 ..FitOptions::default()
-            },
-        };
-        let check = calibrate(
-            &robot,
-            ModelName::Elastogeometric,
-            &rows,
-            &measured,
-            &options,
-        )
+            });
+        let check = calibrate(&robot, ModelName::Elastogeometric, &Observations::new(&rows, &measured), &ParamValues::nominal(robot.spec()), &options)
         .expect("identifiable");
         assert_eq!(check.rank.as_ref().map(|r| r.independent.len()), Some(32));
         assert!(check.converged);
@@ -96,24 +87,14 @@ fn identify(c: &mut Criterion) {
             &format!("identify elastogeometric, 50 rows, 32 of 42 parameters, {name}"),
             |b| {
                 b.iter(|| {
-                    calibrate(
-                        &robot,
-                        ModelName::Elastogeometric,
-                        &rows,
-                        &measured,
-                        &options,
-                    )
+                    calibrate(&robot, ModelName::Elastogeometric, &Observations::new(&rows, &measured), &ParamValues::nominal(robot.spec()), &options)
                 })
             },
         );
     }
-    let options = CalibrationOptions {
-        candidates: ParamId::all().collect(),
-        rank_tolerance: 1e-6,
-        fit: FitOptions::default(),
-    };
+    let options = CalibrationOptions::new(ParamId::all().collect(), FitOptions::default());
     c.bench_function("identify all four models, 50 rows", |b| {
-        b.iter(|| ModelName::ALL.map(|model| calibrate(&robot, model, &rows, &measured, &options)))
+        b.iter(|| ModelName::ALL.map(|model| calibrate(&robot, model, &Observations::new(&rows, &measured), &ParamValues::nominal(robot.spec()), &options)))
     });
 }
 
@@ -127,24 +108,14 @@ const LARGE_ROWS: usize = 1_000_000;
 /// checked once, and only when this benchmark is selected.
 fn identify_large(c: &mut Criterion) {
     let (robot, truth) = robot_and_truth();
-    let options = CalibrationOptions {
-        candidates: ParamId::all().collect(),
-        rank_tolerance: 1e-6,
-        fit: FitOptions::default(),
-    };
+    let options = CalibrationOptions::new(ParamId::all().collect(), FitOptions::default());
     let data = OnceCell::new();
     let prepare = || {
         let started = Instant::now();
         let (rows, measured) = campaign(&robot, &truth, &random_rows(&robot, 1, LARGE_ROWS));
         let simulated_s = started.elapsed().as_secs_f64();
         let started = Instant::now();
-        let check = calibrate(
-            &robot,
-            ModelName::Elastogeometric,
-            &rows,
-            &measured,
-            &options,
-        )
+        let check = calibrate(&robot, ModelName::Elastogeometric, &Observations::new(&rows, &measured), &ParamValues::nominal(robot.spec()), &options)
         .expect("identifiable");
         let once_s = started.elapsed().as_secs_f64();
         assert_eq!(check.rank.as_ref().map(|r| r.independent.len()), Some(32));
@@ -170,7 +141,7 @@ fn identify_large(c: &mut Criterion) {
         "identify elastogeometric, 1000000 rows, 32 of 42 parameters",
         |b| {
             let (rows, measured) = data.get_or_init(prepare);
-            b.iter(|| calibrate(&robot, ModelName::Elastogeometric, rows, measured, &options))
+            b.iter(|| calibrate(&robot, ModelName::Elastogeometric, &Observations::new(rows, measured), &ParamValues::nominal(robot.spec()), &options))
         },
     );
 }

@@ -21,7 +21,7 @@ fn model(c: &mut Criterion) {
             let mut sum = 0.0;
             for row in &rows {
                 let p =
-                    prepared.jacobian_row(&row.q_deg, &row.wrench, selection.ids(), &mut columns);
+                    prepared.jacobian_row(row, selection.ids(), &mut columns);
                 sum += p.position_mm.x + columns[0].x;
             }
             sum

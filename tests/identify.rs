@@ -9,7 +9,7 @@ mod common;
 
 use std::path::Path;
 
-use egcal::calibration::fit::{self, Algorithm, FitOptions, Loss};
+use egcal::calibration::fit::{self, Algorithm, FitOptions, Loss, Observations};
 use egcal::calibration::{CalibrationOptions, ModelResult, calibrate};
 use egcal::robot::{ConfWrench, ParamId, ParamValues, Robot, Selection, batch_jacobian};
 use egcal::table::parameters::{ModelName, ParamStatus};
@@ -42,11 +42,7 @@ fn noisy(exact: &[Vector3<f64>], sigma_mm: f64, seed: u64) -> Vec<Vector3<f64>> 
 }
 
 fn options(fit: FitOptions) -> CalibrationOptions {
-    CalibrationOptions {
-        candidates: ParamId::all().collect(),
-        rank_tolerance: 1e-6,
-        fit,
-    }
+    CalibrationOptions::new(ParamId::all().collect(), fit)
 }
 
 fn identify(
@@ -56,7 +52,7 @@ fn identify(
     measured: &[Vector3<f64>],
     fit: FitOptions,
 ) -> ModelResult {
-    calibrate(robot, model, rows, measured, &options(fit)).unwrap()
+    calibrate(robot, model, &Observations::new(rows, measured), &ParamValues::nominal(robot.spec()), &options(fit)).unwrap()
 }
 
 fn identified(result: &ModelResult) -> Vec<ParamId> {
@@ -281,7 +277,7 @@ fn a_streamed_fit_converges_to_the_dense_least_squares_solution() {
         chunk_rows: 700,
         ..FitOptions::default()
     };
-    let streamed = fit::fit(&robot, &nominal, &rows, &measured, free.ids(), &options).unwrap();
+    let streamed = fit::fit(&robot, &nominal, &Observations::new(&rows, &measured), free.ids(), &options).unwrap();
     assert!(streamed.converged, "{:?}", streamed.trace);
 
     let equations = 3 * rows.len();

@@ -43,6 +43,12 @@
 //! An optional Huber loss on each row's residual norm is minimised by iteratively
 //! reweighted least squares (the weights are recomputed from the residuals at
 //! every point).
+//!
+//! Rows may carry fixed scales per axis ([`Observations::row_scale`]): `1/σ` of
+//! the tracker's per-point uncertainty (spec §7), or 0 for a row excluded by the
+//! robust fit ([`super::robust`]). Each equation is multiplied by its scale, the
+//! loss acts on the scaled residual's norm, and the statistics count only rows
+//! with a non-zero scale.
 
 use std::ops::Range;
 
@@ -165,6 +171,41 @@ impl Stop {
     }
 }
 
+/// What is fitted to: the rows, their measured positions and fixed per-row scales.
+#[derive(Debug, Clone, Copy)]
+pub struct Observations<'a> {
+    pub rows: &'a [ConfWrench],
+    pub measured_mm: &'a [Vector3<f64>],
+    /// Per row and axis, the factor each equation is multiplied by: `1/σ` (1/mm)
+    /// for weighted rows, 0 for an excluded row; `None`: 1 everywhere.
+    pub row_scale: Option<&'a [Vector3<f64>]>,
+}
+
+impl<'a> Observations<'a> {
+    /// Unweighted rows.
+    pub fn new(rows: &'a [ConfWrench], measured_mm: &'a [Vector3<f64>]) -> Self {
+        Observations {
+            rows,
+            measured_mm,
+            row_scale: None,
+        }
+    }
+
+    /// The scale of row `k` (1 on every axis without scales).
+    pub fn scale_of(&self, k: usize) -> Vector3<f64> {
+        self.row_scale
+            .map_or_else(|| Vector3::repeat(1.0), |scales| scales[k])
+    }
+
+    /// Rows that take part (some axis with a non-zero scale).
+    pub fn included_rows(&self) -> usize {
+        match self.row_scale {
+            None => self.rows.len(),
+            Some(scales) => scales.iter().filter(|s| s.iter().any(|v| *v != 0.0)).count(),
+        }
+    }
+}
+
 /// Result of a fit.
 #[derive(Debug, Clone)]
 pub struct Fit {
@@ -185,6 +226,8 @@ pub struct Fit {
     pub free: Vec<ParamId>,
     /// Correlation matrix of the estimates, row-major `m × m`.
     pub correlation: Vec<f64>,
+    /// Covariance of the estimates in the parameters' units, row-major `m × m`.
+    pub covariance: Vec<f64>,
 }
 
 impl Fit {
@@ -211,7 +254,7 @@ pub enum FitError {
         equations: usize,
         parameters: usize,
     },
-    #[error("{rows} rows but {measured} measured positions")]
+    #[error("{rows} rows but {measured} measured positions or scales")]
     LengthMismatch { rows: usize, measured: usize },
     #[error("the fit diverged (residual became non-finite at iteration {0})")]
     Diverged(usize),
@@ -219,6 +262,8 @@ pub enum FitError {
         "the Jacobian is rank deficient at the solution: the free parameters are not all identifiable from these rows"
     )]
     Singular,
+    #[error("{0}")]
+    Untrustworthy(String),
 }
 
 /// Residuals `measured − predicted` per row, in parallel.
@@ -232,7 +277,11 @@ pub fn residuals(
     rows.par_iter()
         .zip(measured)
         .with_min_len(stream::CHUNK_ROWS)
-        .map(|(row, meas)| meas - prepared.predict(&row.q_deg, &row.wrench).position_mm)
+        .map(|(row, meas)| {
+            meas - prepared
+                .predict_target(&row.q_deg, &row.wrench, row.target)
+                .position_mm
+        })
         .collect()
 }
 
@@ -263,8 +312,10 @@ struct Sums {
     cost: f64,
     /// Σ w·‖r‖² (mm²).
     weighted_rss: f64,
-    /// Σ ‖r‖² (mm²).
+    /// Σ ‖r‖² over the included rows (mm²).
     rss: f64,
+    /// Rows with a non-zero scale.
+    included: usize,
     /// Largest ‖r‖ (mm).
     max_mm: f64,
     /// Largest change of a predicted position from the previous point (mm; 0
@@ -287,6 +338,7 @@ impl Sums {
             cost: self.cost + other.cost,
             weighted_rss: self.weighted_rss + other.weighted_rss,
             rss: self.rss + other.rss,
+            included: self.included + other.included,
             max_mm: max_or_nan(self.max_mm, other.max_mm),
             step_mm: max_or_nan(self.step_mm, other.step_mm),
         }
@@ -313,11 +365,11 @@ impl Point {
     ) -> Point {
         let Problem {
             robot,
-            rows,
-            measured,
+            data,
             free,
             options,
         } = *problem;
+        let (rows, measured) = (data.rows, data.measured_mm);
         let m = free.len();
         let prepared = robot.prepare(&values);
         let leaf = |range: Range<usize>, out: &mut [RowFit]| {
@@ -326,44 +378,52 @@ impl Point {
             let mut columns = vec![Vector3::zeros(); m];
             let (mut cost, mut weighted_rss, mut rss, mut max_mm, mut step_mm) =
                 (0.0, 0.0, 0.0, 0.0, 0.0);
+            let (mut included, mut all_weights_one) = (0, true);
             for (k, (row, meas)) in rows[range.clone()]
                 .iter()
                 .zip(&measured[range.clone()])
                 .enumerate()
             {
-                let prediction = prepared.jacobian_row(&row.q_deg, &row.wrench, free, &mut columns);
+                let prediction = prepared.jacobian_row(row, free, &mut columns);
                 let residual_mm = meas - prediction.position_mm;
-                let norm = residual_mm.norm();
+                let scale = data.scale_of(range.start + k);
+                let scaled = residual_mm.component_mul(&scale);
+                let norm = scaled.norm();
                 let weight = options.loss.weight(norm);
                 let root_weight = weight.sqrt();
                 for axis in 0..3 {
                     let equation = 3 * k + axis;
                     for (j, column) in columns.iter().enumerate() {
-                        block[(equation, j)] = root_weight * column[axis];
+                        block[(equation, j)] = root_weight * scale[axis] * column[axis];
                     }
-                    block[(equation, m)] = root_weight * residual_mm[axis];
+                    block[(equation, m)] = root_weight * scaled[axis];
                     if let Some(plain) = plain.as_mut() {
                         for (j, column) in columns.iter().enumerate() {
-                            plain[(equation, j)] = column[axis];
+                            plain[(equation, j)] = scale[axis] * column[axis];
                         }
-                        plain[(equation, m)] = residual_mm[axis];
+                        plain[(equation, m)] = scaled[axis];
                     }
                 }
-                cost += options.loss.cost(norm);
-                weighted_rss += weight * norm * norm;
-                rss += norm * norm;
-                max_mm = max_or_nan(max_mm, norm);
-                if let Some(previous) = previous {
-                    // r = measured − predicted: the prediction moved by r_before − r_now.
-                    let before = previous[range.start + k].residual_mm;
-                    step_mm = max_or_nan(step_mm, (before - residual_mm).norm());
+                let taking_part = scale.iter().any(|v| *v != 0.0);
+                if taking_part {
+                    let norm_mm = residual_mm.norm();
+                    included += 1;
+                    all_weights_one &= weight == 1.0;
+                    cost += options.loss.cost(norm);
+                    weighted_rss += weight * norm * norm;
+                    rss += norm_mm * norm_mm;
+                    max_mm = max_or_nan(max_mm, norm_mm);
+                    if let Some(previous) = previous {
+                        // r = measured − predicted: the prediction moved by r_before − r_now.
+                        let before = previous[range.start + k].residual_mm;
+                        step_mm = max_or_nan(step_mm, (before - residual_mm).norm());
+                    }
                 }
                 out[k] = RowFit {
                     residual_mm,
-                    weight,
+                    weight: if taking_part { weight } else { 0.0 },
                 };
             }
-            let all_weights_one = out.iter().all(|row| row.weight == 1.0);
             Sums {
                 factor: dense::triangular_factor(block),
                 unweighted: plain
@@ -372,6 +432,7 @@ impl Point {
                 cost,
                 weighted_rss,
                 rss,
+                included,
                 max_mm,
                 step_mm,
             }
@@ -384,6 +445,7 @@ impl Point {
                 cost: 0.0,
                 weighted_rss: 0.0,
                 rss: 0.0,
+                included: 0,
                 max_mm: 0.0,
                 step_mm: 0.0,
             });
@@ -416,9 +478,9 @@ impl Point {
         self
     }
 
-    /// Residual RMS per coordinate and largest residual norm (mm).
+    /// Residual RMS per coordinate and largest residual norm over the included rows (mm).
     fn norms(&self) -> (f64, f64) {
-        let equations = (3 * self.rows.len()).max(1) as f64;
+        let equations = (3 * self.sums.included).max(1) as f64;
         ((self.sums.rss / equations).sqrt(), self.sums.max_mm)
     }
 }
@@ -427,8 +489,7 @@ impl Point {
 #[derive(Clone, Copy)]
 struct Problem<'a> {
     robot: &'a Robot,
-    rows: &'a [ConfWrench],
-    measured: &'a [Vector3<f64>],
+    data: &'a Observations<'a>,
     free: &'a [ParamId],
     options: &'a FitOptions,
 }
@@ -469,7 +530,7 @@ impl System {
             scaled: Mat::from_fn(m, m, |i, j| factor[(i, j)] * scale[j]),
             rhs: Mat::from_fn(m, 1, |i, _| factor[(i, m)]),
             scale,
-            rows: point.rows.len(),
+            rows: point.sums.included,
         }
     }
 
@@ -518,16 +579,14 @@ impl System {
 pub fn fit(
     robot: &Robot,
     start: &ParamValues,
-    rows: &[ConfWrench],
-    measured: &[Vector3<f64>],
+    data: &Observations<'_>,
     free: &[ParamId],
     options: &FitOptions,
 ) -> Result<Fit, FitError> {
-    check_sizes(rows, measured, free.len())?;
+    check_sizes(data, free.len())?;
     let problem = Problem {
         robot,
-        rows,
-        measured,
+        data,
         free,
         options,
     };
@@ -546,18 +605,16 @@ pub fn fit(
 pub fn fit_identifiable(
     robot: &Robot,
     start: &ParamValues,
-    rows: &[ConfWrench],
-    measured: &[Vector3<f64>],
+    data: &Observations<'_>,
     candidates: &[ParamId],
     rank_tolerance: f64,
     options: &FitOptions,
 ) -> Result<(RankAnalysis, Fit), FitError> {
-    check_sizes(rows, measured, 0)?;
+    check_sizes(data, 0)?;
     let ordered = rank::priority_order(candidates);
     let all = Problem {
         robot,
-        rows,
-        measured,
+        data,
         free: &ordered,
         options,
     };
@@ -569,28 +626,32 @@ pub fn fit_identifiable(
         rank_tolerance,
     );
     let free = analysis.independent.clone();
-    check_sizes(rows, measured, free.len())?;
+    check_sizes(data, free.len())?;
     let problem = Problem { free: &free, ..all };
     let point = first.restricted(&ordered, &free);
     Ok((analysis, iterate(&problem, point)?))
 }
 
-/// One row per measured position, and more equations than free parameters.
-fn check_sizes(
-    rows: &[ConfWrench],
-    measured: &[Vector3<f64>],
-    parameters: usize,
-) -> Result<(), FitError> {
-    if rows.len() != measured.len() {
-        return Err(FitError::LengthMismatch {
-            rows: rows.len(),
-            measured: measured.len(),
-        });
+/// One measured position (and scale) per row, and more equations than free
+/// parameters among the included rows.
+fn check_sizes(data: &Observations<'_>, parameters: usize) -> Result<(), FitError> {
+    let rows = data.rows.len();
+    for other in [Some(data.measured_mm.len()), data.row_scale.map(<[_]>::len)]
+        .into_iter()
+        .flatten()
+    {
+        if other != rows {
+            return Err(FitError::LengthMismatch {
+                rows,
+                measured: other,
+            });
+        }
     }
-    let equations = 3 * rows.len();
+    let included = data.included_rows();
+    let equations = 3 * included;
     if equations <= parameters {
         return Err(FitError::TooFewRows {
-            rows: rows.len(),
+            rows: included,
             equations,
             parameters,
         });
@@ -701,6 +762,7 @@ fn iterate(problem: &Problem<'_>, mut point: Point) -> Result<Fit, FitError> {
         condition_number: statistics.condition_number,
         free: free.to_vec(),
         correlation: statistics.correlation,
+        covariance: statistics.covariance,
     })
 }
 
@@ -708,16 +770,18 @@ struct Statistics {
     std_errors: [Option<f64>; PARAM_COUNT],
     condition_number: f64,
     correlation: Vec<f64>,
+    covariance: Vec<f64>,
 }
 
-/// Covariance `σ²·(JᵀWJ)⁻¹` at the solution with `σ² = Σ w_k‖r_k‖² / (3n − m)`,
+/// Covariance `σ²·(JᵀWJ)⁻¹` at the solution with `σ² = Σ w_k‖r_k‖² / (3n − m)`
+/// (scaled residuals, included rows; with per-point σ, σ² is the variance factor),
 /// from the SVD of the scaled factor `R·D = U·S·Vᵀ` (the same singular values and
 /// `V` as the scaled, weighted Jacobian's): `Cov ∝ V·S⁻²·Vᵀ`, which stays accurate
 /// where forming JᵀJ would square the condition number. For the Huber loss this is
 /// the usual IRLS approximation.
 fn statistics(point: &Point, system: &System, free: &[ParamId]) -> Result<Statistics, FitError> {
     let m = free.len();
-    let equations = 3 * point.rows.len();
+    let equations = 3 * point.sums.included;
     let sigma2 = point.sums.weighted_rss / (equations - m) as f64;
     let scale = &system.scale;
     let (s, v) = dense::svd(system.scaled.as_ref(), true).map_err(|_| FitError::Singular)?;
@@ -746,10 +810,17 @@ fn statistics(point: &Point, system: &System, free: &[ParamId]) -> Result<Statis
             covariance[ij] / (covariance[i * m + i] * covariance[j * m + j]).sqrt()
         })
         .collect();
+    let covariance = (0..m * m)
+        .map(|ij| {
+            let (i, j) = (ij / m, ij % m);
+            covariance[ij] * sigma2 * scale[i] * scale[j]
+        })
+        .collect();
     Ok(Statistics {
         std_errors,
         condition_number: s_max / s_min,
         correlation,
+        covariance,
     })
 }
 
@@ -767,6 +838,7 @@ mod tests {
             .map(|_| ConfWrench {
                 q_deg: random_q(robot, &mut rng),
                 wrench: random_wrench(&mut rng),
+                target: 0,
             })
             .collect()
     }
@@ -788,7 +860,7 @@ mod tests {
                 stop_step_mm: 1e-9,
                 ..FitOptions::default()
             };
-            let fit = fit(&robot, &nominal, &rows, &measured, free.ids(), &options).unwrap();
+            let fit = fit(&robot, &nominal, &Observations::new(&rows, &measured), free.ids(), &options).unwrap();
             assert!(fit.converged, "{algorithm:?}: {:?}", fit.trace);
             // The truth's dependent parameters are nominal, so the identifiable ones
             // are recovered exactly (the spec's truth leaves the dependent ones at nominal).
@@ -830,7 +902,7 @@ mod tests {
             stop_step_mm: 1e-9,
             ..FitOptions::default()
         };
-        let fit = fit(&robot, &start, &rows, &measured, free.ids(), &options).unwrap();
+        let fit = fit(&robot, &start, &Observations::new(&rows, &measured), free.ids(), &options).unwrap();
         assert!(fit.converged, "{:?}", fit.trace);
         assert!(fit.residual_rms_mm < 1e-6, "{}", fit.residual_rms_mm);
         assert!(fit.trace.iter().any(|it| !it.accepted), "{:#?}", fit.trace);
@@ -881,7 +953,7 @@ mod tests {
                     p + Vector3::from_fn(|_, _| rand_distr::Distribution::sample(&normal, &mut rng))
                 })
                 .collect();
-            let fit = fit(&robot, &truth, &rows, &noisy, free.ids(), &options).unwrap();
+            let fit = fit(&robot, &truth, &Observations::new(&rows, &noisy), free.ids(), &options).unwrap();
             estimates.push(fit.values.get(k6));
             reported.push(fit.std_errors[k6.index()].unwrap());
         }
@@ -907,11 +979,7 @@ mod tests {
             .map(|p| p.position_mm + Vector3::new(0.01, -0.02, 0.015))
             .collect();
         let free = Selection::spec_identifiable();
-        let fit = fit(
-            &robot,
-            &truth,
-            &rows,
-            &measured,
+        let fit = fit(&robot, &truth, &Observations::new(&rows, &measured),
             free.ids(),
             &FitOptions::default(),
         )
@@ -972,10 +1040,10 @@ mod tests {
             chunk_rows: 300,
             ..FitOptions::default()
         };
+        let data = Observations::new(&rows, &measured);
         let problem = Problem {
             robot: &robot,
-            rows: &rows,
-            measured: &measured,
+            data: &data,
             free: free.ids(),
             options: &options,
         };
@@ -1069,7 +1137,7 @@ mod tests {
         };
         let all: Vec<ParamId> = ParamId::all().collect();
         let (analysis, shared) =
-            fit_identifiable(&robot, &nominal, &rows, &measured, &all, 1e-6, &options).unwrap();
+            fit_identifiable(&robot, &nominal, &Observations::new(&rows, &measured), &all, 1e-6, &options).unwrap();
         let separate_analysis = rank::analyse(&robot, &nominal, &rows, &all, 1e-6, 64);
         assert_eq!(analysis.independent, Selection::spec_identifiable().ids());
         assert_eq!(analysis.independent, separate_analysis.independent);
@@ -1081,11 +1149,7 @@ mod tests {
         {
             assert!((a - b).abs() < 1e-12 * separate_analysis.singular_values[0]);
         }
-        let separate = fit(
-            &robot,
-            &nominal,
-            &rows,
-            &measured,
+        let separate = fit(&robot, &nominal, &Observations::new(&rows, &measured),
             &analysis.independent,
             &options,
         )

@@ -8,22 +8,48 @@
 mod dense;
 pub mod fit;
 pub mod rank;
+pub mod registration;
+pub mod robust;
+pub mod row_checks;
 pub mod stream;
 
 use nalgebra::Vector3;
 
-use crate::robot::{ConfWrench, ParamId, ParamValues, Robot};
+use crate::robot::{Frame, JOINTS, ParamId, ParamValues, Robot};
 use crate::table::parameters::{ModelName, ParamStatus, ParameterSet};
-use fit::{FitError, FitOptions, Iteration, Stop};
+use fit::{FitError, FitOptions, Iteration, Loss, Observations, Stop};
 use rank::RankAnalysis;
+use robust::RobustOptions;
 
 /// Options of a whole calibration.
 #[derive(Debug, Clone)]
 pub struct CalibrationOptions {
-    /// Parameters the identification may free (subject to rank analysis).
+    /// Parameters the identification may free (subject to rank analysis); the
+    /// translations of targets 1.. are candidates whenever `x_t`.. are.
     pub candidates: Vec<ParamId>,
     pub rank_tolerance: f64,
     pub fit: FitOptions,
+    /// The robust default (`None`: `fit.loss` alone, as asked).
+    pub robust: Option<RobustOptions>,
+    /// Parameters held at a value in every fitted model (status `fixed`).
+    pub fixed: Vec<(ParamId, f64)>,
+    /// Targets in the rows (1 for a one-target cell).
+    pub targets: usize,
+}
+
+impl CalibrationOptions {
+    /// `candidates` and `fit` for one target, rank tolerance 1e-6, the robust
+    /// default, nothing fixed.
+    pub fn new(candidates: Vec<ParamId>, fit: FitOptions) -> Self {
+        CalibrationOptions {
+            candidates,
+            rank_tolerance: 1e-6,
+            fit,
+            robust: Some(RobustOptions::default()),
+            fixed: Vec::new(),
+            targets: 1,
+        }
+    }
 }
 
 /// Parameter pairs reported as the strongest correlations.
@@ -38,10 +64,27 @@ pub struct ModelResult {
     pub converged: bool,
     /// `measured − predicted` per row with the model's values (mm).
     pub residuals_mm: Vec<Vector3<f64>>,
-    /// The loss's weight of each row (1 where nothing is fitted).
+    /// The loss's weight of each row (1 where nothing is fitted, 0 for an excluded row).
     pub weights: Vec<f64>,
     /// Fit diagnostics; `None` where nothing is fitted (the nominal model).
     pub diagnostics: Option<Diagnostics>,
+    /// What the robust fit did; `None` without it or where nothing is fitted.
+    pub robust: Option<RobustSummary>,
+}
+
+/// What the robust fit found (see [`robust`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RobustSummary {
+    /// σ̂ of the least-squares residuals (mm, or σ units with per-point σ).
+    pub sigma_least_squares: f64,
+    /// σ̂ the exclusion used (from the Huber fit); equal to the above when no row
+    /// was beyond the threshold.
+    pub sigma: f64,
+    /// Rows beyond `reject_sigmas`·σ̂ (indices into the rows), excluded from the
+    /// final fit.
+    pub excluded: Vec<usize>,
+    /// The exclusion threshold (`reject_sigmas`·σ̂).
+    pub threshold: f64,
 }
 
 /// What the fit says about its own reliability.
@@ -52,45 +95,56 @@ pub struct Diagnostics {
     pub condition_number: f64,
     /// The most correlated parameter pairs, strongest |ρ| first.
     pub correlations: Vec<(ParamId, ParamId, f64)>,
+    /// The identified parameters and their covariance (parameters' units, row-major).
+    pub free: Vec<ParamId>,
+    pub covariance: Vec<f64>,
 }
 
-/// Identifies one model from the rows and measured positions.
+/// Identifies one model from the rows and measured positions, starting from
+/// `start` (the robot file's values with the frames registered, or an earlier
+/// calibration's for `reregistered`).
 ///
-/// * `nominal`: nothing is fitted.
-/// * `registered`: only the world frame, on the nominal robot (what users do before
-///   any calibration).
+/// * `nominal`: nothing is fitted; the robot file's values.
+/// * `registered`, `reregistered`: the world frame and tool translation(s) only
+///   (spec §7); every other parameter keeps its `start` value.
 /// * `kinematic`: every identifiable candidate except compliances (held at zero).
 /// * `elastogeometric`: every identifiable candidate.
 ///
-/// Dependent candidates (rank analysis at nominal, paper §III.D) stay at nominal
-/// with status `dependent`; parameters outside the model keep status `fixed`.
+/// Dependent candidates (rank analysis at the start, paper §III.D) stay at their
+/// start value with status `dependent`; parameters outside the model and those
+/// in `options.fixed` keep status `fixed`.
 pub fn calibrate(
     robot: &Robot,
     model: ModelName,
-    rows: &[ConfWrench],
-    measured: &[Vector3<f64>],
+    data: &Observations<'_>,
+    start: &ParamValues,
     options: &CalibrationOptions,
 ) -> Result<ModelResult, FitError> {
     let nominal = ParamValues::nominal(robot.spec());
-    let candidates: Vec<ParamId> = match model {
-        ModelName::Nominal => Vec::new(),
-        ModelName::Registered => options
-            .candidates
-            .iter()
-            .copied()
-            .filter(|p| p.is_world())
-            .collect(),
-        ModelName::Kinematic => options
-            .candidates
-            .iter()
-            .copied()
-            .filter(|p| !p.is_compliance())
-            .collect(),
-        ModelName::Elastogeometric => options.candidates.clone(),
+    let targets = options.targets.max(1);
+    let allowed = |id: &ParamId| {
+        let base = match id.kind() {
+            crate::robot::params::ParamKind::ToolTranslation { axis, .. } => {
+                ParamId::target_translation(0, axis)
+            }
+            _ => *id,
+        };
+        options.candidates.contains(&base) && !options.fixed.iter().any(|(f, _)| f == id)
     };
-    let mut set = ParameterSet::fixed(model, nominal);
+    let candidates: Vec<ParamId> = ParamId::all_with_targets(targets)
+        .filter(allowed)
+        .filter(|p| match model {
+            ModelName::Nominal => false,
+            ModelName::Registered | ModelName::Reregistered => {
+                p.is_world() || p.is_tool_translation()
+            }
+            ModelName::Kinematic => !p.is_compliance(),
+            ModelName::Elastogeometric => true,
+        })
+        .collect();
     if candidates.is_empty() {
-        let residuals_mm = fit::residuals(robot, &nominal, rows, measured);
+        let set = ParameterSet::fixed(model, nominal);
+        let residuals_mm = fit::residuals(robot, &nominal, data.rows, data.measured_mm);
         return Ok(ModelResult {
             set,
             trace: Vec::new(),
@@ -99,23 +153,44 @@ pub fn calibrate(
             weights: vec![1.0; residuals_mm.len()],
             residuals_mm,
             diagnostics: None,
+            robust: None,
         });
     }
-    let (rank, fit) = fit::fit_identifiable(
+    let mut start = *start;
+    for (id, value) in &options.fixed {
+        start.set(*id, *value);
+    }
+    if model == ModelName::Kinematic {
+        for id in ParamId::all().filter(|p| p.is_compliance()) {
+            if !options.fixed.iter().any(|(f, _)| *f == id) {
+                start.set(id, 0.0);
+            }
+        }
+    }
+    let (rank, mut fit) = fit::fit_identifiable(
         robot,
-        &nominal,
-        rows,
-        measured,
+        &start,
+        data,
         &candidates,
         options.rank_tolerance,
         &options.fit,
     )?;
+    let robust = match options.robust {
+        Some(robust) => {
+            let (refit, summary) = robust_refit(robot, data, fit, &rank.independent, &robust, options)?;
+            fit = refit;
+            Some(summary)
+        }
+        None => None,
+    };
     let diagnostics = Diagnostics {
         stop: fit.stop,
         condition_number: fit.condition_number,
         correlations: fit.strongest_correlations(CORRELATIONS_REPORTED),
+        free: fit.free.clone(),
+        covariance: fit.covariance.clone(),
     };
-    set.values = fit.values;
+    let mut set = ParameterSet::fixed(model, fit.values);
     set.std_errors = fit.std_errors;
     for id in &rank.independent {
         set.status[id.index()] = ParamStatus::Identified;
@@ -131,5 +206,164 @@ pub fn calibrate(
         residuals_mm: fit.residuals_mm,
         weights: fit.weights,
         diagnostics: Some(diagnostics),
+        robust,
     })
+}
+
+/// Stages 2 and 3 of the robust fit ([`robust`]) after the least-squares `fit`.
+fn robust_refit(
+    robot: &Robot,
+    data: &Observations<'_>,
+    least_squares: fit::Fit,
+    free: &[ParamId],
+    robust: &RobustOptions,
+    options: &CalibrationOptions,
+) -> Result<(fit::Fit, RobustSummary), FitError> {
+    let sigma_least_squares = robust::robust_sigma(&least_squares.residuals_mm, data.row_scale);
+    let beyond = |residuals: &[Vector3<f64>], threshold: f64| -> Vec<usize> {
+        residuals
+            .iter()
+            .enumerate()
+            .filter(|(k, r)| {
+                let scaled = r.component_mul(&data.scale_of(*k));
+                data.scale_of(*k).iter().any(|s| *s != 0.0) && !(scaled.norm() <= threshold)
+            })
+            .map(|(k, _)| k)
+            .collect()
+    };
+    let threshold = robust.reject_sigmas * sigma_least_squares;
+    if beyond(&least_squares.residuals_mm, threshold).is_empty() {
+        return Ok((
+            least_squares,
+            RobustSummary {
+                sigma_least_squares,
+                sigma: sigma_least_squares,
+                excluded: Vec::new(),
+                threshold,
+            },
+        ));
+    }
+    let mut trace = least_squares.trace.clone();
+    let huber_options = FitOptions {
+        loss: Loss::Huber {
+            threshold_mm: robust.huber_sigmas * sigma_least_squares,
+        },
+        ..options.fit
+    };
+    let huber = fit::fit(robot, &least_squares.values, data, free, &huber_options)?;
+    trace.extend(huber.trace.iter().copied());
+    let sigma = robust::robust_sigma(&huber.residuals_mm, data.row_scale);
+    let threshold = robust.reject_sigmas * sigma;
+    let excluded = beyond(&huber.residuals_mm, threshold);
+    let included_before = data.included_rows();
+    if excluded.len() as f64 > robust.max_excluded_fraction * included_before as f64 {
+        return Err(FitError::Untrustworthy(format!(
+            "{} of {included_before} rows lie beyond {:.3} ({} robust standard deviations) of the robust fit; \
+             more than {:.0} % of the rows disagree with the model, so the data cannot be trusted",
+            excluded.len(),
+            threshold,
+            robust.reject_sigmas,
+            100.0 * robust.max_excluded_fraction
+        )));
+    }
+    let mut scales: Vec<Vector3<f64>> = (0..data.rows.len()).map(|k| data.scale_of(k)).collect();
+    for k in &excluded {
+        scales[*k] = Vector3::zeros();
+    }
+    let clean = Observations {
+        row_scale: Some(&scales),
+        ..*data
+    };
+    let mut last = fit::fit(robot, &huber.values, &clean, free, &options.fit)?;
+    trace.extend(last.trace.iter().copied());
+    last.trace = trace;
+    Ok((
+        last,
+        RobustSummary {
+            sigma_least_squares,
+            sigma,
+            excluded,
+            threshold,
+        },
+    ))
+}
+
+/// Rows the registered start uses at most: it is only a start, and a strided
+/// subset keeps a million-row table's registration in milliseconds.
+const REGISTRATION_ROWS: usize = 10_000;
+
+/// The start of the fitted models: `values` with the world frame and each
+/// target's tool translation replaced by their closed-form registration onto
+/// the measured positions ([`registration`], spec §7). So a robot file without
+/// `[world]`, or with one metres and degrees off, calibrates the same; and
+/// `reregistered` starts from its calibration's robot in the new frames.
+///
+/// The flange frames are those of `values`' robot under each row's load.
+pub fn registered_start(
+    robot: &Robot,
+    values: &ParamValues,
+    data: &Observations<'_>,
+    targets: usize,
+) -> Result<(ParamValues, registration::Registration), registration::RegistrationError> {
+    let prepared = robot.prepare(values);
+    let stride = data.rows.len().div_ceil(REGISTRATION_ROWS).max(1);
+    let used: Vec<usize> = (0..data.rows.len())
+        .step_by(stride)
+        .filter(|k| data.scale_of(*k).iter().any(|s| *s != 0.0))
+        .collect();
+    let flange: Vec<Frame> = used
+        .iter()
+        .map(|k| {
+            let row = &data.rows[*k];
+            prepared
+                .loaded_chains(&row.q_deg, &row.wrench, row.target)
+                .deflected
+                .joints[JOINTS]
+        })
+        .collect();
+    let measured: Vec<Vector3<f64>> = used.iter().map(|k| data.measured_mm[*k]).collect();
+    let target_of_row: Vec<usize> = used.iter().map(|k| data.rows[*k].target).collect();
+    // Isotropic weight per row: the mean of its axes' 1/σ².
+    let weights: Option<Vec<f64>> = data
+        .row_scale
+        .map(|_| used.iter().map(|k| data.scale_of(*k).norm_squared() / 3.0).collect());
+    let v = &values.0;
+    const DEG: f64 = std::f64::consts::PI / 180.0;
+    // The translation parameters follow the tool rotation (eq. (4)): in the
+    // flange frame a target sits at R_tool·t.
+    let tool_rotation = Frame::from_xyz_euler_then_translation(
+        [v[9] * DEG, v[10] * DEG, v[11] * DEG],
+        Vector3::zeros(),
+    )
+    .rotation;
+    let target_translation = |target: usize| {
+        Vector3::from_fn(|axis, _| values.get(ParamId::target_translation(target, axis)))
+    };
+    let initial: Vec<Vector3<f64>> = (0..targets)
+        .map(|t| tool_rotation * target_translation(t))
+        .collect();
+    let found = registration::register_world_and_tools(
+        &flange,
+        &measured,
+        &target_of_row,
+        targets,
+        &initial,
+        weights.as_deref(),
+    )?;
+    let mut start = *values;
+    let world = registration::world_params_from_frame(
+        &found.rotation,
+        &found.translation_mm,
+        [v[3], v[4], v[5]],
+    );
+    for (slot, value) in world.iter().enumerate() {
+        start.0[slot] = *value;
+    }
+    for (target, in_flange) in found.tool_translations_mm.iter().enumerate() {
+        let t = tool_rotation.transpose() * in_flange;
+        for axis in 0..3 {
+            start.set(ParamId::target_translation(target, axis), t[axis]);
+        }
+    }
+    Ok((start, found))
 }

@@ -45,7 +45,7 @@ fn priority(id: ParamId) -> usize {
     match id.kind() {
         ParamKind::WorldTranslation(i) => i,
         ParamKind::WorldRotation(i) => 3 + i,
-        ParamKind::ToolTranslation(i) => 6 + i,
+        ParamKind::ToolTranslation { axis, .. } => 6 + axis,
         ParamKind::Theta(i) => 10 + i,
         ParamKind::Alpha(i) => 20 + i,
         ParamKind::A(i) => 30 + i,
@@ -190,6 +190,7 @@ mod tests {
             .map(|_| ConfWrench {
                 q_deg: random_q(&robot, &mut rng),
                 wrench: random_wrench(&mut rng),
+                target: 0,
             })
             .collect();
         let all: Vec<ParamId> = ParamId::all().collect();
@@ -231,6 +232,7 @@ mod tests {
             .map(|_| ConfWrench {
                 q_deg: random_q(&robot, &mut rng),
                 wrench: crate::robot::Wrench::zero(),
+                target: 0,
             })
             .collect();
         let all: Vec<ParamId> = ParamId::all().collect();

@@ -136,7 +136,7 @@ pub fn jacobian_factor(
         let mut block = Mat::<f64>::zeros(3 * chunk.len(), m);
         let mut row_columns = vec![Vector3::zeros(); m];
         for (k, row) in chunk.iter().enumerate() {
-            prepared.jacobian_row(&row.q_deg, &row.wrench, columns, &mut row_columns);
+            prepared.jacobian_row(row, columns, &mut row_columns);
             for (j, column) in row_columns.iter().enumerate() {
                 for axis in 0..3 {
                     block[(3 * k + axis, j)] = column[axis];
@@ -164,6 +164,7 @@ mod tests {
             .map(|_| ConfWrench {
                 q_deg: random_q(robot, &mut rng),
                 wrench: random_wrench(&mut rng),
+                target: 0,
             })
             .collect()
     }

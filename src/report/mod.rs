@@ -135,6 +135,19 @@ pub struct DetmaxStep {
     pub o1: f64,
 }
 
+/// A row of the `excluded_rows` table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ExcludedRow {
+    pub cw_id: i64,
+    /// `None`: a row check (every model).
+    pub model: Option<String>,
+    pub check: String,
+    pub reason: String,
+}
+
+/// Excluded rows listed one by one in the page; the rest are counted.
+const EXCLUDED_LISTED: usize = 50;
+
 /// A row of the `identification_trace` table.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TraceRow {
@@ -183,6 +196,8 @@ pub struct ReportData {
     pub detmax_trace: Option<Vec<DetmaxStep>>,
     pub o1_scaling: String,
     pub identification_trace: Option<Vec<TraceRow>>,
+    /// Rows the identification left out, when its `excluded_rows` is bound.
+    pub excluded_rows: Option<Vec<ExcludedRow>>,
     pub truth: Option<Truth>,
     pub sources: Vec<InputSource>,
 }
@@ -419,6 +434,7 @@ pub fn render(data: &ReportData) -> String {
     detmax_section(&mut out, data);
     section(&mut out, 5);
     convergence_section(&mut out, data, &models, &colors);
+    excluded_rows_part(&mut out, data);
     section(&mut out, 6);
     tests_section(&mut out, data);
     section(&mut out, 7);
@@ -939,6 +955,48 @@ fn convergence_section(
     out.push_str("</tbody>\n</table>\n");
 }
 
+/// The rows the identification did not use and why (row checks, robust fit).
+fn excluded_rows_part(out: &mut String, data: &ReportData) {
+    out.push_str("<h3 id=\"excluded-rows\">Rows left out</h3>\n");
+    let Some(rows) = data.excluded_rows.as_ref() else {
+        note(
+            out,
+            "No excluded_rows input is bound to this report stage, so the rows the identification left out are not listed.",
+        );
+        return;
+    };
+    if rows.is_empty() {
+        out.push_str("<p>Every calibration row was used: none failed the row checks and the robust fit excluded none.</p>\n");
+        return;
+    }
+    let checks = rows.iter().filter(|r| r.model.is_none()).count();
+    let _ = writeln!(
+        out,
+        "<p>{checks} rows failed the row checks (joint limits, absurd values) and were left out of every model; \
+         {} exclusions by the robust fit (rows beyond its threshold, per model).</p>",
+        rows.len() - checks
+    );
+    out.push_str("<table class=\"excluded\">\n<thead><tr><th class=\"num\">cw_id</th><th>model</th><th>check</th><th>reason</th></tr></thead>\n<tbody>\n");
+    for row in rows.iter().take(EXCLUDED_LISTED) {
+        let _ = writeln!(
+            out,
+            "<tr><td class=\"num\">{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+            row.cw_id,
+            escape(row.model.as_deref().unwrap_or("all")),
+            escape(&row.check),
+            escape(&row.reason)
+        );
+    }
+    out.push_str("</tbody>\n</table>\n");
+    if rows.len() > EXCLUDED_LISTED {
+        let _ = writeln!(
+            out,
+            "<p>… and {} more (the excluded_rows table has them all).</p>",
+            rows.len() - EXCLUDED_LISTED
+        );
+    }
+}
+
 fn tests_section(out: &mut String, data: &ReportData) {
     let Some(tests) = data.tests.as_ref() else {
         note(out, "No tests input is bound to this report stage.");
@@ -1214,6 +1272,12 @@ mod tests {
                 },
             ]),
             o1_scaling: DEFAULT_O1_SCALING.into(),
+            excluded_rows: Some(vec![ExcludedRow {
+                cw_id: 17,
+                model: None,
+                check: "row_check".into(),
+                reason: "q2_deg = 130 is outside the joint limits [-90, 120] of the robot file".into(),
+            }]),
             identification_trace: Some(
                 ["registered", "kinematic", "elastogeometric"]
                     .iter()

@@ -48,7 +48,8 @@ pub struct CapsuleSpec {
 }
 
 /// A rigid transform written as the paper's eq. (3)/(4): `Rot(x,α)·Rot(y,β)·Rot(z,γ)·Trans(x,y,z)`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+/// The default is the identity.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TransformSpec {
     pub x_mm: f64,
@@ -78,9 +79,14 @@ pub struct RobotSpec {
     pub gravity_mps2: [f64; 3],
     /// Exactly six joints, base to flange.
     pub joints: Vec<JointSpec>,
-    /// Nominal world (tracker) ← base transform.
+    /// Nominal world (tracker) ← base transform. Optional: identification registers
+    /// the frames onto the measurements in closed form (spec §7), so a tracker
+    /// standing wherever it was put needs no values here (identity when absent).
+    #[serde(default)]
     pub world: TransformSpec,
-    /// Nominal flange → tool (SMR) transform.
+    /// Nominal flange → tool (SMR) transform; its translation is registered like
+    /// the world frame (identity when absent).
+    #[serde(default)]
     pub tool: TransformSpec,
     #[serde(default = "no_payload")]
     pub payload: PayloadSpec,
@@ -241,6 +247,17 @@ mod tests {
             .to_string();
         assert!(err.contains("joints[0].d_mm"), "{err}");
         assert!(err.contains("line"), "{err}");
+    }
+
+    #[test]
+    fn world_and_tool_may_be_left_out() {
+        let start = IRB1600.find("[world]").unwrap();
+        let end = IRB1600[start..].find("[payload]").map_or(IRB1600.len(), |e| start + e);
+        let text = format!("{}{}", &IRB1600[..start], &IRB1600[end..]);
+        assert!(!text.contains("[tool]"), "{text}");
+        let spec = RobotSpec::parse(&text, Path::new("r.toml")).unwrap();
+        assert_eq!(spec.world, TransformSpec::default());
+        assert_eq!(spec.tool.z_mm, 0.0);
     }
 
     #[test]

@@ -108,9 +108,9 @@ impl PreparedRobot<'_> {
                     JOINTS + 1,
                 )
             }
-            ParamKind::ToolTranslation(t) => (
+            ParamKind::ToolTranslation { axis, .. } => (
                 Screw::Translation {
-                    axis: chain.tool.axis(t),
+                    axis: chain.tool.axis(axis),
                 },
                 JOINTS + 1,
             ),
@@ -216,14 +216,19 @@ impl DeflectionMaps {
 
 impl PreparedRobot<'_> {
     /// One row's prediction and its Jacobian columns for `selected`, written to
-    /// `columns[j]` (mm per parameter unit, world frame).
+    /// `columns[j]` (mm per parameter unit, world frame). Another target's
+    /// translation has a zero column.
     pub fn jacobian_row(
         &self,
-        q_deg: &[f64; JOINTS],
-        wrench: &Wrench,
+        row: &ConfWrench,
         selected: &[ParamId],
         columns: &mut [Vector3<f64>],
     ) -> Prediction {
+        let ConfWrench {
+            q_deg,
+            wrench,
+            target,
+        } = row;
         assert_eq!(
             selected.len(),
             columns.len(),
@@ -234,7 +239,7 @@ impl PreparedRobot<'_> {
             loads,
             deflections_deg,
             deflected,
-        } = self.loaded_chains(q_deg, wrench);
+        } = self.loaded_chains(q_deg, wrench, *target);
         let world = &self.world_from_base;
         let tool_base = deflected.tool.origin_mm;
         let position_mm = world.transform_point(&tool_base);
@@ -256,6 +261,9 @@ impl PreparedRobot<'_> {
                     self.world_rotation_axes[r].cross(&position_mm) * DEG
                 }
                 ParamKind::Compliance(i) => world.rotation * joint_rates[i] * loads.torques_nm[i],
+                ParamKind::ToolTranslation { target: other, .. } if other != *target => {
+                    Vector3::zeros()
+                }
                 _ => {
                     let (screw, _) = self
                         .chain_screw(id, &deflected)
@@ -277,11 +285,24 @@ impl PreparedRobot<'_> {
     }
 }
 
-/// One conf-wrench combination: joint commands (deg) and the wrench on the robot.
+/// One conf-wrench combination: joint commands (deg), the wrench on the robot,
+/// and which target (SMR nest, 0-based, spec §7) was measured.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ConfWrench {
     pub q_deg: [f64; JOINTS],
     pub wrench: Wrench,
+    pub target: usize,
+}
+
+impl ConfWrench {
+    /// A row of the one-target cell.
+    pub fn new(q_deg: [f64; JOINTS], wrench: Wrench) -> Self {
+        ConfWrench {
+            q_deg,
+            wrench,
+            target: 0,
+        }
+    }
 }
 
 /// Predictions and the stacked identification Jacobian for many rows.
@@ -327,7 +348,7 @@ pub fn batch_jacobian(
     let fill = |(rows, (out, preds)): (&[ConfWrench], (&mut [f64], &mut [Prediction]))| {
         let mut columns = vec![Vector3::zeros(); m];
         for (k, row) in rows.iter().enumerate() {
-            preds[k] = prepared.jacobian_row(&row.q_deg, &row.wrench, selected, &mut columns);
+            preds[k] = prepared.jacobian_row(row, selected, &mut columns);
             for (j, column) in columns.iter().enumerate() {
                 for axis in 0..3 {
                     out[(3 * k + axis) * m + j] = column[axis];
@@ -358,7 +379,7 @@ pub fn batch_predict(robot: &Robot, p: &ParamValues, rows: &[ConfWrench]) -> Vec
     let prepared = robot.prepare(p);
     rows.par_iter()
         .with_min_len(CHUNK_ROWS)
-        .map(|row| prepared.predict(&row.q_deg, &row.wrench))
+        .map(|row| prepared.predict_target(&row.q_deg, &row.wrench, row.target))
         .collect()
 }
 
@@ -382,7 +403,7 @@ pub(crate) fn deflected_tool_and_joints(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::robot::params::PARAM_COUNT;
+    use crate::robot::params::{BASE_PARAM_COUNT, MAX_TARGETS, PARAM_COUNT};
     use crate::robot::test_support::{irb1600, random_q, random_wrench, truth_params};
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
@@ -394,31 +415,38 @@ mod tests {
     }
 
     #[test]
-    fn analytic_jacobian_matches_central_differences_for_all_42() {
+    fn analytic_jacobian_matches_central_differences_for_every_slot() {
         let robot = irb1600();
-        let all: Vec<ParamId> = ParamId::all().collect();
+        let all: Vec<ParamId> = ParamId::all_with_targets(MAX_TARGETS).collect();
+        assert_eq!(all.len(), PARAM_COUNT);
         let mut rng = StdRng::seed_from_u64(7);
         for trial in 0..40 {
             let mut p = truth_params(&robot);
-            // Also away from the truth: random errors and larger payload-like loads.
-            for id in ParamId::all() {
+            // Also away from the truth: random errors, and targets of their own.
+            for id in &all {
                 if !id.is_compliance() && !id.is_world() && trial % 2 == 1 {
                     p.0[id.index()] += rng.random_range(-0.5..0.5);
                 }
+                if id.index() >= BASE_PARAM_COUNT {
+                    p.0[id.index()] += rng.random_range(-80.0..80.0);
+                }
             }
-            let q = random_q(&robot, &mut rng);
-            let w = random_wrench(&mut rng);
+            let row = ConfWrench {
+                q_deg: random_q(&robot, &mut rng),
+                wrench: random_wrench(&mut rng),
+                target: trial % MAX_TARGETS,
+            };
+            let (q, w) = (row.q_deg, row.wrench);
             let mut columns = vec![Vector3::zeros(); PARAM_COUNT];
-            robot.prepare(&p).jacobian_row(&q, &w, &all, &mut columns);
-            for id in ParamId::all() {
-                let h = step(id);
+            robot.prepare(&p).jacobian_row(&row, &all, &mut columns);
+            for id in &all {
+                let h = step(*id);
                 let mut plus = p;
                 plus.0[id.index()] += h;
                 let mut minus = p;
                 minus.0[id.index()] -= h;
-                let fd = (robot.predict(&plus, &q, &w).position_mm
-                    - robot.predict(&minus, &q, &w).position_mm)
-                    / (2.0 * h);
+                let at = |v: &ParamValues| robot.prepare(v).predict_target(&q, &w, row.target);
+                let fd = (at(&plus).position_mm - at(&minus).position_mm) / (2.0 * h);
                 let analytic = columns[id.index()];
                 let scale = analytic.norm().max(fd.norm());
                 assert!(
@@ -439,17 +467,14 @@ mod tests {
             .collect();
         let mut rng = StdRng::seed_from_u64(9);
         let rows: Vec<ConfWrench> = (0..200)
-            .map(|_| ConfWrench {
-                q_deg: random_q(&robot, &mut rng),
-                wrench: random_wrench(&mut rng),
-            })
+            .map(|_| ConfWrench::new(random_q(&robot, &mut rng), random_wrench(&mut rng)))
             .collect();
         let batch = batch_jacobian(&robot, &p, &rows, &selected);
         assert_eq!(batch.rows(), 600);
         let mut columns = vec![Vector3::zeros(); selected.len()];
         let prepared = robot.prepare(&p);
         for (k, row) in rows.iter().enumerate() {
-            let pred = prepared.jacobian_row(&row.q_deg, &row.wrench, &selected, &mut columns);
+            let pred = prepared.jacobian_row(row, &selected, &mut columns);
             assert_eq!(pred, batch.predictions[k]);
             for (j, column) in columns.iter().enumerate() {
                 for axis in 0..3 {

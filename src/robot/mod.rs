@@ -13,7 +13,7 @@ pub use file::RobotSpec;
 pub use frame::Frame;
 pub use jacobian::{BatchJacobian, ConfWrench, batch_jacobian, batch_predict};
 pub use model::{JOINTS, Prediction, PreparedRobot, Robot, Wrench};
-pub use params::{PARAM_COUNT, ParamId, ParamValues, Selection};
+pub use params::{BASE_PARAM_COUNT, MAX_TARGETS, PARAM_COUNT, ParamId, ParamValues, Selection};
 
 #[cfg(test)]
 pub(crate) mod test_support {

@@ -15,7 +15,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::file::RobotSpec;
 use super::frame::{Frame, rot_x};
-use super::params::{PARAM_COUNT, ParamValues};
+use super::params::{MAX_TARGETS, PARAM_COUNT, ParamId, ParamValues};
 
 /// Number of joints; the model is for six-axis arms only.
 pub const JOINTS: usize = 6;
@@ -163,10 +163,13 @@ impl Robot {
             a_mm: std::array::from_fn(|i| self.a_mm[i] + v[24 + i]),
             d_mm: std::array::from_fn(|i| self.d_mm[i] + v[30 + i]),
             theta_zero_rad: std::array::from_fn(|i| v[12 + i] * DEG + self.theta_offset_rad[i]),
-            flange_from_tool: Frame::from_xyz_euler_then_translation(
-                [v[9] * DEG, v[10] * DEG, v[11] * DEG],
-                Vector3::new(v[6], v[7], v[8]),
-            ),
+            flange_from_tool: std::array::from_fn(|target| {
+                let t = |axis| v[ParamId::target_translation(target, axis).index()];
+                Frame::from_xyz_euler_then_translation(
+                    [v[9] * DEG, v[10] * DEG, v[11] * DEG],
+                    Vector3::new(t(0), t(1), t(2)),
+                )
+            }),
             tool_rxy: tool_rx * super::frame::rot_y(v[10] * DEG),
             tool_rx,
             world_from_base: self.world_from_base(p),
@@ -282,7 +285,8 @@ pub struct PreparedRobot<'r> {
     d_mm: [f64; JOINTS],
     /// Joint angle at q_i = 0: offset error plus the nominal theta offset.
     theta_zero_rad: [f64; JOINTS],
-    flange_from_tool: Frame,
+    /// Flange → tool of each target (one rotation, a translation per target).
+    flange_from_tool: [Frame; MAX_TARGETS],
     /// Tool rotation about x, then about y, of eq. (4) (before the z rotation), in
     /// the flange frame: the axes of the tool's beta and gamma parameters.
     pub(crate) tool_rx: Matrix3<f64>,
@@ -303,15 +307,18 @@ impl<'r> PreparedRobot<'r> {
     }
 
     /// Forward chain in the base frame for joint commands `q_deg` plus extra joint
-    /// angles `extra_deg` (the compliance deflections, or zero).
+    /// angles `extra_deg` (the compliance deflections, or zero), to target 0.
     pub(crate) fn chain(&self, q_deg: &[f64; JOINTS], extra_deg: &[f64; JOINTS]) -> Chain {
-        self.chain_at(&std::array::from_fn(|i| {
-            ((q_deg[i] + extra_deg[i]) * DEG + self.theta_zero_rad[i]).sin_cos()
-        }))
+        self.chain_at(
+            &std::array::from_fn(|i| {
+                ((q_deg[i] + extra_deg[i]) * DEG + self.theta_zero_rad[i]).sin_cos()
+            }),
+            0,
+        )
     }
 
-    /// Forward chain for the (sin, cos) of each joint angle.
-    fn chain_at(&self, joint_sin_cos: &[(f64, f64); JOINTS]) -> Chain {
+    /// Forward chain for the (sin, cos) of each joint angle, to `target`'s tool frame.
+    fn chain_at(&self, joint_sin_cos: &[(f64, f64); JOINTS], target: usize) -> Chain {
         let mut joints = [Frame::identity(); JOINTS + 1];
         for i in 0..JOINTS {
             let (sa, ca) = self.alpha_sin_cos[i];
@@ -324,24 +331,31 @@ impl<'r> PreparedRobot<'r> {
             joints[i + 1] = joints[i].compose(&local);
         }
         Chain {
-            tool: joints[JOINTS].compose(&self.flange_from_tool),
+            tool: joints[JOINTS].compose(&self.flange_from_tool[target]),
             joints,
         }
     }
 
-    /// Both chains of one conf-wrench row: the undeflected one with its loads, and
-    /// the deflected one. The deflected joint angles reuse the undeflected sines and
-    /// cosines through the angle-sum formula, which halves the trigonometry.
-    pub(crate) fn loaded_chains(&self, q_deg: &[f64; JOINTS], wrench: &Wrench) -> LoadedChains {
+    /// Both chains of one conf-wrench row to `target`'s tool frame: the undeflected
+    /// one with its loads, and the deflected one. The deflected joint angles reuse the
+    /// undeflected sines and cosines through the angle-sum formula, which halves the
+    /// trigonometry. The row's tool frame carries the payload and the wrench.
+    pub(crate) fn loaded_chains(
+        &self,
+        q_deg: &[f64; JOINTS],
+        wrench: &Wrench,
+        target: usize,
+    ) -> LoadedChains {
         let undeflected_sin_cos: [(f64, f64); JOINTS] =
             std::array::from_fn(|i| (q_deg[i] * DEG + self.theta_zero_rad[i]).sin_cos());
-        let undeflected = self.chain_at(&undeflected_sin_cos);
+        let undeflected = self.chain_at(&undeflected_sin_cos, target);
         let loads = self.robot.loads(&undeflected, wrench);
         let deflections_deg: [f64; JOINTS] =
             std::array::from_fn(|i| self.compliance(i) * loads.torques_nm[i]);
-        let deflected = self.chain_at(&std::array::from_fn(|i| {
-            add_angle(undeflected_sin_cos[i], deflections_deg[i] * DEG)
-        }));
+        let deflected = self.chain_at(
+            &std::array::from_fn(|i| add_angle(undeflected_sin_cos[i], deflections_deg[i] * DEG)),
+            target,
+        );
         LoadedChains {
             undeflected,
             loads,
@@ -362,9 +376,14 @@ impl<'r> PreparedRobot<'r> {
         (torques, deflections)
     }
 
-    /// Paper eq. (17): the SMR position with torques and deflections.
+    /// Paper eq. (17): the SMR position with torques and deflections (target 0).
     pub fn predict(&self, q_deg: &[f64; JOINTS], wrench: &Wrench) -> Prediction {
-        let chains = self.loaded_chains(q_deg, wrench);
+        self.predict_target(q_deg, wrench, 0)
+    }
+
+    /// [`Self::predict`] for the SMR of `target` (spec §7).
+    pub fn predict_target(&self, q_deg: &[f64; JOINTS], wrench: &Wrench, target: usize) -> Prediction {
+        let chains = self.loaded_chains(q_deg, wrench, target);
         Prediction {
             position_mm: self
                 .world_from_base

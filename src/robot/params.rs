@@ -1,6 +1,11 @@
 //! The 42 calibration parameters (`../shared/spec/model.md` §4): names, units, a
 //! full value set, and a selection of which are free.
 //!
+//! Several targets (spec §7): each target (SMR nest) has its own flange → target
+//! translation. Target 0 uses `x_t, y_t, z_t`; targets 1.. have slots of their own
+//! after the 42, so a value set stays a fixed-size, copyable array. How a target
+//! translation is named in a table (`x_t[nest2]`) is the table layer's business.
+//!
 //! Values are stored as the spec's table shows them: world and tool parameters are
 //! absolute (x_w = 1326 mm), all others are errors added to the robot file's nominal
 //! MDH values, and compliances are in deg/(N·m). The index order is the spec's table
@@ -11,10 +16,17 @@ use std::path::{Path, PathBuf};
 
 use super::file::{RobotSpec, TransformSpec};
 
-/// Number of candidate parameters.
-pub const PARAM_COUNT: usize = 42;
+/// Number of candidate parameters of a one-target cell (spec §4).
+pub const BASE_PARAM_COUNT: usize = 42;
 
-/// One of the 42 parameters, by its index in the spec's order.
+/// Targets (SMR nests) one calibration can fit jointly.
+pub const MAX_TARGETS: usize = 8;
+
+/// Value slots: the 42, then one translation triple per further target.
+pub const PARAM_COUNT: usize = BASE_PARAM_COUNT + 3 * (MAX_TARGETS - 1);
+
+/// One of the parameters, by its slot: the spec's 42 in its order, then the
+/// translations of targets 1.. .
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct ParamId(u8);
 
@@ -25,8 +37,8 @@ pub enum ParamKind {
     WorldTranslation(usize),
     /// World ← base rotation, eq. (3) order x, y, z (deg).
     WorldRotation(usize),
-    /// Flange → tool translation (mm).
-    ToolTranslation(usize),
+    /// Flange → tool translation of one target along axis 0, 1, 2 (mm).
+    ToolTranslation { target: usize, axis: usize },
     /// Flange → tool rotation, eq. (4) order x, y, z (deg).
     ToolRotation(usize),
     /// Joint offset error of joint 0..6 (deg).
@@ -41,17 +53,43 @@ pub enum ParamKind {
     Compliance(usize),
 }
 
-const NAMES: [&str; PARAM_COUNT] = [
+const NAMES: [&str; BASE_PARAM_COUNT] = [
     "x_w", "y_w", "z_w", "alpha_w", "beta_w", "gamma_w", "x_t", "y_t", "z_t", "alpha_t", "beta_t",
     "gamma_t", "dtheta1", "dtheta2", "dtheta3", "dtheta4", "dtheta5", "dtheta6", "dalpha1",
     "dalpha2", "dalpha3", "dalpha4", "dalpha5", "dalpha6", "da1", "da2", "da3", "da4", "da5",
     "da6", "dd1", "dd2", "dd3", "dd4", "dd5", "dd6", "k1", "k2", "k3", "k4", "k5", "k6",
 ];
 
+/// Names of the translations of targets 1.. when no target ids are known.
+static TARGET_NAMES: std::sync::LazyLock<Vec<String>> = std::sync::LazyLock::new(|| {
+    (1..MAX_TARGETS)
+        .flat_map(|target| ["x_t", "y_t", "z_t"].map(|axis| format!("{axis}[#{target}]")))
+        .collect()
+});
+
+/// Tool-translation parameter names by axis.
+pub const TOOL_TRANSLATION_NAMES: [&str; 3] = ["x_t", "y_t", "z_t"];
+
 impl ParamId {
-    /// All 42 in the spec's order.
+    /// The spec's 42 in its order.
     pub fn all() -> impl Iterator<Item = ParamId> {
-        (0..PARAM_COUNT as u8).map(ParamId)
+        (0..BASE_PARAM_COUNT as u8).map(ParamId)
+    }
+
+    /// The 42 and the translations of targets 1..`targets`.
+    pub fn all_with_targets(targets: usize) -> impl Iterator<Item = ParamId> {
+        let extra = 3 * targets.clamp(1, MAX_TARGETS).saturating_sub(1);
+        (0..(BASE_PARAM_COUNT + extra) as u8).map(ParamId)
+    }
+
+    /// The translation of `target` (0-based) along `axis`.
+    pub fn target_translation(target: usize, axis: usize) -> ParamId {
+        assert!(target < MAX_TARGETS && axis < 3, "target {target} axis {axis}");
+        if target == 0 {
+            ParamId((6 + axis) as u8)
+        } else {
+            ParamId((BASE_PARAM_COUNT + 3 * (target - 1) + axis) as u8)
+        }
     }
 
     pub fn index(self) -> usize {
@@ -69,8 +107,13 @@ impl ParamId {
             .map(|i| ParamId(i as u8))
     }
 
+    /// The spec's name; a further target's translation is `x_t[#k]` until a table
+    /// names it by its target id.
     pub fn name(self) -> &'static str {
-        NAMES[self.index()]
+        match NAMES.get(self.index()) {
+            Some(name) => name,
+            None => &TARGET_NAMES[self.index() - BASE_PARAM_COUNT],
+        }
     }
 
     pub fn kind(self) -> ParamKind {
@@ -78,13 +121,20 @@ impl ParamId {
         match i {
             0..=2 => ParamKind::WorldTranslation(i),
             3..=5 => ParamKind::WorldRotation(i - 3),
-            6..=8 => ParamKind::ToolTranslation(i - 6),
+            6..=8 => ParamKind::ToolTranslation {
+                target: 0,
+                axis: i - 6,
+            },
             9..=11 => ParamKind::ToolRotation(i - 9),
             12..=17 => ParamKind::Theta(i - 12),
             18..=23 => ParamKind::Alpha(i - 18),
             24..=29 => ParamKind::A(i - 24),
             30..=35 => ParamKind::D(i - 30),
-            _ => ParamKind::Compliance(i - 36),
+            36..=41 => ParamKind::Compliance(i - 36),
+            _ => ParamKind::ToolTranslation {
+                target: 1 + (i - BASE_PARAM_COUNT) / 3,
+                axis: (i - BASE_PARAM_COUNT) % 3,
+            },
         }
     }
 
@@ -92,7 +142,7 @@ impl ParamId {
     pub fn unit(self) -> &'static str {
         match self.kind() {
             ParamKind::WorldTranslation(_)
-            | ParamKind::ToolTranslation(_)
+            | ParamKind::ToolTranslation { .. }
             | ParamKind::A(_)
             | ParamKind::D(_) => "mm",
             ParamKind::WorldRotation(_)
@@ -105,6 +155,10 @@ impl ParamId {
 
     pub fn is_compliance(self) -> bool {
         matches!(self.kind(), ParamKind::Compliance(_))
+    }
+
+    pub fn is_tool_translation(self) -> bool {
+        matches!(self.kind(), ParamKind::ToolTranslation { .. })
     }
 
     pub fn is_world(self) -> bool {
@@ -121,7 +175,7 @@ impl fmt::Display for ParamId {
     }
 }
 
-/// A value for each of the 42 parameters.
+/// A value for each parameter slot (unused target slots hold the nominal tool).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ParamValues(pub [f64; PARAM_COUNT]);
 
@@ -142,6 +196,11 @@ impl ParamValues {
         };
         put(&mut values, 0, &robot.world);
         put(&mut values, 6, &robot.tool);
+        for target in 1..MAX_TARGETS {
+            for axis in 0..3 {
+                values[ParamId::target_translation(target, axis).index()] = values[6 + axis];
+            }
+        }
         ParamValues(values)
     }
 
@@ -260,7 +319,7 @@ mod tests {
         let mut names: Vec<_> = NAMES.to_vec();
         names.sort();
         names.dedup();
-        assert_eq!(names.len(), PARAM_COUNT);
+        assert_eq!(names.len(), BASE_PARAM_COUNT);
     }
 
     #[test]
@@ -270,6 +329,25 @@ mod tests {
         assert_eq!(
             selection.ids().iter().filter(|p| p.is_compliance()).count(),
             6
+        );
+    }
+
+    #[test]
+    fn target_translations_have_slots_of_their_own() {
+        assert_eq!(ParamId::target_translation(0, 2).name(), "z_t");
+        let id = ParamId::target_translation(3, 1);
+        assert_eq!(
+            id.kind(),
+            ParamKind::ToolTranslation { target: 3, axis: 1 }
+        );
+        assert_eq!(id.name(), "y_t[#3]");
+        assert_eq!(id.unit(), "mm");
+        assert_eq!(ParamId::from_index(id.index()), Some(id));
+        assert_eq!(ParamId::all_with_targets(1).count(), 42);
+        assert_eq!(ParamId::all_with_targets(3).count(), 48);
+        assert_eq!(
+            ParamId::target_translation(MAX_TARGETS - 1, 2).index(),
+            PARAM_COUNT - 1
         );
     }
 

@@ -21,10 +21,12 @@ use super::{
     InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot,
     conf_wrench_rows,
 };
-use crate::calibration::fit::{Algorithm, FitOptions, Loss};
-use crate::calibration::stream;
-use crate::calibration::{CalibrationOptions, ModelResult, calibrate};
-use crate::robot::{ConfWrench, ParamId, ParamValues};
+use crate::calibration::fit::{Algorithm, FitOptions, Loss, Observations};
+use crate::calibration::robust::RobustOptions;
+use crate::calibration::{
+    CalibrationOptions, ModelResult, calibrate, registered_start, row_checks, stream,
+};
+use crate::robot::{ConfWrench, MAX_TARGETS, ParamId, ParamValues};
 use crate::table::frame;
 use crate::table::parameters::{self, ModelName};
 use crate::table::schema::{self, f64_values, i64_values, str_values};
@@ -47,11 +49,35 @@ pub enum AlgorithmSetting {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum LossSetting {
-    /// Squared residuals: the paper's estimator, which the standard errors assume.
+    /// The default: least squares; then, only if some row lies beyond
+    /// `reject_sigmas` robust standard deviations (σ̂ from the residuals' median),
+    /// a Huber fit at `huber_sigmas`·σ̂ and a final least-squares fit without the
+    /// rows beyond `reject_sigmas`·σ̂ of it. No threshold in mm; clean data give
+    /// exactly the least-squares result.
+    Robust,
+    /// Squared residuals only: the paper's estimator.
     LeastSquares,
-    /// Huber on each row's residual norm with threshold `outlier_threshold_mm`
-    /// (iteratively reweighted): rows beyond it weigh threshold / residual.
+    /// Huber on each row's residual norm with the fixed threshold
+    /// `outlier_threshold_mm` (iteratively reweighted).
     Huber,
+}
+
+/// What to do with a row outside the joint limits or with an absurd value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum BadRowsSetting {
+    /// Leave it out, count it, and name it in the log, the metadata and `excluded_rows`.
+    Drop,
+    /// Fail, naming the file, the row and the value.
+    Fail,
+}
+
+/// A fixed parameter's value: a number in the parameter's unit, or `"nominal"`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(untagged)]
+pub enum FixedValue {
+    Value(f64),
+    Named(String),
 }
 
 /// Settings of `identify`.
@@ -74,14 +100,28 @@ pub struct IdentifySettings {
     /// Levenberg–Marquardt: stop when an accepted step lowers the cost by less than
     /// this fraction.
     pub stop_relative_cost: f64,
-    /// least_squares (default) or huber. Off by default: with Gaussian tracker noise
-    /// least squares is the efficient estimator and its standard errors are exact,
-    /// and a fixed threshold in mm would treat the kinematic model's systematic
-    /// load errors (about 1 mm) as outliers.
+    /// robust (default), least_squares or huber. The robust fit's scale comes
+    /// from each model's own residuals, so a kinematic model's systematic load
+    /// errors are not taken for outliers.
     pub loss: LossSetting,
-    /// Rows whose residual norm exceeds this are reported as outliers (always) and
-    /// downweighted (with loss = huber) (mm). About 15 times the tracker noise.
+    /// loss = robust: Huber threshold of the second stage, in robust standard deviations.
+    pub huber_sigmas: f64,
+    /// loss = robust: rows beyond this many robust standard deviations are excluded.
+    pub reject_sigmas: f64,
+    /// loss = robust: fail rather than exclude more than this fraction of the rows,
+    /// and fail when row checks drop more than this fraction.
+    pub max_excluded_fraction: f64,
+    /// loss = least_squares or huber: rows whose residual norm exceeds this are
+    /// reported as outliers, and down-weighted with huber (mm).
     pub outlier_threshold_mm: f64,
+    /// Rows outside the robot file's joint limits or with absurd values: drop (and
+    /// name them) or fail.
+    pub bad_rows: BadRowsSetting,
+    /// Parameters held at a value in every fitted model: `{ k6 = "nominal", dd5 = 0.0 }`
+    /// (status `fixed`).
+    pub fixed: std::collections::BTreeMap<String, FixedValue>,
+    /// The model of the `start` input the `reregistered` model takes its robot from.
+    pub start_model: String,
 }
 
 impl Default for IdentifySettings {
@@ -97,8 +137,14 @@ impl Default for IdentifySettings {
             max_iterations: 30,
             stop_step_mm: 1e-4,
             stop_relative_cost: 1e-10,
-            loss: LossSetting::LeastSquares,
+            loss: LossSetting::Robust,
+            huber_sigmas: RobustOptions::default().huber_sigmas,
+            reject_sigmas: RobustOptions::default().reject_sigmas,
+            max_excluded_fraction: RobustOptions::default().max_excluded_fraction,
             outlier_threshold_mm: 0.5,
+            bad_rows: BadRowsSetting::Drop,
+            fixed: Default::default(),
+            start_model: ModelName::Elastogeometric.as_str().into(),
         }
     }
 }
@@ -118,7 +164,7 @@ impl IdentifySettings {
                 AlgorithmSetting::Paper => Algorithm::Paper,
             },
             loss: match self.loss {
-                LossSetting::LeastSquares => Loss::LeastSquares,
+                LossSetting::LeastSquares | LossSetting::Robust => Loss::LeastSquares,
                 LossSetting::Huber => Loss::Huber {
                     threshold_mm: self.outlier_threshold_mm,
                 },
@@ -129,6 +175,64 @@ impl IdentifySettings {
             chunk_rows: stream::CHUNK_ROWS,
         })
     }
+
+    /// The robust fit's options (`None` unless loss = robust), checked.
+    pub fn robust_options(&self) -> Result<Option<RobustOptions>, StageError> {
+        let positive = |key: &str, value: f64, at_least: f64| {
+            if value.is_finite() && value >= at_least {
+                Ok(())
+            } else {
+                Err(StageError::Invalid(format!(
+                    "setting `{key}`: must be a number >= {at_least}, found {value}"
+                )))
+            }
+        };
+        positive("huber_sigmas", self.huber_sigmas, 1.0)?;
+        positive("reject_sigmas", self.reject_sigmas, 2.0)?;
+        if !(self.max_excluded_fraction >= 0.0 && self.max_excluded_fraction < 0.5) {
+            return Err(StageError::Invalid(format!(
+                "setting `max_excluded_fraction`: must be in [0, 0.5), found {}",
+                self.max_excluded_fraction
+            )));
+        }
+        if self.huber_sigmas > self.reject_sigmas {
+            return Err(StageError::Invalid(format!(
+                "setting `huber_sigmas` ({}) must not exceed `reject_sigmas` ({})",
+                self.huber_sigmas, self.reject_sigmas
+            )));
+        }
+        Ok((self.loss == LossSetting::Robust).then_some(RobustOptions {
+            huber_sigmas: self.huber_sigmas,
+            reject_sigmas: self.reject_sigmas,
+            max_excluded_fraction: self.max_excluded_fraction,
+        }))
+    }
+
+    /// The fixed parameters with their values (`"nominal"`: the robot file's).
+    pub fn fixed_values(&self, nominal: &ParamValues) -> Result<Vec<(ParamId, f64)>, StageError> {
+        self.fixed
+            .iter()
+            .map(|(name, value)| {
+                let id = ParamId::from_name(name).ok_or_else(|| {
+                    StageError::Invalid(format!(
+                        "setting `fixed.{name}`: unknown parameter{}",
+                        crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
+                    ))
+                })?;
+                let value = match value {
+                    FixedValue::Value(v) if v.is_finite() => *v,
+                    FixedValue::Named(n) if n == "nominal" => nominal.get(id),
+                    other => {
+                        return Err(StageError::Invalid(format!(
+                            "setting `fixed.{name}`: expected a finite number in {} or \"nominal\", found {other:?}",
+                            id.unit()
+                        )));
+                    }
+                };
+                Ok((id, value))
+            })
+            .collect()
+    }
 }
 
 static INFO: StageInfo = StageInfo {
@@ -136,7 +240,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 3,
+    code_version: 4,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -149,6 +253,12 @@ static INFO: StageInfo = StageInfo {
             schema: schema::selection,
             required: false,
             meaning: "rows with role = calibration are used; all rows when absent",
+        },
+        TableSlot {
+            name: "start",
+            schema: schema::parameters,
+            required: false,
+            meaning: "an earlier calibration: the robot the `reregistered` model re-registers (its set `start_model`)",
         },
     ],
     outputs: &[
@@ -170,15 +280,69 @@ static INFO: StageInfo = StageInfo {
             required: true,
             meaning: "each model's residual and weight on each calibration row",
         },
+        TableSlot {
+            name: "covariance",
+            schema: schema::covariance,
+            required: true,
+            meaning: "each fitted model's parameter covariance (spec §7)",
+        },
+        TableSlot {
+            name: "excluded_rows",
+            schema: schema::excluded_rows,
+            required: true,
+            meaning: "rows left out (row checks, robust fit) and why",
+        },
     ],
 };
 
-/// Measured rows: ids, model inputs (measured joints and wrench) and measured positions.
+/// Measured rows: ids, model inputs (measured joints and wrench) and measured
+/// positions, with the optional §7 columns. Rows' `target` is 0 until a caller
+/// maps the target ids ([`MeasuredRows::set_targets`]).
 #[derive(Debug, Default)]
 pub struct MeasuredRows {
     pub ids: Vec<i64>,
+    /// Each row's 0-based row in the file (for messages).
+    pub file_rows: Vec<usize>,
     pub rows: Vec<ConfWrench>,
     pub positions: Vec<Vector3<f64>>,
+    /// `target_id` of each row, when the table has the column.
+    pub target_ids: Option<Vec<Option<String>>>,
+    /// `sigma_x_mm, sigma_y_mm, sigma_z_mm` of each row, when the table has them.
+    pub sigma_mm: Option<Vec<Vector3<f64>>>,
+}
+
+impl MeasuredRows {
+    /// Keeps the rows whose flag in `wanted` (one per row) is set.
+    pub fn retain(&mut self, wanted: &[bool]) {
+        retain_wanted(&mut self.ids, wanted);
+        retain_wanted(&mut self.file_rows, wanted);
+        retain_wanted(&mut self.rows, wanted);
+        retain_wanted(&mut self.positions, wanted);
+        if let Some(targets) = self.target_ids.as_mut() {
+            retain_wanted(targets, wanted);
+        }
+        if let Some(sigma) = self.sigma_mm.as_mut() {
+            retain_wanted(sigma, wanted);
+        }
+    }
+
+    /// The sorted distinct target ids (empty without the column).
+    pub fn distinct_targets(&self) -> Vec<String> {
+        let ids: std::collections::BTreeSet<String> = self
+            .target_ids
+            .iter()
+            .flatten()
+            .map(|id| id.clone().unwrap_or_default())
+            .collect();
+        ids.into_iter().collect()
+    }
+
+    /// Sets each row's target index (no-op for an empty list).
+    pub fn set_targets(&mut self, indices: &[usize]) {
+        for (row, target) in self.rows.iter_mut().zip(indices) {
+            row.target = *target;
+        }
+    }
 }
 
 /// The measured rows of a table, optionally only those whose id is in `keep`.
@@ -196,16 +360,57 @@ pub fn measured_rows(
     let positions = (0..ids.len())
         .map(|k| Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]))
         .collect();
+    let target_ids = match table.df.column("target_id") {
+        Ok(_) => Some(str_values(&table.df, "target_id", &table.path)?),
+        Err(_) => None,
+    };
+    if let Some((row, _)) = target_ids
+        .iter()
+        .flatten()
+        .enumerate()
+        .find(|(_, id)| id.as_deref().is_none_or(str::is_empty))
+    {
+        return Err(StageError::Table(crate::table::TableError::BadValue {
+            file: table.path.clone(),
+            column: "target_id".into(),
+            row,
+            message: "expected a target id, found an empty or null value".into(),
+        }));
+    }
+    let sigma_present: Vec<bool> = schema::SIGMA_COLUMNS
+        .iter()
+        .map(|c| table.df.column(c).is_ok())
+        .collect();
+    let sigma_mm = if sigma_present.iter().all(|p| *p) {
+        let columns = schema::SIGMA_COLUMNS
+            .iter()
+            .map(|c| f64_values(&table.df, c, &table.path))
+            .collect::<Result<Vec<_>, _>>()?;
+        Some(
+            (0..ids.len())
+                .map(|k| Vector3::new(columns[0][k], columns[1][k], columns[2][k]))
+                .collect(),
+        )
+    } else if sigma_present.iter().any(|p| *p) {
+        return Err(StageError::Invalid(format!(
+            "{}: has some of {} but not all three; give all or none",
+            table.path.display(),
+            schema::SIGMA_COLUMNS.join(", ")
+        )));
+    } else {
+        None
+    };
     let mut out = MeasuredRows {
+        file_rows: (0..ids.len()).collect(),
         ids,
         rows,
         positions,
+        target_ids,
+        sigma_mm,
     };
     if let Some(keep) = keep {
         let wanted: Vec<bool> = out.ids.iter().map(|id| keep.contains(id)).collect();
-        retain_wanted(&mut out.ids, &wanted);
-        retain_wanted(&mut out.rows, &wanted);
-        retain_wanted(&mut out.positions, &wanted);
+        out.retain(&wanted);
     }
     Ok(out)
 }
@@ -276,52 +481,154 @@ impl Stage for IdentifyStage {
                     .map_err(|e: String| StageError::Invalid(format!("setting `models`: {e}")))
             })
             .collect::<Result<_, _>>()?;
-        let options = CalibrationOptions {
-            candidates: parse_candidates(&settings.candidates)?,
-            rank_tolerance: settings.rank_tolerance,
-            fit: settings.fit_options()?,
+        let nominal = ParamValues::nominal(ctx.robot.spec());
+        let robust = settings.robust_options()?;
+        let mut fixed = settings.fixed_values(&nominal)?;
+        let start_set = match ctx.inputs.get("start") {
+            Some(_) => Some(super::model_values(
+                ctx,
+                "start",
+                "start_model",
+                &settings.start_model,
+            )?),
+            None => None,
         };
+        if models.contains(&ModelName::Reregistered) && start_set.is_none() {
+            return Err(StageError::Invalid(
+                "model `reregistered` needs the input `start` (an earlier calibration's parameters table)".into(),
+            ));
+        }
         let keep = match ctx.inputs.get("selection") {
             Some(selection) => Some(ids_with_role(selection, "calibration")?),
             None => None,
         };
-        let MeasuredRows {
-            ids,
-            rows,
-            positions: measured,
-        } = measured_rows(ctx.input("measurements")?, keep.as_ref())?;
-        if rows.is_empty() {
+        let measurements = ctx.input("measurements")?;
+        let mut data = measured_rows(measurements, keep.as_ref())?;
+        if data.rows.is_empty() {
             return Err(StageError::Invalid(
                 "no calibration rows (selection marks none, or measurements is empty)".into(),
             ));
         }
+        let mut outputs = StageOutputs::default();
+        let mut excluded = ExcludedColumns::default();
+        let checked = check_rows(ctx, settings, measurements, &mut data, &mut excluded)?;
+        outputs.facts.insert("rows_dropped".into(), checked);
+
+        let targets = data.distinct_targets();
+        if targets.len() > MAX_TARGETS {
+            return Err(StageError::Invalid(format!(
+                "{}: {} targets ({}); at most {MAX_TARGETS} can be fitted jointly",
+                measurements.path.display(),
+                targets.len(),
+                targets.join(", ")
+            )));
+        }
+        let target_of_row: Vec<usize> = data
+            .target_ids
+            .iter()
+            .flatten()
+            .map(|id| {
+                let id = id.as_deref().unwrap_or_default();
+                targets.iter().position(|t| t == id).unwrap_or(0)
+            })
+            .collect();
+        data.set_targets(&target_of_row);
+        // A fixed tool translation holds every target's.
+        let tool_fixed: Vec<(ParamId, f64)> = fixed
+            .iter()
+            .filter(|(id, _)| id.is_tool_translation())
+            .flat_map(|(id, value)| {
+                let axis = id.index() - 6;
+                (1..targets.len()).map(move |t| (ParamId::target_translation(t, axis), *value))
+            })
+            .collect();
+        fixed.extend(tool_fixed);
+        let options = CalibrationOptions {
+            candidates: parse_candidates(&settings.candidates)?,
+            rank_tolerance: settings.rank_tolerance,
+            fit: settings.fit_options()?,
+            robust,
+            fixed,
+            targets: targets.len().max(1),
+        };
+        let scales: Option<Vec<Vector3<f64>>> = data
+            .sigma_mm
+            .as_ref()
+            .map(|sigma| sigma.iter().map(|s| s.map(|v| 1.0 / v)).collect());
+        let observations = Observations {
+            rows: &data.rows,
+            measured_mm: &data.positions,
+            row_scale: scales.as_deref(),
+        };
+        let registered = register(ctx, "robot file", &nominal, &observations, &options, &mut outputs);
+        let reregistered = start_set.as_ref().map(|start| {
+            register(ctx, "start", start, &observations, &options, &mut outputs)
+        });
+        let ids = &data.ids;
         let mut sets = Vec::new();
         let mut trace = TraceColumns::default();
+        let mut covariance = CovarianceColumns::default();
         let mut residuals: Option<DataFrame> = None;
-        let mut outputs = StageOutputs::default();
         for model in models {
             ctx.progress
-                .note(&format!("identifying {model} on {} rows", rows.len()));
-            let result = calibrate(ctx.robot, model, &rows, &measured, &options)
+                .note(&format!("identifying {model} on {} rows", data.rows.len()));
+            let start = match (model, reregistered) {
+                (ModelName::Reregistered, Some(start)) => start,
+                _ => registered,
+            };
+            let mut result = calibrate(ctx.robot, model, &observations, &start, &options)
                 .map_err(|e| StageError::Failed(format!("{model}: {e}")))?;
+            if targets.len() > 1 {
+                result.set.targets = targets.clone();
+            }
             if !result.converged {
                 ctx.progress.note(&format!(
                     "{model}: not converged after {} iterations",
                     settings.max_iterations
                 ));
             }
-            for (key, value) in model_facts(model, &result, &ids, settings.outlier_threshold_mm) {
+            for (key, value) in model_facts(model, &result, ids, settings) {
                 ctx.progress.note(&format!("{model}: {key} = {value}"));
                 outputs.facts.insert(format!("{model}_{key}"), value);
             }
+            if let Some(summary) = &result.robust {
+                for k in &summary.excluded {
+                    let scaled = result.residuals_mm[*k].component_mul(&observations.scale_of(*k));
+                    excluded.push(
+                        ids[*k],
+                        Some(model.as_str()),
+                        "robust_fit",
+                        format!(
+                            "residual {:.4} mm{} beyond {:.4} ({} robust standard deviations)",
+                            result.residuals_mm[*k].norm(),
+                            if scales.is_some() {
+                                format!(" ({:.2} σ-scaled)", scaled.norm())
+                            } else {
+                                String::new()
+                            },
+                            summary.threshold,
+                            settings.reject_sigmas
+                        ),
+                    );
+                }
+            }
             trace.push(model, &result);
-            let part = residual_frame(
-                model,
-                &result.residuals_mm,
-                &result.weights,
-                &ids,
-                settings.outlier_threshold_mm,
-            );
+            covariance.push(model, &result);
+            let flagged: Vec<bool> = match &result.robust {
+                Some(summary) => {
+                    let mut flags = vec![false; ids.len()];
+                    for k in &summary.excluded {
+                        flags[*k] = true;
+                    }
+                    flags
+                }
+                None => result
+                    .residuals_mm
+                    .iter()
+                    .map(|r| r.norm() > settings.outlier_threshold_mm)
+                    .collect(),
+            };
+            let part = residual_frame(model, &result.residuals_mm, &result.weights, ids, &flagged);
             match residuals.as_mut() {
                 // Appends the columns' chunks; no copy.
                 Some(all) => {
@@ -332,7 +639,6 @@ impl Stage for IdentifyStage {
             }
             sets.push(result.set);
         }
-        let nominal = ParamValues::nominal(ctx.robot.spec());
         outputs
             .tables
             .insert("parameters".into(), parameters::to_frame(&nominal, &sets));
@@ -340,13 +646,129 @@ impl Stage for IdentifyStage {
             .tables
             .insert("identification_trace".into(), trace.into_frame());
         let residuals =
-            residuals.unwrap_or_else(|| residual_frame(ModelName::Nominal, &[], &[], &[], 0.0));
+            residuals.unwrap_or_else(|| residual_frame(ModelName::Nominal, &[], &[], &[], &[]));
         outputs.tables.insert("residuals".into(), residuals);
         outputs
+            .tables
+            .insert("covariance".into(), covariance.into_frame());
+        outputs
+            .tables
+            .insert("excluded_rows".into(), excluded.into_frame());
+        outputs
             .facts
-            .insert("calibration_rows".into(), rows.len().to_string());
+            .insert("calibration_rows".into(), data.rows.len().to_string());
+        if targets.len() > 1 {
+            outputs.facts.insert("targets".into(), targets.join(","));
+        }
         Ok(outputs)
     }
+}
+
+/// The start of the fitted models: `values` with the frames registered in closed
+/// form onto the measurements (spec §7); `values` themselves, with a note, where
+/// the rows cannot determine the frames.
+fn register(
+    ctx: &StageContext,
+    what: &str,
+    values: &ParamValues,
+    data: &Observations<'_>,
+    options: &CalibrationOptions,
+    outputs: &mut StageOutputs,
+) -> ParamValues {
+    let key = if what == "start" {
+        "registration_start"
+    } else {
+        "registration"
+    };
+    match registered_start(ctx.robot, values, data, options.targets) {
+        Ok((start, found)) => {
+            let fact = format!(
+                "frames of the {what} registered in closed form: rms {:.3} mm after {} rounds",
+                found.rms_mm, found.iterations
+            );
+            ctx.progress.note(&fact);
+            outputs.facts.insert(key.into(), fact);
+            start
+        }
+        Err(e) => {
+            let fact = format!("frames of the {what} kept as given: {e}");
+            ctx.progress.note(&fact);
+            outputs.facts.insert(key.into(), fact);
+            *values
+        }
+    }
+}
+
+/// Checks every row against the robot file's joint limits and for absurd values
+/// ([`row_checks`]): fails on the first bad row with `bad_rows = "fail"`, else
+/// drops the bad rows, records them, and says how many went (the returned fact).
+fn check_rows(
+    ctx: &StageContext,
+    settings: &IdentifySettings,
+    table: &InputTable,
+    data: &mut MeasuredRows,
+    excluded: &mut ExcludedColumns,
+) -> Result<String, StageError> {
+    let problems: Vec<Option<String>> = (0..data.rows.len())
+        .map(|k| {
+            row_checks::row_problem(
+                ctx.robot,
+                &data.rows[k],
+                &data.positions[k],
+                data.sigma_mm.as_ref().map(|s| &s[k]),
+            )
+        })
+        .collect();
+    let bad: Vec<usize> = (0..problems.len()).filter(|k| problems[*k].is_some()).collect();
+    if bad.is_empty() {
+        return Ok("0".into());
+    }
+    if settings.bad_rows == BadRowsSetting::Fail {
+        let k = bad[0];
+        return Err(StageError::Invalid(format!(
+            "{}: row {} (cw_id {}): {}; {} bad rows in all (setting `bad_rows = \"drop\"` leaves them out)",
+            table.path.display(),
+            data.file_rows[k],
+            data.ids[k],
+            problems[k].as_deref().unwrap_or_default(),
+            bad.len()
+        )));
+    }
+    let fraction = bad.len() as f64 / data.rows.len() as f64;
+    if fraction > settings.max_excluded_fraction {
+        return Err(StageError::Invalid(format!(
+            "{}: {} of {} rows fail the row checks (first: row {}, cw_id {}: {}); more than {:.0} % bad rows means the table or the robot file is wrong",
+            table.path.display(),
+            bad.len(),
+            data.rows.len(),
+            data.file_rows[bad[0]],
+            data.ids[bad[0]],
+            problems[bad[0]].as_deref().unwrap_or_default(),
+            100.0 * settings.max_excluded_fraction
+        )));
+    }
+    let mut shown = Vec::new();
+    for k in &bad {
+        let reason = problems[*k].clone().unwrap_or_default();
+        if shown.len() < OUTLIERS_LISTED {
+            shown.push(format!("cw_id {}: {reason}", data.ids[*k]));
+        }
+        excluded.push(data.ids[*k], None, "row_check", reason);
+    }
+    let summary = format!(
+        "{} rows dropped by the row checks: {}{}",
+        bad.len(),
+        shown.join("; "),
+        if bad.len() > shown.len() {
+            format!(" and {} more (see excluded_rows)", bad.len() - shown.len())
+        } else {
+            String::new()
+        }
+    );
+    ctx.progress.note(&summary);
+    let wanted: Vec<bool> = problems.iter().map(Option::is_none).collect();
+    data.retain(&wanted);
+    Ok(summary)
 }
 
 /// What the log and the metadata say about one model's fit.
@@ -354,7 +776,7 @@ fn model_facts(
     model: ModelName,
     result: &ModelResult,
     ids: &[i64],
-    outlier_threshold_mm: f64,
+    settings: &IdentifySettings,
 ) -> Vec<(&'static str, String)> {
     let mut facts = Vec::new();
     if let Some(rank) = &result.rank {
@@ -391,13 +813,43 @@ fn model_facts(
                 .join(","),
         ));
     }
-    if model != ModelName::Nominal {
+    if let Some(summary) = &result.robust {
+        let shown = summary
+            .excluded
+            .iter()
+            .take(OUTLIERS_LISTED)
+            .map(|k| format!("{}:{:.3}", ids[*k], result.residuals_mm[*k].norm()))
+            .collect::<Vec<_>>()
+            .join(",");
+        let more = summary.excluded.len().saturating_sub(OUTLIERS_LISTED);
+        facts.push((
+            "robust",
+            format!(
+                "sigma {:.4} (least squares {:.4}); {} rows excluded beyond {:.4}{}{shown}{}",
+                summary.sigma,
+                summary.sigma_least_squares,
+                summary.excluded.len(),
+                summary.threshold,
+                if summary.excluded.is_empty() {
+                    ""
+                } else {
+                    " (cw_id:r_mm) "
+                },
+                if more > 0 {
+                    format!(" and {more} more")
+                } else {
+                    String::new()
+                }
+            ),
+        ));
+    } else if model != ModelName::Nominal {
+        let threshold_mm = settings.outlier_threshold_mm;
         // Counted over all rows, formatted only for those listed.
         let beyond = || {
             ids.iter()
                 .zip(&result.residuals_mm)
                 .map(|(id, r)| (*id, r.norm()))
-                .filter(|(_, r_mm)| *r_mm > outlier_threshold_mm)
+                .filter(|(_, r_mm)| *r_mm > threshold_mm)
         };
         let count = beyond().count();
         let shown = beyond()
@@ -409,7 +861,7 @@ fn model_facts(
         facts.push((
             "outliers",
             format!(
-                "{count} rows beyond {outlier_threshold_mm} mm{}{shown}{}",
+                "{count} rows beyond {threshold_mm} mm{}{shown}{}",
                 if count == 0 { "" } else { " (cw_id:r_mm) " },
                 if more > 0 {
                     format!(" and {more} more")
@@ -471,11 +923,10 @@ fn residual_frame(
     residuals_mm: &[Vector3<f64>],
     weights: &[f64],
     ids: &[i64],
-    threshold_mm: f64,
+    outlier: &[bool],
 ) -> DataFrame {
     let axis = |a: usize| -> Vec<f64> { residuals_mm.iter().map(|r| r[a]).collect() };
     let norms: Vec<f64> = residuals_mm.iter().map(|r| r.norm()).collect();
-    let outlier: Vec<bool> = norms.iter().map(|r| *r > threshold_mm).collect();
     frame(vec![
         Column::new("cw_id".into(), ids),
         Column::new("model".into(), vec![model.as_str(); ids.len()]),
@@ -486,4 +937,67 @@ fn residual_frame(
         Column::new("weight".into(), weights),
         Column::new("outlier".into(), outlier),
     ])
+}
+
+/// Columns of `covariance`.
+#[derive(Default)]
+struct CovarianceColumns {
+    model: Vec<&'static str>,
+    name_i: Vec<String>,
+    name_j: Vec<String>,
+    value: Vec<f64>,
+}
+
+impl CovarianceColumns {
+    fn push(&mut self, model: ModelName, result: &ModelResult) {
+        let Some(diagnostics) = &result.diagnostics else {
+            return;
+        };
+        let free = &diagnostics.free;
+        let m = free.len();
+        for (i, a) in free.iter().enumerate() {
+            for (j, b) in free.iter().enumerate() {
+                self.model.push(model.as_str());
+                self.name_i.push(result.set.name_of(*a));
+                self.name_j.push(result.set.name_of(*b));
+                self.value.push(diagnostics.covariance[i * m + j]);
+            }
+        }
+    }
+
+    fn into_frame(self) -> DataFrame {
+        frame(vec![
+            Column::new("model".into(), self.model),
+            Column::new("name_i".into(), self.name_i),
+            Column::new("name_j".into(), self.name_j),
+            Column::new("value".into(), self.value),
+        ])
+    }
+}
+
+/// Columns of `excluded_rows`.
+#[derive(Default)]
+struct ExcludedColumns {
+    cw_id: Vec<i64>,
+    model: Vec<Option<&'static str>>,
+    check: Vec<&'static str>,
+    reason: Vec<String>,
+}
+
+impl ExcludedColumns {
+    fn push(&mut self, cw_id: i64, model: Option<&'static str>, check: &'static str, reason: String) {
+        self.cw_id.push(cw_id);
+        self.model.push(model);
+        self.check.push(check);
+        self.reason.push(reason);
+    }
+
+    fn into_frame(self) -> DataFrame {
+        frame(vec![
+            Column::new("cw_id".into(), self.cw_id),
+            Column::new("model".into(), self.model),
+            Column::new("check".into(), self.check),
+            Column::new("reason".into(), self.reason),
+        ])
+    }
 }

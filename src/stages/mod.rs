@@ -341,6 +341,7 @@ pub fn conf_wrench_rows(
         .map(|k| crate::robot::ConfWrench {
             q_deg: std::array::from_fn(|i| joints[i][k]),
             wrench: crate::robot::Wrench::from_array(std::array::from_fn(|i| wrench[i][k])),
+            target: 0,
         })
         .collect();
     Ok((ids, rows))

@@ -15,7 +15,8 @@ use serde::{Deserialize, Serialize};
 
 use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
 use crate::report::{
-    self, DetmaxStep, InputSource, ParamRow, Pose, ReportData, StatsRow, TestRow, TraceRow, Truth,
+    self, DetmaxStep, ExcludedRow, InputSource, ParamRow, Pose, ReportData, StatsRow, TestRow,
+    TraceRow, Truth,
 };
 use crate::table::schema::{self, f64_values, i64_values, io_error, str_values};
 use crate::table::{self as tables, TableError};
@@ -52,7 +53,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Self-contained HTML report (report.html): Table III, Fig. 4 and 7, parameters, traces, tests, provenance",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "stats",
@@ -95,6 +96,12 @@ static INFO: StageInfo = StageInfo {
             schema: schema::identification_trace,
             required: false,
             meaning: "Gauss–Newton iterations per model (identify)",
+        },
+        TableSlot {
+            name: "excluded_rows",
+            schema: schema::excluded_rows,
+            required: false,
+            meaning: "rows the identification left out and why (identify)",
         },
         TableSlot {
             name: "truth",
@@ -147,6 +154,11 @@ impl Stage for ReportStage {
                 .inputs
                 .get("identification_trace")
                 .map(read_trace)
+                .transpose()?,
+            excluded_rows: ctx
+                .inputs
+                .get("excluded_rows")
+                .map(read_excluded)
                 .transpose()?,
             truth,
             sources: ctx
@@ -358,6 +370,21 @@ fn read_detmax(table: &InputTable) -> Result<Vec<DetmaxStep>, TableError> {
             added: added[k],
             removed: removed[k],
             o1: o1[k],
+        })
+        .collect())
+}
+
+fn read_excluded(table: &InputTable) -> Result<Vec<ExcludedRow>, TableError> {
+    let cw_id = ints(table, "cw_id")?;
+    let model = str_values(&table.df, "model", &table.path)?;
+    let check = strings(table, "check")?;
+    let reason = strings(table, "reason")?;
+    Ok((0..cw_id.len())
+        .map(|k| ExcludedRow {
+            cw_id: cw_id[k],
+            model: model[k].clone(),
+            check: check[k].clone(),
+            reason: reason[k].clone(),
         })
         .collect())
 }

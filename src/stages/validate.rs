@@ -29,7 +29,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Validation errors per model, statistics (Table III) and pairwise hypothesis tests",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -84,11 +84,14 @@ impl Stage for ValidateStage {
             Some(selection) => Some(ids_with_role(selection, "validation")?),
             None => None,
         };
+        let measurements = ctx.input("measurements")?;
         let MeasuredRows {
             ids,
             rows,
             positions: measured,
-        } = measured_rows(ctx.input("measurements")?, keep.as_ref())?;
+            target_ids,
+            ..
+        } = measured_rows(measurements, keep.as_ref())?;
         if ids.len() < 2 {
             return Err(StageError::Invalid(format!(
                 "{} validation rows; need at least 2",
@@ -103,6 +106,16 @@ impl Stage for ValidateStage {
         let mut e = ErrorColumns::default();
         let mut norms: Vec<(ModelName, Vec<f64>)> = Vec::new();
         for set in &sets {
+            // Each row's SMR: the set's translation of the row's target (spec §7).
+            let targets = set
+                .target_indices(target_ids.as_deref())
+                .map_err(|m| {
+                    StageError::Invalid(format!("{}: {m}", measurements.path.display()))
+                })?;
+            let mut rows = rows.clone();
+            for (row, target) in rows.iter_mut().zip(&targets) {
+                row.target = *target;
+            }
             let predictions = batch_predict(ctx.robot, &set.values, &rows);
             let mut model_norms = Vec::with_capacity(rows.len());
             for (k, prediction) in predictions.iter().enumerate() {

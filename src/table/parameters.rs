@@ -3,6 +3,10 @@
 //! One row per parameter and model. Reading is strict about names, units, models
 //! and duplicates; parameters a model does not list take their nominal value with
 //! status `fixed`, so a hand-written table with only a few corrections is usable.
+//!
+//! With several targets (spec §7) the tool translation of each is named by its
+//! target id, `x_t[nest2]`; a set's targets are kept sorted by id, the order
+//! [`crate::robot::ParamId::target_translation`] indexes them.
 
 use std::fmt;
 use std::path::Path;
@@ -11,19 +15,26 @@ use std::str::FromStr;
 use polars::prelude::*;
 
 use super::schema::{self, TableError, f64_values, str_values};
-use crate::robot::params::{PARAM_COUNT, ParamId, ParamValues};
+use crate::robot::params::{
+    MAX_TARGETS, PARAM_COUNT, ParamId, ParamKind, ParamValues, TOOL_TRANSLATION_NAMES,
+};
 
 /// Which calibration a parameter set comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub enum ModelName {
     Nominal,
-    /// Nominal robot with only the world frame fitted.
+    /// Nominal robot with only the world frame and tool translation(s) fitted.
     Registered,
     Kinematic,
     Elastogeometric,
+    /// An earlier calibration's robot with the world frame and tool
+    /// translation(s) fitted anew (a moved tracker or re-mounted tool, spec §7).
+    Reregistered,
 }
 
 impl ModelName {
+    /// Every model, in the order a job lists them by default (not `reregistered`,
+    /// which needs a start calibration).
     pub const ALL: [ModelName; 4] = [
         ModelName::Nominal,
         ModelName::Registered,
@@ -37,6 +48,7 @@ impl ModelName {
             ModelName::Registered => "registered",
             ModelName::Kinematic => "kinematic",
             ModelName::Elastogeometric => "elastogeometric",
+            ModelName::Reregistered => "reregistered",
         }
     }
 }
@@ -50,15 +62,15 @@ impl fmt::Display for ModelName {
 impl FromStr for ModelName {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        ModelName::ALL
+        let every = ModelName::ALL
             .into_iter()
-            .find(|m| m.as_str() == s)
-            .ok_or_else(|| {
-                format!(
-                    "unknown model `{s}`, expected nominal, registered, kinematic or elastogeometric{}",
-                    crate::suggest::did_you_mean(s, ModelName::ALL.map(|m| m.as_str()))
-                )
-            })
+            .chain([ModelName::Reregistered]);
+        every.clone().find(|m| m.as_str() == s).ok_or_else(|| {
+            format!(
+                "unknown model `{s}`, expected nominal, registered, kinematic, elastogeometric or reregistered{}",
+                crate::suggest::did_you_mean(s, every.map(|m| m.as_str()))
+            )
+        })
     }
 }
 
@@ -99,18 +111,70 @@ pub struct ParameterSet {
     pub values: ParamValues,
     pub std_errors: [Option<f64>; PARAM_COUNT],
     pub status: [ParamStatus; PARAM_COUNT],
+    /// Target ids, sorted, when the set has several targets; empty (or one) for
+    /// a one-target set, whose translation is `x_t, y_t, z_t`.
+    pub targets: Vec<String>,
 }
 
 impl ParameterSet {
-    /// All parameters at `values`, none identified.
+    /// All parameters at `values`, none identified, one target.
     pub fn fixed(model: ModelName, values: ParamValues) -> Self {
         ParameterSet {
             model,
             values,
             std_errors: [None; PARAM_COUNT],
             status: [ParamStatus::Fixed; PARAM_COUNT],
+            targets: Vec::new(),
         }
     }
+
+    /// The parameters this set has: the 42 and one translation per further target.
+    pub fn ids(&self) -> impl Iterator<Item = ParamId> + use<> {
+        ParamId::all_with_targets(self.targets.len())
+    }
+
+    /// The table name of `id` in this set (`x_t[nest2]` with several targets).
+    pub fn name_of(&self, id: ParamId) -> String {
+        match id.kind() {
+            ParamKind::ToolTranslation { target, axis } if self.targets.len() > 1 => {
+                format!("{}[{}]", TOOL_TRANSLATION_NAMES[axis], self.targets[target])
+            }
+            _ => id.name().to_string(),
+        }
+    }
+
+    /// The target index of each row's target id: 0 for every row of a one-target
+    /// set; an error naming the id a several-target set does not have.
+    pub fn target_indices(&self, row_targets: Option<&[Option<String>]>) -> Result<Vec<usize>, String> {
+        let Some(row_targets) = row_targets else {
+            return Ok(Vec::new());
+        };
+        if self.targets.len() <= 1 {
+            return Ok(vec![0; row_targets.len()]);
+        }
+        row_targets
+            .iter()
+            .enumerate()
+            .map(|(row, id)| {
+                let id = id.as_deref().unwrap_or_default();
+                self.targets.iter().position(|t| t == id).ok_or_else(|| {
+                    format!(
+                        "row {row}: target `{id}` has no tool translation in the {} set (it has {})",
+                        self.model,
+                        self.targets.join(", ")
+                    )
+                })
+            })
+            .collect()
+    }
+}
+
+/// Splits `x_t[ID]` into the axis and the target id.
+fn parse_target_name(name: &str) -> Option<(usize, &str)> {
+    let (base, rest) = name.split_once('[')?;
+    let id = rest.strip_suffix(']')?;
+    let axis = TOOL_TRANSLATION_NAMES.iter().position(|n| *n == base)?;
+    (!id.is_empty()).then_some((axis, id))
 }
 
 /// The table for `sets`, with `nominal` in the `nominal` column.
@@ -123,9 +187,9 @@ pub fn to_frame(nominal: &ParamValues, sets: &[ParameterSet]) -> DataFrame {
     let mut std_error = Vec::new();
     let mut status = Vec::new();
     for set in sets {
-        for id in ParamId::all() {
+        for id in set.ids() {
             model.push(set.model.as_str());
-            name.push(id.name());
+            name.push(set.name_of(id));
             unit.push(id.unit());
             nominal_col.push(nominal.get(id));
             value.push(set.values.get(id));
@@ -158,6 +222,8 @@ pub fn from_frame(
     let statuses = str_values(df, "status", file)?;
     let std_errors: Vec<Option<f64>> = match df.column("std_error") {
         Ok(c) => c
+            .cast(&DataType::Float64)
+            .map_err(|e| schema::io_error(file, e))?
             .f64()
             .map_err(|e| schema::io_error(file, e))?
             .iter()
@@ -170,13 +236,47 @@ pub fn from_frame(
         row,
         message,
     };
+    // First pass: each model's target ids, sorted, so that indices follow them.
+    let mut targets: std::collections::BTreeMap<ModelName, std::collections::BTreeSet<String>> =
+        Default::default();
+    for row in 0..df.height() {
+        let model_str = models[row].as_deref().unwrap_or_default();
+        let model = ModelName::from_str(model_str).map_err(|m| bad(row, "model", m))?;
+        let entry = targets.entry(model).or_default();
+        if let Some((_, id)) = parse_target_name(names[row].as_deref().unwrap_or_default()) {
+            entry.insert(id.to_string());
+            if entry.len() > MAX_TARGETS {
+                return Err(bad(
+                    row,
+                    "name",
+                    format!("model `{model}` has more than {MAX_TARGETS} targets"),
+                ));
+            }
+        }
+    }
     let mut sets: Vec<ParameterSet> = Vec::new();
     let mut seen = std::collections::HashSet::new();
     for row in 0..df.height() {
         let model_str = models[row].as_deref().unwrap_or_default();
         let model = ModelName::from_str(model_str).map_err(|m| bad(row, "model", m))?;
         let name = names[row].as_deref().unwrap_or_default();
-        let id = ParamId::from_name(name).ok_or_else(|| {
+        let model_targets: Vec<String> = targets[&model].iter().cloned().collect();
+        let target_id = parse_target_name(name).map(|(axis, id)| {
+            let target = model_targets.iter().position(|t| t == id).unwrap_or(0);
+            ParamId::target_translation(target, axis)
+        });
+        if model_targets.len() > 1 && ParamId::from_name(name).is_some_and(|p| p.is_tool_translation())
+        {
+            return Err(bad(
+                row,
+                "name",
+                format!(
+                    "`{name}` is ambiguous: model `{model}` names its targets ({}), so write `{name}[ID]`",
+                    model_targets.join(", ")
+                ),
+            ));
+        }
+        let id = target_id.or_else(|| ParamId::from_name(name)).ok_or_else(|| {
             bad(
                 row,
                 "name",
@@ -212,7 +312,11 @@ pub fn from_frame(
         let index = match sets.iter().position(|s| s.model == model) {
             Some(i) => i,
             None => {
-                sets.push(ParameterSet::fixed(model, *nominal));
+                let mut set = ParameterSet::fixed(model, *nominal);
+                if model_targets.len() > 1 {
+                    set.targets = model_targets;
+                }
+                sets.push(set);
                 sets.len() - 1
             }
         };

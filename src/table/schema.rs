@@ -39,6 +39,8 @@ impl ColumnType {
     pub fn accepts(self, dtype: &DataType) -> bool {
         match self {
             ColumnType::TimestampUs => matches!(dtype, DataType::Datetime(_, _)),
+            // pandas and pyarrow write an all-null column as type null (spec §7).
+            ColumnType::Float64 => matches!(dtype, DataType::Float64 | DataType::Null),
             other => &other.polars() == dtype,
         }
     }
@@ -160,7 +162,7 @@ impl TableSchema {
                     row,
                 });
             }
-            if spec.dtype == ColumnType::Float64 {
+            if spec.dtype == ColumnType::Float64 && column.dtype() == &DataType::Float64 {
                 let values = column.f64().map_err(|e| io_error(file, e))?;
                 if let Some((row, value)) = values
                     .iter()
@@ -561,19 +563,67 @@ pub fn residuals() -> TableSchema {
         ColumnType::Float64,
         "",
         true,
-        "the loss's weight of the row at the solution (1 for least squares; Huber: threshold / r_mm beyond the threshold)",
+        "the loss's weight of the row at the solution (1 for least squares; Huber: threshold / r beyond the threshold; 0: excluded by the robust fit)",
     ));
     columns.push(col(
         "outlier",
         ColumnType::Boolean,
         "",
         true,
-        "r_mm exceeds the outlier threshold",
+        "excluded by the robust fit (loss = robust), or r_mm beyond outlier_threshold_mm (other losses)",
     ));
     TableSchema {
         kind: "residuals",
         description: "Residuals of each model on the rows it was identified from (paper eq. (23)).",
         columns,
+        unique: None,
+    }
+}
+
+/// `../shared/spec/model.md` §7 `covariance`.
+pub fn covariance() -> TableSchema {
+    TableSchema {
+        kind: "covariance",
+        description: "Full covariance of each fitted model's identified parameters (spec §7), both orders.",
+        columns: vec![
+            col("model", ColumnType::Utf8, "", true, "parameter set"),
+            col("name_i", ColumnType::Utf8, "", true, "identified parameter"),
+            col("name_j", ColumnType::Utf8, "", true, "identified parameter"),
+            col(
+                "value",
+                ColumnType::Float64,
+                "unit_i·unit_j",
+                true,
+                "covariance, in the product of the two parameters' units",
+            ),
+        ],
+        unique: None,
+    }
+}
+
+/// Rows an identification did not use, and why.
+pub fn excluded_rows() -> TableSchema {
+    TableSchema {
+        kind: "excluded_rows",
+        description: "Measured rows left out of an identification: failed row checks (all models) or beyond the robust fit's threshold (one model).",
+        columns: vec![
+            col("cw_id", ColumnType::Int64, "", true, "conf-wrench combination id"),
+            col(
+                "model",
+                ColumnType::Utf8,
+                "",
+                false,
+                "the model whose robust fit excluded the row; null for a row check (every model)",
+            ),
+            col(
+                "check",
+                ColumnType::Utf8,
+                "",
+                true,
+                "row_check (joint limits, absurd values) or robust_fit",
+            ),
+            col("reason", ColumnType::Utf8, "", true, "why, with the values"),
+        ],
         unique: None,
     }
 }
@@ -1090,6 +1140,8 @@ pub fn all() -> Vec<TableSchema> {
         selection(),
         identification_trace(),
         residuals(),
+        covariance(),
+        excluded_rows(),
         identifiability(),
         observability(),
         errors(),

@@ -30,6 +30,7 @@ pub fn random_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
                 let bound = if i < 3 { 120.0 } else { 10.0 };
                 rng.random_range(-bound..bound)
             })),
+            target: 0,
         })
         .collect()
 }

@@ -1,0 +1,103 @@
+//! Checks of measured rows before any fit: a joint reading outside the robot
+//! file's limits or an absurd value (a position kilometres away, a wrench of
+//! tonnes, a σ of zero) is not a measurement of this robot, and a single such
+//! row moves a least-squares calibration by tens of millimetres. Such rows are
+//! named with their reason; the caller fails or drops them.
+//!
+//! The bounds are loose on purpose: they catch corrupt and mistyped rows, not
+//! slightly wrong ones, which the robust fit handles ([`super::robust`]).
+
+use nalgebra::Vector3;
+
+use crate::robot::{ConfWrench, JOINTS, Robot};
+
+/// A position farther than this from the tracker is absurd (mm; trackers reach 80 m).
+pub const MAX_POSITION_MM: f64 = 1.0e5;
+/// A force above this is absurd for a robot cell (N; 10 t).
+pub const MAX_FORCE_N: f64 = 1.0e5;
+/// A moment above this is absurd (N·m).
+pub const MAX_MOMENT_NM: f64 = 1.0e5;
+/// A tracker uncertainty above this is absurd (mm).
+pub const MAX_SIGMA_MM: f64 = 100.0;
+
+/// Why a row cannot be used; `None` when it can.
+pub fn row_problem(
+    robot: &Robot,
+    row: &ConfWrench,
+    measured_mm: &Vector3<f64>,
+    sigma_mm: Option<&Vector3<f64>>,
+) -> Option<String> {
+    for joint in 0..JOINTS {
+        let q = row.q_deg[joint];
+        let [lo, hi] = robot.limits_deg(joint);
+        if !(q >= lo && q <= hi) {
+            return Some(format!(
+                "q{}_deg = {q} is outside the joint limits [{lo}, {hi}] of the robot file",
+                joint + 1
+            ));
+        }
+    }
+    let norm = measured_mm.norm();
+    if !(norm <= MAX_POSITION_MM) {
+        return Some(format!(
+            "the measured position is {norm:.0} mm from the tracker (more than {MAX_POSITION_MM} mm)"
+        ));
+    }
+    let force = row.wrench.force_n.norm();
+    if !(force <= MAX_FORCE_N) {
+        return Some(format!(
+            "the force is {force:.0} N (more than {MAX_FORCE_N} N)"
+        ));
+    }
+    let moment = row.wrench.moment_nm.norm();
+    if !(moment <= MAX_MOMENT_NM) {
+        return Some(format!(
+            "the moment is {moment:.0} N·m (more than {MAX_MOMENT_NM} N·m)"
+        ));
+    }
+    if let Some(sigma) = sigma_mm {
+        for (axis, s) in ["x", "y", "z"].iter().zip(sigma.iter()) {
+            if !(*s > 0.0 && *s <= MAX_SIGMA_MM) {
+                return Some(format!(
+                    "sigma_{axis}_mm = {s} (expected > 0 and at most {MAX_SIGMA_MM} mm)"
+                ));
+            }
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::Wrench;
+    use crate::robot::test_support::irb1600;
+
+    #[test]
+    fn names_the_joint_and_its_limits() {
+        let robot = irb1600();
+        let mut q = [0.0; JOINTS];
+        q[1] = 130.0;
+        let row = ConfWrench::new(q, Wrench::zero());
+        let problem = row_problem(&robot, &row, &Vector3::new(1.0, 2.0, 3.0), None).unwrap();
+        assert!(problem.contains("q2_deg = 130") && problem.contains("[-90, 120]"), "{problem}");
+        q[1] = 0.0;
+        q[0] = 1e300;
+        let row = ConfWrench::new(q, Wrench::zero());
+        assert!(row_problem(&robot, &row, &Vector3::zeros(), None).is_some());
+    }
+
+    #[test]
+    fn absurd_positions_wrenches_and_sigmas_are_named() {
+        let robot = irb1600();
+        let ok = ConfWrench::new([0.0; JOINTS], Wrench::from_array([100.0, 0.0, 0.0, 5.0, 0.0, 0.0]));
+        let p = Vector3::new(1000.0, 2000.0, -500.0);
+        assert_eq!(row_problem(&robot, &ok, &p, Some(&Vector3::repeat(0.01))), None);
+        let far = row_problem(&robot, &ok, &Vector3::new(1e9, 0.0, 0.0), None).unwrap();
+        assert!(far.contains("from the tracker"), "{far}");
+        let heavy = ConfWrench::new([0.0; JOINTS], Wrench::from_array([0.0, 0.0, -1e7, 0.0, 0.0, 0.0]));
+        assert!(row_problem(&robot, &heavy, &p, None).unwrap().contains("force"));
+        let zero_sigma = row_problem(&robot, &ok, &p, Some(&Vector3::new(0.01, 0.0, 0.01))).unwrap();
+        assert!(zero_sigma.contains("sigma_y_mm = 0"), "{zero_sigma}");
+    }
+}
