@@ -233,10 +233,13 @@ pub struct ImportMeasurementsSettings {
     pub columns: ColumnMap,
     /// Contract column → value on every row (target_id, robot_id, config_id).
     pub constant: Constants,
+    /// Unit of the joint columns in the source: deg or rad.
     pub joint_unit: JointUnit,
-    /// Unit of positions and sigmas.
+    /// Unit of positions and sigmas in the source: mm or m.
     pub length_unit: LengthUnit,
+    /// Unit of the force columns in the source: N only.
     pub force_unit: ForceUnit,
+    /// Unit of the moment columns in the source: N·m (also N*m, Nm) or N·mm (also N*mm, Nmm).
     pub moment_unit: MomentUnit,
     /// Import only data rows start ≤ row < end (0-based, half-open), e.g. half of a
     /// series; the default cw_id stays the row's number in the whole file.
