@@ -9,6 +9,7 @@
 pub mod gate;
 pub mod identifiability;
 pub mod identify;
+pub mod import_measurements;
 pub mod measure;
 pub mod poses;
 pub mod predict;
@@ -278,6 +279,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &measure::MeasureStage,
         &simulate_logs::SimulateLogsStage,
         &scan_logs::ScanLogsStage,
+        &import_measurements::ImportMeasurementsStage,
         &identify::IdentifyStage,
         &validate::ValidateStage,
         &gate::GateStage,

@@ -1,0 +1,1488 @@
+//! `import_measurements`: a tracker software's export (CSV or Parquet) as the
+//! `measurements` table (spec §6, §7), for calibrating on data egcal did not
+//! measure itself.
+//!
+//! The settings name the file (relative to the job file's folder) and map each
+//! contract column to a source column (`columns.q1_deg = "shoulder_pan_joint"`);
+//! `constant` gives fixed values (`constant.target_id = "nest1"`). Source units
+//! are converted here, at this one boundary: joints rad → deg, lengths and
+//! sigmas m → mm, moments N·mm → N·m. Wrench columns that are not mapped are 0
+//! (no load). Extra source columns are not carried.
+//!
+//! The CSV is parsed by polars' reader (its `decimal_comma` option for `1,5`),
+//! twice: once with every column as text (the names, and the raw cell for
+//! messages) and once with the mapped columns typed, bad cells read as null.
+//! A null is then explained from the raw text: every problem names the file,
+//! the line (data row + header + skipped lines, 1-based), the source column, the
+//! setting and what was expected. Measurements hold complete rows only, so an
+//! empty, non-numeric or non-finite cell in a mapped column is bad input, as are
+//! a repeated `cw_id` and a sigma that is not positive. Line numbers assume one
+//! line per row (no line breaks inside quoted fields).
+//!
+//! The stage has no input tables: the file's content hash is part of its cache
+//! key ([`Stage::external_key`], as `scan_logs` keys its log files), so an edited
+//! export re-runs the stage and an unchanged one does not.
+
+use std::borrow::Cow;
+use std::collections::{BTreeMap, HashMap};
+use std::io::Cursor;
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use polars::prelude::{
+    Column, CsvEncoding, CsvReadOptions, DataFrame, DataType, ParquetReader, PlSmallStr, Schema,
+    SerReader, TimeUnit, TimeZone,
+};
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use crate::table::schema;
+use crate::table::time::parse_rfc3339_us;
+
+pub struct ImportMeasurementsStage;
+
+/// The export's file format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SourceFormat {
+    /// Delimited text (see `separator`, `decimal_comma`, `skip_rows`, `has_header`).
+    Csv,
+    /// A Parquet file; numeric columns of any numeric type.
+    Parquet,
+}
+
+/// Unit of the joint columns in the source.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+pub enum JointUnit {
+    #[default]
+    #[serde(rename = "deg")]
+    Deg,
+    #[serde(rename = "rad")]
+    Rad,
+}
+
+/// Unit of the position and sigma columns in the source.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+pub enum LengthUnit {
+    #[default]
+    #[serde(rename = "mm")]
+    Mm,
+    #[serde(rename = "m")]
+    M,
+}
+
+/// Unit of the force columns in the source (newtons only).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+pub enum ForceUnit {
+    #[default]
+    #[serde(rename = "N")]
+    Newton,
+}
+
+/// Unit of the moment columns in the source: `N·m` (also `N*m`, `Nm`) or `N·mm`
+/// (also `N*mm`, `Nmm`). The ASCII spellings mean the same and are stored as the
+/// `·` form, so they share a cache key.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub enum MomentUnit {
+    #[default]
+    NewtonMetre,
+    NewtonMillimetre,
+}
+
+const MOMENT_SPELLINGS: [(&str, MomentUnit); 6] = [
+    ("N·m", MomentUnit::NewtonMetre),
+    ("N*m", MomentUnit::NewtonMetre),
+    ("Nm", MomentUnit::NewtonMetre),
+    ("N·mm", MomentUnit::NewtonMillimetre),
+    ("N*mm", MomentUnit::NewtonMillimetre),
+    ("Nmm", MomentUnit::NewtonMillimetre),
+];
+
+impl TryFrom<String> for MomentUnit {
+    type Error = String;
+    fn try_from(text: String) -> Result<Self, String> {
+        MOMENT_SPELLINGS
+            .iter()
+            .find(|(spelling, _)| *spelling == text)
+            .map(|(_, unit)| *unit)
+            .ok_or_else(|| {
+                format!("`{text}` is not a moment unit; expected N·m (or N*m, Nm) or N·mm (or N*mm, Nmm)")
+            })
+    }
+}
+
+impl From<MomentUnit> for String {
+    fn from(unit: MomentUnit) -> String {
+        match unit {
+            MomentUnit::NewtonMetre => "N·m",
+            MomentUnit::NewtonMillimetre => "N·mm",
+        }
+        .to_string()
+    }
+}
+
+impl JsonSchema for MomentUnit {
+    fn schema_name() -> Cow<'static, str> {
+        "MomentUnit".into()
+    }
+
+    fn json_schema(_: &mut schemars::SchemaGenerator) -> schemars::Schema {
+        let spellings: Vec<&str> = MOMENT_SPELLINGS.iter().map(|(s, _)| *s).collect();
+        schemars::json_schema!({
+            "type": "string",
+            "enum": spellings,
+            "description": "Unit of the moment columns in the source: N·m (also N*m, Nm) or N·mm (also N*mm, Nmm)."
+        })
+    }
+}
+
+/// Which source column holds each contract column. Required: `q1_deg … q6_deg`,
+/// `x_mm`, `y_mm`, `z_mm`. The names are the contract's; the units of the source
+/// are those of `joint_unit`, `length_unit`, `force_unit`, `moment_unit`.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct ColumnMap {
+    /// Row id (whole numbers, unique); when absent, the 0-based data row number.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cw_id: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q1_deg: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q2_deg: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q3_deg: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q4_deg: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q5_deg: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q6_deg: Option<String>,
+    /// Wrench on the robot, tool axes, at the tool origin: 0 where not mapped.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fx_n: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fy_n: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fz_n: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mx_nm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub my_nm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mz_nm: Option<String>,
+    /// SMR position in the tracker frame.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub x_mm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub y_mm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub z_mm: Option<String>,
+    /// The tracker's 1-σ uncertainty per axis (> 0): all three or none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sigma_x_mm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sigma_y_mm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sigma_z_mm: Option<String>,
+    /// Which SMR (nest) each row measured: a long table, one row per target reading.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_id: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub config_id: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robot_id: Option<String>,
+    /// Time of the reading: RFC 3339 UTC text (`2026-03-02T10:00:00Z`) in a CSV; a
+    /// timestamp or such text in Parquet.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measured_at: Option<String>,
+}
+
+/// Values that are the same on every row (instead of a source column).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct Constants {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub target_id: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub robot_id: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub config_id: Option<i64>,
+}
+
+/// Settings of `import_measurements`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct ImportMeasurementsSettings {
+    /// The export file, relative to the job file's folder.
+    pub path: String,
+    /// csv or parquet; when absent, parquet for a `.parquet` or `.pq` file, else csv.
+    pub format: Option<SourceFormat>,
+    /// CSV field separator: one character, e.g. "," or ";" or "\t".
+    pub separator: String,
+    /// CSV numbers use a decimal comma (`1,5`); needs a separator other than ",".
+    pub decimal_comma: bool,
+    /// CSV lines to skip before the header (a preamble).
+    pub skip_rows: usize,
+    /// The CSV's first (unskipped) line names the columns; without a header the
+    /// source columns are `column_1`, `column_2`, …
+    pub has_header: bool,
+    /// Contract column → source column.
+    pub columns: ColumnMap,
+    /// Contract column → value on every row (target_id, robot_id, config_id).
+    pub constant: Constants,
+    /// Unit of the joint columns in the source: deg or rad.
+    pub joint_unit: JointUnit,
+    /// Unit of positions and sigmas in the source: mm or m.
+    pub length_unit: LengthUnit,
+    /// Unit of the force columns in the source: N only.
+    pub force_unit: ForceUnit,
+    /// Unit of the moment columns in the source: N·m (also N*m, Nm) or N·mm (also N*mm, Nmm).
+    pub moment_unit: MomentUnit,
+    /// Import only data rows start ≤ row < end (0-based, half-open), e.g. half of a
+    /// series; the default cw_id stays the row's number in the whole file.
+    pub row_range: Option<[usize; 2]>,
+}
+
+impl Default for ImportMeasurementsSettings {
+    fn default() -> Self {
+        ImportMeasurementsSettings {
+            path: String::new(),
+            format: None,
+            separator: ",".into(),
+            decimal_comma: false,
+            skip_rows: 0,
+            has_header: true,
+            columns: ColumnMap::default(),
+            constant: Constants::default(),
+            joint_unit: JointUnit::Deg,
+            length_unit: LengthUnit::Mm,
+            force_unit: ForceUnit::Newton,
+            moment_unit: MomentUnit::NewtonMetre,
+            row_range: None,
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "import_measurements",
+    uses_cable_robot: false,
+    updates_input: None,
+    summary: "A tracker export (CSV or Parquet) as the measurements table, units converted",
+    code_version: 1,
+    inputs: &[],
+    outputs: &[TableSlot {
+        name: "measurements",
+        schema: schema::measurements,
+        required: true,
+        meaning: "the file's rows (or row_range of them), in file order",
+    }],
+};
+
+/// What a contract column holds, which decides its parsing and unit conversion.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Joint,
+    Force,
+    Moment,
+    Position,
+    Sigma,
+    Integer,
+    Text,
+    Time,
+}
+
+/// Every contract column a source column can be mapped to, in output order.
+const CONTRACT: [(&str, Kind); 23] = [
+    ("cw_id", Kind::Integer),
+    ("q1_deg", Kind::Joint),
+    ("q2_deg", Kind::Joint),
+    ("q3_deg", Kind::Joint),
+    ("q4_deg", Kind::Joint),
+    ("q5_deg", Kind::Joint),
+    ("q6_deg", Kind::Joint),
+    ("fx_n", Kind::Force),
+    ("fy_n", Kind::Force),
+    ("fz_n", Kind::Force),
+    ("mx_nm", Kind::Moment),
+    ("my_nm", Kind::Moment),
+    ("mz_nm", Kind::Moment),
+    ("x_mm", Kind::Position),
+    ("y_mm", Kind::Position),
+    ("z_mm", Kind::Position),
+    ("sigma_x_mm", Kind::Sigma),
+    ("sigma_y_mm", Kind::Sigma),
+    ("sigma_z_mm", Kind::Sigma),
+    ("target_id", Kind::Text),
+    ("config_id", Kind::Integer),
+    ("robot_id", Kind::Text),
+    ("measured_at", Kind::Time),
+];
+
+const REQUIRED: [&str; 9] = [
+    "q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg", "x_mm", "y_mm", "z_mm",
+];
+
+impl ColumnMap {
+    fn get(&self, contract: &str) -> Option<&str> {
+        let value = match contract {
+            "cw_id" => &self.cw_id,
+            "q1_deg" => &self.q1_deg,
+            "q2_deg" => &self.q2_deg,
+            "q3_deg" => &self.q3_deg,
+            "q4_deg" => &self.q4_deg,
+            "q5_deg" => &self.q5_deg,
+            "q6_deg" => &self.q6_deg,
+            "fx_n" => &self.fx_n,
+            "fy_n" => &self.fy_n,
+            "fz_n" => &self.fz_n,
+            "mx_nm" => &self.mx_nm,
+            "my_nm" => &self.my_nm,
+            "mz_nm" => &self.mz_nm,
+            "x_mm" => &self.x_mm,
+            "y_mm" => &self.y_mm,
+            "z_mm" => &self.z_mm,
+            "sigma_x_mm" => &self.sigma_x_mm,
+            "sigma_y_mm" => &self.sigma_y_mm,
+            "sigma_z_mm" => &self.sigma_z_mm,
+            "target_id" => &self.target_id,
+            "config_id" => &self.config_id,
+            "robot_id" => &self.robot_id,
+            "measured_at" => &self.measured_at,
+            _ => &None,
+        };
+        value.as_deref()
+    }
+}
+
+/// A contract column and the source column it comes from.
+#[derive(Debug, Clone)]
+struct Mapped {
+    contract: &'static str,
+    kind: Kind,
+    source: String,
+}
+
+/// Settings checked as a whole: every problem is reported at once.
+#[derive(Debug)]
+struct Checked {
+    file: PathBuf,
+    format: SourceFormat,
+    separator: u8,
+    mapped: Vec<Mapped>,
+}
+
+impl ImportMeasurementsSettings {
+    fn check(&self, job_dir: &Path) -> Result<Checked, StageError> {
+        let mut problems = Vec::new();
+        if self.path.trim().is_empty() {
+            problems.push(
+                "setting `path` is required: the export file, relative to the job file's folder"
+                    .to_string(),
+            );
+        }
+        let file = job_dir.join(&self.path);
+        let format = self.format.unwrap_or_else(|| format_of(&file));
+        let separator = match self.separator.as_bytes() {
+            [b] if b.is_ascii() && !matches!(b, b'"' | b'\n' | b'\r') => *b,
+            _ => {
+                problems.push(format!(
+                    "setting `separator`: `{}` is not one ASCII character (other than a quote or a line break)",
+                    self.separator.escape_debug()
+                ));
+                b','
+            }
+        };
+        if self.decimal_comma && separator == b',' {
+            problems.push(
+                "setting `decimal_comma`: needs a separator other than \",\" (e.g. `separator = \";\"`)"
+                    .into(),
+            );
+        }
+        if format == SourceFormat::Parquet {
+            let defaults = ImportMeasurementsSettings::default();
+            for (key, set) in [
+                ("separator", self.separator != defaults.separator),
+                ("decimal_comma", self.decimal_comma),
+                ("skip_rows", self.skip_rows != 0),
+                ("has_header", !self.has_header),
+            ] {
+                if set {
+                    problems.push(format!(
+                        "setting `{key}` applies to CSV files only, and {} is read as Parquet",
+                        file.display()
+                    ));
+                }
+            }
+        }
+        for key in REQUIRED {
+            if self.columns.get(key).is_none() {
+                problems.push(format!(
+                    "setting `columns.{key}` is required: the source column that holds `{key}`"
+                ));
+            }
+        }
+        let sigmas = schema::SIGMA_COLUMNS.map(|c| self.columns.get(c).is_some());
+        if sigmas.contains(&true) && sigmas.contains(&false) {
+            problems.push(
+                "settings `columns.sigma_x_mm`, `columns.sigma_y_mm`, `columns.sigma_z_mm`: map all three or none"
+                    .into(),
+            );
+        }
+        for (key, constant) in [
+            ("target_id", self.constant.target_id.as_deref()),
+            ("robot_id", self.constant.robot_id.as_deref()),
+        ] {
+            if constant.is_some_and(|c| c.trim().is_empty()) {
+                problems.push(format!("setting `constant.{key}`: must not be empty"));
+            }
+        }
+        for (key, constant) in [
+            ("target_id", self.constant.target_id.is_some()),
+            ("robot_id", self.constant.robot_id.is_some()),
+            ("config_id", self.constant.config_id.is_some()),
+        ] {
+            if constant && self.columns.get(key).is_some() {
+                problems.push(format!(
+                    "settings `columns.{key}` and `constant.{key}` are both set: choose one"
+                ));
+            }
+        }
+        for (key, source) in CONTRACT
+            .iter()
+            .filter_map(|(c, _)| self.columns.get(c).map(|s| (*c, s)))
+        {
+            if source.is_empty() {
+                problems.push(format!(
+                    "setting `columns.{key}`: the source column name is empty"
+                ));
+            }
+        }
+        if let Some([start, end]) = self.row_range
+            && start >= end
+        {
+            problems.push(format!(
+                "setting `row_range`: [{start}, {end}] is empty; it is [start, end) with start < end"
+            ));
+        }
+        if !problems.is_empty() {
+            return Err(StageError::Invalid(problems.join("\n")));
+        }
+        let mapped = CONTRACT
+            .iter()
+            .filter_map(|(contract, kind)| {
+                self.columns.get(contract).map(|source| Mapped {
+                    contract,
+                    kind: *kind,
+                    source: source.to_string(),
+                })
+            })
+            .collect();
+        Ok(Checked {
+            file,
+            format,
+            separator,
+            mapped,
+        })
+    }
+}
+
+impl Stage for ImportMeasurementsStage {
+    type Settings = ImportMeasurementsSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn external_key(
+        &self,
+        settings: &ImportMeasurementsSettings,
+        job_dir: &Path,
+        _run_date: i64,
+    ) -> Result<serde_json::Value, StageError> {
+        let checked = settings.check(job_dir)?;
+        let hash =
+            crate::fsio::hash_file(&checked.file).map_err(|e| cannot_read(&checked.file, e))?;
+        Ok(serde_json::json!({ "source_blake3": hash }))
+    }
+
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &ImportMeasurementsSettings,
+    ) -> Result<StageOutputs, StageError> {
+        let imported = import(settings, ctx.job_dir)?;
+        let mut outputs = StageOutputs::default();
+        outputs
+            .tables
+            .insert("measurements".into(), imported.measurements);
+        outputs.facts = imported.facts;
+        Ok(outputs)
+    }
+}
+
+/// The imported table and the facts worth keeping with it.
+#[derive(Debug)]
+pub struct Imported {
+    pub measurements: DataFrame,
+    pub facts: BTreeMap<String, String>,
+}
+
+/// Reads, converts and checks the export the settings name (relative paths
+/// against `job_dir`). Reads the whole file into memory once.
+pub fn import(
+    settings: &ImportMeasurementsSettings,
+    job_dir: &Path,
+) -> Result<Imported, StageError> {
+    let checked = settings.check(job_dir)?;
+    let bytes = std::fs::read(&checked.file).map_err(|e| cannot_read(&checked.file, e))?;
+    let source = match checked.format {
+        SourceFormat::Csv => Source::csv(&checked, settings, &bytes)?,
+        SourceFormat::Parquet => Source::parquet(&checked.file, &bytes)?,
+    };
+    source.check_columns(&checked.mapped)?;
+    let rows = match settings.row_range {
+        None => 0..source.height(),
+        Some([start, end]) if end <= source.height() => start..end,
+        Some([start, end]) => {
+            return Err(StageError::Invalid(format!(
+                "setting `row_range`: [{start}, {end}) ends past the {} data rows of {}",
+                source.height(),
+                checked.file.display()
+            )));
+        }
+    };
+    let measurements = build(&source, &checked.mapped, settings, rows.clone())?;
+    schema::measurements().check(&measurements, &checked.file)?;
+    let mut facts = BTreeMap::new();
+    facts.insert(
+        "imported_rows".to_string(),
+        measurements.height().to_string(),
+    );
+    facts.insert("source".to_string(), settings.path.clone());
+    facts.insert(
+        "source_blake3".to_string(),
+        blake3::hash(&bytes).to_hex().to_string(),
+    );
+    if settings.row_range.is_some() {
+        facts.insert(
+            "row_range".to_string(),
+            format!(
+                "[{}, {}) of {} data rows",
+                rows.start,
+                rows.end,
+                source.height()
+            ),
+        );
+    }
+    Ok(Imported {
+        measurements,
+        facts,
+    })
+}
+
+fn cannot_read(file: &Path, e: std::io::Error) -> StageError {
+    StageError::Invalid(format!(
+        "setting `path`: cannot read {}: {e}",
+        file.display()
+    ))
+}
+
+/// The source table: typed mapped columns, and for a CSV every cell as text.
+struct Source<'a> {
+    file: &'a Path,
+    /// Mapped numeric columns as f64 / i64 (CSV: unparsable cells null), others as read.
+    typed: DataFrame,
+    /// CSV: every column as text, for the names and for messages.
+    text: Option<DataFrame>,
+    /// CSV: the 1-based file line of data row 0; Parquet: none (rows are named).
+    first_line: Option<usize>,
+    decimal_comma: bool,
+    separator: u8,
+}
+
+impl<'a> Source<'a> {
+    fn csv(
+        checked: &'a Checked,
+        settings: &ImportMeasurementsSettings,
+        bytes: &[u8],
+    ) -> Result<Self, StageError> {
+        let file = checked.file.as_path();
+        // A UTF-8 byte-order mark would become part of the first column's name.
+        let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+        let options = |typed: Option<Schema>| {
+            let projection: Option<Arc<[PlSmallStr]>> = typed
+                .as_ref()
+                .map(|s| s.iter_names().cloned().collect::<Vec<_>>().into());
+            CsvReadOptions::default()
+                .with_has_header(settings.has_header)
+                .with_skip_lines(settings.skip_rows)
+                .with_infer_schema_length(Some(0))
+                .with_schema_overwrite(typed.map(Arc::new))
+                .with_columns(projection)
+                .with_ignore_errors(true)
+                .map_parse_options(|p| {
+                    p.with_separator(checked.separator)
+                        .with_decimal_comma(settings.decimal_comma)
+                        .with_encoding(CsvEncoding::LossyUtf8)
+                })
+        };
+        let unreadable = |e: polars::error::PolarsError| {
+            StageError::Invalid(format!(
+                "{}: not a readable CSV file with separator {:?} (are `separator`, `skip_rows` and `has_header` right?): {e}",
+                file.display(),
+                checked.separator as char
+            ))
+        };
+        let text = options(None)
+            .into_reader_with_file_handle(Cursor::new(bytes))
+            .finish()
+            .map_err(unreadable)?;
+        let present: Vec<&str> = text.get_column_names().iter().map(|s| s.as_str()).collect();
+        let typed_schema: Schema = checked
+            .mapped
+            .iter()
+            .filter(|m| present.contains(&m.source.as_str()))
+            .map(|m| {
+                let dtype = match m.kind {
+                    Kind::Integer => DataType::Int64,
+                    Kind::Text | Kind::Time => DataType::String,
+                    _ => DataType::Float64,
+                };
+                (PlSmallStr::from(m.source.as_str()), dtype)
+            })
+            .collect();
+        let typed = if typed_schema.is_empty() {
+            DataFrame::empty()
+        } else {
+            let typed = options(Some(typed_schema))
+                .into_reader_with_file_handle(Cursor::new(bytes))
+                .finish()
+                .map_err(unreadable)?;
+            if typed.height() != text.height() {
+                return Err(StageError::Failed(format!(
+                    "{}: read {} rows as numbers but {} as text",
+                    file.display(),
+                    typed.height(),
+                    text.height()
+                )));
+            }
+            typed
+        };
+        Ok(Source {
+            file,
+            typed,
+            text: Some(text),
+            first_line: Some(settings.skip_rows + usize::from(settings.has_header) + 1),
+            decimal_comma: settings.decimal_comma,
+            separator: checked.separator,
+        })
+    }
+
+    fn parquet(file: &'a Path, bytes: &[u8]) -> Result<Self, StageError> {
+        let typed = ParquetReader::new(Cursor::new(bytes))
+            .finish()
+            .map_err(|e| {
+                StageError::Invalid(format!(
+                    "{}: not a readable Parquet file: {e}",
+                    file.display()
+                ))
+            })?;
+        Ok(Source {
+            file,
+            typed,
+            text: None,
+            first_line: None,
+            decimal_comma: false,
+            separator: b',',
+        })
+    }
+
+    fn height(&self) -> usize {
+        self.text.as_ref().unwrap_or(&self.typed).height()
+    }
+
+    fn names(&self) -> Vec<&str> {
+        self.text
+            .as_ref()
+            .unwrap_or(&self.typed)
+            .get_column_names()
+            .iter()
+            .map(|s| s.as_str())
+            .collect()
+    }
+
+    /// Every mapped source column present, else one line per missing column.
+    fn check_columns(&self, mapped: &[Mapped]) -> Result<(), StageError> {
+        let names = self.names();
+        // Suggest only columns no other setting uses: `measurement_std_x` is not
+        // `measurement_x`, which already holds the positions.
+        let unmapped: Vec<&str> = names
+            .iter()
+            .copied()
+            .filter(|n| !mapped.iter().any(|m| m.source == *n))
+            .collect();
+        let mut problems: Vec<String> = mapped
+            .iter()
+            .filter(|m| !names.contains(&m.source.as_str()))
+            .map(|m| {
+                format!(
+                    "{}: setting `columns.{}` names source column `{}`, which the file does not have{}",
+                    self.file.display(),
+                    m.contract,
+                    m.source,
+                    suggestion(&m.source, &unmapped)
+                )
+            })
+            .collect();
+        if problems.is_empty() {
+            return Ok(());
+        }
+        if let [only] = names.as_slice()
+            && let Some(other) = [';', ',', '\t', '|']
+                .into_iter()
+                .find(|c| *c != self.separator as char && only.contains(*c))
+        {
+            problems.push(format!(
+                "{}: the file reads as one column `{only}`: is `separator` right? (its header holds {other:?})",
+                self.file.display()
+            ));
+        }
+        Err(StageError::Invalid(problems.join("\n")))
+    }
+
+    /// "line 7" (CSV, 1-based file line) or "row 5" (Parquet, 0-based data row).
+    fn at(&self, row: usize) -> String {
+        match self.first_line {
+            Some(first) => format!("line {}", first + row),
+            None => format!("row {row}"),
+        }
+    }
+
+    /// The cell as written in the file (CSV), or its value as text (Parquet).
+    fn raw(&self, source: &str, row: usize) -> Option<String> {
+        let frame = self.text.as_ref().unwrap_or(&self.typed);
+        let column = frame.column(source).ok()?;
+        match column.dtype() {
+            DataType::String => column.str().ok()?.get(row).map(str::to_string),
+            _ => column.get(row).ok().map(|v| v.to_string()),
+        }
+    }
+
+    fn problem(&self, row: usize, m: &Mapped, message: impl std::fmt::Display) -> StageError {
+        StageError::Invalid(format!(
+            "{}: {}, column `{}` (setting `columns.{}`): {message}",
+            self.file.display(),
+            self.at(row),
+            m.source,
+            m.contract
+        ))
+    }
+
+    /// Why a cell read as null: it is empty, or its text (quoted, with a hint when
+    /// it looks like a decimal comma) is not `expected`.
+    fn unreadable_cell(&self, m: &Mapped, row: usize, expected: &str) -> StageError {
+        match self.raw(&m.source, row).filter(|t| !t.trim().is_empty()) {
+            None => self.problem(
+                row,
+                m,
+                format!("empty cell, expected {expected} (measurements hold complete rows only)"),
+            ),
+            Some(text) => {
+                let hint = if !self.decimal_comma
+                    && text.contains(',')
+                    && text.replace(',', ".").trim().parse::<f64>().is_ok()
+                {
+                    " (the file seems to use a decimal comma: set `decimal_comma = true`)"
+                } else {
+                    ""
+                };
+                self.problem(row, m, format!("`{text}` is not {expected}{hint}"))
+            }
+        }
+    }
+
+    fn floats(&self, m: &Mapped, rows: Range<usize>) -> Result<Vec<f64>, StageError> {
+        let column = self.column(m)?;
+        if !column.dtype().is_primitive_numeric() {
+            return Err(self.wrong_type(m, column.dtype(), "a number"));
+        }
+        let cast = column
+            .cast(&DataType::Float64)
+            .map_err(|e| self.problem(rows.start, m, e))?;
+        let values = cast.f64().map_err(|e| self.problem(rows.start, m, e))?;
+        rows.map(|row| match values.get(row) {
+            Some(v) if v.is_finite() => Ok(v),
+            Some(v) => {
+                let text = self.raw(&m.source, row).unwrap_or_else(|| v.to_string());
+                Err(self.problem(row, m, format!("`{text}` is not a finite number")))
+            }
+            None => Err(self.unreadable_cell(m, row, "a number")),
+        })
+        .collect()
+    }
+
+    fn integers(&self, m: &Mapped, rows: Range<usize>) -> Result<Vec<i64>, StageError> {
+        let column = self.column(m)?;
+        if !column.dtype().is_integer() {
+            return Err(self.wrong_type(m, column.dtype(), "whole numbers"));
+        }
+        let cast = column
+            .cast(&DataType::Int64)
+            .map_err(|e| self.problem(rows.start, m, e))?;
+        let values = cast.i64().map_err(|e| self.problem(rows.start, m, e))?;
+        rows.map(|row| {
+            values
+                .get(row)
+                .ok_or_else(|| self.unreadable_cell(m, row, "a whole number"))
+        })
+        .collect()
+    }
+
+    fn texts(&self, m: &Mapped, rows: Range<usize>) -> Result<Vec<String>, StageError> {
+        let column = self.column(m)?;
+        let cast = column
+            .cast(&DataType::String)
+            .map_err(|_| self.wrong_type(m, column.dtype(), "text or numbers"))?;
+        let values = cast.str().map_err(|e| self.problem(rows.start, m, e))?;
+        rows.map(|row| match values.get(row).map(str::trim) {
+            Some(text) if !text.is_empty() => Ok(text.to_string()),
+            _ => Err(self.problem(
+                row,
+                m,
+                format!(
+                    "empty cell, expected a `{}` (measurements hold complete rows only)",
+                    m.contract
+                ),
+            )),
+        })
+        .collect()
+    }
+
+    fn times_us(&self, m: &Mapped, rows: Range<usize>) -> Result<Vec<i64>, StageError> {
+        let column = self.column(m)?;
+        let expected = "a UTC time like 2026-03-02T10:00:00Z";
+        match column.dtype() {
+            DataType::Datetime(..) => {
+                let cast = column
+                    .cast(&DataType::Datetime(
+                        TimeUnit::Microseconds,
+                        Some(TimeZone::UTC),
+                    ))
+                    .and_then(|c| c.cast(&DataType::Int64))
+                    .map_err(|e| self.problem(rows.start, m, e))?;
+                let values = cast.i64().map_err(|e| self.problem(rows.start, m, e))?;
+                rows.map(|row| {
+                    values.get(row).ok_or_else(|| {
+                        self.problem(row, m, format!("empty cell, expected {expected}"))
+                    })
+                })
+                .collect()
+            }
+            DataType::String => {
+                let values = column.str().map_err(|e| self.problem(rows.start, m, e))?;
+                rows.map(|row| match values.get(row).map(str::trim) {
+                    Some(text) if !text.is_empty() => parse_rfc3339_us(text)
+                        .ok_or_else(|| self.problem(row, m, format!("`{text}` is not {expected}"))),
+                    _ => Err(self.problem(row, m, format!("empty cell, expected {expected}"))),
+                })
+                .collect()
+            }
+            other => Err(self.wrong_type(m, other, "timestamps or RFC 3339 text")),
+        }
+    }
+
+    fn column(&self, m: &Mapped) -> Result<&Column, StageError> {
+        self.typed.column(&m.source).map_err(|e| {
+            StageError::Failed(format!(
+                "{}: column `{}`: {e}",
+                self.file.display(),
+                m.source
+            ))
+        })
+    }
+
+    fn wrong_type(&self, m: &Mapped, found: &DataType, expected: &str) -> StageError {
+        StageError::Invalid(format!(
+            "{}: column `{}` (setting `columns.{}`) has type {found}, expected {expected}",
+            self.file.display(),
+            m.source,
+            m.contract
+        ))
+    }
+}
+
+/// Parquet for a `.parquet` or `.pq` file, else CSV.
+fn format_of(file: &Path) -> SourceFormat {
+    match file.extension().and_then(|e| e.to_str()) {
+        Some(e) if e.eq_ignore_ascii_case("parquet") || e.eq_ignore_ascii_case("pq") => {
+            SourceFormat::Parquet
+        }
+        _ => SourceFormat::Csv,
+    }
+}
+
+/// " (did you mean `x`?)" by edit distance, else the one source column whose name
+/// contains the wanted one (ignoring case): `shoulder_pan` → `shoulder_pan_joint`.
+fn suggestion(wanted: &str, names: &[&str]) -> String {
+    let close = crate::suggest::did_you_mean(wanted, names.iter().copied());
+    if !close.is_empty() {
+        return close;
+    }
+    let lower = wanted.to_lowercase();
+    match names
+        .iter()
+        .filter(|n| n.to_lowercase().contains(&lower))
+        .collect::<Vec<_>>()
+        .as_slice()
+    {
+        [one] => format!(" (did you mean `{one}`?)"),
+        _ => String::new(),
+    }
+}
+
+/// The factor from the source unit of `kind` to the contract's unit.
+fn factor(kind: Kind, settings: &ImportMeasurementsSettings) -> f64 {
+    match kind {
+        Kind::Joint => match settings.joint_unit {
+            JointUnit::Deg => 1.0,
+            JointUnit::Rad => 180.0 / std::f64::consts::PI,
+        },
+        Kind::Position | Kind::Sigma => match settings.length_unit {
+            LengthUnit::Mm => 1.0,
+            LengthUnit::M => 1000.0,
+        },
+        Kind::Moment => match settings.moment_unit {
+            MomentUnit::NewtonMetre => 1.0,
+            MomentUnit::NewtonMillimetre => 1e-3,
+        },
+        Kind::Force | Kind::Integer | Kind::Text | Kind::Time => 1.0,
+    }
+}
+
+/// The measurements table from the source's `rows`, contract columns in order.
+fn build(
+    source: &Source,
+    mapped: &[Mapped],
+    settings: &ImportMeasurementsSettings,
+    rows: Range<usize>,
+) -> Result<DataFrame, StageError> {
+    let n = rows.len();
+    let find = |contract: &str| mapped.iter().find(|m| m.contract == contract);
+    let mut columns = Vec::new();
+
+    let ids: Vec<i64> = match find("cw_id") {
+        Some(m) => {
+            let ids = source.integers(m, rows.clone())?;
+            let mut first = HashMap::with_capacity(n);
+            for (k, id) in ids.iter().enumerate() {
+                if let Some(earlier) = first.insert(*id, rows.start + k) {
+                    return Err(source.problem(
+                        rows.start + k,
+                        m,
+                        format!(
+                            "cw_id {id} repeats the one on {}; it must be unique",
+                            source.at(earlier)
+                        ),
+                    ));
+                }
+            }
+            ids
+        }
+        None => rows.clone().map(|r| r as i64).collect(),
+    };
+    columns.push(Column::new("cw_id".into(), ids));
+
+    let float_names = schema::JOINT_COLUMNS
+        .iter()
+        .chain(&schema::WRENCH_COLUMNS)
+        .chain(&schema::POSITION_COLUMNS)
+        .chain(&schema::SIGMA_COLUMNS);
+    for name in float_names {
+        let values = match find(name) {
+            Some(m) => {
+                let f = factor(m.kind, settings);
+                let mut values = source.floats(m, rows.clone())?;
+                for (k, v) in values.iter_mut().enumerate() {
+                    *v *= f;
+                    if m.kind == Kind::Sigma && *v <= 0.0 {
+                        let row = rows.start + k;
+                        let text = source.raw(&m.source, row).unwrap_or_default();
+                        return Err(source.problem(
+                            row,
+                            m,
+                            format!(
+                                "`{text}` is not a positive standard deviation (sigma must be > 0)"
+                            ),
+                        ));
+                    }
+                }
+                values
+            }
+            // Optional columns: a wrench not given is no load; sigmas are all or none.
+            None if schema::WRENCH_COLUMNS.contains(name) => vec![0.0; n],
+            None => continue,
+        };
+        columns.push(Column::new((*name).into(), values));
+    }
+
+    for (name, constant) in [
+        ("target_id", settings.constant.target_id.as_ref()),
+        ("robot_id", settings.constant.robot_id.as_ref()),
+    ] {
+        if let Some(m) = find(name) {
+            columns.push(Column::new(name.into(), source.texts(m, rows.clone())?));
+        } else if let Some(value) = constant {
+            columns.push(Column::new(name.into(), vec![value.clone(); n]));
+        }
+    }
+    if let Some(m) = find("config_id") {
+        columns.push(Column::new(
+            "config_id".into(),
+            source.integers(m, rows.clone())?,
+        ));
+    } else if let Some(value) = settings.constant.config_id {
+        columns.push(Column::new("config_id".into(), vec![value; n]));
+    }
+    if let Some(m) = find("measured_at") {
+        let stamps = Column::new("measured_at".into(), source.times_us(m, rows.clone())?)
+            .cast(&DataType::Datetime(
+                TimeUnit::Microseconds,
+                Some(TimeZone::UTC),
+            ))
+            .map_err(|e| source.problem(rows.start, m, e))?;
+        columns.push(stamps);
+    }
+    Ok(crate::table::frame(columns))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Settings from a TOML block, as a job's stage table would give them.
+    fn settings(toml: &str) -> ImportMeasurementsSettings {
+        toml::from_str(toml).unwrap()
+    }
+
+    fn write(dir: &Path, name: &str, text: &str) {
+        std::fs::write(dir.join(name), text).unwrap();
+    }
+
+    fn f64s(df: &DataFrame, name: &str) -> Vec<f64> {
+        schema::f64_values(df, name, Path::new("t")).unwrap()
+    }
+
+    const JOINTS_XYZ: &str = r#"
+[columns]
+q1_deg = "a1"
+q2_deg = "a2"
+q3_deg = "a3"
+q4_deg = "a4"
+q5_deg = "a5"
+q6_deg = "a6"
+x_mm = "x"
+y_mm = "y"
+z_mm = "z"
+"#;
+
+    fn error(toml: &str, dir: &Path) -> String {
+        import(&settings(toml), dir).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn units_are_converted_to_the_contract() {
+        let dir = tempfile::tempdir().unwrap();
+        write(
+            dir.path(),
+            "e.csv",
+            "a1,a2,a3,a4,a5,a6,x,y,z,sx,sy,sz,mx,fz\n\
+             3.141592653589793,-1.5707963267948966,0,0.5,1,-2,1.5,-0.25,0.002,0.00002,0.00003,0.00004,2500,-9.5\n",
+        );
+        let toml = format!(
+            "path = \"e.csv\"\njoint_unit = \"rad\"\nlength_unit = \"m\"\nmoment_unit = \"Nmm\"\n{JOINTS_XYZ}sigma_x_mm = \"sx\"\nsigma_y_mm = \"sy\"\nsigma_z_mm = \"sz\"\nmx_nm = \"mx\"\nfz_n = \"fz\"\n"
+        );
+        let df = import(&settings(&toml), dir.path()).unwrap().measurements;
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1.0);
+        // Hand values: π rad = 180°, −π/2 = −90°, 0.5 rad = 28.64788975654116°,
+        // 1 rad = 57.29577951308232°, −2 rad = −114.59155902616465°.
+        let expected_q = [
+            180.0,
+            -90.0,
+            0.0,
+            28.64788975654116,
+            57.29577951308232,
+            -114.59155902616465,
+        ];
+        for (name, want) in schema::JOINT_COLUMNS.iter().zip(expected_q) {
+            let got = f64s(&df, name)[0];
+            assert!(close(got, want), "{name}: {got} vs {want}");
+        }
+        for (name, want) in [
+            ("x_mm", 1500.0),
+            ("y_mm", -250.0),
+            ("z_mm", 2.0),
+            ("sigma_x_mm", 0.02),
+            ("sigma_y_mm", 0.03),
+            ("sigma_z_mm", 0.04),
+            ("mx_nm", 2.5),
+            ("fz_n", -9.5),
+            ("fx_n", 0.0),
+            ("my_nm", 0.0),
+        ] {
+            let got = f64s(&df, name)[0];
+            assert!(close(got, want), "{name}: {got} vs {want}");
+        }
+        assert_eq!(
+            schema::i64_values(&df, "cw_id", Path::new("t")).unwrap(),
+            [0]
+        );
+    }
+
+    #[test]
+    fn moment_unit_spellings_share_one_canonical_form() {
+        for (text, want) in [
+            ("N*m", "N·m"),
+            ("Nm", "N·m"),
+            ("N*mm", "N·mm"),
+            ("Nmm", "N·mm"),
+        ] {
+            let s = settings(&format!("moment_unit = \"{text}\""));
+            assert_eq!(serde_json::to_value(&s).unwrap()["moment_unit"], want);
+        }
+        let err = toml::from_str::<ImportMeasurementsSettings>("moment_unit = \"kNm\"")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("`kNm` is not a moment unit"), "{err}");
+    }
+
+    #[test]
+    fn decimal_comma_with_semicolons_reads_like_the_tracker_export() {
+        let dir = tempfile::tempdir().unwrap();
+        write(
+            dir.path(),
+            "e.csv",
+            "a1;a2;a3;a4;a5;a6;x;y;z\r\n\
+             1,5;-2,78E-05;0;0,0;-1,25;2;383,97123;-3240,7562;201,72621\r\n",
+        );
+        let toml =
+            format!("path = \"e.csv\"\nseparator = \";\"\ndecimal_comma = true\n{JOINTS_XYZ}");
+        let df = import(&settings(&toml), dir.path()).unwrap().measurements;
+        assert_eq!(f64s(&df, "q1_deg"), [1.5]);
+        assert_eq!(f64s(&df, "q2_deg"), [-2.78e-5]);
+        assert_eq!(f64s(&df, "q5_deg"), [-1.25]);
+        assert_eq!(f64s(&df, "x_mm"), [383.97123]);
+        assert_eq!(f64s(&df, "y_mm"), [-3240.7562]);
+        assert_eq!(f64s(&df, "z_mm"), [201.72621]);
+    }
+
+    #[test]
+    fn a_bad_number_names_file_line_and_column() {
+        let dir = tempfile::tempdir().unwrap();
+        // Two preamble lines, the header, then data rows 0, 1, 2: row 2 is line 6.
+        write(
+            dir.path(),
+            "e.csv",
+            "tracker export\nunits: mm\na1;a2;a3;a4;a5;a6;x;y;z\n\
+             1;2;3;4;5;6;7;8;9\n1;2;3;4;5;6;7;8;9\n1;2;3;4;5;6;7;8,5;9\n",
+        );
+        let toml = format!("path = \"e.csv\"\nseparator = \";\"\nskip_rows = 2\n{JOINTS_XYZ}");
+        let err = error(&toml, dir.path());
+        let file = dir.path().join("e.csv");
+        assert_eq!(
+            err,
+            format!(
+                "{}: line 6, column `y` (setting `columns.y_mm`): `8,5` is not a number (the file seems to use a decimal comma: set `decimal_comma = true`)",
+                file.display()
+            )
+        );
+
+        write(
+            dir.path(),
+            "f.csv",
+            "a1,a2,a3,a4,a5,a6,x,y,z\n1,2,3,4,5,6,7,8,9\n1,2,3,abc,5,6,7,8,9\n",
+        );
+        let err = error(&format!("path = \"f.csv\"\n{JOINTS_XYZ}"), dir.path());
+        assert!(
+            err.ends_with(
+                "f.csv: line 3, column `a4` (setting `columns.q4_deg`): `abc` is not a number"
+            ),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn empty_and_non_finite_cells_are_bad_input() {
+        let dir = tempfile::tempdir().unwrap();
+        write(
+            dir.path(),
+            "e.csv",
+            "a1,a2,a3,a4,a5,a6,x,y,z\n1,2,3,4,5,6,7,8,9\n1,2,3,4,5,6,7,,9\n",
+        );
+        let err = error(&format!("path = \"e.csv\"\n{JOINTS_XYZ}"), dir.path());
+        assert!(
+            err.contains(
+                "e.csv: line 3, column `y` (setting `columns.y_mm`): empty cell, expected a number"
+            ),
+            "{err}"
+        );
+        for bad in ["NaN", "inf", "-inf"] {
+            write(
+                dir.path(),
+                "n.csv",
+                &format!(
+                    "a1,a2,a3,a4,a5,a6,x,y,z\n1,2,3,4,5,6,7,8,9\n1,2,3,4,5,6,7,8,9\n1,2,{bad},4,5,6,7,8,9\n"
+                ),
+            );
+            let err = error(&format!("path = \"n.csv\"\n{JOINTS_XYZ}"), dir.path());
+            assert!(
+                err.contains("n.csv: line 4, column `a3` (setting `columns.q3_deg`): `"),
+                "{bad}: {err}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_blank_line_keeps_the_line_count() {
+        // polars reads a blank line as a row of nulls: it is a row without
+        // values (bad input), and the lines after it keep their numbers.
+        let dir = tempfile::tempdir().unwrap();
+        write(
+            dir.path(),
+            "e.csv",
+            "a1,a2,a3,a4,a5,a6,x,y,z\n1,2,3,4,5,6,7,8,9\n\n1,2,3,4,5,6,7,8,x\n",
+        );
+        let err = error(&format!("path = \"e.csv\"\n{JOINTS_XYZ}"), dir.path());
+        assert!(
+            err.contains("e.csv: line 3, column `a1` (setting `columns.q1_deg`): empty cell"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn a_missing_column_names_the_setting_with_a_suggestion() {
+        let dir = tempfile::tempdir().unwrap();
+        write(
+            dir.path(),
+            "e.csv",
+            "shoulder_pan_joint,a2,a3,a4,a5,a6,x,y,z\n1,2,3,4,5,6,7,8,9\n",
+        );
+        let toml = format!("path = \"e.csv\"\n{JOINTS_XYZ}").replace("\"a1\"", "\"shoulder_pan\"");
+        let err = error(&toml, dir.path());
+        assert_eq!(
+            err,
+            format!(
+                "{}: setting `columns.q1_deg` names source column `shoulder_pan`, which the file does not have (did you mean `shoulder_pan_joint`?)",
+                dir.path().join("e.csv").display()
+            )
+        );
+        let typo = toml.replace("shoulder_pan", "shoulder_pan_jiont");
+        assert!(
+            error(&typo, dir.path()).ends_with("(did you mean `shoulder_pan_joint`?)"),
+            "{typo}"
+        );
+        // A column mapped elsewhere is not suggested: no std columns, no hint.
+        let sigma = format!(
+            "path = \"e.csv\"\n{JOINTS_XYZ}sigma_x_mm = \"x_std\"\nsigma_y_mm = \"y_std\"\nsigma_z_mm = \"z_std\"\n"
+        );
+        let err = error(&sigma, dir.path());
+        assert!(
+            err.contains(
+                "`columns.sigma_x_mm` names source column `x_std`, which the file does not have\n"
+            ),
+            "{err}"
+        );
+        // A wrong separator: the whole header is one column, and the message says so.
+        write(
+            dir.path(),
+            "s.csv",
+            "a1;a2;a3;a4;a5;a6;x;y;z\n1;2;3;4;5;6;7;8;9\n",
+        );
+        let err = error(&format!("path = \"s.csv\"\n{JOINTS_XYZ}"), dir.path());
+        assert!(
+            err.contains("is `separator` right? (its header holds ';')"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn settings_problems_are_reported_together_with_their_keys() {
+        let dir = tempfile::tempdir().unwrap();
+        let err = error(
+            "path = \"e.csv\"\nseparator = \",,\"\ndecimal_comma = true\nrow_range = [5, 5]\n[columns]\nq1_deg = \"a\"\nsigma_x_mm = \"s\"\n[constant]\nrobot_id = \"\"\n",
+            dir.path(),
+        );
+        for key in [
+            "setting `separator`",
+            "setting `columns.q2_deg` is required",
+            "setting `columns.z_mm` is required",
+            "map all three or none",
+            "setting `constant.robot_id`: must not be empty",
+            "setting `row_range`: [5, 5] is empty",
+        ] {
+            assert!(err.contains(key), "{key} in {err}");
+        }
+        let err = error(
+            &format!(
+                "path = \"e.csv\"\nseparator = \",\"\ndecimal_comma = true\n{JOINTS_XYZ}target_id = \"t\"\n[constant]\ntarget_id = \"nest1\"\n"
+            ),
+            dir.path(),
+        );
+        assert!(
+            err.contains("setting `decimal_comma`: needs a separator other than"),
+            "{err}"
+        );
+        assert!(
+            err.contains("settings `columns.target_id` and `constant.target_id` are both set"),
+            "{err}"
+        );
+        let err = error(&format!("path = \"absent.csv\"\n{JOINTS_XYZ}"), dir.path());
+        assert!(err.starts_with("setting `path`: cannot read "), "{err}");
+    }
+
+    #[test]
+    fn a_long_table_keeps_one_row_per_target_reading() {
+        let dir = tempfile::tempdir().unwrap();
+        write(
+            dir.path(),
+            "long.csv",
+            "id,nest,a1,a2,a3,a4,a5,a6,x,y,z\n\
+             10,nest1,1,2,3,4,5,6,100,0,0\n\
+             11,nest2,1,2,3,4,5,6,0,100,0\n\
+             12,nest3,1,2,3,4,5,6,0,0,100\n\
+             20,nest1,7,8,9,10,11,12,101,0,0\n\
+             21,nest2,7,8,9,10,11,12,0,101,0\n",
+        );
+        let toml = format!(
+            "path = \"long.csv\"\n[constant]\nrobot_id = \"ur10\"\nconfig_id = 3\n{JOINTS_XYZ}cw_id = \"id\"\ntarget_id = \"nest\"\n"
+        );
+        let imported = import(&settings(&toml), dir.path()).unwrap();
+        let df = imported.measurements;
+        assert_eq!(df.height(), 5);
+        let t = Path::new("t");
+        assert_eq!(
+            schema::i64_values(&df, "cw_id", t).unwrap(),
+            [10, 11, 12, 20, 21]
+        );
+        let targets: Vec<String> = schema::str_values(&df, "target_id", t)
+            .unwrap()
+            .into_iter()
+            .flatten()
+            .collect();
+        assert_eq!(targets, ["nest1", "nest2", "nest3", "nest1", "nest2"]);
+        assert_eq!(f64s(&df, "q1_deg"), [1.0, 1.0, 1.0, 7.0, 7.0]);
+        assert_eq!(f64s(&df, "y_mm"), [0.0, 100.0, 0.0, 0.0, 101.0]);
+        let robots = schema::str_values(&df, "robot_id", t).unwrap();
+        assert!(robots.iter().all(|r| r.as_deref() == Some("ur10")));
+        assert_eq!(schema::i64_values(&df, "config_id", t).unwrap(), [3; 5]);
+        assert_eq!(imported.facts["imported_rows"], "5");
+        assert_eq!(imported.facts["source"], "long.csv");
+
+        // A repeated id is bad input, named with both lines.
+        write(
+            dir.path(),
+            "dup.csv",
+            "id,a1,a2,a3,a4,a5,a6,x,y,z\n10,1,2,3,4,5,6,1,2,3\n11,1,2,3,4,5,6,1,2,3\n10,1,2,3,4,5,6,1,2,3\n",
+        );
+        let err = error(
+            &format!("path = \"dup.csv\"\n{JOINTS_XYZ}cw_id = \"id\"\n"),
+            dir.path(),
+        );
+        assert!(
+            err.contains(
+                "line 4, column `id` (setting `columns.cw_id`): cw_id 10 repeats the one on line 2"
+            ),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn sigma_must_be_positive_and_row_range_is_half_open() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut text = String::from("a1,a2,a3,a4,a5,a6,x,y,z,s\n");
+        for row in 0..6 {
+            let sigma = if row == 4 { "0" } else { "0.01" };
+            text += &format!("{row},0,0,0,0,0,{row},0,0,{sigma}\n");
+        }
+        write(dir.path(), "e.csv", &text);
+        let base = format!(
+            "path = \"e.csv\"\n{JOINTS_XYZ}sigma_x_mm = \"s\"\nsigma_y_mm = \"s\"\nsigma_z_mm = \"s\"\n"
+        );
+        let err = error(&base, dir.path());
+        assert!(
+            err.contains("line 6, column `s` (setting `columns.sigma_x_mm`): `0` is not a positive standard deviation"),
+            "{err}"
+        );
+        // Rows 1, 2, 3 only: the zero sigma of row 4 is not imported; cw_id keeps
+        // the row number in the whole file.
+        let toml = base.replace("path = \"e.csv\"", "path = \"e.csv\"\nrow_range = [1, 4]");
+        let imported = import(&settings(&toml), dir.path()).unwrap();
+        let df = imported.measurements;
+        assert_eq!(
+            schema::i64_values(&df, "cw_id", Path::new("t")).unwrap(),
+            [1, 2, 3]
+        );
+        assert_eq!(f64s(&df, "x_mm"), [1.0, 2.0, 3.0]);
+        assert_eq!(imported.facts["row_range"], "[1, 4) of 6 data rows");
+        let toml = base.replace("path = \"e.csv\"", "path = \"e.csv\"\nrow_range = [3, 7]");
+        let err = error(&toml, dir.path());
+        assert!(
+            err.contains("setting `row_range`: [3, 7) ends past the 6 data rows"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn parquet_sources_are_cast_and_checked_by_row() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut columns: Vec<Column> = ["a1", "a2", "a3", "a4", "a5", "a6", "x", "y"]
+            .iter()
+            .map(|n| Column::new((*n).into(), vec![1.0f64, 2.0]))
+            .collect();
+        // Integer positions in the source are fine: cast to f64.
+        columns.push(Column::new("z".into(), vec![3i64, 4]));
+        columns.push(Column::new(
+            "t".into(),
+            vec!["2026-03-02T10:00:00Z", "2026-03-02T10:00:01.5Z"],
+        ));
+        let mut df = crate::table::frame(columns);
+        crate::table::write_parquet(&mut df, &dir.path().join("e.parquet"), None).unwrap();
+        let toml = format!("path = \"e.parquet\"\n{JOINTS_XYZ}measured_at = \"t\"\n");
+        let out = import(&settings(&toml), dir.path()).unwrap().measurements;
+        assert_eq!(f64s(&out, "z_mm"), [3.0, 4.0]);
+        let stamps = out
+            .column("measured_at")
+            .unwrap()
+            .cast(&DataType::Int64)
+            .unwrap();
+        let base = crate::table::time::parse_date("2026-03-02").unwrap() * 86_400_000_000
+            + 10 * 3_600_000_000;
+        assert_eq!(
+            stamps
+                .i64()
+                .unwrap()
+                .into_no_null_iter()
+                .collect::<Vec<_>>(),
+            [base, base + 1_500_000]
+        );
+
+        let err = error(
+            &format!("path = \"e.parquet\"\n{JOINTS_XYZ}").replace("\"x\"", "\"t\""),
+            dir.path(),
+        );
+        assert!(
+            err.contains("column `t` (setting `columns.x_mm`) has type str, expected a number"),
+            "{err}"
+        );
+        let err = error(
+            &format!("path = \"e.parquet\"\nseparator = \";\"\n{JOINTS_XYZ}"),
+            dir.path(),
+        );
+        assert!(
+            err.contains("setting `separator` applies to CSV files only"),
+            "{err}"
+        );
+    }
+}

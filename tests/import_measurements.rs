@@ -1,0 +1,237 @@
+//! `import_measurements` end to end: the real UR10 export (Series C of
+//! `../shared/realdata/ur10-ipa`, `;`-separated, decimal commas, joints in rad)
+//! through `egcal stage`, checked against values read off the raw text by hand;
+//! and a job whose export is edited between runs, which must re-run the stage.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use polars::prelude::*;
+
+/// The Series C settings as the README shows them (the path relative to the
+/// folder egcal runs in: the repository root).
+const SERIES_C: &str = r#"
+path = "../shared/realdata/ur10-ipa/Series_C/measurements_random_poses.csv"
+separator = ";"
+decimal_comma = true
+joint_unit = "rad"
+constant = { robot_id = "ur10" }
+
+[columns]
+q1_deg = "shoulder_pan_joint"
+q2_deg = "shoulder_lift_joint"
+q3_deg = "elbow_joint"
+q4_deg = "wrist_1_joint"
+q5_deg = "wrist_2_joint"
+q6_deg = "wrist_3_joint"
+x_mm = "measurement_x"
+y_mm = "measurement_y"
+z_mm = "measurement_z"
+sigma_x_mm = "measurement_std_x"
+sigma_y_mm = "measurement_std_y"
+sigma_z_mm = "measurement_std_z"
+"#;
+
+fn series_c() -> Option<PathBuf> {
+    let file = common::root()
+        .parent()
+        .unwrap()
+        .join("shared/realdata/ur10-ipa/Series_C/measurements_random_poses.csv");
+    if file.exists() {
+        Some(file)
+    } else {
+        eprintln!(
+            "SKIPPED: {} is missing (the shared real-data folder is not beside the repository)",
+            file.display()
+        );
+        None
+    }
+}
+
+fn values(df: &DataFrame, name: &str) -> Vec<f64> {
+    df.column(name)
+        .unwrap()
+        .f64()
+        .unwrap()
+        .into_no_null_iter()
+        .collect()
+}
+
+#[test]
+fn ur10_series_c_imports_every_row_with_joints_in_degrees() {
+    let Some(file) = series_c() else {
+        return;
+    };
+    // Data rows counted independently of polars: non-empty lines minus the header.
+    let text = std::fs::read_to_string(&file).unwrap();
+    let data_rows = text.lines().filter(|l| !l.trim().is_empty()).count() - 1;
+
+    let dir = tempfile::tempdir().unwrap();
+    let settings = dir.path().join("settings.toml");
+    std::fs::write(&settings, SERIES_C).unwrap();
+    let out = dir.path().join("out");
+    let robot = common::root().join("jobs/robots/irb1600_145.toml");
+    let (code, stdout, stderr) = common::run(
+        &[
+            "stage",
+            "import_measurements",
+            "--robot",
+            robot.to_str().unwrap(),
+            "--settings",
+            settings.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &common::root(),
+    );
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains(&format!("imported_rows = {data_rows}")),
+        "{stdout}"
+    );
+    let df = egcal::table::read_parquet(&out.join("measurements.parquet")).unwrap();
+    assert_eq!(df.height(), data_rows);
+    assert_eq!(data_rows, 2773, "the README's row count of Series C");
+
+    // Row 0 of the file (line 2), as written:
+    // shoulder_pan_joint … wrist_3_joint = -3,14159;-1,5708;0;-1,5708;0;0
+    // measurement_x;_std_x;_y;_std_y;_z;_std_z =
+    //   383,97123;0,041565;-3240,7562;0,022023;201,72621;0,0055848
+    let first_line = text.lines().nth(1).unwrap();
+    assert!(
+        first_line.contains(";-3,14159;-1,5708;0;-1,5708;0;0;21,68000031;383,97123;0,041565;-3240,7562;0,022023;201,72621;0,0055848;"),
+        "row 0 of the file is not the one this test was written for: {first_line}"
+    );
+    // By hand: -3.14159 rad · 180/π = -179.99984796050427°; -1.5708 rad = -90.00021045914971°.
+    let q_deg = [
+        -179.99984796050427,
+        -90.00021045914971,
+        0.0,
+        -90.00021045914971,
+        0.0,
+        0.0,
+    ];
+    for (i, want) in q_deg.iter().enumerate() {
+        let name = format!("q{}_deg", i + 1);
+        let got = values(&df, &name)[0];
+        assert!((got - want).abs() < 1e-9, "{name}: {got}, expected {want}");
+    }
+    // Positions and sigmas in mm, unchanged.
+    for (name, want) in [
+        ("x_mm", 383.97123),
+        ("y_mm", -3240.7562),
+        ("z_mm", 201.72621),
+        ("sigma_x_mm", 0.041565),
+        ("sigma_y_mm", 0.022023),
+        ("sigma_z_mm", 0.0055848),
+    ] {
+        assert_eq!(values(&df, name)[0], want, "{name}");
+    }
+    // No load on the robot: the wrench is 0; cw_id is the data row number.
+    assert!(values(&df, "fz_n").iter().all(|v| *v == 0.0));
+    let ids: Vec<i64> = df
+        .column("cw_id")
+        .unwrap()
+        .i64()
+        .unwrap()
+        .into_no_null_iter()
+        .collect();
+    assert_eq!(ids, (0..data_rows as i64).collect::<Vec<_>>());
+    assert!(values(&df, "sigma_z_mm").iter().all(|s| *s > 0.0));
+    egcal::table::schema::measurements()
+        .check(&df, Path::new("measurements.parquet"))
+        .unwrap();
+}
+
+fn ran_or_cached(stderr: &str) -> &'static str {
+    if stderr.contains("tracker: running import_measurements") {
+        "ran"
+    } else if stderr.contains("tracker: cached") {
+        "cached"
+    } else {
+        "neither"
+    }
+}
+
+#[test]
+fn an_edited_export_reruns_the_stage_and_an_unchanged_one_does_not() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            r#"[job]
+name = "import"
+robot = "{robot}"
+output = "out"
+
+[[stages]]
+id = "tracker"
+kind = "import_measurements"
+path = "exports/points.csv"
+separator = ";"
+decimal_comma = true
+length_unit = "m"
+
+[stages.columns]
+q1_deg = "j1"
+q2_deg = "j2"
+q3_deg = "j3"
+q4_deg = "j4"
+q5_deg = "j5"
+q6_deg = "j6"
+x_mm = "x"
+y_mm = "y"
+z_mm = "z"
+"#,
+            robot = common::root()
+                .join("jobs/robots/irb1600_145.toml")
+                .display()
+        ),
+    )
+    .unwrap();
+    std::fs::create_dir(dir.path().join("exports")).unwrap();
+    let export = dir.path().join("exports/points.csv");
+    let header = "j1;j2;j3;j4;j5;j6;x;y;z\n";
+    std::fs::write(&export, format!("{header}1;2;3;4;5;6;1,5;0;0\n")).unwrap();
+    let run = || common::run(&["run", job.to_str().unwrap()], dir.path());
+    let table = dir.path().join("out/tracker/measurements.parquet");
+
+    let (code, _, stderr) = run();
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(ran_or_cached(&stderr), "ran", "{stderr}");
+    let df = egcal::table::read_parquet(&table).unwrap();
+    assert_eq!(values(&df, "x_mm"), [1500.0]);
+
+    let (code, _, stderr) = run();
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(ran_or_cached(&stderr), "cached", "{stderr}");
+
+    // Same settings, new content: the file's hash is in the cache key.
+    std::fs::write(
+        &export,
+        format!("{header}1;2;3;4;5;6;1,5;0;0\n1;2;3;4;5;6;2,5;0;0\n"),
+    )
+    .unwrap();
+    let (code, _, stderr) = run();
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(ran_or_cached(&stderr), "ran", "{stderr}");
+    let df = egcal::table::read_parquet(&table).unwrap();
+    assert_eq!(values(&df, "x_mm"), [1500.0, 2500.0]);
+
+    // A bad cell is bad input (exit 2), named by file, line and column.
+    std::fs::write(
+        &export,
+        format!("{header}1;2;3;4;5;6;1,5;0;0\n1;2;x3;4;5;6;2,5;0;0\n"),
+    )
+    .unwrap();
+    let (code, _, stderr) = run();
+    assert_eq!(code, 2, "{stderr}");
+    assert!(
+        stderr.contains(
+            "points.csv: line 3, column `j3` (setting `columns.q3_deg`): `x3` is not a number"
+        ),
+        "{stderr}"
+    );
+}
