@@ -127,6 +127,7 @@ fn a_weighted_fit_equals_a_hand_weighted_least_squares_solution() {
     let free = egcal::robot::Selection::spec_identifiable();
     let m = free.len();
     let options = FitOptions {
+        algorithm: fit::Algorithm::Paper,
         stop_step_mm: 1e-10,
         ..FitOptions::default()
     };
