@@ -296,33 +296,42 @@ fn generate_one(
                 }
             };
             match outcome {
-                Ok(clearance) => survivors.push((solution, tool, clearance)),
+                Ok(_) => survivors.push((solution, joints, tool)),
                 Err(why) => reject(why),
             }
         }
-        if survivors.is_empty() {
-            continue;
+        while !survivors.is_empty() {
+            let (solution, joints, tool) =
+                survivors.swap_remove(rng.random_range(0..survivors.len()));
+            // The shared check ran on the frames of another turn, equal to these
+            // to rounding; parry3d's distances move by ~1e-7 with that, so the
+            // clearance reported is the chosen joint vector's own.
+            let clearance_mm = match problem.cell.check(&joints, &tool) {
+                Ok(clearance) => clearance,
+                Err(why) => {
+                    reject(why);
+                    continue;
+                }
+            };
+            let incidence_deg = tool
+                .axis(2)
+                .dot(&to_tracker)
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees();
+            return (
+                Some(GeneratedPose {
+                    config_id,
+                    target_mm: *target,
+                    tool_rotation: tool.rotation,
+                    q_deg: solution.q_deg,
+                    branch: solution.branch,
+                    clearance_mm,
+                    incidence_deg,
+                }),
+                rejections,
+            );
         }
-        let (solution, tool, clearance_mm) =
-            survivors.swap_remove(rng.random_range(0..survivors.len()));
-        let incidence_deg = tool
-            .axis(2)
-            .dot(&to_tracker)
-            .clamp(-1.0, 1.0)
-            .acos()
-            .to_degrees();
-        return (
-            Some(GeneratedPose {
-                config_id,
-                target_mm: *target,
-                tool_rotation: tool.rotation,
-                q_deg: solution.q_deg,
-                branch: solution.branch,
-                clearance_mm,
-                incidence_deg,
-            }),
-            rejections,
-        );
     }
     (None, rejections)
 }
