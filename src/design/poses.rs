@@ -3,6 +3,10 @@
 //! tracker, every inverse-kinematics solution filtered by joint limits, distance
 //! from singularities, collisions and line of sight, and one survivor drawn at random.
 //!
+//! Works for any six-axis arm: the solutions come from [`ik::solve`] (closed form
+//! for spherical-wrist arms, the numeric search otherwise, e.g. a UR), and the
+//! singularity margins are measured on the joint frames, not on joint angles.
+//!
 //! Each target point draws from its own seeded stream, so results do not depend on
 //! thread scheduling, and points run in parallel.
 
@@ -14,7 +18,7 @@ use rand::{Rng, SeedableRng};
 use rayon::prelude::*;
 
 use super::collision::{Cell, Rejection};
-use crate::robot::ik::{IkError, closed_form, flange_target_in_base, frame_with_z_along};
+use crate::robot::ik::{self, IkError, flange_target_in_base, frame_with_z_along};
 use crate::robot::{Frame, JOINTS, ParamValues, Robot};
 
 /// How target points fill the workspace box.
@@ -31,9 +35,11 @@ pub enum Sampling {
 /// Limits that keep a configuration away from singularities.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SingularityLimits {
-    /// Smallest |q5| (wrist singularity at q5 = 0).
+    /// Smallest angle between axes 4 and 6 (wrist singularity; |q5| on the usual
+    /// arms). See [`singularity_margins`] for all three measures.
     pub min_wrist_deg: f64,
-    /// Smallest distance of the wrist centre from axis 1 (shoulder singularity).
+    /// Smallest distance of the wrist point from the plane of axes 1 and 2
+    /// (shoulder singularity; the distance from axis 1 without a lateral offset).
     pub min_shoulder_mm: f64,
     /// Smallest bend of the elbow away from straight (elbow singularity).
     pub min_elbow_deg: f64,
@@ -160,17 +166,42 @@ pub fn upright_tool_frame(facing: &Vector3<f64>, roll_rad: f64, origin_mm: Vecto
     }
 }
 
-/// How far a configuration is from the arm's three singularities:
-/// (|q5| in deg, wrist centre distance from axis 1 in mm, elbow bend in deg).
-pub fn singularity_margins(joints: &[Frame; JOINTS + 1], q_deg: &[f64; JOINTS]) -> (f64, f64, f64) {
-    let wrist = joints[4].origin_mm;
-    let shoulder = wrist.x.hypot(wrist.y);
-    let upper = joints[3].origin_mm - joints[2].origin_mm;
-    let fore = wrist - joints[3].origin_mm;
+/// How far a configuration is from the arm's three singularities, from its joint
+/// frames (base frame) alone, so the same measures serve any MDH table:
+///
+/// * wrist (deg): the angle between axes 4 and 6 (or its supplement, whichever is
+///   smaller); they align at the wrist singularity. On the spherical-wrist and UR
+///   arms this is |q5| for |q5| <= 90.
+/// * shoulder (mm): the distance of the wrist point (frame 5's origin: the wrist
+///   centre, or where axes 5 and 6 meet on a UR) from the plane through axis 1
+///   that contains axis 2's direction. Without a lateral offset (the IRB family)
+///   this is its distance from axis 1; with UR's offset it is where the shoulder
+///   singularity lies.
+/// * elbow (deg): the bend of the forearm (frame 3 to frame 4 origins) away from
+///   straight along the upper arm (frame 2 to frame 3 origins), both seen along
+///   axis 3 so that a lateral offset (UR's d4) does not count as bend.
+pub fn singularity_margins(joints: &[Frame; JOINTS + 1]) -> (f64, f64, f64) {
+    let (z4, z6) = (joints[4].axis(2), joints[6].axis(2));
+    let wrist = z4.cross(&z6).norm().atan2(z4.dot(&z6).abs()).to_degrees();
+
+    let (o1, z1) = (joints[1].origin_mm, joints[1].axis(2));
+    let point = joints[5].origin_mm - o1;
+    let normal = z1.cross(&joints[2].axis(2));
+    let shoulder = if normal.norm() > 1e-9 {
+        point.dot(&normal.normalize()).abs()
+    } else {
+        // Axes 1 and 2 parallel: the distance from axis 1.
+        (point - z1 * z1.dot(&point)).norm()
+    };
+
+    let z3 = joints[3].axis(2);
+    let across = |v: Vector3<f64>| v - z3 * z3.dot(&v);
+    let upper = across(joints[3].origin_mm - joints[2].origin_mm);
+    let fore = across(joints[4].origin_mm - joints[3].origin_mm);
     let cos = upper.dot(&fore) / (upper.norm() * fore.norm()).max(1e-12);
     let bend = cos.clamp(-1.0, 1.0).acos().to_degrees();
     let elbow = bend.min(180.0 - bend);
-    (q_deg[4].abs(), shoulder, elbow)
+    (wrist, shoulder, elbow)
 }
 
 /// Generates one configuration per target point (or drops the point).
@@ -225,7 +256,7 @@ fn generate_one(
         let roll = rng.random_range(-half_range..=half_range);
         let tool_in_base = upright_tool_frame(&facing, roll, *target);
         let flange = flange_target_in_base(robot, nominal, &world.compose(&tool_in_base));
-        let solutions = match closed_form(robot, &flange) {
+        let solutions = match ik::solve(robot, &flange) {
             Ok(s) => s,
             Err(IkError::Singular(_)) => {
                 reject(Rejection::Singular);
@@ -236,6 +267,10 @@ fn generate_one(
                 continue;
             }
         };
+        // Extra turns of a joint give the same geometry: the singularity and
+        // collision checks run once per configuration (joint angles modulo 360),
+        // and every turn within the limits shares the outcome.
+        let mut checked: Vec<([f64; JOINTS], Result<f64, Rejection>)> = Vec::new();
         let mut survivors = Vec::new();
         for solution in solutions {
             if !robot.within_limits(&solution.q_deg) {
@@ -243,45 +278,80 @@ fn generate_one(
                 continue;
             }
             let (joints, tool) = robot.frames_in_base(nominal, &solution.q_deg);
-            let (wrist, shoulder, elbow) = singularity_margins(&joints, &solution.q_deg);
-            let limits = &problem.singularity;
-            if wrist < limits.min_wrist_deg
-                || shoulder < limits.min_shoulder_mm
-                || elbow < limits.min_elbow_deg
-            {
-                reject(Rejection::Singular);
-                continue;
-            }
-            match problem.cell.check(&joints, &tool) {
-                Ok(clearance) => survivors.push((solution, tool, clearance)),
+            let wrapped = solution
+                .q_deg
+                .map(|q| (q + 180.0).rem_euclid(360.0) - 180.0);
+            let same = |c: &[f64; JOINTS]| {
+                c.iter().zip(&wrapped).all(|(a, b)| {
+                    let d = (a - b).abs();
+                    d.min(360.0 - d) < 1e-6
+                })
+            };
+            let outcome = match checked.iter().find(|(c, _)| same(c)) {
+                Some((_, outcome)) => *outcome,
+                None => {
+                    let outcome = check_configuration(problem, &joints, &tool);
+                    checked.push((wrapped, outcome));
+                    outcome
+                }
+            };
+            match outcome {
+                Ok(_) => survivors.push((solution, joints, tool)),
                 Err(why) => reject(why),
             }
         }
-        if survivors.is_empty() {
-            continue;
+        while !survivors.is_empty() {
+            let (solution, joints, tool) =
+                survivors.swap_remove(rng.random_range(0..survivors.len()));
+            // The shared check ran on the frames of another turn, equal to these
+            // to rounding; parry3d's distances move by ~1e-7 with that, so the
+            // clearance reported is the chosen joint vector's own.
+            let clearance_mm = match problem.cell.check(&joints, &tool) {
+                Ok(clearance) => clearance,
+                Err(why) => {
+                    reject(why);
+                    continue;
+                }
+            };
+            let incidence_deg = tool
+                .axis(2)
+                .dot(&to_tracker)
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees();
+            return (
+                Some(GeneratedPose {
+                    config_id,
+                    target_mm: *target,
+                    tool_rotation: tool.rotation,
+                    q_deg: solution.q_deg,
+                    branch: solution.branch,
+                    clearance_mm,
+                    incidence_deg,
+                }),
+                rejections,
+            );
         }
-        let (solution, tool, clearance_mm) =
-            survivors.swap_remove(rng.random_range(0..survivors.len()));
-        let incidence_deg = tool
-            .axis(2)
-            .dot(&to_tracker)
-            .clamp(-1.0, 1.0)
-            .acos()
-            .to_degrees();
-        return (
-            Some(GeneratedPose {
-                config_id,
-                target_mm: *target,
-                tool_rotation: tool.rotation,
-                q_deg: solution.q_deg,
-                branch: solution.branch,
-                clearance_mm,
-                incidence_deg,
-            }),
-            rejections,
-        );
     }
     (None, rejections)
+}
+
+/// The singularity limits, then the cell's collision and sight checks, of one
+/// configuration: its clearance (mm) or the first rejection.
+fn check_configuration(
+    problem: &PoseProblem,
+    joints: &[Frame; JOINTS + 1],
+    tool: &Frame,
+) -> Result<f64, Rejection> {
+    let (wrist, shoulder, elbow) = singularity_margins(joints);
+    let limits = &problem.singularity;
+    if wrist < limits.min_wrist_deg
+        || shoulder < limits.min_shoulder_mm
+        || elbow < limits.min_elbow_deg
+    {
+        return Err(Rejection::Singular);
+    }
+    problem.cell.check(joints, tool)
 }
 
 /// `Rot(x,α)·Rot(y,β)·Rot(z,γ)` angles (deg) of a rotation, the convention of eq. (4).
@@ -323,6 +393,100 @@ mod tests {
         // Straight up: falls back to a valid frame.
         let vertical = upright_tool_frame(&Vector3::z(), 0.0, origin).rotation;
         assert!((vertical.column(2) - Vector3::z()).norm() < 1e-12);
+    }
+
+    /// A UR10 (no spherical wrist, so no closed form) gets a pose at every point
+    /// of a small grid in front of it, facing a tracker 2.5 m away at shoulder
+    /// height; every pose reaches its target on the nominal model, faces the
+    /// tracker within the acceptance angle, keeps the singularity margins, and the
+    /// outcome does not depend on scheduling.
+    #[test]
+    fn a_ur10_gets_poses_from_the_numeric_inverse_kinematics() {
+        let robot = crate::robot::test_support::ur10();
+        assert!(crate::robot::ik::closed_form_applies(&robot).is_err());
+        let nominal = ParamValues::nominal(robot.spec());
+        let tracker = Vector3::new(2500.0, 0.0, 500.0);
+        let problem = PoseProblem {
+            centre_mm: Vector3::new(700.0, 0.0, 400.0),
+            edge_mm: 300.0,
+            sampling: Sampling::Grid { per_axis: 3 },
+            acceptance_half_angle_deg: 40.0,
+            roll_half_range_deg: 30.0,
+            orientation_attempts: 20,
+            singularity: SingularityLimits {
+                min_wrist_deg: 5.0,
+                min_shoulder_mm: 100.0,
+                min_elbow_deg: 5.0,
+            },
+            cell: Cell {
+                link_capsules: [None; JOINTS],
+                anchors: Vec::new(),
+                pulley_radius_mm: 40.0,
+                attachments: Vec::new(),
+                cable_radius_mm: 3.0,
+                platform_centre: Vector3::zeros(),
+                platform_half_extents_mm: Vector3::repeat(1.0),
+                smr_radius_mm: 19.05,
+                floor_z_mm: 0.0,
+                tracker,
+                safety_margin_mm: 5.0,
+            },
+        };
+        let outcome = generate(&robot, &nominal, &problem, 7);
+        assert_eq!(outcome.targets, 27);
+        assert_eq!(outcome.poses.len(), 27, "{:?}", outcome.rejections);
+        for pose in &outcome.poses {
+            assert!(robot.within_limits(&pose.q_deg), "{pose:?}");
+            let tool = robot.tool_in_world(&nominal, &pose.q_deg, &crate::robot::Wrench::zero());
+            assert!((tool.origin_mm - pose.target_mm).norm() < 1e-9, "{pose:?}");
+            assert!(
+                (tool.rotation - pose.tool_rotation).norm() < 1e-9,
+                "{pose:?}"
+            );
+            let to_tracker = (tracker - pose.target_mm).normalize();
+            let incidence = tool.axis(2).dot(&to_tracker).acos().to_degrees();
+            assert!(incidence <= 40.0 + 1e-9, "{pose:?}");
+            assert!((incidence - pose.incidence_deg).abs() < 1e-9);
+            let (joints, _) = robot.frames_in_base(&nominal, &pose.q_deg);
+            let (wrist, shoulder, elbow) = singularity_margins(&joints);
+            assert!(
+                wrist >= 5.0 && shoulder >= 100.0 && elbow >= 5.0,
+                "{pose:?}"
+            );
+            assert_eq!(
+                pose.branch,
+                crate::robot::ik::branch_of(&robot, &pose.q_deg)
+            );
+        }
+        let again = generate(&robot, &nominal, &problem, 7);
+        assert_eq!(again.poses, outcome.poses);
+        assert_eq!(again.rejections, outcome.rejections);
+    }
+
+    /// On the closed form's arm the frame-based margins are the joint-angle ones:
+    /// |q5| for the wrist and the wrist centre's distance from axis 1.
+    #[test]
+    fn singularity_margins_of_the_irb1600_are_q5_and_the_radial_distance() {
+        let robot = crate::robot::test_support::irb1600();
+        let nominal = ParamValues::nominal(robot.spec());
+        for q in [
+            [10.0, 20.0, -30.0, 40.0, 50.0, 60.0],
+            [-120.0, 80.0, -200.0, -150.0, -100.0, 300.0],
+            [0.0, 0.0, -90.0, 0.0, 3.0, 0.0],
+        ] {
+            let (joints, _) = robot.frames_in_base(&nominal, &q);
+            let (wrist, shoulder, elbow) = singularity_margins(&joints);
+            assert!(
+                (wrist - q[4].abs().min(180.0 - q[4].abs())).abs() < 1e-9,
+                "{q:?}"
+            );
+            let centre = joints[4].origin_mm;
+            assert!((shoulder - centre.x.hypot(centre.y)).abs() < 1e-9, "{q:?}");
+            // The forearm (a4 = 0, d4 = 600) is straight along the upper arm at
+            // q3 = -90, bent by |q3 + 90| otherwise.
+            let bend = (q[2] + 90.0).abs();
+            assert!((elbow - bend.min(180.0 - bend)).abs() < 1e-9, "{q:?}");
+        }
     }
 
     #[test]

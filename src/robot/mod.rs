@@ -17,8 +17,8 @@ pub use params::{BASE_PARAM_COUNT, MAX_TARGETS, PARAM_COUNT, ParamId, ParamValue
 
 #[cfg(test)]
 pub(crate) mod test_support {
-    //! Shared fixtures for the model's unit tests: the shipped IRB 1600 file, the
-    //! spec's truth parameters and random conf-wrench rows.
+    //! Shared fixtures for the model's unit tests: the shipped IRB 1600 and UR10
+    //! files, the spec's truth parameters and random conf-wrench rows.
     use super::*;
     use rand::Rng;
     use std::path::Path;
@@ -26,6 +26,12 @@ pub(crate) mod test_support {
     pub fn irb1600() -> Robot {
         let text = include_str!("../../jobs/robots/irb1600_145.toml");
         Robot::new(RobotSpec::parse(text, Path::new("irb1600_145.toml")).unwrap())
+    }
+
+    /// The shipped UR10 file: an arm without a spherical wrist.
+    pub fn ur10() -> Robot {
+        let text = include_str!("../../jobs/robots/ur10.toml");
+        Robot::new(RobotSpec::parse(text, Path::new("ur10.toml")).unwrap())
     }
 
     pub fn truth_params(robot: &Robot) -> ParamValues {

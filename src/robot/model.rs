@@ -430,6 +430,48 @@ mod tests {
     use rand::SeedableRng;
     use rand::rngs::StdRng;
 
+    /// jobs/robots/ur10.toml (MDH) against UR's standard DH chain, computed
+    /// independently by fixtures/tools/ur10_fk.py (its output pasted here).
+    #[test]
+    // The script's output verbatim, digits and all.
+    #[allow(clippy::excessive_precision, clippy::approx_constant)]
+    fn ur10_file_matches_urs_standard_dh_forward_kinematics() {
+        /// q (deg), flange position (mm), flange rotation rows.
+        type Case = ([f64; 6], [f64; 3], [[f64; 3]; 3]);
+        let robot = crate::robot::test_support::ur10();
+        #[rustfmt::skip]
+        let cases: [Case; 5] = [
+            ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+             [-1184.300000000000, -256.141000000000, 11.600000000000],
+             [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),
+            ([0.0, -90.0, 0.0, -90.0, 0.0, 0.0],
+             [0.0, -256.141000000000, 1427.300000000000],
+             [[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]]),
+            ([30.0, -60.0, 45.0, -120.0, 60.0, 90.0],
+             [-660.676611078140, -623.976275034970, 943.702679782685],
+             [[0.612372435695795, -0.126826484044322, 0.780330085889910],
+              [0.353553390593274, 0.926776695296637, -0.126826484044322],
+              [-0.707106781186547, 0.353553390593274, 0.612372435695795]]),
+            ([-135.0, -20.0, -110.0, 200.0, -75.0, 300.0],
+             [-84.684360218904, 180.910767639029, 819.139316753273],
+             [[-0.265232523315719, 0.869529842574827, -0.416616804086648],
+              [-0.948245225207938, -0.313482859317392, -0.050591400302210],
+              [-0.174592959325177, 0.381636410456325, 0.907673371190369]]),
+            ([10.0, 20.0, 30.0, 40.0, 50.0, 60.0],
+             [-775.931988151950, -363.467074923329, -591.052860167870],
+             [[-0.786357421172699, -0.607604499644464, 0.111618897048950],
+              [-0.527586986548180, 0.566511110779744, -0.633022221559489],
+              [0.321393804843270, -0.556670399226419, -0.766044443118978]]),
+        ];
+        for (q, position, rows) in cases {
+            let flange = robot.nominal_flange_in_base(&q);
+            let error = (flange.origin_mm - Vector3::from(position)).norm();
+            assert!(error < 1e-9, "{q:?}: {:?}, {error:e} mm", flange.origin_mm);
+            let rotation = Matrix3::from_fn(|r, c| rows[r][c]);
+            assert!((flange.rotation - rotation).norm() < 1e-12, "{q:?}");
+        }
+    }
+
     #[test]
     fn spec_flange_check_positions() {
         let robot = irb1600();

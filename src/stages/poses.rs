@@ -56,11 +56,11 @@ pub struct PosesSettings {
     pub roll_half_range_deg: f64,
     /// Orientations tried per point before it is dropped.
     pub orientation_attempts: usize,
-    /// Smallest |q5| (wrist singularity).
+    /// Smallest angle between axes 4 and 6, i.e. |q5| on the usual arms (wrist singularity).
     pub min_wrist_deg: f64,
-    /// Smallest distance of the wrist centre from axis 1 (shoulder singularity).
+    /// Smallest distance of the wrist point from the plane of axes 1 and 2, i.e. from axis 1 on arms without a lateral offset (shoulder singularity).
     pub min_shoulder_mm: f64,
-    /// Smallest elbow bend from straight (elbow singularity).
+    /// Smallest elbow bend from straight, seen along axis 3 (elbow singularity).
     pub min_elbow_deg: f64,
     /// Links 2–6 stay above this height in the base frame (mm).
     pub floor_z_mm: f64,
@@ -100,7 +100,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: true,
     updates_input: None,
     summary: "Robot configurations in the workspace box, SMR facing the tracker, collision-free",
-    code_version: 3,
+    code_version: 4,
     inputs: &[],
     outputs: &[TableSlot {
         name: "poses",
