@@ -75,11 +75,20 @@ fn identify(c: &mut Criterion) {
         ("levenberg-marquardt", Algorithm::LevenbergMarquardt),
         ("paper", Algorithm::Paper),
     ] {
-        let options = CalibrationOptions::new(ParamId::all().collect(), FitOptions {
+        let options = CalibrationOptions::new(
+            ParamId::all().collect(),
+            FitOptions {
                 algorithm,
                 ..FitOptions::default()
-            });
-        let check = calibrate(&robot, ModelName::Elastogeometric, &Observations::new(&rows, &measured), &ParamValues::nominal(robot.spec()), &options)
+            },
+        );
+        let check = calibrate(
+            &robot,
+            ModelName::Elastogeometric,
+            &Observations::new(&rows, &measured),
+            &ParamValues::nominal(robot.spec()),
+            &options,
+        )
         .expect("identifiable");
         assert_eq!(check.rank.as_ref().map(|r| r.independent.len()), Some(32));
         assert!(check.converged);
@@ -87,14 +96,30 @@ fn identify(c: &mut Criterion) {
             &format!("identify elastogeometric, 50 rows, 32 of 42 parameters, {name}"),
             |b| {
                 b.iter(|| {
-                    calibrate(&robot, ModelName::Elastogeometric, &Observations::new(&rows, &measured), &ParamValues::nominal(robot.spec()), &options)
+                    calibrate(
+                        &robot,
+                        ModelName::Elastogeometric,
+                        &Observations::new(&rows, &measured),
+                        &ParamValues::nominal(robot.spec()),
+                        &options,
+                    )
                 })
             },
         );
     }
     let options = CalibrationOptions::new(ParamId::all().collect(), FitOptions::default());
     c.bench_function("identify all four models, 50 rows", |b| {
-        b.iter(|| ModelName::ALL.map(|model| calibrate(&robot, model, &Observations::new(&rows, &measured), &ParamValues::nominal(robot.spec()), &options)))
+        b.iter(|| {
+            ModelName::ALL.map(|model| {
+                calibrate(
+                    &robot,
+                    model,
+                    &Observations::new(&rows, &measured),
+                    &ParamValues::nominal(robot.spec()),
+                    &options,
+                )
+            })
+        })
     });
 }
 
@@ -115,7 +140,13 @@ fn identify_large(c: &mut Criterion) {
         let (rows, measured) = campaign(&robot, &truth, &random_rows(&robot, 1, LARGE_ROWS));
         let simulated_s = started.elapsed().as_secs_f64();
         let started = Instant::now();
-        let check = calibrate(&robot, ModelName::Elastogeometric, &Observations::new(&rows, &measured), &ParamValues::nominal(robot.spec()), &options)
+        let check = calibrate(
+            &robot,
+            ModelName::Elastogeometric,
+            &Observations::new(&rows, &measured),
+            &ParamValues::nominal(robot.spec()),
+            &options,
+        )
         .expect("identifiable");
         let once_s = started.elapsed().as_secs_f64();
         assert_eq!(check.rank.as_ref().map(|r| r.independent.len()), Some(32));
@@ -141,7 +172,15 @@ fn identify_large(c: &mut Criterion) {
         "identify elastogeometric, 1000000 rows, 32 of 42 parameters",
         |b| {
             let (rows, measured) = data.get_or_init(prepare);
-            b.iter(|| calibrate(&robot, ModelName::Elastogeometric, &Observations::new(rows, measured), &ParamValues::nominal(robot.spec()), &options))
+            b.iter(|| {
+                calibrate(
+                    &robot,
+                    ModelName::Elastogeometric,
+                    &Observations::new(rows, measured),
+                    &ParamValues::nominal(robot.spec()),
+                    &options,
+                )
+            })
         },
     );
 }

@@ -20,8 +20,7 @@ fn model(c: &mut Criterion) {
             let prepared = robot.prepare(&truth);
             let mut sum = 0.0;
             for row in &rows {
-                let p =
-                    prepared.jacobian_row(row, selection.ids(), &mut columns);
+                let p = prepared.jacobian_row(row, selection.ids(), &mut columns);
                 sum += p.position_mm.x + columns[0].x;
             }
             sum

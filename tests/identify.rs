@@ -57,7 +57,14 @@ fn identify(
     measured: &[Vector3<f64>],
     fit: FitOptions,
 ) -> ModelResult {
-    calibrate(robot, model, &Observations::new(rows, measured), &ParamValues::nominal(robot.spec()), &options(fit)).unwrap()
+    calibrate(
+        robot,
+        model,
+        &Observations::new(rows, measured),
+        &ParamValues::nominal(robot.spec()),
+        &options(fit),
+    )
+    .unwrap()
 }
 
 fn identified(result: &ModelResult) -> Vec<ParamId> {
@@ -282,7 +289,14 @@ fn a_streamed_fit_converges_to_the_dense_least_squares_solution() {
         chunk_rows: 700,
         ..FitOptions::default()
     };
-    let streamed = fit::fit(&robot, &nominal, &Observations::new(&rows, &measured), free.ids(), &options).unwrap();
+    let streamed = fit::fit(
+        &robot,
+        &nominal,
+        &Observations::new(&rows, &measured),
+        free.ids(),
+        &options,
+    )
+    .unwrap();
     assert!(streamed.converged, "{:?}", streamed.trace);
 
     let equations = 3 * rows.len();

@@ -71,7 +71,10 @@ fn three_targets_on_the_simulator_recover_each_tool_translation() {
     for (target, offset) in offsets.iter().enumerate() {
         for axis in 0..3 {
             let slot = ParamId::target_translation(target, axis);
-            truth.set(slot, truth.get(ParamId::target_translation(0, axis)) + offset[axis]);
+            truth.set(
+                slot,
+                truth.get(ParamId::target_translation(0, axis)) + offset[axis],
+            );
         }
     }
     let mut rows = random_rows(&robot, 31, 300);
@@ -90,7 +93,10 @@ fn three_targets_on_the_simulator_recover_each_tool_translation() {
     for target in 0..3 {
         for axis in 0..3 {
             let slot = ParamId::target_translation(target, axis);
-            assert!(free.contains(&slot), "target {target} axis {axis} not identified");
+            assert!(
+                free.contains(&slot),
+                "target {target} axis {axis} not identified"
+            );
             let se = result.set.std_errors[slot.index()].unwrap();
             let error = result.set.values.get(slot) - truth.get(slot);
             assert!(
@@ -286,7 +292,11 @@ fn re_registration_recovers_a_moved_tracker_and_leaves_the_robot_untouched() {
             assert_eq!(result.set.status[p.index()], ParamStatus::Fixed, "{p}");
         }
     }
-    let rms = (result.residuals_mm.iter().map(|r| r.norm_squared()).sum::<f64>()
+    let rms = (result
+        .residuals_mm
+        .iter()
+        .map(|r| r.norm_squared())
+        .sum::<f64>()
         / (3 * rows.len()) as f64)
         .sqrt();
     assert!(rms < 0.03, "residual rms {rms} mm");
@@ -313,7 +323,12 @@ fn fixed_parameters_hold_their_value_and_say_so() {
 }
 
 /// Mean validation error (mm) of `values` on `rows` against `measured`.
-fn mean_error(robot: &Robot, values: &ParamValues, rows: &[ConfWrench], measured: &[Vector3<f64>]) -> f64 {
+fn mean_error(
+    robot: &Robot,
+    values: &ParamValues,
+    rows: &[ConfWrench],
+    measured: &[Vector3<f64>],
+) -> f64 {
     positions(robot, values, rows)
         .iter()
         .zip(measured)
@@ -358,7 +373,10 @@ fn gross_errors_in_a_few_rows_cannot_spoil_the_calibration() {
             spoiled.push(k);
         }
     }
-    for (case, measured, bad) in [("one row by 50 mm", one_row, vec![123]), ("5 % by 1-20 mm", many, spoiled)] {
+    for (case, measured, bad) in [
+        ("one row by 50 mm", one_row, vec![123]),
+        ("5 % by 1-20 mm", many, spoiled),
+    ] {
         let result = fit_of(&measured);
         let summary = result.robust.as_ref().unwrap();
         let mut excluded = summary.excluded.clone();
@@ -397,5 +415,130 @@ fn a_kinematic_model_s_load_errors_are_not_taken_for_outliers() {
         summary.excluded.len(),
         summary.threshold
     );
-    assert!(summary.sigma > 0.1, "the scale follows the load errors: {}", summary.sigma);
+    assert!(
+        summary.sigma > 0.1,
+        "the scale follows the load errors: {}",
+        summary.sigma
+    );
+}
+
+/// A measurements table of `rows` and `measured` at `path`.
+fn write_measurements(path: &std::path::Path, rows: &[ConfWrench], measured: &[Vector3<f64>]) {
+    use egcal::table::{self, schema};
+    use polars::prelude::Column;
+    let n = rows.len() as i64;
+    let mut columns = vec![Column::new("cw_id".into(), (0..n).collect::<Vec<i64>>())];
+    for (i, name) in schema::JOINT_COLUMNS.iter().enumerate() {
+        let values: Vec<f64> = rows.iter().map(|r| r.q_deg[i]).collect();
+        columns.push(Column::new((*name).into(), values));
+    }
+    for (i, name) in schema::WRENCH_COLUMNS.iter().enumerate() {
+        let values: Vec<f64> = rows
+            .iter()
+            .map(|r| {
+                if i < 3 {
+                    r.wrench.force_n[i]
+                } else {
+                    r.wrench.moment_nm[i - 3]
+                }
+            })
+            .collect();
+        columns.push(Column::new((*name).into(), values));
+    }
+    for (axis, name) in schema::POSITION_COLUMNS.iter().enumerate() {
+        let values: Vec<f64> = measured.iter().map(|p| p[axis]).collect();
+        columns.push(Column::new((*name).into(), values));
+    }
+    table::write_parquet(&mut table::frame(columns), path, None).unwrap();
+}
+
+/// Runs one identify stage of a job in `dir` with `settings` on `input`.
+fn run_identify(
+    dir: &std::path::Path,
+    input: &std::path::Path,
+    settings: &str,
+) -> (i32, String, String) {
+    let job = dir.join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "[job]\nname = \"bad_rows\"\nseed = 1\nrobot = \"{robot}\"\noutput = \"out\"\n\n\
+             [[stages]]\nid = \"identify\"\nkind = \"identify\"\ninputs = {{ measurements = \"{input}\" }}\n{settings}\n",
+            robot = common::root().join("jobs/robots/irb1600_145.toml").display(),
+            input = input.display(),
+        ),
+    )
+    .unwrap();
+    common::run(&["run", "--force", job.to_str().unwrap()], dir)
+}
+
+/// The issue's case: one row with q2 = 130° (outside the limits) and one with
+/// q1 = 1e300 among the rows. By default both are dropped, named on stderr and in
+/// `excluded_rows`, and the fit equals the one without them; with
+/// `bad_rows = "fail"` the run fails naming the file and the row.
+#[test]
+fn rows_outside_the_joint_limits_or_absurd_are_dropped_and_named_or_fail() {
+    use egcal::table::{self, parameters, schema};
+    let dir = tempfile::tempdir().unwrap();
+    let (robot, truth) = robot_and_truth();
+    let rows = random_rows(&robot, 101, 200);
+    let measured = noisy(&positions(&robot, &truth, &rows), 0.02, 102);
+    let clean_input = dir.path().join("clean.parquet");
+    write_measurements(&clean_input, &rows, &measured);
+    let (mut bad_rows, bad_measured) = (rows.clone(), measured.clone());
+    bad_rows[10].q_deg[1] = 130.0;
+    bad_rows[20].q_deg[0] = 1e300;
+    let bad_input = dir.path().join("bad.parquet");
+    write_measurements(&bad_input, &bad_rows, &bad_measured);
+
+    let (code, _, stderr) = run_identify(dir.path(), &clean_input, "");
+    assert_eq!(code, 0, "{stderr}");
+    let out = dir.path().join("out/identify");
+    let read_eg = || {
+        let df = table::read_parquet(&out.join("parameters.parquet")).unwrap();
+        parameters::from_frame(
+            &df,
+            std::path::Path::new("p"),
+            &ParamValues::nominal(robot.spec()),
+        )
+        .unwrap()
+        .remove(0)
+    };
+    let clean = read_eg();
+
+    let (code, _, stderr) = run_identify(dir.path(), &bad_input, "");
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stderr.contains("2 rows dropped by the row checks")
+            && stderr.contains("cw_id 10: q2_deg = 130 is outside the joint limits [-90, 120]")
+            && stderr.contains("cw_id 20: q1_deg = 1e300"),
+        "{stderr}"
+    );
+    let excluded =
+        table::read_checked(&out.join("excluded_rows.parquet"), &schema::excluded_rows()).unwrap();
+    assert_eq!(
+        schema::i64_values(&excluded, "cw_id", std::path::Path::new("e")).unwrap(),
+        vec![10, 20]
+    );
+    let dropped = read_eg();
+    for p in ParamId::all().filter(|p| clean.status[p.index()] == ParamStatus::Identified) {
+        let se = clean.std_errors[p.index()].unwrap();
+        let shift = dropped.values.get(p) - clean.values.get(p);
+        assert!(shift.abs() < 0.2 * se, "{p}: moved {shift}, se {se}");
+    }
+
+    let (code, _, stderr) = run_identify(dir.path(), &bad_input, "bad_rows = \"fail\"");
+    assert_eq!(code, 2, "{stderr}");
+    assert!(
+        stderr.contains("bad.parquet: row 10 (cw_id 10): q2_deg = 130")
+            && stderr.contains("2 bad rows"),
+        "{stderr}"
+    );
+
+    let (code, _, stderr) = run_identify(dir.path(), &clean_input, "models = [\"reregistered\"]");
+    assert_ne!(code, 0);
+    assert!(
+        stderr.contains("duplicate key") || stderr.contains("needs the input `start`"),
+        "{stderr}"
+    );
 }

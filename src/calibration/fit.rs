@@ -201,7 +201,10 @@ impl<'a> Observations<'a> {
     pub fn included_rows(&self) -> usize {
         match self.row_scale {
             None => self.rows.len(),
-            Some(scales) => scales.iter().filter(|s| s.iter().any(|v| *v != 0.0)).count(),
+            Some(scales) => scales
+                .iter()
+                .filter(|s| s.iter().any(|v| *v != 0.0))
+                .count(),
         }
     }
 }
@@ -860,7 +863,14 @@ mod tests {
                 stop_step_mm: 1e-9,
                 ..FitOptions::default()
             };
-            let fit = fit(&robot, &nominal, &Observations::new(&rows, &measured), free.ids(), &options).unwrap();
+            let fit = fit(
+                &robot,
+                &nominal,
+                &Observations::new(&rows, &measured),
+                free.ids(),
+                &options,
+            )
+            .unwrap();
             assert!(fit.converged, "{algorithm:?}: {:?}", fit.trace);
             // The truth's dependent parameters are nominal, so the identifiable ones
             // are recovered exactly (the spec's truth leaves the dependent ones at nominal).
@@ -902,7 +912,14 @@ mod tests {
             stop_step_mm: 1e-9,
             ..FitOptions::default()
         };
-        let fit = fit(&robot, &start, &Observations::new(&rows, &measured), free.ids(), &options).unwrap();
+        let fit = fit(
+            &robot,
+            &start,
+            &Observations::new(&rows, &measured),
+            free.ids(),
+            &options,
+        )
+        .unwrap();
         assert!(fit.converged, "{:?}", fit.trace);
         assert!(fit.residual_rms_mm < 1e-6, "{}", fit.residual_rms_mm);
         assert!(fit.trace.iter().any(|it| !it.accepted), "{:#?}", fit.trace);
@@ -953,7 +970,14 @@ mod tests {
                     p + Vector3::from_fn(|_, _| rand_distr::Distribution::sample(&normal, &mut rng))
                 })
                 .collect();
-            let fit = fit(&robot, &truth, &Observations::new(&rows, &noisy), free.ids(), &options).unwrap();
+            let fit = fit(
+                &robot,
+                &truth,
+                &Observations::new(&rows, &noisy),
+                free.ids(),
+                &options,
+            )
+            .unwrap();
             estimates.push(fit.values.get(k6));
             reported.push(fit.std_errors[k6.index()].unwrap());
         }
@@ -979,7 +1003,10 @@ mod tests {
             .map(|p| p.position_mm + Vector3::new(0.01, -0.02, 0.015))
             .collect();
         let free = Selection::spec_identifiable();
-        let fit = fit(&robot, &truth, &Observations::new(&rows, &measured),
+        let fit = fit(
+            &robot,
+            &truth,
+            &Observations::new(&rows, &measured),
             free.ids(),
             &FitOptions::default(),
         )
@@ -1136,8 +1163,15 @@ mod tests {
             ..FitOptions::default()
         };
         let all: Vec<ParamId> = ParamId::all().collect();
-        let (analysis, shared) =
-            fit_identifiable(&robot, &nominal, &Observations::new(&rows, &measured), &all, 1e-6, &options).unwrap();
+        let (analysis, shared) = fit_identifiable(
+            &robot,
+            &nominal,
+            &Observations::new(&rows, &measured),
+            &all,
+            1e-6,
+            &options,
+        )
+        .unwrap();
         let separate_analysis = rank::analyse(&robot, &nominal, &rows, &all, 1e-6, 64);
         assert_eq!(analysis.independent, Selection::spec_identifiable().ids());
         assert_eq!(analysis.independent, separate_analysis.independent);
@@ -1149,7 +1183,10 @@ mod tests {
         {
             assert!((a - b).abs() < 1e-12 * separate_analysis.singular_values[0]);
         }
-        let separate = fit(&robot, &nominal, &Observations::new(&rows, &measured),
+        let separate = fit(
+            &robot,
+            &nominal,
+            &Observations::new(&rows, &measured),
             &analysis.independent,
             &options,
         )

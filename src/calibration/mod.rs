@@ -177,7 +177,8 @@ pub fn calibrate(
     )?;
     let robust = match options.robust {
         Some(robust) => {
-            let (refit, summary) = robust_refit(robot, data, fit, &rank.independent, &robust, options)?;
+            let (refit, summary) =
+                robust_refit(robot, data, fit, &rank.independent, &robust, options)?;
             fit = refit;
             Some(summary)
         }
@@ -226,7 +227,8 @@ fn robust_refit(
             .enumerate()
             .filter(|(k, r)| {
                 let scaled = r.component_mul(&data.scale_of(*k));
-                data.scale_of(*k).iter().any(|s| *s != 0.0) && !(scaled.norm() <= threshold)
+                data.scale_of(*k).iter().any(|s| *s != 0.0)
+                    && (scaled.norm().is_nan() || scaled.norm() > threshold)
             })
             .map(|(k, _)| k)
             .collect()
@@ -324,9 +326,11 @@ pub fn registered_start(
     let measured: Vec<Vector3<f64>> = used.iter().map(|k| data.measured_mm[*k]).collect();
     let target_of_row: Vec<usize> = used.iter().map(|k| data.rows[*k].target).collect();
     // Isotropic weight per row: the mean of its axes' 1/σ².
-    let weights: Option<Vec<f64>> = data
-        .row_scale
-        .map(|_| used.iter().map(|k| data.scale_of(*k).norm_squared() / 3.0).collect());
+    let weights: Option<Vec<f64>> = data.row_scale.map(|_| {
+        used.iter()
+            .map(|k| data.scale_of(*k).norm_squared() / 3.0)
+            .collect()
+    });
     let v = &values.0;
     const DEG: f64 = std::f64::consts::PI / 180.0;
     // The translation parameters follow the tool rotation (eq. (4)): in the

@@ -32,27 +32,31 @@ pub fn row_problem(
         let [lo, hi] = robot.limits_deg(joint);
         if !(q >= lo && q <= hi) {
             return Some(format!(
-                "q{}_deg = {q} is outside the joint limits [{lo}, {hi}] of the robot file",
-                joint + 1
+                "q{}_deg = {} is outside the joint limits [{lo}, {hi}] of the robot file",
+                joint + 1,
+                compact(q)
             ));
         }
     }
     let norm = measured_mm.norm();
-    if !(norm <= MAX_POSITION_MM) {
+    if norm.is_nan() || norm > MAX_POSITION_MM {
         return Some(format!(
-            "the measured position is {norm:.0} mm from the tracker (more than {MAX_POSITION_MM} mm)"
+            "the measured position is {} mm from the tracker (more than {MAX_POSITION_MM} mm)",
+            compact(norm)
         ));
     }
     let force = row.wrench.force_n.norm();
-    if !(force <= MAX_FORCE_N) {
+    if force.is_nan() || force > MAX_FORCE_N {
         return Some(format!(
-            "the force is {force:.0} N (more than {MAX_FORCE_N} N)"
+            "the force is {} N (more than {MAX_FORCE_N} N)",
+            compact(force)
         ));
     }
     let moment = row.wrench.moment_nm.norm();
-    if !(moment <= MAX_MOMENT_NM) {
+    if moment.is_nan() || moment > MAX_MOMENT_NM {
         return Some(format!(
-            "the moment is {moment:.0} N·m (more than {MAX_MOMENT_NM} N·m)"
+            "the moment is {} N·m (more than {MAX_MOMENT_NM} N·m)",
+            compact(moment)
         ));
     }
     if let Some(sigma) = sigma_mm {
@@ -65,6 +69,15 @@ pub fn row_problem(
         }
     }
     None
+}
+
+/// A value as a person reads it: plain, or in exponent form when huge or tiny.
+fn compact(value: f64) -> String {
+    if value != 0.0 && (value.abs() >= 1e6 || value.abs() < 1e-3) {
+        format!("{value:e}")
+    } else {
+        format!("{value}")
+    }
 }
 
 #[cfg(test)]
@@ -80,7 +93,10 @@ mod tests {
         q[1] = 130.0;
         let row = ConfWrench::new(q, Wrench::zero());
         let problem = row_problem(&robot, &row, &Vector3::new(1.0, 2.0, 3.0), None).unwrap();
-        assert!(problem.contains("q2_deg = 130") && problem.contains("[-90, 120]"), "{problem}");
+        assert!(
+            problem.contains("q2_deg = 130") && problem.contains("[-90, 120]"),
+            "{problem}"
+        );
         q[1] = 0.0;
         q[0] = 1e300;
         let row = ConfWrench::new(q, Wrench::zero());
@@ -90,14 +106,28 @@ mod tests {
     #[test]
     fn absurd_positions_wrenches_and_sigmas_are_named() {
         let robot = irb1600();
-        let ok = ConfWrench::new([0.0; JOINTS], Wrench::from_array([100.0, 0.0, 0.0, 5.0, 0.0, 0.0]));
+        let ok = ConfWrench::new(
+            [0.0; JOINTS],
+            Wrench::from_array([100.0, 0.0, 0.0, 5.0, 0.0, 0.0]),
+        );
         let p = Vector3::new(1000.0, 2000.0, -500.0);
-        assert_eq!(row_problem(&robot, &ok, &p, Some(&Vector3::repeat(0.01))), None);
+        assert_eq!(
+            row_problem(&robot, &ok, &p, Some(&Vector3::repeat(0.01))),
+            None
+        );
         let far = row_problem(&robot, &ok, &Vector3::new(1e9, 0.0, 0.0), None).unwrap();
         assert!(far.contains("from the tracker"), "{far}");
-        let heavy = ConfWrench::new([0.0; JOINTS], Wrench::from_array([0.0, 0.0, -1e7, 0.0, 0.0, 0.0]));
-        assert!(row_problem(&robot, &heavy, &p, None).unwrap().contains("force"));
-        let zero_sigma = row_problem(&robot, &ok, &p, Some(&Vector3::new(0.01, 0.0, 0.01))).unwrap();
+        let heavy = ConfWrench::new(
+            [0.0; JOINTS],
+            Wrench::from_array([0.0, 0.0, -1e7, 0.0, 0.0, 0.0]),
+        );
+        assert!(
+            row_problem(&robot, &heavy, &p, None)
+                .unwrap()
+                .contains("force")
+        );
+        let zero_sigma =
+            row_problem(&robot, &ok, &p, Some(&Vector3::new(0.01, 0.0, 0.01))).unwrap();
         assert!(zero_sigma.contains("sigma_y_mm = 0"), "{zero_sigma}");
     }
 }

@@ -1276,7 +1276,8 @@ mod tests {
                 cw_id: 17,
                 model: None,
                 check: "row_check".into(),
-                reason: "q2_deg = 130 is outside the joint limits [-90, 120] of the robot file".into(),
+                reason: "q2_deg = 130 is outside the joint limits [-90, 120] of the robot file"
+                    .into(),
             }]),
             identification_trace: Some(
                 ["registered", "kinematic", "elastogeometric"]

@@ -252,7 +252,9 @@ mod tests {
     #[test]
     fn world_and_tool_may_be_left_out() {
         let start = IRB1600.find("[world]").unwrap();
-        let end = IRB1600[start..].find("[payload]").map_or(IRB1600.len(), |e| start + e);
+        let end = IRB1600[start..]
+            .find("[payload]")
+            .map_or(IRB1600.len(), |e| start + e);
         let text = format!("{}{}", &IRB1600[..start], &IRB1600[end..]);
         assert!(!text.contains("[tool]"), "{text}");
         let spec = RobotSpec::parse(&text, Path::new("r.toml")).unwrap();

@@ -382,7 +382,12 @@ impl<'r> PreparedRobot<'r> {
     }
 
     /// [`Self::predict`] for the SMR of `target` (spec §7).
-    pub fn predict_target(&self, q_deg: &[f64; JOINTS], wrench: &Wrench, target: usize) -> Prediction {
+    pub fn predict_target(
+        &self,
+        q_deg: &[f64; JOINTS],
+        wrench: &Wrench,
+        target: usize,
+    ) -> Prediction {
         let chains = self.loaded_chains(q_deg, wrench, target);
         Prediction {
             position_mm: self

@@ -84,7 +84,10 @@ impl ParamId {
 
     /// The translation of `target` (0-based) along `axis`.
     pub fn target_translation(target: usize, axis: usize) -> ParamId {
-        assert!(target < MAX_TARGETS && axis < 3, "target {target} axis {axis}");
+        assert!(
+            target < MAX_TARGETS && axis < 3,
+            "target {target} axis {axis}"
+        );
         if target == 0 {
             ParamId((6 + axis) as u8)
         } else {
@@ -336,10 +339,7 @@ mod tests {
     fn target_translations_have_slots_of_their_own() {
         assert_eq!(ParamId::target_translation(0, 2).name(), "z_t");
         let id = ParamId::target_translation(3, 1);
-        assert_eq!(
-            id.kind(),
-            ParamKind::ToolTranslation { target: 3, axis: 1 }
-        );
+        assert_eq!(id.kind(), ParamKind::ToolTranslation { target: 3, axis: 1 });
         assert_eq!(id.name(), "y_t[#3]");
         assert_eq!(id.unit(), "mm");
         assert_eq!(ParamId::from_index(id.index()), Some(id));

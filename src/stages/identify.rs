@@ -560,10 +560,17 @@ impl Stage for IdentifyStage {
             measured_mm: &data.positions,
             row_scale: scales.as_deref(),
         };
-        let registered = register(ctx, "robot file", &nominal, &observations, &options, &mut outputs);
-        let reregistered = start_set.as_ref().map(|start| {
-            register(ctx, "start", start, &observations, &options, &mut outputs)
-        });
+        let registered = register(
+            ctx,
+            "robot file",
+            &nominal,
+            &observations,
+            &options,
+            &mut outputs,
+        );
+        let reregistered = start_set
+            .as_ref()
+            .map(|start| register(ctx, "start", start, &observations, &options, &mut outputs));
         let ids = &data.ids;
         let mut sets = Vec::new();
         let mut trace = TraceColumns::default();
@@ -719,7 +726,9 @@ fn check_rows(
             )
         })
         .collect();
-    let bad: Vec<usize> = (0..problems.len()).filter(|k| problems[*k].is_some()).collect();
+    let bad: Vec<usize> = (0..problems.len())
+        .filter(|k| problems[*k].is_some())
+        .collect();
     if bad.is_empty() {
         return Ok("0".into());
     }
@@ -985,7 +994,13 @@ struct ExcludedColumns {
 }
 
 impl ExcludedColumns {
-    fn push(&mut self, cw_id: i64, model: Option<&'static str>, check: &'static str, reason: String) {
+    fn push(
+        &mut self,
+        cw_id: i64,
+        model: Option<&'static str>,
+        check: &'static str,
+        reason: String,
+    ) {
         self.cw_id.push(cw_id);
         self.model.push(model);
         self.check.push(check);

@@ -17,6 +17,7 @@ pub mod report;
 pub mod scan_logs;
 pub mod select;
 pub mod simulate_logs;
+pub mod split;
 pub mod validate;
 pub mod wrenches;
 
@@ -280,6 +281,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &simulate_logs::SimulateLogsStage,
         &scan_logs::ScanLogsStage,
         &import_measurements::ImportMeasurementsStage,
+        &split::SplitStage,
         &identify::IdentifyStage,
         &validate::ValidateStage,
         &gate::GateStage,

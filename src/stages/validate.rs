@@ -107,11 +107,9 @@ impl Stage for ValidateStage {
         let mut norms: Vec<(ModelName, Vec<f64>)> = Vec::new();
         for set in &sets {
             // Each row's SMR: the set's translation of the row's target (spec §7).
-            let targets = set
-                .target_indices(target_ids.as_deref())
-                .map_err(|m| {
-                    StageError::Invalid(format!("{}: {m}", measurements.path.display()))
-                })?;
+            let targets = set.target_indices(target_ids.as_deref()).map_err(|m| {
+                StageError::Invalid(format!("{}: {m}", measurements.path.display()))
+            })?;
             let mut rows = rows.clone();
             for (row, target) in rows.iter_mut().zip(&targets) {
                 row.target = *target;

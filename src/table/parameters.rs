@@ -62,9 +62,7 @@ impl fmt::Display for ModelName {
 impl FromStr for ModelName {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        let every = ModelName::ALL
-            .into_iter()
-            .chain([ModelName::Reregistered]);
+        let every = ModelName::ALL.into_iter().chain([ModelName::Reregistered]);
         every.clone().find(|m| m.as_str() == s).ok_or_else(|| {
             format!(
                 "unknown model `{s}`, expected nominal, registered, kinematic, elastogeometric or reregistered{}",
@@ -145,7 +143,10 @@ impl ParameterSet {
 
     /// The target index of each row's target id: 0 for every row of a one-target
     /// set; an error naming the id a several-target set does not have.
-    pub fn target_indices(&self, row_targets: Option<&[Option<String>]>) -> Result<Vec<usize>, String> {
+    pub fn target_indices(
+        &self,
+        row_targets: Option<&[Option<String>]>,
+    ) -> Result<Vec<usize>, String> {
         let Some(row_targets) = row_targets else {
             return Ok(Vec::new());
         };
@@ -265,7 +266,8 @@ pub fn from_frame(
             let target = model_targets.iter().position(|t| t == id).unwrap_or(0);
             ParamId::target_translation(target, axis)
         });
-        if model_targets.len() > 1 && ParamId::from_name(name).is_some_and(|p| p.is_tool_translation())
+        if model_targets.len() > 1
+            && ParamId::from_name(name).is_some_and(|p| p.is_tool_translation())
         {
             return Err(bad(
                 row,
@@ -276,16 +278,18 @@ pub fn from_frame(
                 ),
             ));
         }
-        let id = target_id.or_else(|| ParamId::from_name(name)).ok_or_else(|| {
-            bad(
-                row,
-                "name",
-                format!(
-                    "unknown parameter `{name}`{}",
-                    crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
-                ),
-            )
-        })?;
+        let id = target_id
+            .or_else(|| ParamId::from_name(name))
+            .ok_or_else(|| {
+                bad(
+                    row,
+                    "name",
+                    format!(
+                        "unknown parameter `{name}`{}",
+                        crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
+                    ),
+                )
+            })?;
         let unit = units[row].as_deref().unwrap_or_default();
         if unit != id.unit() {
             return Err(bad(

@@ -607,7 +607,13 @@ pub fn excluded_rows() -> TableSchema {
         kind: "excluded_rows",
         description: "Measured rows left out of an identification: failed row checks (all models) or beyond the robust fit's threshold (one model).",
         columns: vec![
-            col("cw_id", ColumnType::Int64, "", true, "conf-wrench combination id"),
+            col(
+                "cw_id",
+                ColumnType::Int64,
+                "",
+                true,
+                "conf-wrench combination id",
+            ),
             col(
                 "model",
                 ColumnType::Utf8,

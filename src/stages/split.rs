@@ -1,0 +1,167 @@
+//! `split`: divides measured rows into calibration and validation rows (a
+//! `selection` table), for data that were not designed by `select`: an imported
+//! tracker export is identified on one part and validated on the other.
+//!
+//! Deterministic by construction: `alternate` and `halves` depend only on the
+//! row order, so the same export always splits the same way.
+
+use polars::prelude::Column;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use crate::table::frame;
+use crate::table::schema::{self, i64_values};
+
+pub struct SplitStage;
+
+/// How rows are divided.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SplitMethod {
+    /// Rows in turn: every other row (in file order) is a calibration row; both
+    /// parts span the whole session, so slow drift affects them alike.
+    Alternate,
+    /// The first rows calibrate, the rest validate: a harder test when the robot
+    /// or the cell drifts during the session.
+    Halves,
+}
+
+/// Settings of `split`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct SplitSettings {
+    /// alternate (default) or halves.
+    pub method: SplitMethod,
+    /// Fraction of the rows that calibrate, in (0, 1).
+    pub calibration_fraction: f64,
+}
+
+impl Default for SplitSettings {
+    fn default() -> Self {
+        SplitSettings {
+            method: SplitMethod::Alternate,
+            calibration_fraction: 0.5,
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "split",
+    uses_cable_robot: false,
+    updates_input: None,
+    summary: "Calibration and validation rows of measured data (alternate rows or halves)",
+    code_version: 1,
+    inputs: &[TableSlot {
+        name: "measurements",
+        schema: schema::measurements,
+        required: true,
+        meaning: "measured rows (spec §6)",
+    }],
+    outputs: &[TableSlot {
+        name: "selection",
+        schema: schema::selection,
+        required: true,
+        meaning: "role of each row: calibration or validation",
+    }],
+};
+
+/// Whether row `k` of `n` calibrates.
+fn calibrates(method: SplitMethod, fraction: f64, k: usize, n: usize) -> bool {
+    match method {
+        // Row k calibrates when it carries the running count of calibration rows
+        // past an integer: exactly round(fraction·n) rows, spread evenly.
+        SplitMethod::Alternate => {
+            ((k + 1) as f64 * fraction).floor() > (k as f64 * fraction).floor()
+        }
+        SplitMethod::Halves => (k as f64) < (fraction * n as f64).round(),
+    }
+}
+
+impl Stage for SplitStage {
+    type Settings = SplitSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &SplitSettings,
+    ) -> Result<StageOutputs, StageError> {
+        let fraction = settings.calibration_fraction;
+        if !(fraction > 0.0 && fraction < 1.0) {
+            return Err(StageError::Invalid(format!(
+                "setting `calibration_fraction`: must be in (0, 1), found {fraction}"
+            )));
+        }
+        let input = ctx.input("measurements")?;
+        let ids = i64_values(&input.df, "cw_id", &input.path)?;
+        let n = ids.len();
+        let roles: Vec<&str> = (0..n)
+            .map(|k| {
+                if calibrates(settings.method, fraction, k, n) {
+                    "calibration"
+                } else {
+                    "validation"
+                }
+            })
+            .collect();
+        let calibration = roles.iter().filter(|r| **r == "calibration").count();
+        if calibration == 0 || calibration == n {
+            return Err(StageError::Invalid(format!(
+                "{}: {n} rows split at {fraction} leave one part empty",
+                input.path.display()
+            )));
+        }
+        let mut outputs = StageOutputs::default();
+        outputs
+            .facts
+            .insert("calibration_rows".into(), calibration.to_string());
+        outputs
+            .facts
+            .insert("validation_rows".into(), (n - calibration).to_string());
+        outputs.tables.insert(
+            "selection".into(),
+            frame(vec![
+                Column::new("cw_id".into(), ids),
+                Column::new("role".into(), roles),
+            ]),
+        );
+        Ok(outputs)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pattern(method: SplitMethod, fraction: f64, n: usize) -> String {
+        (0..n)
+            .map(|k| {
+                if calibrates(method, fraction, k, n) {
+                    'c'
+                } else {
+                    'v'
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn alternate_spreads_the_calibration_rows_evenly() {
+        assert_eq!(pattern(SplitMethod::Alternate, 0.5, 7), "vcvcvcv");
+        assert_eq!(pattern(SplitMethod::Alternate, 1.0 / 3.0, 6), "vvcvvc");
+        let count = pattern(SplitMethod::Alternate, 0.3, 1000)
+            .matches('c')
+            .count();
+        assert_eq!(count, 300);
+    }
+
+    #[test]
+    fn halves_take_the_first_rows() {
+        assert_eq!(pattern(SplitMethod::Halves, 0.5, 7), "ccccvvv");
+        assert_eq!(pattern(SplitMethod::Halves, 0.25, 8), "ccvvvvvv");
+    }
+}
