@@ -11,6 +11,9 @@ use nalgebra::Vector3;
 
 use crate::robot::{ConfWrench, JOINTS, Robot};
 
+/// How far beyond a joint limit a reading may lie: encoder noise and a soft
+/// limit set a little inside the hard stop put real readings there (deg).
+pub const JOINT_LIMIT_TOLERANCE_DEG: f64 = 0.5;
 /// A position farther than this from the tracker is absurd (mm; trackers reach 80 m).
 pub const MAX_POSITION_MM: f64 = 1.0e5;
 /// A force above this is absurd for a robot cell (N; 10 t).
@@ -30,9 +33,9 @@ pub fn row_problem(
     for joint in 0..JOINTS {
         let q = row.q_deg[joint];
         let [lo, hi] = robot.limits_deg(joint);
-        if !(q >= lo && q <= hi) {
+        if !(q >= lo - JOINT_LIMIT_TOLERANCE_DEG && q <= hi + JOINT_LIMIT_TOLERANCE_DEG) {
             return Some(format!(
-                "q{}_deg = {} is outside the joint limits [{lo}, {hi}] of the robot file",
+                "q{}_deg = {} is outside the joint limits [{lo}, {hi}] of the robot file (by more than {JOINT_LIMIT_TOLERANCE_DEG}°)",
                 joint + 1,
                 compact(q)
             ));
@@ -97,6 +100,10 @@ mod tests {
             problem.contains("q2_deg = 130") && problem.contains("[-90, 120]"),
             "{problem}"
         );
+        // Within the slack: an encoder reading just past a soft limit.
+        q[1] = 120.3;
+        let row = ConfWrench::new(q, Wrench::zero());
+        assert_eq!(row_problem(&robot, &row, &Vector3::zeros(), None), None);
         q[1] = 0.0;
         q[0] = 1e300;
         let row = ConfWrench::new(q, Wrench::zero());
