@@ -105,6 +105,16 @@ fn three_targets_on_the_simulator_recover_each_tool_translation() {
             );
         }
     }
+    // With every target's translation free, a rotation of the flange frame is
+    // absorbed by the translations: the tool angles and joint 6's offsets stay
+    // dependent, as with one target.
+    for name in ["alpha_t", "beta_t", "gamma_t", "dtheta6", "dd6"] {
+        assert_eq!(
+            result.set.status[id(name).index()],
+            ParamStatus::Dependent,
+            "{name}"
+        );
+    }
     // Every other identified parameter is as good as with one target.
     for slot in free.iter().filter(|p| !p.is_tool_translation()) {
         let se = result.set.std_errors[slot.index()].unwrap();

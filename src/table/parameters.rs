@@ -384,6 +384,35 @@ mod tests {
     }
 
     #[test]
+    fn several_targets_are_named_by_their_ids_and_read_back() {
+        let robot = irb1600();
+        let nominal = ParamValues::nominal(robot.spec());
+        let mut set = ParameterSet::fixed(ModelName::Elastogeometric, truth_params(&robot));
+        set.targets = vec!["nest_a".into(), "nest_b".into(), "nest_c".into()];
+        let z_b = ParamId::target_translation(1, 2);
+        set.values.set(z_b, 131.5);
+        set.status[z_b.index()] = ParamStatus::Identified;
+        set.std_errors[z_b.index()] = Some(0.01);
+        let df = to_frame(&nominal, &[set.clone()]);
+        assert_eq!(df.height(), 42 + 6);
+        let names = str_values(&df, "name", Path::new("p")).unwrap();
+        for name in ["x_t[nest_a]", "z_t[nest_b]", "y_t[nest_c]"] {
+            assert!(names.iter().any(|n| n.as_deref() == Some(name)), "{name}");
+        }
+        assert!(!names.iter().any(|n| n.as_deref() == Some("x_t")));
+        let back = from_frame(&df, Path::new("p.parquet"), &nominal).unwrap();
+        assert_eq!(back, vec![set.clone()]);
+        let rows = [Some("nest_c".to_string()), Some("nest_a".to_string())];
+        assert_eq!(set.target_indices(Some(&rows)).unwrap(), vec![2, 0]);
+        let unknown = [Some("nest_z".to_string())];
+        let err = set.target_indices(Some(&unknown)).unwrap_err();
+        assert!(
+            err.contains("`nest_z`") && err.contains("nest_a, nest_b, nest_c"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn unknown_name_and_wrong_unit_are_rejected() {
         let robot = irb1600();
         let nominal = ParamValues::nominal(robot.spec());
