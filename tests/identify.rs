@@ -17,29 +17,9 @@ use egcal::table::{self, schema};
 use faer::Mat;
 use faer::prelude::*;
 use nalgebra::Vector3;
-use polars::prelude::Column;
-use rand::SeedableRng;
-use rand::rngs::StdRng;
-use rand_distr::{Distribution, Normal};
 
+use common::measured::{noisy, positions, write_measurements};
 use common::sample::{random_rows, robot_and_truth};
-
-fn positions(robot: &Robot, p: &ParamValues, rows: &[ConfWrench]) -> Vec<Vector3<f64>> {
-    egcal::robot::batch_predict(robot, p, rows)
-        .iter()
-        .map(|p| p.position_mm)
-        .collect()
-}
-
-/// Exact positions plus Gaussian tracker noise (mm per axis).
-fn noisy(exact: &[Vector3<f64>], sigma_mm: f64, seed: u64) -> Vec<Vector3<f64>> {
-    let mut rng = StdRng::seed_from_u64(seed);
-    let normal = Normal::new(0.0, sigma_mm).unwrap();
-    exact
-        .iter()
-        .map(|p| p + Vector3::from_fn(|_, _| normal.sample(&mut rng)))
-        .collect()
-}
 
 /// The loss as given: these tests are about least squares and Huber themselves
 /// (`tests/real_cells.rs` covers the robust default).
@@ -456,30 +436,8 @@ fn the_stage_writes_residuals_and_logs_conditioning_correlations_and_outliers() 
     let rows = random_rows(&robot, 61, 40);
     let mut measured = noisy(&positions(&robot, &truth, &rows), 0.02, 62);
     measured[5] += Vector3::new(0.0, 0.0, 4.0);
-    let mut columns = vec![Column::new("cw_id".into(), (1..=40).collect::<Vec<i64>>())];
-    for (i, name) in schema::JOINT_COLUMNS.iter().enumerate() {
-        let values: Vec<f64> = rows.iter().map(|r| r.q_deg[i]).collect();
-        columns.push(Column::new((*name).into(), values));
-    }
-    for (i, name) in schema::WRENCH_COLUMNS.iter().enumerate() {
-        let values: Vec<f64> = rows
-            .iter()
-            .map(|r| {
-                if i < 3 {
-                    r.wrench.force_n[i]
-                } else {
-                    r.wrench.moment_nm[i - 3]
-                }
-            })
-            .collect();
-        columns.push(Column::new((*name).into(), values));
-    }
-    for (axis, name) in schema::POSITION_COLUMNS.iter().enumerate() {
-        let values: Vec<f64> = measured.iter().map(|p| p[axis]).collect();
-        columns.push(Column::new((*name).into(), values));
-    }
     let input = dir.path().join("measurements.parquet");
-    table::write_parquet(&mut table::frame(columns), &input, None).unwrap();
+    write_measurements(&input, &rows, &measured, 1);
     let job = dir.path().join("job.toml");
     std::fs::write(
         &job,

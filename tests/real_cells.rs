@@ -15,24 +15,8 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
+use common::measured::{noisy, positions, write_measurements};
 use common::sample::{random_rows, robot_and_truth};
-
-fn positions(robot: &Robot, p: &ParamValues, rows: &[ConfWrench]) -> Vec<Vector3<f64>> {
-    egcal::robot::batch_predict(robot, p, rows)
-        .iter()
-        .map(|p| p.position_mm)
-        .collect()
-}
-
-/// Exact positions plus Gaussian noise of `sigma_mm` per axis.
-fn noisy(exact: &[Vector3<f64>], sigma_mm: f64, seed: u64) -> Vec<Vector3<f64>> {
-    let mut rng = StdRng::seed_from_u64(seed);
-    let normal = Normal::new(0.0, sigma_mm).unwrap();
-    exact
-        .iter()
-        .map(|p| p + Vector3::from_fn(|_, _| normal.sample(&mut rng)))
-        .collect()
-}
 
 fn id(name: &str) -> ParamId {
     ParamId::from_name(name).unwrap()
@@ -432,36 +416,6 @@ fn a_kinematic_model_s_load_errors_are_not_taken_for_outliers() {
     );
 }
 
-/// A measurements table of `rows` and `measured` at `path`.
-fn write_measurements(path: &std::path::Path, rows: &[ConfWrench], measured: &[Vector3<f64>]) {
-    use egcal::table::{self, schema};
-    use polars::prelude::Column;
-    let n = rows.len() as i64;
-    let mut columns = vec![Column::new("cw_id".into(), (0..n).collect::<Vec<i64>>())];
-    for (i, name) in schema::JOINT_COLUMNS.iter().enumerate() {
-        let values: Vec<f64> = rows.iter().map(|r| r.q_deg[i]).collect();
-        columns.push(Column::new((*name).into(), values));
-    }
-    for (i, name) in schema::WRENCH_COLUMNS.iter().enumerate() {
-        let values: Vec<f64> = rows
-            .iter()
-            .map(|r| {
-                if i < 3 {
-                    r.wrench.force_n[i]
-                } else {
-                    r.wrench.moment_nm[i - 3]
-                }
-            })
-            .collect();
-        columns.push(Column::new((*name).into(), values));
-    }
-    for (axis, name) in schema::POSITION_COLUMNS.iter().enumerate() {
-        let values: Vec<f64> = measured.iter().map(|p| p[axis]).collect();
-        columns.push(Column::new((*name).into(), values));
-    }
-    table::write_parquet(&mut table::frame(columns), path, None).unwrap();
-}
-
 /// Runs one identify stage of a job in `dir` with `settings` on `input`.
 fn run_identify(
     dir: &std::path::Path,
@@ -494,12 +448,12 @@ fn rows_outside_the_joint_limits_or_absurd_are_dropped_and_named_or_fail() {
     let rows = random_rows(&robot, 101, 200);
     let measured = noisy(&positions(&robot, &truth, &rows), 0.02, 102);
     let clean_input = dir.path().join("clean.parquet");
-    write_measurements(&clean_input, &rows, &measured);
+    write_measurements(&clean_input, &rows, &measured, 0);
     let (mut bad_rows, bad_measured) = (rows.clone(), measured.clone());
     bad_rows[10].q_deg[1] = 130.0;
     bad_rows[20].q_deg[0] = 1e300;
     let bad_input = dir.path().join("bad.parquet");
-    write_measurements(&bad_input, &bad_rows, &bad_measured);
+    write_measurements(&bad_input, &bad_rows, &bad_measured, 0);
 
     let (code, _, stderr) = run_identify(dir.path(), &clean_input, "");
     assert_eq!(code, 0, "{stderr}");

@@ -3,6 +3,7 @@
 
 #![allow(dead_code)] // each test binary uses a different subset
 
+pub mod measured;
 pub mod sample;
 
 use std::path::{Path, PathBuf};
