@@ -277,7 +277,6 @@ fn generate_one(
                 reject(Rejection::JointLimits);
                 continue;
             }
-            let (joints, tool) = robot.frames_in_base(nominal, &solution.q_deg);
             let wrapped = solution
                 .q_deg
                 .map(|q| (q + 180.0).rem_euclid(360.0) - 180.0);
@@ -290,22 +289,23 @@ fn generate_one(
             let outcome = match checked.iter().find(|(c, _)| same(c)) {
                 Some((_, outcome)) => *outcome,
                 None => {
+                    let (joints, tool) = robot.frames_in_base(nominal, &solution.q_deg);
                     let outcome = check_configuration(problem, &joints, &tool);
                     checked.push((wrapped, outcome));
                     outcome
                 }
             };
             match outcome {
-                Ok(_) => survivors.push((solution, joints, tool)),
+                Ok(_) => survivors.push(solution),
                 Err(why) => reject(why),
             }
         }
         while !survivors.is_empty() {
-            let (solution, joints, tool) =
-                survivors.swap_remove(rng.random_range(0..survivors.len()));
+            let solution = survivors.swap_remove(rng.random_range(0..survivors.len()));
             // The shared check ran on the frames of another turn, equal to these
             // to rounding; parry3d's distances move by ~1e-7 with that, so the
-            // clearance reported is the chosen joint vector's own.
+            // tool frame and clearance reported are the chosen joint vector's own.
+            let (joints, tool) = robot.frames_in_base(nominal, &solution.q_deg);
             let clearance_mm = match problem.cell.check(&joints, &tool) {
                 Ok(clearance) => clearance,
                 Err(why) => {

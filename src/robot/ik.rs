@@ -477,12 +477,14 @@ pub fn numeric(
             configurations.push(wrapped);
         }
     }
+    // Turns do not change the geometry, so a configuration's branch holds for all.
     let mut solutions: Vec<IkSolution> = configurations
         .iter()
-        .flat_map(|q| turns_within_limits(robot, q))
-        .map(|q_deg| IkSolution {
-            q_deg,
-            branch: branch_of(robot, &q_deg),
+        .flat_map(|q| {
+            let branch = branch_of(robot, q);
+            turns_within_limits(robot, q)
+                .into_iter()
+                .map(move |q_deg| IkSolution { q_deg, branch })
         })
         .collect();
     solutions.sort_by(|a, b| {
