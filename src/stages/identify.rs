@@ -1016,3 +1016,70 @@ impl ExcludedColumns {
         ])
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::test_support::irb1600;
+
+    #[test]
+    fn fixed_values_take_numbers_or_nominal_and_name_bad_keys() {
+        let nominal = ParamValues::nominal(irb1600().spec());
+        let mut settings = IdentifySettings::default();
+        settings
+            .fixed
+            .insert("k6".into(), FixedValue::Named("nominal".into()));
+        settings.fixed.insert("dd5".into(), FixedValue::Value(0.1));
+        let fixed = settings.fixed_values(&nominal).unwrap();
+        assert!(fixed.contains(&(ParamId::from_name("k6").unwrap(), 0.0)));
+        assert!(fixed.contains(&(ParamId::from_name("dd5").unwrap(), 0.1)));
+
+        settings.fixed.insert("dd55".into(), FixedValue::Value(0.1));
+        let err = settings.fixed_values(&nominal).unwrap_err().to_string();
+        assert!(err.contains("fixed.dd55") && err.contains("dd5"), "{err}");
+        settings.fixed.remove("dd55");
+        settings
+            .fixed
+            .insert("k2".into(), FixedValue::Named("zero".into()));
+        let err = settings.fixed_values(&nominal).unwrap_err().to_string();
+        assert!(
+            err.contains("fixed.k2") && err.contains("\"nominal\""),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn robust_settings_out_of_range_are_named() {
+        for (settings, key) in [
+            (
+                IdentifySettings {
+                    reject_sigmas: 1.0,
+                    ..Default::default()
+                },
+                "reject_sigmas",
+            ),
+            (
+                IdentifySettings {
+                    huber_sigmas: f64::NAN,
+                    ..Default::default()
+                },
+                "huber_sigmas",
+            ),
+            (
+                IdentifySettings {
+                    max_excluded_fraction: 0.7,
+                    ..Default::default()
+                },
+                "max_excluded_fraction",
+            ),
+        ] {
+            let err = settings.robust_options().unwrap_err().to_string();
+            assert!(err.contains(key), "{err}");
+        }
+        let least_squares = IdentifySettings {
+            loss: LossSetting::LeastSquares,
+            ..Default::default()
+        };
+        assert_eq!(least_squares.robust_options().unwrap(), None);
+    }
+}
