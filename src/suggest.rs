@@ -16,11 +16,24 @@ fn edit_distance(a: &str, b: &str) -> usize {
 }
 
 /// The closest candidate within a third of the word's length (at least 2 edits).
+/// A candidate that is the word plus a suffix after `_` counts as one edit: a
+/// forgotten unit (`edge` for `edge_mm`, `timeout` for `timeout_s`).
 pub fn closest<'a>(word: &str, candidates: impl IntoIterator<Item = &'a str>) -> Option<&'a str> {
     let limit = (word.chars().count() / 3).max(2);
+    let unit_dropped = |c: &str| {
+        c.strip_prefix(word)
+            .is_some_and(|rest| rest.starts_with('_') && !word.is_empty())
+    };
     candidates
         .into_iter()
-        .map(|c| (edit_distance(word, c), c))
+        .map(|c| {
+            let d = if unit_dropped(c) {
+                1
+            } else {
+                edit_distance(word, c)
+            };
+            (d, c)
+        })
         .filter(|(d, _)| *d <= limit)
         .min_by_key(|(d, _)| *d)
         .map(|(_, c)| c)
@@ -36,6 +49,15 @@ pub fn did_you_mean<'a>(word: &str, candidates: impl IntoIterator<Item = &'a str
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_forgotten_unit_suffix_is_suggested() {
+        assert_eq!(closest("edge", ["edge_mm", "count"]), Some("edge_mm"));
+        assert_eq!(
+            closest("timeout", ["timeout_s", "retries"]),
+            Some("timeout_s")
+        );
+    }
 
     #[test]
     fn distance_and_suggestion() {

@@ -23,13 +23,45 @@ pub const MAX_MOMENT_NM: f64 = 1.0e5;
 /// A tracker uncertainty above this is absurd (mm).
 pub const MAX_SIGMA_MM: f64 = 100.0;
 
-/// Why a row cannot be used; `None` when it can.
+/// Why a measured row cannot be used; `None` when it can.
 pub fn row_problem(
     robot: &Robot,
     row: &ConfWrench,
     measured_mm: &Vector3<f64>,
     sigma_mm: Option<&Vector3<f64>>,
 ) -> Option<String> {
+    if let Some(problem) = joints_problem(robot, row) {
+        return Some(problem);
+    }
+    let norm = measured_mm.norm();
+    if norm.is_nan() || norm > MAX_POSITION_MM {
+        return Some(format!(
+            "the measured position is {} mm from the tracker (more than {MAX_POSITION_MM} mm)",
+            compact(norm)
+        ));
+    }
+    if let Some(problem) = wrench_problem(row) {
+        return Some(problem);
+    }
+    if let Some(sigma) = sigma_mm {
+        for (axis, s) in ["x", "y", "z"].iter().zip(sigma.iter()) {
+            if !(*s > 0.0 && *s <= MAX_SIGMA_MM) {
+                return Some(format!(
+                    "sigma_{axis}_mm = {s} (expected > 0 and at most {MAX_SIGMA_MM} mm)"
+                ));
+            }
+        }
+    }
+    None
+}
+
+/// Why a commanded row (joints and wrench, nothing measured) is not one this
+/// robot can take: what the model would predict for it is meaningless.
+pub fn conf_wrench_problem(robot: &Robot, row: &ConfWrench) -> Option<String> {
+    joints_problem(robot, row).or_else(|| wrench_problem(row))
+}
+
+fn joints_problem(robot: &Robot, row: &ConfWrench) -> Option<String> {
     for joint in 0..JOINTS {
         let q = row.q_deg[joint];
         let [lo, hi] = robot.limits_deg(joint);
@@ -41,13 +73,10 @@ pub fn row_problem(
             ));
         }
     }
-    let norm = measured_mm.norm();
-    if norm.is_nan() || norm > MAX_POSITION_MM {
-        return Some(format!(
-            "the measured position is {} mm from the tracker (more than {MAX_POSITION_MM} mm)",
-            compact(norm)
-        ));
-    }
+    None
+}
+
+fn wrench_problem(row: &ConfWrench) -> Option<String> {
     let force = row.wrench.force_n.norm();
     if force.is_nan() || force > MAX_FORCE_N {
         return Some(format!(
@@ -61,15 +90,6 @@ pub fn row_problem(
             "the moment is {} N·m (more than {MAX_MOMENT_NM} N·m)",
             compact(moment)
         ));
-    }
-    if let Some(sigma) = sigma_mm {
-        for (axis, s) in ["x", "y", "z"].iter().zip(sigma.iter()) {
-            if !(*s > 0.0 && *s <= MAX_SIGMA_MM) {
-                return Some(format!(
-                    "sigma_{axis}_mm = {s} (expected > 0 and at most {MAX_SIGMA_MM} mm)"
-                ));
-            }
-        }
     }
     None
 }

@@ -128,6 +128,22 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
             .unwrap_or_else(|| format!("out/{}", raw.header.name)),
     );
 
+    if let Some(blocker) = non_folder_ancestor(&output_dir) {
+        let key = if raw.header.output.is_some() {
+            "job.output"
+        } else {
+            "job.name"
+        };
+        problems.push(at(
+            key,
+            format!(
+                "the output folder `{}` cannot be created: `{}` exists and is not a folder",
+                output_dir.display(),
+                blocker.display()
+            ),
+        ));
+    }
+
     // Stage ids and kinds first, so references can be resolved in any order.
     let mut ids: HashMap<&str, usize> = HashMap::new();
     let mut kinds: Vec<Option<&'static dyn StageKind>> = Vec::new();
@@ -266,6 +282,15 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
         stages,
         run_date: crate::table::time::today(),
     })
+}
+
+/// The nearest existing ancestor of `dir` (or `dir` itself) when it is not a
+/// folder, so the output folder could never be created under it.
+fn non_folder_ancestor(dir: &Path) -> Option<PathBuf> {
+    dir.ancestors()
+        .find(|p| p.exists())
+        .filter(|p| !p.is_dir())
+        .map(Path::to_path_buf)
 }
 
 /// Whether a reference names files rather than a stage.

@@ -57,34 +57,15 @@ pub struct RawJob {
 pub struct LineIndex(BTreeMap<String, usize>);
 
 impl LineIndex {
-    fn build(text: &str, table: &DeTable, prefix: &str, index: &mut BTreeMap<String, usize>) {
-        for (key, value) in table {
-            let path = if prefix.is_empty() {
-                key.get_ref().to_string()
-            } else {
-                format!("{prefix}.{}", key.get_ref())
-            };
+    fn build(text: &str, table: &DeTable) -> LineIndex {
+        let mut index = BTreeMap::new();
+        visit(table, "", &mut |path, start, _| {
             index.insert(
-                path.clone(),
-                crate::toml_error::line_column(text, key.span().start).0,
+                path.to_string(),
+                crate::toml_error::line_column(text, start).0,
             );
-            match value.get_ref() {
-                DeValue::Table(inner) => Self::build(text, inner, &path, index),
-                DeValue::Array(items) => {
-                    for (i, item) in items.iter().enumerate() {
-                        let item_path = format!("{path}[{i}]");
-                        index.insert(
-                            item_path.clone(),
-                            crate::toml_error::line_column(text, item.span().start).0,
-                        );
-                        if let DeValue::Table(inner) = item.get_ref() {
-                            Self::build(text, inner, &item_path, index);
-                        }
-                    }
-                }
-                _ => {}
-            }
-        }
+        });
+        LineIndex(index)
     }
 
     /// Line of `key`, or of its closest enclosing key that has one.
@@ -98,6 +79,55 @@ impl LineIndex {
             key = &key[..cut];
         }
     }
+}
+
+/// Calls `f(key path, byte offset, value)` for every key and array item, depth first.
+fn visit(table: &DeTable, prefix: &str, f: &mut dyn FnMut(&str, usize, &DeValue)) {
+    for (key, value) in table {
+        let path = if prefix.is_empty() {
+            key.get_ref().to_string()
+        } else {
+            format!("{prefix}.{}", key.get_ref())
+        };
+        visit_value(&path, key.span().start, value.get_ref(), f);
+    }
+}
+
+fn visit_value(
+    path: &str,
+    start: usize,
+    value: &DeValue,
+    f: &mut dyn FnMut(&str, usize, &DeValue),
+) {
+    f(path, start, value);
+    match value {
+        DeValue::Table(inner) => visit(inner, path, f),
+        DeValue::Array(items) => {
+            for (i, item) in items.iter().enumerate() {
+                visit_value(
+                    &format!("{path}[{i}]"),
+                    item.span().start,
+                    item.get_ref(),
+                    f,
+                );
+            }
+        }
+        _ => {}
+    }
+}
+
+/// Keys whose integer literal is syntactically TOML but beyond i64, which the
+/// TOML deserialiser rejects without a location: (key path, literal).
+fn oversized_integers(table: &DeTable) -> Vec<(String, String)> {
+    let mut found = Vec::new();
+    visit(table, "", &mut |path, _, value| {
+        if let DeValue::Integer(integer) = value
+            && i64::from_str_radix(integer.as_str(), integer.radix()).is_err()
+        {
+            found.push((path.to_string(), integer.as_str().to_string()));
+        }
+    });
+    found
 }
 
 const STAGE_KEYS: [&str; 3] = ["id", "kind", "inputs"];
@@ -120,9 +150,25 @@ pub fn parse(text: &str, path: &Path) -> Result<RawJob, JobProblems> {
             format!("invalid TOML: {}", e.message().trim()),
         )])
     })?;
-    let mut index = BTreeMap::new();
-    LineIndex::build(text, spanned.get_ref(), "", &mut index);
-    let lines = LineIndex(index);
+    let lines = LineIndex::build(text, spanned.get_ref());
+    let oversized = oversized_integers(spanned.get_ref());
+    if !oversized.is_empty() {
+        return Err(JobProblems(
+            oversized
+                .into_iter()
+                .map(|(key, literal)| {
+                    problem(
+                        lines.line_of(&key),
+                        &key,
+                        format!(
+                            "integer `{literal}` does not fit TOML's 64-bit signed integers (at most {})",
+                            i64::MAX
+                        ),
+                    )
+                })
+                .collect(),
+        ));
+    }
     let root: toml::Table = toml::from_str(text).map_err(|e| {
         JobProblems(vec![problem(
             None,
