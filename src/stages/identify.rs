@@ -21,7 +21,7 @@ use super::{
     InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot,
     conf_wrench_rows,
 };
-use crate::calibration::fit::{Algorithm, FitOptions, Loss, Observations};
+use crate::calibration::fit::{Algorithm, FitError, FitOptions, Loss, Observations};
 use crate::calibration::robust::RobustOptions;
 use crate::calibration::{
     CalibrationOptions, ModelResult, calibrate, registered_start, row_checks, stream,
@@ -584,7 +584,14 @@ impl Stage for IdentifyStage {
                 _ => registered,
             };
             let mut result = calibrate(ctx.robot, model, &observations, &start, &options)
-                .map_err(|e| StageError::Failed(format!("{model}: {e}")))?;
+                .map_err(|e| match e {
+                    // Too small a table is a property of the input, not a failure of the fit.
+                    FitError::TooFewRows { .. } => StageError::Invalid(format!(
+                        "{}: {model}: {e}",
+                        measurements.path.display()
+                    )),
+                    _ => StageError::Failed(format!("{model}: {e}")),
+                })?;
             if targets.len() > 1 {
                 result.set.targets = targets.clone();
             }
