@@ -119,8 +119,9 @@ impl CableRobotSpec {
     }
 
     /// Checks counts and ranges: exactly eight anchors and eight attachments, all
-    /// coordinates finite, `0 <= min_tension_n < max_tension_n` (finite) and
-    /// `moment_scale_mm > 0` (finite). Errors are [`CdprError::InvalidSpec`] naming
+    /// coordinates finite and within [`MAX_COORDINATE_MM`], `0 <= min_tension_n <
+    /// max_tension_n <= MAX_TENSION_N` and `0 < moment_scale_mm <=
+    /// MAX_COORDINATE_MM`: beyond those a value is a typo, not a cable robot. Errors are [`CdprError::InvalidSpec`] naming
     /// the key, e.g. `anchors_base_mm[3]`.
     pub fn validate(&self) -> Result<(), CdprError> {
         let invalid = |key: String, message: String| CdprError::InvalidSpec { key, message };
@@ -138,10 +139,15 @@ impl CableRobotSpec {
                 ));
             }
             for (i, point) in points.iter().enumerate() {
-                if !point.iter().all(|v| v.is_finite()) {
+                if !point
+                    .iter()
+                    .all(|v| v.is_finite() && v.abs() <= MAX_COORDINATE_MM)
+                {
                     return Err(invalid(
                         format!("{name}[{i}]"),
-                        format!("expected finite coordinates, found {point:?}"),
+                        format!(
+                            "expected finite coordinates within ±{MAX_COORDINATE_MM} mm, found {point:?}"
+                        ),
                     ));
                 }
             }
@@ -153,22 +159,29 @@ impl CableRobotSpec {
                 format!("expected a finite tension >= 0, found {lo}"),
             ));
         }
-        if !(hi.is_finite() && hi > lo) {
+        if !(hi > lo && hi <= MAX_TENSION_N) {
             return Err(invalid(
                 "max_tension_n".into(),
-                format!("expected a finite tension > min_tension_n ({lo}), found {hi}"),
+                format!(
+                    "expected a tension > min_tension_n ({lo}) and at most {MAX_TENSION_N} N, found {hi}"
+                ),
             ));
         }
         let scale = self.moment_scale_mm;
-        if !(scale.is_finite() && scale > 0.0) {
+        if !(scale > 0.0 && scale <= MAX_COORDINATE_MM) {
             return Err(invalid(
                 "moment_scale_mm".into(),
-                format!("expected a finite length > 0, found {scale}"),
+                format!("expected a length > 0 and at most {MAX_COORDINATE_MM} mm, found {scale}"),
             ));
         }
         Ok(())
     }
 }
+
+/// Largest coordinate or length of a cable robot that is not a typo (mm; 100 m).
+pub const MAX_COORDINATE_MM: f64 = 1.0e5;
+/// Largest cable tension that is not a typo (N; about 100 t).
+pub const MAX_TENSION_N: f64 = 1.0e6;
 
 #[cfg(test)]
 mod tests {

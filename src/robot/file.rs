@@ -148,6 +148,10 @@ impl RobotSpec {
         Ok(spec)
     }
 
+    /// Every number finite and within what a real arm can have, limits ordered,
+    /// masses and radii positive: a value beyond [`MAX_LENGTH_MM`] or a limit
+    /// beyond [`MAX_JOINT_TRAVEL_DEG`] is a typo, and a typo in a robot file spoils
+    /// every stage after it.
     fn validate(&self, path: &Path) -> Result<(), RobotFileError> {
         let invalid = |key: String, message: String| RobotFileError::Invalid {
             path: path.to_path_buf(),
@@ -160,49 +164,103 @@ impl RobotSpec {
                 format!("expected exactly 6 joints, found {}", self.joints.len()),
             ));
         }
+        let mut checks: Vec<(String, &[f64], Bound)> = vec![
+            ("gravity_mps2".into(), &self.gravity_mps2, Bound::Gravity),
+            (
+                "payload.mass_kg".into(),
+                std::slice::from_ref(&self.payload.mass_kg),
+                Bound::Mass,
+            ),
+            ("payload.cog_mm".into(), &self.payload.cog_mm, Bound::Length),
+        ];
+        for (name, frame) in [("world", &self.world), ("tool", &self.tool)] {
+            checks.push((
+                format!("{name}.x_mm"),
+                std::slice::from_ref(&frame.x_mm),
+                Bound::Length,
+            ));
+            checks.push((
+                format!("{name}.y_mm"),
+                std::slice::from_ref(&frame.y_mm),
+                Bound::Length,
+            ));
+            checks.push((
+                format!("{name}.z_mm"),
+                std::slice::from_ref(&frame.z_mm),
+                Bound::Length,
+            ));
+            checks.push((
+                format!("{name}.alpha_deg"),
+                std::slice::from_ref(&frame.alpha_deg),
+                Bound::Angle,
+            ));
+            checks.push((
+                format!("{name}.beta_deg"),
+                std::slice::from_ref(&frame.beta_deg),
+                Bound::Angle,
+            ));
+            checks.push((
+                format!("{name}.gamma_deg"),
+                std::slice::from_ref(&frame.gamma_deg),
+                Bound::Angle,
+            ));
+        }
         for (i, joint) in self.joints.iter().enumerate() {
-            let numbers = [
-                ("alpha_deg", joint.alpha_deg),
-                ("a_mm", joint.a_mm),
-                ("theta_offset_deg", joint.theta_offset_deg),
-                ("d_mm", joint.d_mm),
-                ("link_mass_kg", joint.link_mass_kg),
-            ];
-            for (name, value) in numbers {
-                if !value.is_finite() {
-                    return Err(invalid(
-                        format!("joints[{i}].{name}"),
-                        "expected a finite number".into(),
-                    ));
-                }
+            let key = |name: &str| format!("joints[{i}].{name}");
+            checks.push((
+                key("alpha_deg"),
+                std::slice::from_ref(&joint.alpha_deg),
+                Bound::Angle,
+            ));
+            checks.push((
+                key("a_mm"),
+                std::slice::from_ref(&joint.a_mm),
+                Bound::Length,
+            ));
+            checks.push((
+                key("theta_offset_deg"),
+                std::slice::from_ref(&joint.theta_offset_deg),
+                Bound::Angle,
+            ));
+            checks.push((
+                key("d_mm"),
+                std::slice::from_ref(&joint.d_mm),
+                Bound::Length,
+            ));
+            checks.push((key("limits_deg"), &joint.limits_deg, Bound::Travel));
+            checks.push((
+                key("link_mass_kg"),
+                std::slice::from_ref(&joint.link_mass_kg),
+                Bound::Mass,
+            ));
+            checks.push((key("link_cog_mm"), &joint.link_cog_mm, Bound::Length));
+            if let Some(capsule) = &joint.capsule {
+                checks.push((key("capsule.from_mm"), &capsule.from_mm, Bound::Length));
+                checks.push((key("capsule.to_mm"), &capsule.to_mm, Bound::Length));
+                checks.push((
+                    key("capsule.radius_mm"),
+                    std::slice::from_ref(&capsule.radius_mm),
+                    Bound::Radius,
+                ));
             }
+        }
+        for (key, values, bound) in checks {
+            if let Some(expected) = values.iter().find_map(|v| bound.violated_by(*v)) {
+                let found = match values {
+                    [one] => format!("{one}"),
+                    many => format!("{many:?}"),
+                };
+                return Err(invalid(key, format!("expected {expected}, found {found}")));
+            }
+        }
+        for (i, joint) in self.joints.iter().enumerate() {
             let [lo, hi] = joint.limits_deg;
-            if !(lo.is_finite() && hi.is_finite() && lo < hi) {
+            if lo >= hi {
                 return Err(invalid(
                     format!("joints[{i}].limits_deg"),
                     format!("expected [min, max] with min < max, found [{lo}, {hi}]"),
                 ));
             }
-            if joint.link_mass_kg < 0.0 {
-                return Err(invalid(
-                    format!("joints[{i}].link_mass_kg"),
-                    "expected a mass >= 0".into(),
-                ));
-            }
-            if let Some(capsule) = &joint.capsule
-                && capsule.radius_mm.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater)
-            {
-                return Err(invalid(
-                    format!("joints[{i}].capsule.radius_mm"),
-                    "expected a radius > 0".into(),
-                ));
-            }
-        }
-        if !(self.payload.mass_kg.is_finite() && self.payload.mass_kg >= 0.0) {
-            return Err(invalid(
-                "payload.mass_kg".into(),
-                "expected a mass >= 0".into(),
-            ));
         }
         Ok(())
     }
@@ -212,6 +270,58 @@ impl RobotSpec {
     pub fn content_hash(&self) -> String {
         let canonical = serde_json::to_vec(self).expect("robot spec serialises to JSON");
         blake3::hash(&canonical).to_hex().to_string()
+    }
+}
+
+/// Largest length in a robot file that is not a typo (mm; 100 m).
+pub const MAX_LENGTH_MM: f64 = 1.0e5;
+/// Largest joint travel from zero that is not a typo (deg; 100 turns, beyond the
+/// endless sixth axes of some arms).
+pub const MAX_JOINT_TRAVEL_DEG: f64 = 36_000.0;
+/// Largest link or payload mass that is not a typo (kg).
+const MAX_MASS_KG: f64 = 1.0e5;
+/// Largest gravity component that is not a typo (m/s²).
+const MAX_GRAVITY_MPS2: f64 = 100.0;
+
+/// What a number of the robot file must satisfy besides being finite.
+#[derive(Debug, Clone, Copy)]
+enum Bound {
+    Length,
+    Angle,
+    Travel,
+    Mass,
+    Radius,
+    Gravity,
+}
+
+impl Bound {
+    /// What was expected, when `value` breaks the bound.
+    fn violated_by(self, value: f64) -> Option<String> {
+        let (ok, expected) = match self {
+            Bound::Length => (
+                value.abs() <= MAX_LENGTH_MM,
+                format!("a length within ±{MAX_LENGTH_MM} mm"),
+            ),
+            Bound::Angle => (value.abs() <= 360.0, "an angle within ±360°".to_string()),
+            Bound::Travel => (
+                value.abs() <= MAX_JOINT_TRAVEL_DEG,
+                format!("joint limits within ±{MAX_JOINT_TRAVEL_DEG}°"),
+            ),
+            Bound::Mass => (
+                (0.0..=MAX_MASS_KG).contains(&value),
+                format!("a mass >= 0 and at most {MAX_MASS_KG} kg"),
+            ),
+            Bound::Radius => (
+                value > 0.0 && value <= MAX_LENGTH_MM,
+                format!("a radius > 0 and at most {MAX_LENGTH_MM} mm"),
+            ),
+            Bound::Gravity => (
+                value.abs() <= MAX_GRAVITY_MPS2,
+                format!("components within ±{MAX_GRAVITY_MPS2} m/s²"),
+            ),
+        };
+        // NaN fails every comparison above, so it lands here too.
+        (!ok).then_some(expected)
     }
 }
 

@@ -583,15 +583,16 @@ impl Stage for IdentifyStage {
                 (ModelName::Reregistered, Some(start)) => start,
                 _ => registered,
             };
-            let mut result = calibrate(ctx.robot, model, &observations, &start, &options)
-                .map_err(|e| match e {
+            let mut result = calibrate(ctx.robot, model, &observations, &start, &options).map_err(
+                |e| match e {
                     // Too small a table is a property of the input, not a failure of the fit.
                     FitError::TooFewRows { .. } => StageError::Invalid(format!(
                         "{}: {model}: {e}",
                         measurements.path.display()
                     )),
                     _ => StageError::Failed(format!("{model}: {e}")),
-                })?;
+                },
+            )?;
             if targets.len() > 1 {
                 result.set.targets = targets.clone();
             }
