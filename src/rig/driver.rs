@@ -112,9 +112,8 @@ impl ExternalDriver {
             last_measured_at_us: 0,
             name: String::new(),
         };
-        let at_start = |problem: String| {
-            RigError::Fatal(format!("driver `{shown}` failed at start: {problem}"))
-        };
+        let at_start =
+            |problem: String| RigError::Fatal(format!("starting driver `{shown}`: {problem}"));
         let hello = match driver.call(Call::Hello {
             protocol: PROTOCOL_VERSION,
         }) {
@@ -179,12 +178,7 @@ impl ExternalDriver {
                     }));
                 }
             };
-            let reply: Reply = serde_json::from_str(&line).map_err(|e| {
-                RigError::Fatal(format!(
-                    "driver sent a malformed reply to `{method}`: {e}: {}",
-                    excerpt(&line)
-                ))
-            })?;
+            let reply = parse_reply(&line, &method)?;
             if reply.id < id {
                 continue; // late answer to a request that already timed out
             }
@@ -278,6 +272,17 @@ impl Drop for ExternalDriver {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
+}
+
+/// One reply line as the driver sent it (any bytes, made UTF-8 lossily): a
+/// [`Reply`], or a fatal error quoting the line. Never panics, whatever the line.
+fn parse_reply(line: &str, method: &str) -> Result<Reply, RigError> {
+    serde_json::from_str(line).map_err(|e| {
+        RigError::Fatal(format!(
+            "driver sent a malformed reply to `{method}`: {e}: {}",
+            excerpt(line)
+        ))
+    })
 }
 
 /// How long [`ExternalDriver::exit_status`] waits for a driver whose pipes broke.
@@ -409,4 +414,90 @@ pub fn serve(
         output.flush()?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn any_reply_line_parses_or_is_a_fatal_error_quoting_it() {
+        let deep = "[".repeat(100_000);
+        // Unterminated: a driver that died mid-line, or a reply cut at a pipe buffer.
+        let long = format!(r#"{{"id": 1, "result": {{"name": "{}"#, "é".repeat(100_000));
+        let lossy = String::from_utf8_lossy(b"\xff\xfe\x00\x01{\"id\":1}\xc3").into_owned();
+        let nasty = [
+            "",
+            " ",
+            "null",
+            "[]",
+            "{}",
+            "1",
+            "\"text\"",
+            deep.as_str(),
+            long.as_str(),
+            lossy.as_str(),
+            "{\"id\": -1}",
+            "{\"id\": 1e30}",
+            "{\"id\": 18446744073709551616}",
+            "{\"id\": \"1\"}",
+            "{\"id\": 1, \"id\": 2}",
+            "{\"id\": 1, \"surprise\": true}",
+            "{\"id\": 1, \"result\": {\"position_mm\": [1e400, 0, 0]}}",
+            "{\"id\": 1, \"result\": {\"position_mm\": [NaN, 0, 0]}}",
+            "{\"id\": 1, \"result\": {\"q_deg\": [1, 2, 3, 4, 5, 6, 7]}}",
+            "{\"id\": 1, \"result\": {\"name\": \"\\ud800\"}}",
+            "{\"id\": 1, \"error\": {\"message\": null}}",
+            "{\"id\": 1, \"result\": {}} trailing",
+            "{\"id\": 1, \"result\": {\"wrench\": [0,0,0,0,0,0]}}",
+        ];
+        let mut parsed = 0;
+        for line in nasty {
+            match parse_reply(line, "measure") {
+                Ok(reply) => {
+                    assert_eq!(reply.id, 1, "{line:.80}");
+                    parsed += 1;
+                }
+                Err(RigError::Fatal(message)) => {
+                    assert!(
+                        message.starts_with("driver sent a malformed reply to `measure`: ")
+                            && message.len() < 1000,
+                        "{message}"
+                    );
+                }
+                Err(other) => panic!("{other:?} for {line:.80}"),
+            }
+        }
+        // The last line above, the one well-formed reply, and only it, parses.
+        assert_eq!(parsed, 1);
+        assert!(parse_reply(nasty[nasty.len() - 1], "measure").is_ok());
+        // Cut on a character boundary, with the full length given.
+        let message = parse_reply(&long, "hello").map_or_else(|e| e.to_string(), |_| String::new());
+        assert!(
+            message.ends_with(&format!("… ({} bytes)", long.len())),
+            "{message:.300}"
+        );
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn an_exit_is_described_by_its_status_or_signal() {
+        use std::os::unix::process::ExitStatusExt;
+        assert_eq!(
+            describe_exit(ExitStatus::from_raw(3 << 8)),
+            "exited with status 3"
+        );
+        assert_eq!(
+            describe_exit(ExitStatus::from_raw(9)),
+            "was killed by signal 9 (SIGKILL)"
+        );
+        assert_eq!(
+            describe_exit(ExitStatus::from_raw(11 | 0x80)),
+            "was killed by signal 11 (SIGSEGV), core dumped"
+        );
+        assert_eq!(
+            describe_exit(ExitStatus::from_raw(64)),
+            "was killed by signal 64"
+        );
+    }
 }
