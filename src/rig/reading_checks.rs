@@ -143,7 +143,7 @@ impl ReadingBounds {
         ];
         for (name, value) in settings {
             if let Some(value) = value
-                && !(value >= 0.0)
+                && (value.is_nan() || value < 0.0)
             {
                 return Err(format!("setting `{name}` = {value} must be a number ≥ 0"));
             }
@@ -190,7 +190,7 @@ impl ReadingBounds {
                 )
             };
             let value = wrench[i];
-            if !(value.abs() <= range) {
+            if !at_most(value.abs(), range) {
                 return Err(ReadingFault::BeyondSensorRange {
                     column,
                     value,
@@ -199,7 +199,7 @@ impl ReadingBounds {
                 });
             }
             if let Some(bound) = error_bound
-                && !((value - commanded_wrench[i]).abs() <= bound)
+                && !at_most((value - commanded_wrench[i]).abs(), bound)
             {
                 return Err(ReadingFault::WrenchError {
                     column,
@@ -222,7 +222,7 @@ impl ReadingBounds {
                     tolerance_deg,
                 });
             }
-            if !((value - commanded_q_deg[i]).abs() <= self.max_joint_error_deg) {
+            if !at_most((value - commanded_q_deg[i]).abs(), self.max_joint_error_deg) {
                 return Err(ReadingFault::JointError {
                     column,
                     value,
@@ -235,7 +235,7 @@ impl ReadingBounds {
         // message should show the distance, not infinity.
         let [x, y, z] = *position_mm;
         let distance_mm = x.hypot(y).hypot(z);
-        if !(distance_mm <= self.max_tracker_distance_mm) {
+        if !at_most(distance_mm, self.max_tracker_distance_mm) {
             return Err(ReadingFault::FarFromTracker {
                 position_mm: *position_mm,
                 distance_mm,
@@ -244,6 +244,11 @@ impl ReadingBounds {
         }
         Ok(())
     }
+}
+
+/// `value ≤ bound`, false for a NaN value: a NaN reading breaks every bound.
+fn at_most(value: f64, bound: f64) -> bool {
+    value <= bound
 }
 
 #[cfg(test)]
