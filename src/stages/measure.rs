@@ -256,6 +256,20 @@ impl Stage for MeasureStage {
             ));
         }
 
+        // Before the rig starts: a bound that rejects every reading is refused
+        // before anything moves.
+        let bounds = ReadingBounds::new(
+            ctx.robot,
+            settings.joint_tolerance_deg,
+            settings.max_joint_error_deg,
+            settings.sensor_range_n,
+            settings.sensor_range_nm,
+            settings.max_wrench_error_n,
+            settings.max_wrench_error_nm,
+            settings.max_tracker_distance_mm,
+        )
+        .map_err(StageError::Invalid)?;
+
         let mut rig: Box<dyn Rig> = match settings.driver {
             DriverKind::Simulator => Box::new(
                 Simulator::new(ctx.robot.clone(), truth, settings.simulator.clone(), seed)
@@ -277,18 +291,6 @@ impl Stage for MeasureStage {
                 )
             }
         };
-
-        let bounds = ReadingBounds::new(
-            ctx.robot,
-            settings.joint_tolerance_deg,
-            settings.max_joint_error_deg,
-            settings.sensor_range_n,
-            settings.sensor_range_nm,
-            settings.max_wrench_error_n,
-            settings.max_wrench_error_nm,
-            settings.max_tracker_distance_mm,
-        )
-        .map_err(StageError::Invalid)?;
 
         ctx.progress.start(todo.len() as u64, "rows");
         let mut failures = 0;
