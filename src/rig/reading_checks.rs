@@ -118,28 +118,23 @@ impl From<ReadingFault> for RigError {
 }
 
 impl ReadingBounds {
-    /// The bounds of `robot` with the given settings; an error names a setting
-    /// that is negative or not a number (it would reject every reading, after
-    /// the rig had moved for each).
-    #[allow(clippy::too_many_arguments)] // one argument per setting, named at the call
-    pub fn new(
-        robot: &Robot,
-        joint_tolerance_deg: f64,
-        max_joint_error_deg: f64,
-        sensor_range_n: f64,
-        sensor_range_nm: f64,
-        max_wrench_error_n: Option<f64>,
-        max_wrench_error_nm: Option<f64>,
-        max_tracker_distance_mm: f64,
-    ) -> Result<Self, String> {
+    /// The robot's joint limits, for [`ReadingBounds::limits_deg`].
+    pub fn limits_of(robot: &Robot) -> [[f64; 2]; JOINTS] {
+        std::array::from_fn(|i| robot.limits_deg(i))
+    }
+
+    /// The bounds themselves, or an error naming a setting that is negative or
+    /// not a number: it would reject every reading, after the rig had moved for
+    /// each row.
+    pub fn checked(self) -> Result<Self, String> {
         let settings = [
-            (JOINT_TOLERANCE, Some(joint_tolerance_deg)),
-            (MAX_JOINT_ERROR, Some(max_joint_error_deg)),
-            (SENSOR_RANGE_N, Some(sensor_range_n)),
-            (SENSOR_RANGE_NM, Some(sensor_range_nm)),
-            (MAX_WRENCH_ERROR_N, max_wrench_error_n),
-            (MAX_WRENCH_ERROR_NM, max_wrench_error_nm),
-            (MAX_TRACKER_DISTANCE, Some(max_tracker_distance_mm)),
+            (JOINT_TOLERANCE, Some(self.joint_tolerance_deg)),
+            (MAX_JOINT_ERROR, Some(self.max_joint_error_deg)),
+            (SENSOR_RANGE_N, Some(self.sensor_range_n)),
+            (SENSOR_RANGE_NM, Some(self.sensor_range_nm)),
+            (MAX_WRENCH_ERROR_N, self.max_wrench_error_n),
+            (MAX_WRENCH_ERROR_NM, self.max_wrench_error_nm),
+            (MAX_TRACKER_DISTANCE, Some(self.max_tracker_distance_mm)),
         ];
         for (name, value) in settings {
             if let Some(value) = value
@@ -148,16 +143,7 @@ impl ReadingBounds {
                 return Err(format!("setting `{name}` = {value} must be a number ≥ 0"));
             }
         }
-        Ok(ReadingBounds {
-            limits_deg: std::array::from_fn(|i| robot.limits_deg(i)),
-            joint_tolerance_deg,
-            max_joint_error_deg,
-            sensor_range_n,
-            sensor_range_nm,
-            max_wrench_error_n,
-            max_wrench_error_nm,
-            max_tracker_distance_mm,
-        })
+        Ok(self)
     }
 
     /// Checks one row's readings against the bounds and the row's commands, in
@@ -261,16 +247,17 @@ mod tests {
     const P: [f64; 3] = [1200.0, -300.0, 900.0];
 
     fn bounds(max_wrench_error: Option<f64>) -> ReadingBounds {
-        ReadingBounds::new(
-            &irb1600(),
-            0.5,
-            1.0,
-            2500.0,
-            400.0,
-            max_wrench_error,
-            max_wrench_error.map(|b| b / 10.0),
-            40_000.0,
-        )
+        ReadingBounds {
+            limits_deg: ReadingBounds::limits_of(&irb1600()),
+            joint_tolerance_deg: 0.5,
+            max_joint_error_deg: 1.0,
+            sensor_range_n: 2500.0,
+            sensor_range_nm: 400.0,
+            max_wrench_error_n: max_wrench_error,
+            max_wrench_error_nm: max_wrench_error.map(|b| b / 10.0),
+            max_tracker_distance_mm: 40_000.0,
+        }
+        .checked()
         .unwrap()
     }
 
@@ -354,11 +341,19 @@ mod tests {
 
     #[test]
     fn negative_or_nan_settings_are_refused_by_name() {
-        let robot = irb1600();
-        let e = ReadingBounds::new(&robot, -1.0, 1.0, 1.0, 1.0, None, None, 1.0).unwrap_err();
+        let e = ReadingBounds {
+            joint_tolerance_deg: -1.0,
+            ..bounds(None)
+        }
+        .checked()
+        .unwrap_err();
         assert!(e.contains("`joint_tolerance_deg` = -1"), "{e}");
-        let e =
-            ReadingBounds::new(&robot, 1.0, 1.0, 1.0, 1.0, None, Some(f64::NAN), 1.0).unwrap_err();
+        let e = ReadingBounds {
+            max_wrench_error_nm: Some(f64::NAN),
+            ..bounds(None)
+        }
+        .checked()
+        .unwrap_err();
         assert!(e.contains("`max_wrench_error_nm`"), "{e}");
     }
 }

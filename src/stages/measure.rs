@@ -258,16 +258,17 @@ impl Stage for MeasureStage {
 
         // Before the rig starts: a bound that rejects every reading is refused
         // before anything moves.
-        let bounds = ReadingBounds::new(
-            ctx.robot,
-            settings.joint_tolerance_deg,
-            settings.max_joint_error_deg,
-            settings.sensor_range_n,
-            settings.sensor_range_nm,
-            settings.max_wrench_error_n,
-            settings.max_wrench_error_nm,
-            settings.max_tracker_distance_mm,
-        )
+        let bounds = ReadingBounds {
+            limits_deg: ReadingBounds::limits_of(ctx.robot),
+            joint_tolerance_deg: settings.joint_tolerance_deg,
+            max_joint_error_deg: settings.max_joint_error_deg,
+            sensor_range_n: settings.sensor_range_n,
+            sensor_range_nm: settings.sensor_range_nm,
+            max_wrench_error_n: settings.max_wrench_error_n,
+            max_wrench_error_nm: settings.max_wrench_error_nm,
+            max_tracker_distance_mm: settings.max_tracker_distance_mm,
+        }
+        .checked()
         .map_err(StageError::Invalid)?;
 
         let mut rig: Box<dyn Rig> = match settings.driver {
