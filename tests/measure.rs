@@ -323,8 +323,9 @@ fn an_unsafe_wrench_is_refused_before_the_move_and_the_rows_before_it_are_kept()
     let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
     assert_eq!(code, 3, "{stderr}");
     assert!(
-        stderr.contains("safety stop before cw_id 9 (input row 8): fx_n = -118.7")
-            && stderr.contains("exceeds the bound ±114"),
+        stderr.contains("safety stop before cw_id 9 (input row 8 of ")
+            && stderr.contains("noiseless_simulator/conf_wrenches.parquet): fx_n = -118.7")
+            && stderr.contains("exceeds the bound ±114 (max_force_n)"),
         "{stderr}"
     );
     // The driver never saw the unsafe row.

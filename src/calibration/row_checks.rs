@@ -95,7 +95,7 @@ fn wrench_problem(row: &ConfWrench) -> Option<String> {
 }
 
 /// A value as a person reads it: plain, or in exponent form when huge or tiny.
-fn compact(value: f64) -> String {
+pub(crate) fn compact(value: f64) -> String {
     if value != 0.0 && (value.abs() >= 1e6 || value.abs() < 1e-3) {
         format!("{value:e}")
     } else {

@@ -5,9 +5,15 @@
 //! A reader thread forwards the driver's stdout lines over a channel so a request
 //! can time out without blocking; a late reply to a timed-out request is recognised
 //! by its id and dropped. The driver's stderr passes through to ours (its logs).
+//!
+//! The driver runs in the job file's folder, so a job and its driver script move
+//! together. When its pipes break, egcal waits briefly for the process and says
+//! how it ended (exit status or signal): "stopped reading" alone sends the lab
+//! looking in the wrong place.
 
 use std::io::{BufRead, BufReader, Write};
-use std::process::{Child, ChildStdin, Command, Stdio};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, ExitStatus, Stdio};
 use std::sync::mpsc::{Receiver, RecvTimeoutError, channel};
 use std::time::Duration;
 
@@ -27,18 +33,49 @@ pub struct ExternalDriver {
 }
 
 impl ExternalDriver {
-    /// Starts `command` (program and arguments) and exchanges `hello`.
-    pub fn start(command: &[String], timeout: Duration) -> Result<Self, RigError> {
+    /// Starts `command` (program and arguments) in `dir`, the job file's folder,
+    /// and exchanges `hello`. A relative program path with a `/` in it
+    /// (`./driver.sh`, `bin/driver`) is taken relative to `dir`, the way a lab
+    /// writes it in its job file; a bare name (`python3`) is looked up on `PATH`.
+    /// Every failure names the command, since nothing else has been learned of the
+    /// driver yet.
+    pub fn start(command: &[String], dir: &Path, timeout: Duration) -> Result<Self, RigError> {
         let (program, args) = command
             .split_first()
             .ok_or_else(|| RigError::Fatal("driver command is empty".into()))?;
-        let mut child = Command::new(program)
+        let shown = command.join(" ");
+        // Absolute, because a relative program path combined with `current_dir`
+        // is resolved differently on different platforms (std::process::Command).
+        let dir = if dir.as_os_str().is_empty() {
+            Path::new(".")
+        } else {
+            dir
+        };
+        let dir = std::path::absolute(dir).map_err(|e| {
+            RigError::Fatal(format!(
+                "cannot start driver `{shown}` in {}: {e}",
+                dir.display()
+            ))
+        })?;
+        let program_path = if program.contains('/') {
+            dir.join(program)
+        } else {
+            PathBuf::from(program)
+        };
+        let mut child = Command::new(&program_path)
             .args(args)
+            .current_dir(&dir)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
-            .map_err(|e| RigError::Fatal(format!("cannot start driver `{program}`: {e}")))?;
+            .map_err(|e| {
+                RigError::Fatal(format!(
+                    "cannot start driver `{shown}` in {}: {}: {e}",
+                    dir.display(),
+                    program_path.display()
+                ))
+            })?;
         let stdin = child
             .stdin
             .take()
@@ -75,18 +112,29 @@ impl ExternalDriver {
             last_measured_at_us: 0,
             name: String::new(),
         };
-        let hello = driver.call(Call::Hello {
+        let at_start =
+            |problem: String| RigError::Fatal(format!("starting driver `{shown}`: {problem}"));
+        let hello = match driver.call(Call::Hello {
             protocol: PROTOCOL_VERSION,
-        })?;
+        }) {
+            Ok(hello) => hello,
+            Err(e) => {
+                // No polite `shutdown` to a driver that failed `hello`: it may hang.
+                let _ = driver.child.kill();
+                let _ = driver.child.wait();
+                return Err(at_start(e.to_string()));
+            }
+        };
         match hello.protocol {
             Some(PROTOCOL_VERSION) => {}
             other => {
-                return Err(RigError::Fatal(format!(
-                    "driver speaks protocol {other:?}, egcal speaks {PROTOCOL_VERSION}"
+                return Err(at_start(format!(
+                    "it speaks protocol {}, egcal speaks {PROTOCOL_VERSION}",
+                    other.map_or("(none given)".into(), |v| v.to_string())
                 )));
             }
         }
-        driver.name = hello.name.unwrap_or_else(|| program.clone());
+        driver.name = hello.name.unwrap_or(shown);
         Ok(driver)
     }
 
@@ -98,33 +146,39 @@ impl ExternalDriver {
             .ok()
             .and_then(|v| v["method"].as_str().map(str::to_string))
             .unwrap_or_default();
+        // A driver that never answers its first request is usually one that does
+        // not read stdin line by line or does not flush its replies.
+        let hint = if matches!(call, Call::Hello { .. }) {
+            "; does it read requests from stdin and flush each reply line?"
+        } else {
+            ""
+        };
         let line = serde_json::to_string(&Request { id, call }).expect("request serialises");
-        writeln!(self.stdin, "{line}")
-            .and_then(|_| self.stdin.flush())
-            .map_err(|e| RigError::Fatal(format!("driver stopped reading ({method}): {e}")))?;
+        if let Err(e) = writeln!(self.stdin, "{line}").and_then(|_| self.stdin.flush()) {
+            return Err(RigError::Fatal(match self.exit_status() {
+                Some(status) => format!("driver {} during `{method}`", describe_exit(status)),
+                None => format!("driver stopped reading its stdin during `{method}`: {e}"),
+            }));
+        }
         loop {
             let line = match self.lines.recv_timeout(self.timeout) {
                 Ok(line) => line,
                 Err(RecvTimeoutError::Timeout) => {
                     return Err(RigError::Transient(format!(
-                        "driver did not answer `{method}` within {:.1} s",
+                        "driver did not answer `{method}` within {:.1} s{hint}",
                         self.timeout.as_secs_f64()
                     )));
                 }
                 Err(RecvTimeoutError::Disconnected) => {
-                    let status = self.child.try_wait().ok().flatten();
-                    return Err(RigError::Fatal(format!(
-                        "driver exited during `{method}`{}",
-                        status.map(|s| format!(" ({s})")).unwrap_or_default()
-                    )));
+                    return Err(RigError::Fatal(match self.exit_status() {
+                        Some(status) => {
+                            format!("driver {} during `{method}`", describe_exit(status))
+                        }
+                        None => format!("driver closed its stdout during `{method}`"),
+                    }));
                 }
             };
-            let reply: Reply = serde_json::from_str(&line).map_err(|e| {
-                RigError::Fatal(format!(
-                    "driver sent a malformed reply to `{method}`: {e}: {}",
-                    excerpt(&line)
-                ))
-            })?;
+            let reply = parse_reply(&line, &method)?;
             if reply.id < id {
                 continue; // late answer to a request that already timed out
             }
@@ -144,6 +198,20 @@ impl ExternalDriver {
                 (None, None) => Ok(ReplyResult::default()),
             };
         }
+    }
+
+    /// The driver's exit status once its pipes broke: it has usually exited but
+    /// may not have been reaped yet, so this waits up to a second for it; `None`
+    /// when it is still running (it closed a pipe but lives on).
+    fn exit_status(&mut self) -> Option<ExitStatus> {
+        for _ in 0..EXIT_POLLS {
+            match self.child.try_wait() {
+                Ok(Some(status)) => return Some(status),
+                Ok(None) => std::thread::sleep(EXIT_POLL_INTERVAL),
+                Err(_) => return None,
+            }
+        }
+        None
     }
 
     fn missing(method: &str, field: &str) -> RigError {
@@ -191,6 +259,9 @@ impl Rig for ExternalDriver {
 
 impl Drop for ExternalDriver {
     fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(Some(_))) {
+            return; // already exited (died, or killed after a failed `hello`)
+        }
         let _ = self.call(Call::Shutdown {});
         for _ in 0..50 {
             if matches!(self.child.try_wait(), Ok(Some(_))) {
@@ -200,6 +271,53 @@ impl Drop for ExternalDriver {
         }
         let _ = self.child.kill();
         let _ = self.child.wait();
+    }
+}
+
+/// One reply line as the driver sent it (any bytes, made UTF-8 lossily): a
+/// [`Reply`], or a fatal error quoting the line. Never panics, whatever the line.
+fn parse_reply(line: &str, method: &str) -> Result<Reply, RigError> {
+    serde_json::from_str(line).map_err(|e| {
+        RigError::Fatal(format!(
+            "driver sent a malformed reply to `{method}`: {e}: {}",
+            excerpt(line)
+        ))
+    })
+}
+
+/// How long [`ExternalDriver::exit_status`] waits for a driver whose pipes broke.
+const EXIT_POLLS: u32 = 50;
+const EXIT_POLL_INTERVAL: Duration = Duration::from_millis(20);
+
+/// How a driver ended, for messages: "exited with status 3", "was killed by
+/// signal 9 (SIGKILL)". A signal says more than a missing status code: the lab's
+/// driver crashed (SIGSEGV, SIGABRT) or was killed by someone (SIGKILL, SIGTERM).
+fn describe_exit(status: ExitStatus) -> String {
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::ExitStatusExt;
+        if let Some(signal) = status.signal() {
+            let name = match signal {
+                1 => " (SIGHUP)",
+                2 => " (SIGINT)",
+                6 => " (SIGABRT)",
+                9 => " (SIGKILL)",
+                11 => " (SIGSEGV)",
+                13 => " (SIGPIPE)",
+                15 => " (SIGTERM)",
+                _ => "",
+            };
+            let core = if status.core_dumped() {
+                ", core dumped"
+            } else {
+                ""
+            };
+            return format!("was killed by signal {signal}{name}{core}");
+        }
+    }
+    match status.code() {
+        Some(code) => format!("exited with status {code}"),
+        None => format!("exited ({status})"),
     }
 }
 
@@ -296,4 +414,90 @@ pub fn serve(
         output.flush()?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn any_reply_line_parses_or_is_a_fatal_error_quoting_it() {
+        let deep = "[".repeat(100_000);
+        // Unterminated: a driver that died mid-line, or a reply cut at a pipe buffer.
+        let long = format!(r#"{{"id": 1, "result": {{"name": "{}"#, "é".repeat(100_000));
+        let lossy = String::from_utf8_lossy(b"\xff\xfe\x00\x01{\"id\":1}\xc3").into_owned();
+        let nasty = [
+            "",
+            " ",
+            "null",
+            "[]",
+            "{}",
+            "1",
+            "\"text\"",
+            deep.as_str(),
+            long.as_str(),
+            lossy.as_str(),
+            "{\"id\": -1}",
+            "{\"id\": 1e30}",
+            "{\"id\": 18446744073709551616}",
+            "{\"id\": \"1\"}",
+            "{\"id\": 1, \"id\": 2}",
+            "{\"id\": 1, \"surprise\": true}",
+            "{\"id\": 1, \"result\": {\"position_mm\": [1e400, 0, 0]}}",
+            "{\"id\": 1, \"result\": {\"position_mm\": [NaN, 0, 0]}}",
+            "{\"id\": 1, \"result\": {\"q_deg\": [1, 2, 3, 4, 5, 6, 7]}}",
+            "{\"id\": 1, \"result\": {\"name\": \"\\ud800\"}}",
+            "{\"id\": 1, \"error\": {\"message\": null}}",
+            "{\"id\": 1, \"result\": {}} trailing",
+            "{\"id\": 1, \"result\": {\"wrench\": [0,0,0,0,0,0]}}",
+        ];
+        let mut parsed = 0;
+        for line in nasty {
+            match parse_reply(line, "measure") {
+                Ok(reply) => {
+                    assert_eq!(reply.id, 1, "{line:.80}");
+                    parsed += 1;
+                }
+                Err(RigError::Fatal(message)) => {
+                    assert!(
+                        message.starts_with("driver sent a malformed reply to `measure`: ")
+                            && message.len() < 1000,
+                        "{message}"
+                    );
+                }
+                Err(other) => panic!("{other:?} for {line:.80}"),
+            }
+        }
+        // The last line above, the one well-formed reply, and only it, parses.
+        assert_eq!(parsed, 1);
+        assert!(parse_reply(nasty[nasty.len() - 1], "measure").is_ok());
+        // Cut on a character boundary, with the full length given.
+        let message = parse_reply(&long, "hello").map_or_else(|e| e.to_string(), |_| String::new());
+        assert!(
+            message.ends_with(&format!("… ({} bytes)", long.len())),
+            "{message:.300}"
+        );
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn an_exit_is_described_by_its_status_or_signal() {
+        use std::os::unix::process::ExitStatusExt;
+        assert_eq!(
+            describe_exit(ExitStatus::from_raw(3 << 8)),
+            "exited with status 3"
+        );
+        assert_eq!(
+            describe_exit(ExitStatus::from_raw(9)),
+            "was killed by signal 9 (SIGKILL)"
+        );
+        assert_eq!(
+            describe_exit(ExitStatus::from_raw(11 | 0x80)),
+            "was killed by signal 11 (SIGSEGV), core dumped"
+        );
+        assert_eq!(
+            describe_exit(ExitStatus::from_raw(64)),
+            "was killed by signal 64"
+        );
+    }
 }

@@ -7,6 +7,7 @@
 
 pub mod driver;
 pub mod protocol;
+pub mod reading_checks;
 pub mod simulator;
 
 use std::time::Duration;

@@ -39,6 +39,12 @@ impl Wrench {
             moment_nm: Vector3::new(w[3], w[4], w[5]),
         }
     }
+
+    /// In the order of the table columns and of the driver protocol's `wrench`.
+    pub fn to_array(&self) -> [f64; 6] {
+        let (f, m) = (&self.force_n, &self.moment_nm);
+        [f.x, f.y, f.z, m.x, m.y, m.z]
+    }
 }
 
 /// What the forward model predicts for one conf-wrench combination.

@@ -7,7 +7,11 @@
 //! the next run without measuring a row twice or losing one. Rows that keep
 //! failing after `retries` go to `measurement_failures` with the reason; they are
 //! tried again when the campaign is resumed. Safety checks (joint limits, wrench
-//! bounds) stop the campaign before the move, with the row named.
+//! bounds) stop the campaign before the move, with the row and its file named.
+//! Each row's readings are checked for plausibility ([`ReadingBounds`]: joint
+//! limits and commands, sensor range, distance from the tracker); an implausible
+//! reading is retried like a transient fault, then recorded as a failed row with
+//! the reason — never as data.
 
 use std::collections::HashMap;
 
@@ -19,8 +23,10 @@ use super::{
     Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
     model_values,
 };
+use crate::calibration::row_checks::JOINT_LIMIT_TOLERANCE_DEG;
 use crate::journal::Journal;
 use crate::rig::driver::ExternalDriver;
+use crate::rig::reading_checks::ReadingBounds;
 use crate::rig::simulator::{Simulator, SimulatorSettings};
 use crate::rig::{Rig, RigError, timeout_from_seconds};
 use crate::robot::ConfWrench;
@@ -47,7 +53,8 @@ pub struct MeasureSettings {
     /// The rig: simulator (in process) or external (a driver process, see
     /// schemas/driver-protocol.md).
     pub driver: DriverKind,
-    /// Program and arguments of the external driver, run in the job file's folder.
+    /// Program and arguments of the external driver, run in the job file's folder;
+    /// a relative program path with a `/` (`./driver.sh`) is taken from there too.
     pub command: Vec<String>,
     /// Time limit of each driver request (s).
     pub timeout_s: f64,
@@ -67,6 +74,29 @@ pub struct MeasureSettings {
     pub seed: Option<u64>,
     /// Noise and unmodelled errors of the simulator.
     pub simulator: SimulatorSettings,
+    // Plausibility of each row's readings (`rig::reading_checks`): a reading
+    // beyond a bound is retried, then recorded as a failed row, never as data.
+    /// How far beyond the robot file's joint limits a joint reading may lie (deg);
+    /// the same slack the identification's row checks allow.
+    pub joint_tolerance_deg: f64,
+    /// How far a joint reading may lie from its command (deg): a settled robot
+    /// reads within hundredths of a degree, a reading degrees away is a fault.
+    pub max_joint_error_deg: f64,
+    /// The force/torque sensor's range per force component (N); a reading beyond
+    /// it is saturated or corrupt. Set it to your sensor's rated range.
+    pub sensor_range_n: f64,
+    /// The force/torque sensor's range per moment component (N·m).
+    pub sensor_range_nm: f64,
+    /// How far each force reading may lie from the commanded force (N), to catch a
+    /// slack cable or a sensor read in the wrong frame; unchecked when unset,
+    /// since the row records (and the model uses) the wrench the sensor read.
+    pub max_wrench_error_n: Option<f64>,
+    /// How far each moment reading may lie from the commanded moment (N·m);
+    /// unchecked when unset.
+    pub max_wrench_error_nm: Option<f64>,
+    /// How far from the tracker (the origin of its frame) a measured position may
+    /// lie (mm): a robot cell is a few metres across.
+    pub max_tracker_distance_mm: f64,
 }
 
 impl Default for MeasureSettings {
@@ -83,6 +113,13 @@ impl Default for MeasureSettings {
             robot_id: None,
             seed: None,
             simulator: SimulatorSettings::default(),
+            joint_tolerance_deg: JOINT_LIMIT_TOLERANCE_DEG,
+            max_joint_error_deg: 1.0,
+            sensor_range_n: 2500.0,
+            sensor_range_nm: 400.0,
+            max_wrench_error_n: None,
+            max_wrench_error_nm: None,
+            max_tracker_distance_mm: 40_000.0,
         }
     }
 }
@@ -219,6 +256,21 @@ impl Stage for MeasureStage {
             ));
         }
 
+        // Before the rig starts: a bound that rejects every reading is refused
+        // before anything moves.
+        let bounds = ReadingBounds {
+            limits_deg: ReadingBounds::limits_of(ctx.robot),
+            joint_tolerance_deg: settings.joint_tolerance_deg,
+            max_joint_error_deg: settings.max_joint_error_deg,
+            sensor_range_n: settings.sensor_range_n,
+            sensor_range_nm: settings.sensor_range_nm,
+            max_wrench_error_n: settings.max_wrench_error_n,
+            max_wrench_error_nm: settings.max_wrench_error_nm,
+            max_tracker_distance_mm: settings.max_tracker_distance_mm,
+        }
+        .checked()
+        .map_err(StageError::Invalid)?;
+
         let mut rig: Box<dyn Rig> = match settings.driver {
             DriverKind::Simulator => Box::new(
                 Simulator::new(ctx.robot.clone(), truth, settings.simulator.clone(), seed)
@@ -230,16 +282,13 @@ impl Stage for MeasureStage {
                         "driver = \"external\" needs `command`".into(),
                     ));
                 }
-                let mut command = settings.command.clone();
-                if let Some(first) = command.first_mut() {
-                    let local = ctx.job_dir.join(&*first);
-                    if first.contains('/') && local.exists() {
-                        *first = local.to_string_lossy().into_owned();
-                    }
-                }
                 Box::new(
-                    ExternalDriver::start(&command, timeout_from_seconds(settings.timeout_s))
-                        .map_err(|e| StageError::Failed(format!("starting the driver: {e}")))?,
+                    ExternalDriver::start(
+                        &settings.command,
+                        ctx.job_dir,
+                        timeout_from_seconds(settings.timeout_s),
+                    )
+                    .map_err(|e| StageError::Failed(e.to_string()))?,
                 )
             }
         };
@@ -247,11 +296,21 @@ impl Stage for MeasureStage {
         ctx.progress.start(todo.len() as u64, "rows");
         let mut failures = 0;
         for (done_count, &k) in todo.iter().enumerate() {
-            check_safety(ctx, settings, ids[k], k, &rows[k])?;
+            check_safety(ctx, settings, &input.path, ids[k], k, &rows[k])?;
             let mut attempts = 0;
             let entry = loop {
                 attempts += 1;
-                match measure_row(rig.as_mut(), ids[k], &rows[k]) {
+                let checked = measure_row(rig.as_mut(), ids[k], &rows[k]).and_then(|reading| {
+                    bounds.check(
+                        &rows[k].q_deg,
+                        &rows[k].wrench.to_array(),
+                        &reading.q_deg,
+                        &reading.wrench,
+                        &reading.position_mm,
+                    )?;
+                    Ok(reading)
+                });
+                match checked {
                     Ok(reading) => break Entry::Measured(reading),
                     Err(RigError::Transient(reason)) if attempts <= settings.retries => {
                         ctx.progress
@@ -313,9 +372,13 @@ impl Stage for MeasureStage {
     }
 }
 
+/// Checks a commanded row before the move; a violation stops the campaign and
+/// names the row and the file it came from (`path`, the conf_wrenches table), so
+/// the lab knows which file to fix.
 fn check_safety(
     ctx: &StageContext,
     settings: &MeasureSettings,
+    path: &std::path::Path,
     cw_id: i64,
     k: usize,
     row: &ConfWrench,
@@ -324,7 +387,8 @@ fn check_safety(
         let [lo, hi] = ctx.robot.limits_deg(i);
         if !(row.q_deg[i] >= lo && row.q_deg[i] <= hi) {
             return Err(StageError::Failed(format!(
-                "safety stop before cw_id {cw_id} (input row {k}): {name} = {} is outside the joint limits [{lo}, {hi}]",
+                "safety stop before cw_id {cw_id} (input row {k} of {}): {name} = {} is outside the joint limits [{lo}, {hi}]",
+                path.display(),
                 row.q_deg[i]
             )));
         }
@@ -335,14 +399,15 @@ fn check_safety(
     ]
     .concat();
     for (i, name) in WRENCH_COLUMNS.iter().enumerate() {
-        let bound = if i < 3 {
-            settings.max_force_n
+        let (bound, setting) = if i < 3 {
+            (settings.max_force_n, "max_force_n")
         } else {
-            settings.max_moment_nm
+            (settings.max_moment_nm, "max_moment_nm")
         };
         if w[i].abs() > bound {
             return Err(StageError::Failed(format!(
-                "safety stop before cw_id {cw_id} (input row {k}): {name} = {} exceeds the bound ±{bound}",
+                "safety stop before cw_id {cw_id} (input row {k} of {}): {name} = {} exceeds the bound ±{bound} ({setting})",
+                path.display(),
                 w[i]
             )));
         }
@@ -357,15 +422,7 @@ pub(crate) fn measure_row(
     row: &ConfWrench,
 ) -> Result<Reading, RigError> {
     rig.move_joints(cw_id, row.q_deg)?;
-    let commanded = [
-        row.wrench.force_n.x,
-        row.wrench.force_n.y,
-        row.wrench.force_n.z,
-        row.wrench.moment_nm.x,
-        row.wrench.moment_nm.y,
-        row.wrench.moment_nm.z,
-    ];
-    rig.apply_wrench(commanded)?;
+    rig.apply_wrench(row.wrench.to_array())?;
     let wrench = rig.read_wrench()?;
     let q_deg = rig.read_joints()?;
     let position_mm = rig.measure()?;

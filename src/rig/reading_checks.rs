@@ -1,0 +1,359 @@
+//! Plausibility checks of one row's readings, before the row is recorded: a
+//! driver that replies with a joint angle of 500°, a force of 10⁹ N or a position
+//! 10³⁰⁰ mm away has not measured this robot (an uninitialised value, a unit or
+//! frame mix-up, a saturated sensor), and such a row, once recorded, moves a
+//! least-squares calibration by centimetres.
+//!
+//! A violation is a [`ReadingFault`], which the rig treats like any other reading
+//! fault: the row is retried, and after its retries recorded as failed with the
+//! fault as its reason — never as data. The bounds are the stage's settings; they
+//! catch faults, not noise, so each is generous compared with a working rig.
+//!
+//! The checks of the *commanded* row (joint limits, wrench bounds) happen before
+//! the move and stop the campaign; they are the measure stage's, not these.
+
+use crate::calibration::row_checks::compact;
+use crate::robot::{JOINTS, Robot};
+
+use super::RigError;
+
+/// The bounds a row's readings must keep.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReadingBounds {
+    /// The robot file's joint limits `[min, max]` (deg).
+    pub limits_deg: [[f64; 2]; JOINTS],
+    /// How far beyond a limit a joint reading may lie (deg).
+    pub joint_tolerance_deg: f64,
+    /// How far a joint reading may lie from its command (deg).
+    pub max_joint_error_deg: f64,
+    /// The force/torque sensor's range per force component (N).
+    pub sensor_range_n: f64,
+    /// The force/torque sensor's range per moment component (N·m).
+    pub sensor_range_nm: f64,
+    /// How far a force reading may lie from its command (N); unchecked when `None`.
+    pub max_wrench_error_n: Option<f64>,
+    /// How far a moment reading may lie from its command (N·m); unchecked when `None`.
+    pub max_wrench_error_nm: Option<f64>,
+    /// How far from the tracker (the origin of its frame) a position may lie (mm).
+    pub max_tracker_distance_mm: f64,
+}
+
+/// The readings' names as the `measurements` columns spell them (`table` is a
+/// layer above `rig`, so they are repeated here).
+const JOINT_COLUMNS: [&str; JOINTS] = ["q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg"];
+const WRENCH_COLUMNS: [&str; 6] = ["fx_n", "fy_n", "fz_n", "mx_nm", "my_nm", "mz_nm"];
+
+/// Names of the settings the bounds come from, in messages.
+const JOINT_TOLERANCE: &str = "joint_tolerance_deg";
+const MAX_JOINT_ERROR: &str = "max_joint_error_deg";
+const SENSOR_RANGE_N: &str = "sensor_range_n";
+const SENSOR_RANGE_NM: &str = "sensor_range_nm";
+const MAX_WRENCH_ERROR_N: &str = "max_wrench_error_n";
+const MAX_WRENCH_ERROR_NM: &str = "max_wrench_error_nm";
+const MAX_TRACKER_DISTANCE: &str = "max_tracker_distance_mm";
+
+/// A reading outside its bounds: which field, its value, and the bound it broke.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ReadingFault {
+    #[error(
+        "implausible reading: {column} = {} is outside the joint limits [{}, {}] by more than {JOINT_TOLERANCE} = {}°",
+        compact(*value), limits_deg[0], limits_deg[1], compact(*tolerance_deg)
+    )]
+    BeyondJointLimit {
+        column: &'static str,
+        value: f64,
+        limits_deg: [f64; 2],
+        tolerance_deg: f64,
+    },
+    #[error(
+        "implausible reading: {column} = {} is {}° from the commanded {}, more than {MAX_JOINT_ERROR} = {}°",
+        compact(*value), compact((value - commanded).abs()), compact(*commanded), compact(*bound_deg)
+    )]
+    JointError {
+        column: &'static str,
+        value: f64,
+        commanded: f64,
+        bound_deg: f64,
+    },
+    #[error(
+        "implausible reading: {column} = {} is beyond the force/torque sensor's range ±{} ({setting})",
+        compact(*value), compact(*range)
+    )]
+    BeyondSensorRange {
+        column: &'static str,
+        value: f64,
+        range: f64,
+        setting: &'static str,
+    },
+    #[error(
+        "implausible reading: {column} = {} is {} from the commanded {}, more than {setting} = {}",
+        compact(*value), compact((value - commanded).abs()), compact(*commanded), compact(*bound)
+    )]
+    WrenchError {
+        column: &'static str,
+        value: f64,
+        commanded: f64,
+        bound: f64,
+        setting: &'static str,
+    },
+    #[error(
+        "implausible reading: position ({}, {}, {}) mm is {} mm from the tracker, more than {MAX_TRACKER_DISTANCE} = {} mm",
+        compact(position_mm[0]), compact(position_mm[1]), compact(position_mm[2]),
+        compact(*distance_mm), compact(*bound_mm)
+    )]
+    FarFromTracker {
+        position_mm: [f64; 3],
+        distance_mm: f64,
+        bound_mm: f64,
+    },
+}
+
+/// A reading fault is worth retrying: the next attempt may read correctly (a
+/// glitch on the bus, a sensor that had not settled); a rig that keeps reading
+/// nonsense gets the row recorded as failed with this reason.
+impl From<ReadingFault> for RigError {
+    fn from(fault: ReadingFault) -> Self {
+        RigError::Transient(fault.to_string())
+    }
+}
+
+impl ReadingBounds {
+    /// The robot's joint limits, for [`ReadingBounds::limits_deg`].
+    pub fn limits_of(robot: &Robot) -> [[f64; 2]; JOINTS] {
+        std::array::from_fn(|i| robot.limits_deg(i))
+    }
+
+    /// The bounds themselves, or an error naming a setting that is negative or
+    /// not a number: it would reject every reading, after the rig had moved for
+    /// each row.
+    pub fn checked(self) -> Result<Self, String> {
+        let settings = [
+            (JOINT_TOLERANCE, Some(self.joint_tolerance_deg)),
+            (MAX_JOINT_ERROR, Some(self.max_joint_error_deg)),
+            (SENSOR_RANGE_N, Some(self.sensor_range_n)),
+            (SENSOR_RANGE_NM, Some(self.sensor_range_nm)),
+            (MAX_WRENCH_ERROR_N, self.max_wrench_error_n),
+            (MAX_WRENCH_ERROR_NM, self.max_wrench_error_nm),
+            (MAX_TRACKER_DISTANCE, Some(self.max_tracker_distance_mm)),
+        ];
+        for (name, value) in settings {
+            if let Some(value) = value
+                && (value.is_nan() || value < 0.0)
+            {
+                return Err(format!("setting `{name}` = {value} must be a number ≥ 0"));
+            }
+        }
+        Ok(self)
+    }
+
+    /// Checks one row's readings against the bounds and the row's commands, in
+    /// the order the rig reads them (wrench, joints, position); the first fault
+    /// found is returned. A NaN breaks every bound.
+    pub fn check(
+        &self,
+        commanded_q_deg: &[f64; JOINTS],
+        commanded_wrench: &[f64; 6],
+        q_deg: &[f64; JOINTS],
+        wrench: &[f64; 6],
+        position_mm: &[f64; 3],
+    ) -> Result<(), ReadingFault> {
+        for (i, column) in WRENCH_COLUMNS.iter().enumerate() {
+            let (range, range_setting, error_bound, error_setting) = if i < 3 {
+                let bound = self.max_wrench_error_n;
+                (
+                    self.sensor_range_n,
+                    SENSOR_RANGE_N,
+                    bound,
+                    MAX_WRENCH_ERROR_N,
+                )
+            } else {
+                let bound = self.max_wrench_error_nm;
+                (
+                    self.sensor_range_nm,
+                    SENSOR_RANGE_NM,
+                    bound,
+                    MAX_WRENCH_ERROR_NM,
+                )
+            };
+            let value = wrench[i];
+            if !at_most(value.abs(), range) {
+                return Err(ReadingFault::BeyondSensorRange {
+                    column,
+                    value,
+                    range,
+                    setting: range_setting,
+                });
+            }
+            if let Some(bound) = error_bound
+                && !at_most((value - commanded_wrench[i]).abs(), bound)
+            {
+                return Err(ReadingFault::WrenchError {
+                    column,
+                    value,
+                    commanded: commanded_wrench[i],
+                    bound,
+                    setting: error_setting,
+                });
+            }
+        }
+        for (i, column) in JOINT_COLUMNS.iter().enumerate() {
+            let value = q_deg[i];
+            let [lo, hi] = self.limits_deg[i];
+            let tolerance_deg = self.joint_tolerance_deg;
+            if !(value >= lo - tolerance_deg && value <= hi + tolerance_deg) {
+                return Err(ReadingFault::BeyondJointLimit {
+                    column,
+                    value,
+                    limits_deg: [lo, hi],
+                    tolerance_deg,
+                });
+            }
+            if !at_most((value - commanded_q_deg[i]).abs(), self.max_joint_error_deg) {
+                return Err(ReadingFault::JointError {
+                    column,
+                    value,
+                    commanded: commanded_q_deg[i],
+                    bound_deg: self.max_joint_error_deg,
+                });
+            }
+        }
+        // `hypot`, not a sum of squares: the squares of 1e300 overflow, and the
+        // message should show the distance, not infinity.
+        let [x, y, z] = *position_mm;
+        let distance_mm = x.hypot(y).hypot(z);
+        if !at_most(distance_mm, self.max_tracker_distance_mm) {
+            return Err(ReadingFault::FarFromTracker {
+                position_mm: *position_mm,
+                distance_mm,
+                bound_mm: self.max_tracker_distance_mm,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// `value ≤ bound`, false for a NaN value: a NaN reading breaks every bound.
+fn at_most(value: f64, bound: f64) -> bool {
+    value <= bound
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::test_support::irb1600;
+
+    const Q: [f64; JOINTS] = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0];
+    const W: [f64; 6] = [100.0, -50.0, 20.0, 5.0, -2.0, 1.0];
+    const P: [f64; 3] = [1200.0, -300.0, 900.0];
+
+    fn bounds(max_wrench_error: Option<f64>) -> ReadingBounds {
+        ReadingBounds {
+            limits_deg: ReadingBounds::limits_of(&irb1600()),
+            joint_tolerance_deg: 0.5,
+            max_joint_error_deg: 1.0,
+            sensor_range_n: 2500.0,
+            sensor_range_nm: 400.0,
+            max_wrench_error_n: max_wrench_error,
+            max_wrench_error_nm: max_wrench_error.map(|b| b / 10.0),
+            max_tracker_distance_mm: 40_000.0,
+        }
+        .checked()
+        .unwrap()
+    }
+
+    fn message(q: [f64; JOINTS], w: [f64; 6], p: [f64; 3], b: &ReadingBounds) -> String {
+        b.check(&Q, &W, &q, &w, &p).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn a_plausible_reading_passes() {
+        let mut q = Q;
+        q[2] += 0.01;
+        let mut w = W;
+        w[0] += 3.0;
+        assert_eq!(bounds(Some(50.0)).check(&Q, &W, &q, &w, &P), Ok(()));
+    }
+
+    #[test]
+    fn each_fault_names_the_field_its_value_and_the_bound() {
+        let b = bounds(Some(50.0));
+        let mut q = Q;
+        q[1] = 500.0;
+        let m = message(q, W, P, &b);
+        assert!(
+            m.contains("q2_deg = 500 is outside the joint limits [-90, 120]")
+                && m.contains("joint_tolerance_deg = 0.5"),
+            "{m}"
+        );
+        q[1] = 1e300;
+        assert!(message(q, W, P, &b).contains("q2_deg = 1e300"));
+        // Within the limits but 10° from the command: an encoder or axis fault.
+        let mut q = Q;
+        q[5] = 60.0;
+        let m = message(q, W, P, &b);
+        assert!(
+            m.contains("q6_deg = 60 is 10° from the commanded 50")
+                && m.contains("max_joint_error_deg = 1°"),
+            "{m}"
+        );
+        let mut w = W;
+        w[2] = 1e9;
+        let m = message(Q, w, P, &b);
+        assert!(
+            m.contains(
+                "fz_n = 1e9 is beyond the force/torque sensor's range ±2500 (sensor_range_n)"
+            ),
+            "{m}"
+        );
+        let mut w = W;
+        w[4] = -401.0;
+        assert!(message(Q, w, P, &b).contains("my_nm = -401"));
+        // A slack cable: the sensor reads nothing of the commanded 100 N.
+        let mut w = W;
+        w[0] = 0.0;
+        let m = message(Q, w, P, &b);
+        assert!(
+            m.contains("fx_n = 0 is 100 from the commanded 100, more than max_wrench_error_n = 50"),
+            "{m}"
+        );
+        let m = message(Q, W, [1e300, 1.0, 2.0], &b);
+        assert!(
+            m.contains("position (1e300, 1, 2) mm is 1e300 mm from the tracker")
+                && m.contains("max_tracker_distance_mm = 40000 mm"),
+            "{m}"
+        );
+    }
+
+    #[test]
+    fn the_wrench_error_is_unchecked_unless_set_and_nan_breaks_every_bound() {
+        let mut w = W;
+        w[0] = 0.0;
+        assert_eq!(bounds(None).check(&Q, &W, &Q, &w, &P), Ok(()));
+        let b = bounds(None);
+        let mut q = Q;
+        q[0] = f64::NAN;
+        assert!(message(q, W, P, &b).contains("q1_deg = NaN"));
+        let mut w = W;
+        w[3] = f64::INFINITY;
+        assert!(message(Q, w, P, &b).contains("mx_nm = inf"));
+        assert!(message(Q, W, [0.0, f64::NAN, 0.0], &b).contains("NaN mm from the tracker"));
+    }
+
+    #[test]
+    fn negative_or_nan_settings_are_refused_by_name() {
+        let e = ReadingBounds {
+            joint_tolerance_deg: -1.0,
+            ..bounds(None)
+        }
+        .checked()
+        .unwrap_err();
+        assert!(e.contains("`joint_tolerance_deg` = -1"), "{e}");
+        let e = ReadingBounds {
+            max_wrench_error_nm: Some(f64::NAN),
+            ..bounds(None)
+        }
+        .checked()
+        .unwrap_err();
+        assert!(e.contains("`max_wrench_error_nm`"), "{e}");
+    }
+}
