@@ -381,16 +381,22 @@ fn published_files(out: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
     files
 }
 
-/// Starts `egcal` with `args` in `dir` and kills it (SIGKILL) either after
-/// `delay`, or, without one, as soon as a temporary file appears under `watch`
-/// (an atomic write in progress). Returns whether temporaries were left.
-fn kill_egcal(args: &[&str], dir: &Path, watch: &Path, delay: Option<Duration>) -> bool {
+/// When a test kills egcal.
+enum Kill<'a> {
+    After(Duration),
+    /// As soon as this holds (polled), or when egcal ends by itself.
+    When(&'a dyn Fn() -> bool),
+}
+
+/// Starts `egcal` with `args` in `dir`, kills it (SIGKILL) as `kill` says and
+/// returns whether temporaries were left under `watch`.
+fn kill_egcal(args: &[&str], dir: &Path, watch: &Path, kill: Kill) -> bool {
     let mut child = common::egcal().args(args).current_dir(dir).spawn().unwrap();
-    match delay {
-        Some(delay) => std::thread::sleep(delay),
-        None => {
+    match kill {
+        Kill::After(delay) => std::thread::sleep(delay),
+        Kill::When(ready) => {
             let started = std::time::Instant::now();
-            while temps_under(watch).is_empty()
+            while !ready()
                 && child.try_wait().unwrap().is_none()
                 && started.elapsed() < Duration::from_secs(5)
             {}
@@ -418,18 +424,24 @@ fn killing_a_run_while_it_publishes_leaves_no_torn_table_and_no_temporary() {
     // are what the final run must report.
     let mut left = 0;
     let mut last_left = false;
-    for trial in 0..16u64 {
+    // The last trial kills while a file is written: the final run has leftovers.
+    for trial in 0..15u64 {
         for entry in std::fs::read_dir(&out).unwrap().flatten() {
             if entry.file_name() != ".egcal" {
                 std::fs::remove_dir_all(entry.path()).unwrap();
             }
         }
-        let delay = (trial % 2 == 1).then(|| Duration::from_millis(2 * trial));
-        last_left = kill_egcal(&["run", "--quiet", job], dir.path(), &out, delay);
+        // Alternately while a file is being written and at varied delays.
+        let writing = || !temps_under(&out).is_empty();
+        let kill = match trial % 2 {
+            0 => Kill::When(&writing),
+            _ => Kill::After(Duration::from_millis(2 * trial)),
+        };
+        last_left = kill_egcal(&["run", "--quiet", job], dir.path(), &out, kill);
         left += usize::from(last_left);
         assert_everything_readable(&out);
     }
-    eprintln!("{left} of 16 kills left temporary files");
+    eprintln!("{left} of 15 kills left temporary files");
 
     let (code, _, stderr) = run(&["run", job], dir.path());
     assert_eq!(code, 0, "{stderr}");
@@ -443,9 +455,23 @@ fn killing_a_run_while_it_publishes_leaves_no_torn_table_and_no_temporary() {
     assert_eq!(published_files(&out), reference);
 }
 
+/// Files in the cache entries of shard `00` (where the planted ones go, and
+/// their temporaries when gc renames them): falls as gc removes them. One
+/// folder read per entry, so that polling it is quick.
+fn planted_files(cache: &Path) -> usize {
+    std::fs::read_dir(cache.join("00")).map_or(0, |entries| {
+        entries
+            .flatten()
+            .map(|e| std::fs::read_dir(e.path()).map_or(0, Iterator::count))
+            .sum()
+    })
+}
+
 /// Copies of a cache entry under new keys (manifests rewritten to match), so
-/// that `cache gc` has many entries to remove.
-fn plant_unused_entries(cache: &Path, first: usize, count: usize) {
+/// that `cache gc` has entries to remove, each with `padding` files more than
+/// its manifest lists, so that removing one takes long enough to be killed
+/// half-way.
+fn plant_unused_entries(cache: &Path, first: usize, count: usize, padding: usize) {
     let shard = std::fs::read_dir(cache).unwrap().flatten().next().unwrap();
     let entry = std::fs::read_dir(shard.path())
         .unwrap()
@@ -454,7 +480,7 @@ fn plant_unused_entries(cache: &Path, first: usize, count: usize) {
     let entry = entry.unwrap().path();
     let key = entry.file_name().unwrap().to_str().unwrap().to_string();
     for n in first..first + count {
-        let new_key = format!("{:064x}", 0xee00_0000_u64 + n as u64);
+        let new_key = format!("{:064x}", n);
         let target = cache.join(&new_key[..2]).join(&new_key);
         std::fs::create_dir_all(&target).unwrap();
         for file in std::fs::read_dir(&entry).unwrap().flatten() {
@@ -465,6 +491,9 @@ fn plant_unused_entries(cache: &Path, first: usize, count: usize) {
             } else {
                 std::fs::copy(file.path(), target.join(&name)).unwrap();
             }
+        }
+        for k in 0..padding {
+            std::fs::write(target.join(format!("padding-{k}")), b"").unwrap();
         }
     }
 }
@@ -485,10 +514,19 @@ fn killing_cache_gc_leaves_no_torn_entry_and_no_temporary() {
     let mut left = 0;
     let mut last_left = false;
     for trial in 0..10 {
-        plant_unused_entries(&cache, trial * 40, 40);
-        // Alternately at an entry's removal and at delays up to the whole gc.
-        let delay = (trial % 2 == 1).then(|| Duration::from_millis(15 * trial as u64));
-        last_left = kill_egcal(&["cache", "gc", job], dir.path(), &cache, delay);
+        plant_unused_entries(&cache, trial * 6, 6, 30);
+        let planted = planted_files(&cache);
+        // When a temporary appears (an entry renamed for removal), when the
+        // first file goes, or at a delay (gc first waits on the lock's fsync).
+        // The last trial leaves a temporary for the final gc to report.
+        let removing = || planted_files(&cache) < planted;
+        let writing = || !temps_under(&cache).is_empty();
+        let kill = match trial % 3 {
+            0 => Kill::When(&writing),
+            1 => Kill::When(&removing),
+            _ => Kill::After(Duration::from_millis(20 * trial as u64)),
+        };
+        last_left = kill_egcal(&["cache", "gc", job], dir.path(), &cache, kill);
         left += usize::from(last_left);
         assert_everything_readable(&out);
     }
