@@ -201,16 +201,17 @@ fn parse_pid(text: &str) -> Option<u32> {
     text.parse().ok().filter(|&pid| pid > 0)
 }
 
-/// Removes dead writers' temporaries anywhere under `root` (not following
-/// symbolic links; a live writer's temporary folder is not entered). Costs one
-/// directory read per folder. A missing `root` is an empty sweep.
-pub fn sweep_tree(root: &Path) -> io::Result<Swept> {
-    sweep(root, true, egcal_temp_pid, None)
+/// Removes dead writers' temporaries anywhere under `root` but in the folders
+/// `except` (not following symbolic links; a live writer's temporary folder is
+/// not entered). Costs one directory read per folder and a `stat` per
+/// temporary. A missing `root` is an empty sweep.
+pub fn sweep_tree(root: &Path, except: &[&Path]) -> io::Result<Swept> {
+    sweep(root, Some(except), egcal_temp_pid, None)
 }
 
 /// Removes dead writers' temporaries directly in `dir` (a calibration folder).
 pub fn sweep_folder(dir: &Path) -> io::Result<Swept> {
-    sweep(dir, false, egcal_temp_pid, None)
+    sweep(dir, None, egcal_temp_pid, None)
 }
 
 /// Removes `egcal predict` work folders of dead processes from the system's
@@ -219,12 +220,14 @@ pub fn sweep_predict_folders(tmp: &Path) -> io::Result<Swept> {
     let Some(uid) = fs::metadata("/proc/self").ok().map(|m| m.uid()) else {
         return Ok(Swept::default());
     };
-    sweep(tmp, false, predict_temp_pid, Some(uid))
+    sweep(tmp, None, predict_temp_pid, Some(uid))
 }
 
+/// `recurse`: descend into sub-folders, but not these; `owner`: only files of
+/// this user id are candidates.
 fn sweep(
     dir: &Path,
-    recursive: bool,
+    recurse: Option<&[&Path]>,
     recognise: fn(&str) -> Option<u32>,
     owner: Option<u32>,
 ) -> io::Result<Swept> {
@@ -232,7 +235,7 @@ fn sweep(
     if let Some(processes) = Processes::visible() {
         let walk = Walk {
             processes,
-            recursive,
+            recurse,
             recognise,
             owner,
         };
@@ -241,14 +244,14 @@ fn sweep(
     Ok(swept)
 }
 
-struct Walk {
+struct Walk<'a> {
     processes: Processes,
-    recursive: bool,
+    recurse: Option<&'a [&'a Path]>,
     recognise: fn(&str) -> Option<u32>,
     owner: Option<u32>,
 }
 
-impl Walk {
+impl Walk<'_> {
     fn folder(&self, dir: &Path, swept: &mut Swept) -> io::Result<()> {
         let entries = match fs::read_dir(dir) {
             Ok(entries) => entries,
@@ -258,20 +261,25 @@ impl Walk {
         for entry in entries {
             let entry = entry?;
             let path = entry.path();
-            // Any entry may vanish meanwhile (a live writer renames its temporary).
+            let Some(pid) = entry.file_name().to_str().and_then(self.recognise) else {
+                // The folder read says what type an entry is: no `stat` here.
+                let descend = self
+                    .recurse
+                    .is_some_and(|except| !except.contains(&path.as_path()));
+                if descend && entry.file_type()?.is_dir() {
+                    self.folder(&path, swept)?;
+                }
+                continue;
+            };
+            // A temporary may vanish meanwhile (its live writer renames it).
             let metadata = match entry.metadata() {
                 Ok(m) => m,
                 Err(e) if e.kind() == io::ErrorKind::NotFound => continue,
                 Err(e) => return Err(e),
             };
-            let pid = entry.file_name().to_str().and_then(self.recognise);
-            let Some(pid) = pid.filter(|_| self.owner.is_none_or(|uid| metadata.uid() == uid))
-            else {
-                if self.recursive && metadata.is_dir() {
-                    self.folder(&path, swept)?;
-                }
+            if self.owner.is_some_and(|uid| metadata.uid() != uid) {
                 continue;
-            };
+            }
             if self.processes.wrote(pid, metadata.modified()?) {
                 swept.kept.push((path, pid));
                 continue;
@@ -475,7 +483,7 @@ mod tests {
             .set_modified(UNIX_EPOCH + Duration::from_secs(1))
             .unwrap();
 
-        let swept = sweep_tree(root).unwrap();
+        let swept = sweep_tree(root, &[]).unwrap();
         assert!(!dead_file.exists() && !dead_entry.exists() && !reused.exists());
         assert!(live_file.exists() && user_file.exists());
         assert_eq!(swept.removed.len(), 3, "{swept:?}");
@@ -508,7 +516,20 @@ mod tests {
                 "removed 1 temporary file left by a killed run (pid {dead}): .stats.parquet.{dead}.3.tmp; kept 1 temporary file of running process {live}"
             )
         );
-        assert_eq!(sweep_tree(&root.join("missing")).unwrap(), Swept::default());
+        assert_eq!(
+            sweep_tree(&root.join("missing"), &[]).unwrap(),
+            Swept::default()
+        );
+        // A folder left out of a tree sweep.
+        let other = root.join("other");
+        fs::create_dir_all(&other).unwrap();
+        fs::write(&dead_file, b"x").unwrap();
+        fs::write(other.join(format!(".a.{dead}.0.tmp")), b"x").unwrap();
+        let swept = sweep_tree(root, &[other.as_path()]).unwrap();
+        let mut removed: Vec<PathBuf> = swept.removed.into_iter().map(|(p, _)| p).collect();
+        removed.sort();
+        assert_eq!(removed, vec![dead_file, deep]);
+        assert!(other.join(format!(".a.{dead}.0.tmp")).exists());
     }
 
     #[test]

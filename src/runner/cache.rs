@@ -182,6 +182,23 @@ impl Cache {
         Ok(manifest)
     }
 
+    /// Removes temporaries of dead writers (entries being built, entries being
+    /// removed) from the shards. Complete entries are not entered: they were
+    /// renamed into place after their last write, so they hold no temporaries.
+    pub fn sweep(&self) -> std::io::Result<sweep::Swept> {
+        let mut swept = sweep::Swept::default();
+        let Ok(shards) = fs::read_dir(&self.root) else {
+            return Ok(swept);
+        };
+        for shard in shards {
+            let shard = shard?;
+            if shard.file_type()?.is_dir() {
+                swept.extend(sweep::sweep_folder(&shard.path())?);
+            }
+        }
+        Ok(swept)
+    }
+
     /// Removes entries whose key is not in `keep`. Returns (entries removed,
     /// bytes freed). Only folders named like a key are entries; temporaries of
     /// killed runs are left to [`sweep`], which knows whether their writer is dead.

@@ -775,7 +775,7 @@ pub fn gc(plan: &Plan) -> Result<Collected, RunError> {
 }
 
 /// Removes temporaries of dead writers from the output folder (all of it: stage
-/// outputs, the cache, the state and the work folders) and from the folders of
+/// outputs, the state and the work folders, the cache's shards) and from the folders of
 /// inputs a stage may replace (where `gate` publishes; another job's run may be
 /// writing there, which the sweep's liveness check allows for). Returns a line
 /// for the user when it found any. Runs under the lock.
@@ -784,7 +784,10 @@ fn sweep_leftovers(plan: &Plan, layout: &Layout) -> Result<Option<String>, RunEr
         let context = format!("removing temporary files left in {}", dir.display());
         move |source| RunError::Io { context, source }
     };
-    let mut swept = fsio::sweep::sweep_tree(&layout.output).map_err(io(&layout.output))?;
+    let cache = layout.cache.root();
+    let mut swept =
+        fsio::sweep::sweep_tree(&layout.output, &[cache]).map_err(io(&layout.output))?;
+    swept.extend(layout.cache.sweep().map_err(io(cache))?);
     let mut published: Vec<&Path> = plan
         .stages
         .iter()
