@@ -21,7 +21,6 @@
 
 use std::fs;
 use std::io;
-use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -217,7 +216,7 @@ pub fn sweep_folder(dir: &Path) -> io::Result<Swept> {
 /// Removes `egcal predict` work folders of dead processes from the system's
 /// temporary folder `tmp`; only this user's, as the folder is shared.
 pub fn sweep_predict_folders(tmp: &Path) -> io::Result<Swept> {
-    let Some(uid) = fs::metadata("/proc/self").ok().map(|m| m.uid()) else {
+    let Some(uid) = fs::metadata("/proc/self").ok().as_ref().and_then(owner) else {
         return Ok(Swept::default());
     };
     sweep(tmp, None, predict_temp_pid, Some(uid))
@@ -277,7 +276,7 @@ impl Walk<'_> {
                 Err(e) if e.kind() == io::ErrorKind::NotFound => continue,
                 Err(e) => return Err(e),
             };
-            if self.owner.is_some_and(|uid| metadata.uid() != uid) {
+            if self.owner.is_some_and(|uid| owner(&metadata) != Some(uid)) {
                 continue;
             }
             if self.processes.wrote(pid, metadata.modified()?) {
@@ -297,6 +296,19 @@ impl Walk<'_> {
         }
         Ok(())
     }
+}
+
+/// The user id owning a file (`/proc/self`: this process's user).
+#[cfg(unix)]
+fn owner(metadata: &fs::Metadata) -> Option<u32> {
+    use std::os::unix::fs::MetadataExt;
+    Some(metadata.uid())
+}
+
+/// No user ids here; nor a `/proc`, so nothing is swept anyway.
+#[cfg(not(unix))]
+fn owner(_: &fs::Metadata) -> Option<u32> {
+    None
 }
 
 /// What `/proc` says about processes, when it can see all of them.

@@ -201,7 +201,8 @@ impl Cache {
 
     /// Removes entries whose key is not in `keep`. Returns (entries removed,
     /// bytes freed). Only folders named like a key are entries; temporaries of
-    /// killed runs are left to [`sweep`], which knows whether their writer is dead.
+    /// killed runs are left to [`Cache::sweep`], which knows whether their writer
+    /// is dead.
     pub fn gc(&self, keep: &std::collections::HashSet<String>) -> std::io::Result<(usize, u64)> {
         let mut removed = 0;
         let mut freed = 0;
