@@ -422,7 +422,11 @@ pub fn publish(parameters: &Path, dir: &Path, day: i64) -> Result<String, Comman
             source: e,
         }))
     })?;
-    Ok(match installed.retired {
+    let leftovers = installed
+        .swept
+        .summary(dir)
+        .map_or(String::new(), |s| format!("\n{s}"));
+    let message = match installed.retired {
         Some(retired) => format!(
             "published {} as {}; the previous one is {}",
             parameters.display(),
@@ -434,7 +438,8 @@ pub fn publish(parameters: &Path, dir: &Path, day: i64) -> Result<String, Comman
             parameters.display(),
             installed.current.display()
         ),
-    })
+    };
+    Ok(message + &leftovers)
 }
 
 /// `egcal predict`: the `predict` stage on one input file, written to `output`.
@@ -451,7 +456,15 @@ pub fn predict(
     }
     let mut settings = toml::Table::new();
     settings.insert("model".into(), toml::Value::String(model.to_string()));
-    let work_dir = std::env::temp_dir().join(format!("egcal-predict-{}", std::process::id()));
+    // The work folders of killed `egcal predict` runs are removed here, as no
+    // job's sweep ever looks in the system's temporary folder. A failed sweep of
+    // that shared folder must not stop a prediction, so its error is dropped.
+    let tmp = std::env::temp_dir();
+    let leftovers = crate::fsio::sweep::sweep_predict_folders(&tmp)
+        .ok()
+        .and_then(|swept| swept.summary(&tmp))
+        .map_or(String::new(), |s| format!("\n{s}"));
+    let work_dir = tmp.join(crate::fsio::sweep::predict_temp_name());
     let stage = FileStage {
         kind: "predict",
         robot_file,
@@ -468,7 +481,7 @@ pub fn predict(
         .expect("predict writes predictions");
     table::write_parquet(df, output, Some(&provenance))?;
     Ok(format!(
-        "predict: wrote {} ({} rows)",
+        "predict: wrote {} ({} rows){leftovers}",
         output.display(),
         df.height()
     ))
@@ -685,11 +698,16 @@ pub fn list_stages() -> String {
 /// `egcal cache gc`.
 pub fn cache_gc(job: &Path) -> Result<String, CommandError> {
     let plan = Plan::load(job)?;
-    let (entries, bytes) = runner::gc(&plan)?;
-    Ok(format!(
-        "removed {entries} cache entries ({:.1} MiB)",
-        bytes as f64 / 1048576.0
-    ))
+    let collected = runner::gc(&plan)?;
+    let mut message = format!(
+        "removed {} cache entries ({:.1} MiB)",
+        collected.entries,
+        collected.bytes as f64 / 1048576.0
+    );
+    if let Some(leftovers) = collected.leftovers {
+        write!(message, "\n{leftovers}").expect("write to string");
+    }
+    Ok(message)
 }
 
 /// `egcal schemas`: (re)writes the generated schema files into `dir`.

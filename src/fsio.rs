@@ -1,6 +1,9 @@
 //! Crash-safe file writes: write a temporary file in the target's folder, fsync it,
 //! rename it over the target, fsync the folder. A reader (or the next run after a
-//! kill) sees the old file or the new one, never a torn one.
+//! kill) sees the old file or the new one, never a torn one. A kill between the
+//! two leaves the temporary file, which [`sweep`] removes later.
+
+pub mod sweep;
 
 use std::fs::{self, File};
 use std::io::{self, Write};

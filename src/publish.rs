@@ -6,7 +6,9 @@
 //! Order of operations: hard-link the old `current.parquet` to
 //! `retired-<date>.parquet` (a copy where links are not supported), then write
 //! the new one beside it and rename it over `current.parquet` ([`fsio`]). A crash
-//! leaves either the old current (perhaps with its retired twin) or the new one.
+//! leaves either the old current (perhaps with its retired twin) or the new one,
+//! and perhaps a temporary file, which the next installation removes
+//! ([`fsio::sweep`]) before it writes.
 
 use std::io;
 use std::path::{Path, PathBuf};
@@ -23,19 +25,24 @@ pub struct Installed {
     pub current: PathBuf,
     /// Where the replaced table now lives, if there was one.
     pub retired: Option<PathBuf>,
+    /// Temporaries of killed installations found in the folder.
+    pub swept: fsio::sweep::Swept,
 }
 
 /// Installs `bytes` (a parameters table's file) as `dir/current.parquet` on `day`
 /// (days since 1970-01-01), retiring the previous one as
 /// `retired-YYYY-MM-DD[-N].parquet`. Does nothing but report when the current
-/// file already has these bytes.
+/// file already has these bytes. First removes temporaries of dead writers from
+/// `dir`.
 pub fn install(dir: &Path, bytes: &[u8], day: i64) -> io::Result<Installed> {
+    let swept = fsio::sweep::sweep_folder(dir)?;
     let current = dir.join(CURRENT);
     let retired = match std::fs::read(&current) {
         Ok(old) if old == bytes => {
             return Ok(Installed {
                 current,
                 retired: None,
+                swept,
             });
         }
         Ok(_) => {
@@ -50,7 +57,11 @@ pub fn install(dir: &Path, bytes: &[u8], day: i64) -> io::Result<Installed> {
         Err(e) => return Err(e),
     };
     fsio::write_bytes_atomic(&current, bytes)?;
-    Ok(Installed { current, retired })
+    Ok(Installed {
+        current,
+        retired,
+        swept,
+    })
 }
 
 /// `retired-<date>.parquet`, or with `-2`, `-3`, … when the day already has one.
@@ -96,8 +107,16 @@ mod tests {
         // The retired file is a link to the old bytes, not to the new ones.
         assert_eq!(std::fs::read(&retired).unwrap(), b"first");
 
+        // A temporary of a dead writer (pid beyond any real one is never alive).
+        let leftover = calibration.join(".current.parquet.4000000000.0.tmp");
+        std::fs::write(&leftover, b"torn").unwrap();
         let again = install(&calibration, b"third", day + 1).unwrap();
         assert_eq!(again.retired, None);
+        if Path::new("/proc/1/stat").exists() {
+            assert_eq!(again.swept.removed, vec![(leftover, 4000000000)]);
+        } else {
+            std::fs::remove_file(&leftover).unwrap(); // no /proc: the sweep keeps it
+        }
         let names: Vec<String> = std::fs::read_dir(&calibration)
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())

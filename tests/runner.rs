@@ -342,3 +342,281 @@ fn dag_lists_every_edge() {
     let (_, dot, _) = run(&["dag", "--dot", job.to_str().unwrap()], dir.path());
     assert!(dot.contains("\"wrenches\" -> \"measure\""), "{dot}");
 }
+
+/// Every file under `dir` whose name ends in `.tmp`.
+fn temps_under(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut found = Vec::new();
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return found;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.to_string_lossy().ends_with(".tmp") {
+            found.push(path);
+        } else if entry.file_type().is_ok_and(|t| t.is_dir()) {
+            found.extend(temps_under(&path));
+        }
+    }
+    found
+}
+
+/// Every published file (outside `.egcal`) with its bytes.
+fn published_files(out: &Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    fn walk(dir: &Path, out: &Path, files: &mut std::collections::BTreeMap<String, Vec<u8>>) {
+        for entry in std::fs::read_dir(dir).unwrap().flatten() {
+            let path = entry.path();
+            if path.file_name().is_some_and(|n| n == ".egcal") {
+                continue;
+            }
+            if path.is_dir() {
+                walk(&path, out, files);
+            } else {
+                let name = path.strip_prefix(out).unwrap().display().to_string();
+                files.insert(name, std::fs::read(&path).unwrap());
+            }
+        }
+    }
+    let mut files = std::collections::BTreeMap::new();
+    walk(out, out, &mut files);
+    files
+}
+
+/// When a test kills egcal.
+enum Kill<'a> {
+    After(Duration),
+    /// As soon as this holds (polled), or when egcal ends by itself.
+    When(&'a dyn Fn() -> bool),
+}
+
+/// Starts `egcal` with `args` in `dir`, kills it (SIGKILL) as `kill` says and
+/// returns whether temporaries were left under `watch`.
+fn kill_egcal(args: &[&str], dir: &Path, watch: &Path, kill: Kill) -> bool {
+    let mut child = common::egcal().args(args).current_dir(dir).spawn().unwrap();
+    match kill {
+        Kill::After(delay) => std::thread::sleep(delay),
+        Kill::When(ready) => {
+            let started = std::time::Instant::now();
+            while !ready()
+                && child.try_wait().unwrap().is_none()
+                && started.elapsed() < Duration::from_secs(5)
+            {}
+        }
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    !temps_under(watch).is_empty()
+}
+
+/// Kills a fully cached run while it publishes its outputs (they were deleted,
+/// so every stage copies its tables out of the cache), at the moment a file is
+/// being written and at varied delays. No published table is ever torn, the
+/// next run removes the temporaries and says so, and its outputs are identical.
+#[test]
+fn killing_a_run_while_it_publishes_leaves_no_torn_table_and_no_temporary() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 3, "");
+    let job = job.to_str().unwrap();
+    assert_eq!(run(&["run", job], dir.path()).0, 0);
+    let out = dir.path().join("out");
+    let reference = published_files(&out);
+
+    // Each run removes what the previous kill left; the last kill's leftovers
+    // are what the final run must report.
+    let mut left = 0;
+    let mut last_left = false;
+    // The last trial kills while a file is written: the final run has leftovers.
+    for trial in 0..15u64 {
+        for entry in std::fs::read_dir(&out).unwrap().flatten() {
+            if entry.file_name() != ".egcal" {
+                std::fs::remove_dir_all(entry.path()).unwrap();
+            }
+        }
+        // Alternately while a file is being written and at varied delays.
+        let writing = || !temps_under(&out).is_empty();
+        let kill = match trial % 2 {
+            0 => Kill::When(&writing),
+            _ => Kill::After(Duration::from_millis(2 * trial)),
+        };
+        last_left = kill_egcal(&["run", "--quiet", job], dir.path(), &out, kill);
+        left += usize::from(last_left);
+        assert_everything_readable(&out);
+    }
+    eprintln!("{left} of 15 kills left temporary files");
+
+    let (code, _, stderr) = run(&["run", job], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    if last_left {
+        assert!(
+            stderr.contains("temporary file") && stderr.contains("left by a killed run"),
+            "{stderr}"
+        );
+    }
+    assert_eq!(temps_under(&out), Vec::<std::path::PathBuf>::new());
+    assert_eq!(published_files(&out), reference);
+}
+
+/// Files in the cache entries of shard `00` (where the planted ones go, and
+/// their temporaries when gc renames them): falls as gc removes them. One
+/// folder read per entry, so that polling it is quick.
+fn planted_files(cache: &Path) -> usize {
+    std::fs::read_dir(cache.join("00")).map_or(0, |entries| {
+        entries
+            .flatten()
+            .map(|e| std::fs::read_dir(e.path()).map_or(0, Iterator::count))
+            .sum()
+    })
+}
+
+/// Copies of a cache entry under new keys (manifests rewritten to match), so
+/// that `cache gc` has entries to remove, each with `padding` files more than
+/// its manifest lists, so that removing one takes long enough to be killed
+/// half-way.
+fn plant_unused_entries(cache: &Path, first: usize, count: usize, padding: usize) {
+    let shard = std::fs::read_dir(cache).unwrap().flatten().next().unwrap();
+    let entry = std::fs::read_dir(shard.path())
+        .unwrap()
+        .flatten()
+        .find(|e| e.file_name().len() == 64);
+    let entry = entry.unwrap().path();
+    let key = entry.file_name().unwrap().to_str().unwrap().to_string();
+    for n in first..first + count {
+        let new_key = format!("{:064x}", n);
+        let target = cache.join(&new_key[..2]).join(&new_key);
+        std::fs::create_dir_all(&target).unwrap();
+        for file in std::fs::read_dir(&entry).unwrap().flatten() {
+            let name = file.file_name();
+            if name == "manifest.json" {
+                let text = std::fs::read_to_string(file.path()).unwrap();
+                std::fs::write(target.join(&name), text.replace(&key, &new_key)).unwrap();
+            } else {
+                std::fs::copy(file.path(), target.join(&name)).unwrap();
+            }
+        }
+        for k in 0..padding {
+            std::fs::write(target.join(format!("padding-{k}")), b"").unwrap();
+        }
+    }
+}
+
+/// Kills `cache gc` at varied delays while it removes unused entries: no entry
+/// is ever left half-deleted under its key, and the next gc removes what the
+/// killed ones left and says so; the job is still fully cached afterwards.
+#[test]
+fn killing_cache_gc_leaves_no_torn_entry_and_no_temporary() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 3, "");
+    let job = job.to_str().unwrap();
+    assert_eq!(run(&["run", job], dir.path()).0, 0);
+    let out = dir.path().join("out");
+    let cache = out.join(".egcal/cache");
+    let reference = published_files(&out);
+
+    let mut left = 0;
+    let mut last_left = false;
+    for trial in 0..10 {
+        plant_unused_entries(&cache, trial * 6, 6, 30);
+        let planted = planted_files(&cache);
+        // When a temporary appears (an entry renamed for removal), when the
+        // first file goes, or at a delay (gc first waits on the lock's fsync).
+        // The last trial leaves a temporary for the final gc to report.
+        let removing = || planted_files(&cache) < planted;
+        let writing = || !temps_under(&cache).is_empty();
+        let kill = match trial % 3 {
+            0 => Kill::When(&writing),
+            1 => Kill::When(&removing),
+            _ => Kill::After(Duration::from_millis(20 * trial as u64)),
+        };
+        last_left = kill_egcal(&["cache", "gc", job], dir.path(), &cache, kill);
+        left += usize::from(last_left);
+        assert_everything_readable(&out);
+    }
+    eprintln!("{left} of 10 kills of cache gc left temporary folders");
+
+    let (code, stdout, stderr) = run(&["cache", "gc", job], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.starts_with("removed "), "{stdout}");
+    if last_left {
+        assert!(stdout.contains("left by a killed run"), "{stdout}");
+    }
+    assert_eq!(temps_under(&out), Vec::<std::path::PathBuf>::new());
+    let (code, _, stderr) = run(&["run", job], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    let (ran, cached) = ran_and_cached(&stderr);
+    assert!(ran.is_empty(), "{stderr}");
+    assert_eq!(cached.len(), 5);
+    assert_eq!(published_files(&out), reference);
+}
+
+/// Temporaries planted with the pid of a process that has exited (dead) and
+/// with this test's own pid (alive): `run` and `cache gc` remove the first, keep
+/// the second, say so, and leave a user's similarly named file alone.
+#[test]
+fn run_and_cache_gc_remove_dead_writers_temporaries_and_keep_live_ones() {
+    if !Path::new("/proc/1/stat").exists() {
+        return; // no /proc: nothing can be judged dead, nothing is removed
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let job = small_job(dir.path(), 3, "");
+    let job = job.to_str().unwrap();
+    assert_eq!(
+        run(&["run", "--only", "predict_nominal", job], dir.path()).0,
+        0
+    );
+    let out = dir.path().join("out");
+    let mut child = std::process::Command::new("true").spawn().unwrap();
+    let dead = child.id();
+    child.wait().unwrap();
+    let live = std::process::id();
+    let key = "ab".repeat(32);
+    let plant = || {
+        let dead_files = [
+            out.join(format!("predict_nominal/.predictions.parquet.{dead}.0.tmp")),
+            out.join(format!(".egcal/state/.predict_nominal.json.{dead}.1.tmp")),
+            out.join(format!(".egcal/cache/ab/.{key}.{dead}.tmp/manifest.json")),
+        ];
+        for file in &dead_files {
+            std::fs::create_dir_all(file.parent().unwrap()).unwrap();
+            std::fs::write(file, b"torn").unwrap();
+        }
+        dead_files
+    };
+    let live_file = out.join(format!("predict_nominal/.predictions.parquet.{live}.7.tmp"));
+    let user_file = out.join(format!("predict_nominal/.notes.{dead}.tmp"));
+    std::fs::write(&live_file, b"being written").unwrap();
+    std::fs::write(&user_file, b"mine").unwrap();
+
+    let dead_files = plant();
+    let (code, _, stderr) = run(&["run", "--only", "predict_nominal", job], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stderr.contains(&format!(
+            "removed 3 temporary files left by a killed run (pid {dead}): "
+        )) && stderr.contains(&format!(
+            "predict_nominal/.predictions.parquet.{dead}.0.tmp"
+        )) && stderr.contains(&format!("kept 1 temporary file of running process {live}")),
+        "{stderr}"
+    );
+    assert!(dead_files.iter().all(|f| !f.exists()));
+    assert!(
+        !out.join(format!(".egcal/cache/ab/.{key}.{dead}.tmp"))
+            .exists()
+    );
+    assert!(live_file.exists() && user_file.exists());
+
+    let dead_files = plant();
+    let (code, stdout, stderr) = run(&["cache", "gc", job], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains(&format!(
+            "removed 3 temporary files left by a killed run (pid {dead}): "
+        )) && stdout.contains(&format!("kept 1 temporary file of running process {live}")),
+        "{stdout}"
+    );
+    assert!(dead_files.iter().all(|f| !f.exists()));
+    assert!(live_file.exists() && user_file.exists());
+
+    // Nothing left: nothing said.
+    std::fs::remove_file(&live_file).unwrap();
+    let (_, _, stderr) = run(&["run", "--only", "predict_nominal", job], dir.path());
+    assert!(!stderr.contains("temporary file"), "{stderr}");
+}

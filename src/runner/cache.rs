@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use polars::prelude::DataFrame;
 use serde::{Deserialize, Serialize};
 
-use crate::fsio;
+use crate::fsio::{self, sweep};
 use crate::table::{self, Provenance};
 
 /// One table of a cache entry.
@@ -117,7 +117,7 @@ impl Cache {
     pub fn remove(&self, key: &str) -> std::io::Result<()> {
         let dir = self.entry_dir(key);
         if dir.exists() {
-            fs::remove_dir_all(&dir)?;
+            remove_entry(&dir, key)?;
         }
         Ok(())
     }
@@ -134,7 +134,7 @@ impl Cache {
     ) -> Result<Manifest, table::TableError> {
         let final_dir = self.entry_dir(key);
         let parent = final_dir.parent().expect("entry has a parent");
-        let tmp_dir = parent.join(format!(".{key}.{}.tmp", std::process::id()));
+        let tmp_dir = parent.join(sweep::cache_temp_name(key));
         let io = |e: std::io::Error| table::schema::io_error(&tmp_dir, e);
         if tmp_dir.exists() {
             fs::remove_dir_all(&tmp_dir).map_err(io)?;
@@ -182,8 +182,27 @@ impl Cache {
         Ok(manifest)
     }
 
-    /// Removes entries whose key is not in `keep` and leftovers of killed runs.
-    /// Returns (entries removed, bytes freed).
+    /// Removes temporaries of dead writers (entries being built, entries being
+    /// removed) from the shards. Complete entries are not entered: they were
+    /// renamed into place after their last write, so they hold no temporaries.
+    pub fn sweep(&self) -> std::io::Result<sweep::Swept> {
+        let mut swept = sweep::Swept::default();
+        let Ok(shards) = fs::read_dir(&self.root) else {
+            return Ok(swept);
+        };
+        for shard in shards {
+            let shard = shard?;
+            if shard.file_type()?.is_dir() {
+                swept.extend(sweep::sweep_folder(&shard.path())?);
+            }
+        }
+        Ok(swept)
+    }
+
+    /// Removes entries whose key is not in `keep`. Returns (entries removed,
+    /// bytes freed). Only folders named like a key are entries; temporaries of
+    /// killed runs are left to [`Cache::sweep`], which knows whether their writer
+    /// is dead.
     pub fn gc(&self, keep: &std::collections::HashSet<String>) -> std::io::Result<(usize, u64)> {
         let mut removed = 0;
         let mut freed = 0;
@@ -197,19 +216,35 @@ impl Cache {
             }
             for entry in fs::read_dir(&shard)? {
                 let path = entry?.path();
-                let name = path
-                    .file_name()
-                    .map(|n| n.to_string_lossy().into_owned())
-                    .unwrap_or_default();
-                if !keep.contains(&name) {
+                let Some(key) = path.file_name().and_then(|n| n.to_str()) else {
+                    continue;
+                };
+                if is_key(key) && path.is_dir() && !keep.contains(key) {
                     freed += dir_size(&path);
-                    fs::remove_dir_all(&path)?;
+                    remove_entry(&path, key)?;
                     removed += 1;
                 }
             }
         }
         Ok((removed, freed))
     }
+}
+
+/// A cache key: blake3 hex.
+fn is_key(name: &str) -> bool {
+    name.len() == 64 && name.bytes().all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f'))
+}
+
+/// Removes an entry folder so that it vanishes at once: renamed to a temporary
+/// name first, then deleted. A kill during the (not atomic) deletion leaves a
+/// temporary that the next sweep removes, never a half-deleted entry under its key.
+fn remove_entry(dir: &Path, key: &str) -> std::io::Result<()> {
+    let doomed = dir.with_file_name(sweep::cache_temp_name(key));
+    if doomed.exists() {
+        fs::remove_dir_all(&doomed)?;
+    }
+    fs::rename(dir, &doomed)?;
+    fs::remove_dir_all(&doomed)
 }
 
 fn dir_size(path: &Path) -> u64 {

@@ -11,6 +11,10 @@
 //! `<stage>/<table>.parquet` (published results), `.egcal/cache/` (entries),
 //! `.egcal/state/<stage>.json` (what the last run keyed on, for `status`),
 //! `.egcal/work/<stage>/` (journals of resumable stages), `.egcal/lock`.
+//!
+//! A run, and `cache gc`, first removes the temporaries that killed runs left in
+//! the output folder and in the calibration folders gate stages publish into
+//! ([`fsio::sweep`]), and says what it removed.
 
 pub mod cache;
 pub mod lock;
@@ -180,6 +184,9 @@ pub fn run(
 ) -> Result<Vec<(String, Outcome)>, RunError> {
     let layout = Layout::new(&plan.output_dir);
     let _lock = RunLock::acquire(&layout.meta(), |m| reporter.line(m))?;
+    if let Some(summary) = sweep_leftovers(plan, &layout)? {
+        reporter.line(&summary);
+    }
     let robot = Robot::new(plan.robot.clone());
     let robot_hash = plan.robot.content_hash();
 
@@ -739,15 +746,66 @@ pub fn live_keys(plan: &Plan) -> HashSet<String> {
         .collect()
 }
 
+/// What `cache gc` removed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Collected {
+    pub entries: usize,
+    pub bytes: u64,
+    /// Leftovers of killed runs, described for the user.
+    pub leftovers: Option<String>,
+}
+
 /// Removes cache entries no stage of the plan uses, and leftovers of killed runs.
-pub fn gc(plan: &Plan) -> Result<(usize, u64), RunError> {
+pub fn gc(plan: &Plan) -> Result<Collected, RunError> {
     let layout = Layout::new(&plan.output_dir);
     let _lock = RunLock::acquire(&layout.meta(), |_| {})?;
-    layout
+    let leftovers = sweep_leftovers(plan, &layout)?;
+    let (entries, bytes) = layout
         .cache
         .gc(&live_keys(plan))
         .map_err(|source| RunError::Io {
             context: format!("collecting {}", layout.cache.root().display()),
             source,
+        })?;
+    Ok(Collected {
+        entries,
+        bytes,
+        leftovers,
+    })
+}
+
+/// Removes temporaries of dead writers from the output folder (all of it: stage
+/// outputs, the state and the work folders, the cache's shards) and from the folders of
+/// inputs a stage may replace (where `gate` publishes; another job's run may be
+/// writing there, which the sweep's liveness check allows for). Returns a line
+/// for the user when it found any. Runs under the lock.
+fn sweep_leftovers(plan: &Plan, layout: &Layout) -> Result<Option<String>, RunError> {
+    let io = |dir: &Path| {
+        let context = format!("removing temporary files left in {}", dir.display());
+        move |source| RunError::Io { context, source }
+    };
+    let cache = layout.cache.root();
+    let mut swept =
+        fsio::sweep::sweep_tree(&layout.output, &[cache]).map_err(io(&layout.output))?;
+    swept.extend(layout.cache.sweep().map_err(io(cache))?);
+    let mut published: Vec<&Path> = plan
+        .stages
+        .iter()
+        .filter_map(|stage| {
+            let name = stage.kind.info().updates_input?;
+            match stage.inputs.get(name)? {
+                InputSource::Files { paths, .. } => Some(paths),
+                InputSource::Stage { .. } => None,
+            }
         })
+        .flatten()
+        .filter_map(|path| path.parent())
+        .filter(|dir| !dir.starts_with(&layout.output))
+        .collect();
+    published.sort();
+    published.dedup();
+    for dir in published {
+        swept.extend(fsio::sweep::sweep_folder(dir).map_err(io(dir))?);
+    }
+    Ok(swept.summary(&plan.output_dir))
 }

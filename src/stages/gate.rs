@@ -275,6 +275,9 @@ impl Stage for GateStage {
             let installed = crate::publish::install(&dir, &bytes, ctx.run_date).map_err(|e| {
                 StageError::Failed(format!("publishing into {}: {e}", dir.display()))
             })?;
+            if let Some(summary) = installed.swept.summary(&dir) {
+                ctx.progress.note(&format!("{}: {summary}", dir.display()));
+            }
             reasons.push(format!("published as {}", installed.current.display()));
             published_as = Some(installed.current.display().to_string());
             retired_as = installed.retired.map(|p: PathBuf| p.display().to_string());
