@@ -67,7 +67,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: Some("in_service"),
     summary: "Compare the night's calibration with the one in service; publish it only when it is better or the old one drifted",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -211,9 +211,14 @@ impl Stage for GateStage {
         let in_service = model_set(ctx.input("in_service")?, model, &nominal)?;
 
         let measurements = ctx.input("measurements")?;
-        let window = measured_rows(measurements, None)?;
+        let mut window = measured_rows(measurements, None)?;
         let holdout_ids = ids_with_role(ctx.input("selection")?, "validation")?;
-        let holdout = measured_rows(measurements, Some(&holdout_ids))?;
+        let mut holdout = measured_rows(measurements, Some(&holdout_ids))?;
+        holdout.leave_out_bad_rows(ctx.robot, &measurements.path);
+        let left_out = window.leave_out_bad_rows(ctx.robot, &measurements.path);
+        if let Some(summary) = &left_out {
+            ctx.progress.note(summary);
+        }
         if holdout.ids.len() < settings.min_holdout_rows.max(2) {
             return Err(StageError::Invalid(format!(
                 "the hold-out has {} rows, fewer than min_holdout_rows = {}: widen the window or hold out more days",
@@ -228,7 +233,7 @@ impl Stage for GateStage {
         .map_err(|e| StageError::Failed(format!("hold-out comparison: {e}")))?;
 
         let reference: Vec<ConfWrench> = match ctx.inputs.get("reference") {
-            Some(table) => super::conf_wrench_rows(table)?.1,
+            Some(table) => super::commanded_rows(ctx, table)?.1,
             None => window.rows.clone(),
         };
         let changes: Vec<f64> = batch_predict(ctx.robot, &in_service.values, &reference)
@@ -290,6 +295,9 @@ impl Stage for GateStage {
         outputs
             .facts
             .insert("decision".into(), decision.as_str().into());
+        if let Some(summary) = left_out {
+            outputs.facts.insert("rows_left_out".into(), summary);
+        }
         outputs.facts.insert(
             "holdout_mean_mm".into(),
             format!(

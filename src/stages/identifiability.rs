@@ -6,9 +6,7 @@ use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{
-    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
-};
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, commanded_rows};
 use crate::calibration::{rank, stream};
 use crate::robot::{ParamId, ParamValues};
 use crate::table::{frame, schema};
@@ -67,7 +65,7 @@ impl Stage for IdentifiabilityStage {
         ctx: &StageContext,
         settings: &IdentifiabilitySettings,
     ) -> Result<StageOutputs, StageError> {
-        let (_, rows) = conf_wrench_rows(ctx.input("candidates")?)?;
+        let (_, rows) = commanded_rows(ctx, ctx.input("candidates")?)?;
         let candidates: Vec<ParamId> = ParamId::all()
             .filter(|p| !(settings.kinematic_only && p.is_compliance()))
             .collect();

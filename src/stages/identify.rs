@@ -326,6 +326,39 @@ impl MeasuredRows {
         }
     }
 
+    /// Leaves out the rows that fail the row checks ([`row_checks::row_problem`]):
+    /// a corrupt row would dominate an error statistic as it would a fit. Returns
+    /// what went, for a note and a fact; `None` when every row passed.
+    pub fn leave_out_bad_rows(
+        &mut self,
+        robot: &crate::robot::Robot,
+        file: &std::path::Path,
+    ) -> Option<String> {
+        let problems: Vec<Option<String>> = (0..self.rows.len())
+            .map(|k| {
+                row_checks::row_problem(
+                    robot,
+                    &self.rows[k],
+                    &self.positions[k],
+                    self.sigma_mm.as_ref().map(|s| &s[k]),
+                )
+            })
+            .collect();
+        let first = problems.iter().position(Option::is_some)?;
+        let count = problems.iter().filter(|p| p.is_some()).count();
+        let summary = format!(
+            "{count} of {} rows of {} fail the row checks and are left out (first: row {}, cw_id {}: {})",
+            self.rows.len(),
+            file.display(),
+            self.file_rows[first],
+            self.ids[first],
+            problems[first].as_deref().unwrap_or_default()
+        );
+        let keep: Vec<bool> = problems.iter().map(Option::is_none).collect();
+        self.retain(&keep);
+        Some(summary)
+    }
+
     /// The sorted distinct target ids (empty without the column).
     pub fn distinct_targets(&self) -> Vec<String> {
         let ids: std::collections::BTreeSet<String> = self

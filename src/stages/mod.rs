@@ -350,3 +350,32 @@ pub fn conf_wrench_rows(
         .collect();
     Ok((ids, rows))
 }
+
+/// Conf-wrench rows that command the robot (candidates, rows to predict or to
+/// simulate): a row beyond the joint limits or with an absurd wrench is not one
+/// this robot can take, and what a stage computed for it would be nonsense (a
+/// force of 1e300 N "deflects" the tool by 1e299 mm). The table is refused,
+/// naming its first such row.
+pub fn commanded_rows(
+    ctx: &StageContext,
+    input: &InputTable,
+) -> Result<(Vec<i64>, Vec<crate::robot::ConfWrench>), StageError> {
+    let (ids, rows) = conf_wrench_rows(input)?;
+    let mut bad = rows.iter().enumerate().filter_map(|(k, row)| {
+        crate::calibration::row_checks::conf_wrench_problem(ctx.robot, row).map(|p| (k, p))
+    });
+    if let Some((first, problem)) = bad.next() {
+        let more = bad.count();
+        return Err(StageError::Invalid(format!(
+            "{}: row {first} (cw_id {}): {problem}{}",
+            input.path.display(),
+            ids[first],
+            if more > 0 {
+                format!(" ({more} more such rows)")
+            } else {
+                String::new()
+            }
+        )));
+    }
+    Ok((ids, rows))
+}

@@ -6,11 +6,10 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
+    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, commanded_rows,
     model_values,
 };
-use crate::calibration::row_checks;
-use crate::robot::{ConfWrench, batch_predict};
+use crate::robot::batch_predict;
 use crate::table::frame;
 use crate::table::parameters::ModelName;
 use crate::table::schema::{self, DEFLECTION_COLUMNS, POSITION_COLUMNS, TORQUE_COLUMNS};
@@ -77,8 +76,7 @@ impl Stage for PredictStage {
     ) -> Result<StageOutputs, StageError> {
         let values = model_values(ctx, "parameters", "model", &settings.model)?;
         let input = ctx.input("conf_wrenches")?;
-        let (ids, rows) = conf_wrench_rows(input)?;
-        check_rows(ctx, input, &ids, &rows)?;
+        let (ids, rows) = commanded_rows(ctx, input)?;
         let predictions = batch_predict(ctx.robot, &values, &rows);
         let mut columns = vec![Column::new("cw_id".into(), ids)];
         for (axis, name) in POSITION_COLUMNS.iter().enumerate() {
@@ -101,33 +99,4 @@ impl Stage for PredictStage {
         outputs.facts.insert("rows".into(), rows.len().to_string());
         Ok(outputs)
     }
-}
-
-/// A row beyond the joint limits or with an absurd wrench has no meaningful
-/// prediction (a force of 1e300 N "deflects" the tool by 1e299 mm): the table is
-/// rejected naming its first such row, rather than answered with nonsense.
-fn check_rows(
-    ctx: &StageContext,
-    input: &super::InputTable,
-    ids: &[i64],
-    rows: &[ConfWrench],
-) -> Result<(), StageError> {
-    let mut bad = rows
-        .iter()
-        .enumerate()
-        .filter_map(|(k, row)| row_checks::conf_wrench_problem(ctx.robot, row).map(|p| (k, p)));
-    let Some((first, problem)) = bad.next() else {
-        return Ok(());
-    };
-    let more = bad.count();
-    Err(StageError::Invalid(format!(
-        "{}: row {first} (cw_id {}): {problem}{}; no prediction is meaningful there",
-        input.path.display(),
-        ids[first],
-        if more > 0 {
-            format!(" ({more} more such rows)")
-        } else {
-            String::new()
-        }
-    )))
 }

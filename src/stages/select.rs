@@ -8,9 +8,7 @@ use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{
-    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
-};
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, commanded_rows};
 use crate::calibration::{rank, stream};
 use crate::design::detmax::{Candidates, Criterion, DetmaxError, Method, Options, detmax};
 use crate::robot::{ParamId, ParamValues, batch_jacobian};
@@ -105,7 +103,7 @@ impl Stage for SelectStage {
         settings: &SelectSettings,
     ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("candidates")?;
-        let (ids, rows) = conf_wrench_rows(input)?;
+        let (ids, rows) = commanded_rows(ctx, input)?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let parameters: Vec<ParamId> = match ctx.inputs.get("identifiability") {
             Some(table) => {

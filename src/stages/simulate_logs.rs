@@ -245,7 +245,7 @@ impl Stage for SimulateLogsStage {
                 settings.start_hour_utc, settings.rows_per_day, settings.seconds_per_row
             )));
         }
-        let (pool_ids, pool) = super::conf_wrench_rows(ctx.input("conf_wrenches")?)?;
+        let (pool_ids, pool) = super::commanded_rows(ctx, ctx.input("conf_wrenches")?)?;
         let day_limit = ROWS_PER_DAY_LIMIT.min(pool.len());
         if settings.rows_per_day == 0 || settings.rows_per_day > day_limit {
             return Err(invalid(format!(

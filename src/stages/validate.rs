@@ -29,7 +29,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Validation errors per model, statistics (Table III) and pairwise hypothesis tests",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -85,13 +85,18 @@ impl Stage for ValidateStage {
             None => None,
         };
         let measurements = ctx.input("measurements")?;
+        let mut data = measured_rows(measurements, keep.as_ref())?;
+        let left_out = data.leave_out_bad_rows(ctx.robot, &measurements.path);
+        if let Some(summary) = &left_out {
+            ctx.progress.note(summary);
+        }
         let MeasuredRows {
             ids,
             rows,
             positions: measured,
             target_ids,
             ..
-        } = measured_rows(measurements, keep.as_ref())?;
+        } = data;
         if ids.len() < 2 {
             return Err(StageError::Invalid(format!(
                 "{} validation rows; need at least 2",
@@ -174,6 +179,9 @@ impl Stage for ValidateStage {
         outputs
             .facts
             .insert("validation_rows".into(), ids.len().to_string());
+        if let Some(summary) = left_out {
+            outputs.facts.insert("rows_left_out".into(), summary);
+        }
         for (model, values) in &norms {
             let max = values.iter().cloned().fold(0.0, f64::max);
             outputs
