@@ -499,22 +499,35 @@ fn run_on_files(
         ))
     })?;
     let info = stage_kind.info();
+    let settings_problems = |problems: Vec<stages::SettingsProblem>| {
+        CommandError::Usage(
+            problems
+                .iter()
+                .map(|p| format!("{settings_name}: {}: {}", p.key, p.message))
+                .collect::<Vec<_>>()
+                .join("\n"),
+        )
+    };
     let settings = stage_kind
         .canonical_settings(raw_settings)
-        .map_err(|problems| {
-            CommandError::Usage(
-                problems
-                    .iter()
-                    .map(|p| format!("{settings_name}: {}: {}", p.key, p.message))
-                    .collect::<Vec<_>>()
-                    .join("\n"),
-            )
-        })?;
+        .map_err(settings_problems)?;
     let robot = Robot::new(RobotSpec::load(robot_file)?);
     let cable_robot = match cable_robot_file {
         Some(path) => CableRobotSpec::load(path).map_err(|e| CommandError::Usage(e.to_string()))?,
         None => CableRobotSpec::default(),
     };
+    let job_dir = Path::new(".");
+    let problems = stage_kind.check_settings(
+        &settings,
+        &stages::SettingsContext {
+            robot: robot.spec(),
+            cable_robot: &cable_robot,
+            job_dir,
+        },
+    );
+    if !problems.is_empty() {
+        return Err(settings_problems(problems));
+    }
     let mut tables = BTreeMap::new();
     for (name, path) in inputs {
         let slot = info.inputs.iter().find(|s| s.name == name).ok_or_else(|| {
@@ -552,7 +565,7 @@ fn run_on_files(
         seed,
         inputs: &tables,
         work_dir,
-        job_dir: Path::new("."),
+        job_dir,
         run_date,
         progress: &NoProgress,
     };

@@ -16,6 +16,7 @@ pub mod predict;
 pub mod report;
 pub mod scan_logs;
 pub mod select;
+pub mod settings_check;
 pub mod simulate_logs;
 pub mod split;
 pub mod validate;
@@ -30,7 +31,7 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use crate::cdpr::CableRobotSpec;
-use crate::robot::Robot;
+use crate::robot::{Robot, RobotSpec};
 use crate::table::{TableError, TableSchema};
 
 /// A named input or output table of a stage kind.
@@ -152,9 +153,50 @@ pub trait Stage: Sync {
     ) -> Result<serde_json::Value, StageError> {
         Ok(serde_json::Value::Null)
     }
+
+    /// Checks of the settings that a range on one value cannot express (one
+    /// setting against another, model and parameter names, the robot, the
+    /// machine's memory), run by job-file validation (`egcal check`) and before
+    /// [`Stage::run`]. Only what settings, robot, cable robot and job folder
+    /// decide belongs here; checks of input tables stay in `run`.
+    fn check_settings(
+        &self,
+        _settings: &Self::Settings,
+        _ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        Vec::new()
+    }
 }
 
-/// A settings value that failed to parse, with its key relative to the stage table.
+/// What job-file validation knows when it checks a stage's settings: no tables yet.
+pub struct SettingsContext<'a> {
+    pub robot: &'a RobotSpec,
+    pub cable_robot: &'a CableRobotSpec,
+    /// The job file's folder: relative paths in settings resolve here.
+    pub job_dir: &'a Path,
+}
+
+impl SettingsProblem {
+    pub fn new(key: &str, message: impl Into<String>) -> Self {
+        SettingsProblem {
+            key: key.to_string(),
+            message: message.into(),
+        }
+    }
+}
+
+/// Settings problems as one [`StageError::Invalid`], each line naming its setting.
+pub fn settings_error(problems: &[SettingsProblem]) -> StageError {
+    StageError::Invalid(
+        problems
+            .iter()
+            .map(|p| format!("setting `{}`: {}", p.key, p.message))
+            .collect::<Vec<_>>()
+            .join("\n"),
+    )
+}
+
+/// A settings value that failed to parse or check, with its key relative to the stage table.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SettingsProblem {
     pub key: String,
@@ -172,6 +214,14 @@ pub trait StageKind: Sync {
         raw: &toml::Table,
     ) -> Result<serde_json::Value, Vec<SettingsProblem>>;
     fn defaults(&self) -> serde_json::Value;
+    /// See [`Stage::check_settings`]; `canonical` comes from [`StageKind::canonical_settings`].
+    fn check_settings(
+        &self,
+        canonical: &serde_json::Value,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem>;
+    /// Runs the stage after [`StageKind::check_settings`], so library callers get
+    /// the checks job-file validation makes.
     fn run(
         &self,
         ctx: &StageContext,
@@ -219,7 +269,11 @@ impl<S: Stage> StageKind for S {
         if !unknown.is_empty() {
             return Err(unknown);
         }
-        let mut problems = Vec::new();
+        // Before serde: JSON has no NaN, and serde_json would turn one into null.
+        let mut problems = settings_check::non_finite_problems(raw);
+        if !problems.is_empty() {
+            return Err(problems);
+        }
         // Check each key on its own so that every bad value is reported, not just the first.
         for (key, value) in raw {
             let mut single = toml::Table::new();
@@ -232,11 +286,28 @@ impl<S: Stage> StageKind for S {
             return Err(problems);
         }
         let settings = parse_settings::<S::Settings>(raw).map_err(|e| vec![e])?;
-        Ok(serde_json::to_value(settings).expect("settings serialise"))
+        let canonical = serde_json::to_value(settings).expect("settings serialise");
+        let problems = settings_check::range_problems(&canonical, &schema);
+        if problems.is_empty() {
+            Ok(canonical)
+        } else {
+            Err(problems)
+        }
     }
 
     fn defaults(&self) -> serde_json::Value {
         serde_json::to_value(S::Settings::default()).expect("settings serialise")
+    }
+
+    fn check_settings(
+        &self,
+        canonical: &serde_json::Value,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        match typed_settings::<S>(canonical) {
+            Ok(settings) => Stage::check_settings(self, &settings, ctx),
+            Err(e) => vec![SettingsProblem::new("", e.to_string())],
+        }
     }
 
     fn run(
@@ -244,7 +315,17 @@ impl<S: Stage> StageKind for S {
         ctx: &StageContext,
         canonical: &serde_json::Value,
     ) -> Result<StageOutputs, StageError> {
-        Stage::run(self, ctx, &typed_settings::<S>(canonical)?)
+        let settings = typed_settings::<S>(canonical)?;
+        let checks = SettingsContext {
+            robot: ctx.robot.spec(),
+            cable_robot: ctx.cable_robot,
+            job_dir: ctx.job_dir,
+        };
+        let problems = Stage::check_settings(self, &settings, &checks);
+        if !problems.is_empty() {
+            return Err(settings_error(&problems));
+        }
+        Stage::run(self, ctx, &settings)
     }
 
     fn external_key(
