@@ -675,24 +675,50 @@ pub fn list_stages() -> String {
             .expect("write");
         }
         let schema = kind.settings_schema();
-        let defaults = kind.defaults();
-        if let Some(props) = schema["properties"].as_object() {
-            for (name, prop) in props {
-                let description = prop["description"]
-                    .as_str()
-                    .unwrap_or("")
-                    .replace('\n', " ");
-                writeln!(
-                    out,
-                    "  set    {name:<16} = {:<12} {description}",
-                    defaults[name]
-                )
-                .expect("write");
-            }
-        }
+        list_settings(&mut out, &schema, &schema, &kind.defaults(), "");
         out.push('\n');
     }
     out
+}
+
+/// One `set` line per setting of `schema` (an object schema), with its default and
+/// range; a nested settings struct (`simulator`) lists its own settings as
+/// `simulator.<name>`.
+fn list_settings(
+    out: &mut String,
+    schema: &serde_json::Value,
+    root: &serde_json::Value,
+    defaults: &serde_json::Value,
+    prefix: &str,
+) {
+    let Some(props) = schema["properties"].as_object() else {
+        return;
+    };
+    for (name, prop) in props {
+        let key = format!("{prefix}{name}");
+        let nested = prop["$ref"]
+            .as_str()
+            .and_then(|r| r.strip_prefix('#'))
+            .and_then(|pointer| root.pointer(pointer))
+            .filter(|s| s["properties"].is_object());
+        if let Some(nested) = nested {
+            list_settings(out, nested, root, &defaults[name], &format!("{key}."));
+            continue;
+        }
+        let description = prop["description"]
+            .as_str()
+            .unwrap_or("")
+            .replace('\n', " ");
+        let range = stages::settings_check::range_text(prop, root)
+            .map(|r| format!(" Range: {r}."))
+            .unwrap_or_default();
+        writeln!(
+            out,
+            "  set    {key:<16} = {:<12} {description}{range}",
+            defaults[name]
+        )
+        .expect("write");
+    }
 }
 
 /// `egcal cache gc`.

@@ -36,13 +36,19 @@ pub struct GateSettings {
     /// The model of both tables that is compared and put in service.
     pub model: String,
     /// Significance level of the paired t-test on hold-out errors.
+    #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 1.0))]
     pub alpha: f64,
     /// Smallest mean hold-out improvement worth publishing (mm).
+    #[schemars(range(max = 1000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub min_improvement_mm: f64,
     /// The in-service set has drifted when the candidate moves a reference pose's
     /// predicted position by more than this (mm).
+    #[schemars(range(max = 1000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub drift_threshold_mm: f64,
     /// Fewest hold-out rows the comparison needs.
+    #[schemars(range(min = 1, max = 1_000_000_000))]
     pub min_holdout_rows: usize,
     /// Calibration folder, relative to the job file: a published candidate becomes
     /// `current.parquet` there. Empty: decide and report only.

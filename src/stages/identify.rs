@@ -76,7 +76,8 @@ pub enum BadRowsSetting {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(untagged)]
 pub enum FixedValue {
-    Value(f64),
+    /// ±100 000 of any parameter's unit (mm, deg, rad/(N·m)) can only be a mistake.
+    Value(#[schemars(range(min = -100_000.0, max = 100_000.0))] f64),
     Named(String),
 }
 
@@ -89,30 +90,40 @@ pub struct IdentifySettings {
     /// Parameters that may be freed (empty: all 42); rank analysis drops dependent ones.
     pub candidates: Vec<String>,
     /// Relative tolerance of the rank analysis on the column-scaled Jacobian.
+    #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 1.0))]
     pub rank_tolerance: f64,
     /// levenberg_marquardt (robust default) or paper (eq. (25) as published).
     pub algorithm: AlgorithmSetting,
     /// Steps tried at most, rejected Levenberg–Marquardt steps included.
+    #[schemars(range(min = 1, max = 100_000))]
     pub max_iterations: usize,
     /// Stop when a step changes no predicted position by more than this (mm). The
     /// paper used 0.05 mm.
+    #[schemars(range(min = 0.0, max = 100.0))]
     pub stop_step_mm: f64,
     /// Levenberg–Marquardt: stop when an accepted step lowers the cost by less than
     /// this fraction.
+    #[schemars(range(min = 0.0, max = 1.0))]
     pub stop_relative_cost: f64,
     /// robust (default), least_squares or huber. The robust fit's scale comes
     /// from each model's own residuals, so a kinematic model's systematic load
     /// errors are not taken for outliers.
     pub loss: LossSetting,
     /// loss = robust: Huber threshold of the second stage, in robust standard deviations.
+    #[schemars(range(min = 1.0, max = 100.0))]
     pub huber_sigmas: f64,
     /// loss = robust: rows beyond this many robust standard deviations are excluded.
+    #[schemars(range(min = 2.0, max = 100.0))]
     pub reject_sigmas: f64,
     /// loss = robust: fail rather than exclude more than this fraction of the rows,
     /// and fail when row checks drop more than this fraction.
+    #[schemars(range(min = 0.0))]
+    #[schemars(extend("exclusiveMaximum" = 0.5))]
     pub max_excluded_fraction: f64,
     /// loss = least_squares or huber: rows whose residual norm exceeds this are
     /// reported as outliers, and down-weighted with huber (mm).
+    #[schemars(range(max = 1000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub outlier_threshold_mm: f64,
     /// Rows outside the robot file's joint limits or with absurd values: drop (and
     /// name them) or fail.

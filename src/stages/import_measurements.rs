@@ -209,6 +209,7 @@ pub struct Constants {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub robot_id: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schemars(range(min = 0))]
     pub config_id: Option<i64>,
 }
 
@@ -225,6 +226,7 @@ pub struct ImportMeasurementsSettings {
     /// CSV numbers use a decimal comma (`1,5`); needs a separator other than ",".
     pub decimal_comma: bool,
     /// CSV lines to skip before the header (a preamble).
+    #[schemars(range(min = 0, max = 1_000_000_000))]
     pub skip_rows: usize,
     /// The CSV's first (unskipped) line names the columns; without a header the
     /// source columns are `column_1`, `column_2`, …
@@ -243,6 +245,7 @@ pub struct ImportMeasurementsSettings {
     pub moment_unit: MomentUnit,
     /// Import only data rows start ≤ row < end (0-based, half-open), e.g. half of a
     /// series; the default cw_id stays the row's number in the whole file.
+    #[schemars(inner(range(min = 0, max = 1_000_000_000)))]
     pub row_range: Option<[usize; 2]>,
 }
 

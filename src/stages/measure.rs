@@ -50,14 +50,21 @@ pub struct MeasureSettings {
     /// Program and arguments of the external driver, run in the job file's folder.
     pub command: Vec<String>,
     /// Time limit of each driver request (s).
+    #[schemars(range(max = 86_400.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub timeout_s: f64,
     /// Extra attempts of a row after a transient failure.
+    #[schemars(range(min = 0, max = 100))]
     pub retries: u32,
     /// Stop the campaign at the first row that still fails after its retries.
     pub stop_on_failure: bool,
     /// Safety bound on each force component (N); a row beyond it stops the campaign.
+    #[schemars(range(max = 100_000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_force_n: f64,
     /// Safety bound on each moment component (N·m).
+    #[schemars(range(max = 10_000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_moment_nm: f64,
     /// Model of the `truth` input the simulator uses.
     pub truth_model: String,

@@ -38,37 +38,53 @@ pub struct PosesSettings {
     /// How target points fill the box: grid, random or latin_hypercube.
     pub sampling: SamplingKind,
     /// Grid points per axis (grid sampling).
+    #[schemars(range(min = 1, max = 1000))]
     pub points_per_axis: usize,
     /// Number of points (random and Latin-hypercube sampling).
+    #[schemars(range(min = 1, max = 100_000_000))]
     pub count: usize,
     /// Centre of the workspace box in the base frame (mm).
+    #[schemars(inner(range(min = -100_000.0, max = 100_000.0)))]
     pub centre_mm: [f64; 3],
     /// Edge of the (cubic) workspace box (mm).
+    #[schemars(range(max = 100_000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub edge_mm: f64,
     /// Tracker head in the base frame (mm); default: the robot file's nominal world origin.
+    #[schemars(inner(range(min = -100_000.0, max = 100_000.0)))]
     pub tracker_mm: Option<[f64; 3]>,
     /// Largest angle between the SMR axis (tool z) and the direction to the tracker.
+    #[schemars(range(min = 0.0, max = 90.0))]
     pub acceptance_half_angle_deg: f64,
     /// Tool roll about the SMR axis: uniform within ± this of the upright roll (tool
     /// x horizontal, y up). Kept small because the cable robot's wrench-feasible set
     /// depends strongly on the platform's orientation, and the default cable robot
     /// is designed for the upright platform; 180 allows any roll.
+    #[schemars(range(min = 0.0, max = 180.0))]
     pub roll_half_range_deg: f64,
     /// Orientations tried per point before it is dropped.
+    #[schemars(range(min = 1, max = 1_000_000))]
     pub orientation_attempts: usize,
     /// Smallest angle between axes 4 and 6, i.e. |q5| on the usual arms (wrist singularity).
+    #[schemars(range(min = 0.0, max = 180.0))]
     pub min_wrist_deg: f64,
     /// Smallest distance of the wrist point from the plane of axes 1 and 2, i.e. from axis 1 on arms without a lateral offset (shoulder singularity).
+    #[schemars(range(min = 0.0, max = 100_000.0))]
     pub min_shoulder_mm: f64,
     /// Smallest elbow bend from straight, seen along axis 3 (elbow singularity).
+    #[schemars(range(min = 0.0, max = 180.0))]
     pub min_elbow_deg: f64,
     /// Links 2–6 stay above this height in the base frame (mm).
+    #[schemars(range(min = -100_000.0, max = 100_000.0))]
     pub floor_z_mm: f64,
     /// Smallest allowed clearance between any two checked shapes (mm).
+    #[schemars(range(min = 0.0, max = 1000.0))]
     pub safety_margin_mm: f64,
     /// Pulley (anchor) ball radius of the cable robot's frame (mm).
+    #[schemars(range(min = 0.0, max = 1000.0))]
     pub pulley_radius_mm: f64,
     /// Cable radius (mm).
+    #[schemars(range(min = 0.0, max = 100.0))]
     pub cable_radius_mm: f64,
 }
 

@@ -30,6 +30,7 @@ pub struct ReportSettings {
     /// Page title.
     pub title: String,
     /// Bins of each error histogram.
+    #[schemars(range(min = 1, max = 1000))]
     pub histogram_bins: usize,
     /// Model of the `truth` table whose values are the truth.
     pub truth_model: String,

@@ -48,8 +48,10 @@ pub struct ScanLogsSettings {
     /// Last day of an absolute window (included), `YYYY-MM-DD`; default the run date.
     pub to: Option<String>,
     /// Newest logged days held out of identification (role `validation`).
+    #[schemars(range(min = 0, max = 36_600))]
     pub holdout_days: u32,
     /// Fewest identification (older-day) rows the window must hold.
+    #[schemars(range(min = 1, max = 1_000_000_000))]
     pub min_rows: usize,
     pub bad_data: BadData,
 }

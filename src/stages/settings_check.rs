@@ -171,6 +171,34 @@ fn walk_object(
     }
 }
 
+/// The range a setting's schema declares, for `egcal list-stages`: `[0, 1]`, `each
+/// in [-100000, 100000]` for arrays and maps; `None` without bounds.
+pub fn range_text(schema: &Value, root: &Value) -> Option<String> {
+    let schema = match schema.get("$ref").and_then(Value::as_str) {
+        Some(r) => resolve(r, root)?,
+        None => schema,
+    };
+    let obj = schema.as_object()?;
+    let bounded = ["minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"]
+        .iter()
+        .any(|k| obj.contains_key(*k));
+    if bounded {
+        return Some(interval(obj));
+    }
+    if let Some(inner) = obj
+        .get("items")
+        .or_else(|| obj.get("additionalProperties"))
+        .filter(|s| s.is_object())
+    {
+        return range_text(inner, root).map(|r| format!("each in {r}"));
+    }
+    ["anyOf", "oneOf"]
+        .iter()
+        .filter_map(|k| obj.get(*k).and_then(Value::as_array))
+        .flatten()
+        .find_map(|branch| range_text(branch, root))
+}
+
 /// A bound as text: integers without a fraction.
 fn show(x: f64) -> String {
     format!("{x}")
@@ -325,6 +353,18 @@ mod tests {
             problems[0].message,
             "`edge_mm` is -5; expected > 0 (range (0, 10000])"
         );
+    }
+
+    #[test]
+    fn range_text_reads_bounds_through_refs_items_and_maps() {
+        let root = schema();
+        let text = |key: &str| range_text(&root["properties"][key], &root);
+        assert_eq!(text("noise_mm").as_deref(), Some("[0, ∞)"));
+        assert_eq!(text("fraction").as_deref(), Some("(0, 1)"));
+        assert_eq!(text("centre_mm").as_deref(), Some("each in [-10000, ∞)"));
+        assert_eq!(text("offsets").as_deref(), Some("each in (-∞, 1]"));
+        assert_eq!(text("fixed").as_deref(), Some("each in [-5, ∞)"));
+        assert_eq!(text("models"), None);
     }
 
     #[test]

@@ -36,6 +36,7 @@ pub struct Drift {
     /// Parameter name (spec §3), e.g. `da2`.
     pub parameter: String,
     /// Change per day, in the parameter's unit (mm, deg, rad/(N·m)).
+    #[schemars(range(min = -10_000.0, max = 10_000.0))]
     pub per_day: f64,
 }
 
@@ -47,6 +48,7 @@ pub struct Step {
     /// First day with the change, `YYYY-MM-DD`.
     pub date: String,
     /// Change in the parameter's unit.
+    #[schemars(range(min = -10_000.0, max = 10_000.0))]
     pub change: f64,
 }
 
@@ -59,22 +61,40 @@ pub struct SimulateLogsSettings {
     /// First logged day, `YYYY-MM-DD`. A fixed date keeps the logs reproducible.
     pub first_day: String,
     /// Logged days.
+    #[schemars(range(min = 1, max = 36_600))]
     pub days: u32,
     /// Rows measured per day, drawn from the pool without repetition within a day.
+    #[schemars(range(min = 1, max = 10_000_000))]
     pub rows_per_day: usize,
     /// Hour of the day (UTC) the daily check starts.
+    #[schemars(range(min = 0.0))]
+    #[schemars(extend("exclusiveMaximum" = 24.0))]
     pub start_hour_utc: f64,
     /// Seconds between rows of a day's check.
+    #[schemars(range(max = 86_400.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub seconds_per_row: f64,
     /// Model of the `truth` input the robot starts from.
     pub truth_model: String,
     /// This robot's own differences from the truth table (parameter name → change
     /// in its unit): two robots of a cell are not the same individual.
+    #[schemars(transform = parameter_change_range)]
     pub offsets: BTreeMap<String, f64>,
     pub drifts: Vec<Drift>,
     pub steps: Vec<Step>,
     /// Noise and unmodelled errors of the rig.
     pub simulator: SimulatorSettings,
+}
+
+/// The range of a map of parameter changes (`offsets`): a range attribute applies
+/// to numbers, not to a map's values, so it is set on `additionalProperties` here.
+/// The bound matches `Drift::per_day` and `Step::change`: ±10 000 of any
+/// parameter's unit (mm, deg, rad/(N·m)) can only be a typing mistake.
+fn parameter_change_range(schema: &mut schemars::Schema) {
+    if let Some(serde_json::Value::Object(values)) = schema.get_mut("additionalProperties") {
+        values.insert("minimum".into(), (-10_000.0).into());
+        values.insert("maximum".into(), 10_000.0.into());
+    }
 }
 
 impl Default for SimulateLogsSettings {

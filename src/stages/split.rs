@@ -34,6 +34,7 @@ pub struct SplitSettings {
     /// alternate (default) or halves.
     pub method: SplitMethod,
     /// Fraction of the rows that calibrate, in (0, 1).
+    #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 1.0))]
     pub calibration_fraction: f64,
 }
 

@@ -40,16 +40,22 @@ struct ConfigWrenches {
 #[serde(deny_unknown_fields, default)]
 pub struct WrenchesSettings {
     /// Wrenches per configuration.
+    #[schemars(range(min = 1, max = 10_000))]
     pub per_config: usize,
     /// Standard deviation of each force component (N).
+    #[schemars(range(min = 0.0, max = 100_000.0))]
     pub sigma_force_n: f64,
     /// Standard deviation of each moment component (N·m).
+    #[schemars(range(min = 0.0, max = 10_000.0))]
     pub sigma_moment_nm: f64,
     /// Forces are clipped to ±this (N).
+    #[schemars(range(min = 0.0, max = 100_000.0))]
     pub max_force_n: f64,
     /// Moments are clipped to ±this (N·m).
+    #[schemars(range(min = 0.0, max = 10_000.0))]
     pub max_moment_nm: f64,
     /// Draws per wanted wrench before the configuration is reported short.
+    #[schemars(range(min = 1, max = 1_000_000))]
     pub max_draws: usize,
 }
 
