@@ -6,6 +6,7 @@
 //! (serde + JSON Schema + defaults) is the single source for job-file parsing,
 //! `egcal list-stages`, the job-file JSON Schema and the cache key.
 
+pub mod budget;
 pub mod gate;
 pub mod identifiability;
 pub mod identify;
@@ -183,6 +184,13 @@ impl SettingsProblem {
             message: message.into(),
         }
     }
+}
+
+/// A problem with a model name (`nominal`, `registered`, …) set under `key`.
+pub fn model_name_problem(key: &str, name: &str) -> Option<SettingsProblem> {
+    name.parse::<crate::table::parameters::ModelName>()
+        .err()
+        .map(|m| SettingsProblem::new(key, m))
 }
 
 /// Settings problems as one [`StageError::Invalid`], each line naming its setting.

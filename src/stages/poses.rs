@@ -5,12 +5,17 @@
 //! by joint limits, singularity distance, collisions (links, pulleys, cables,
 //! platform, floor) and line of sight; one survivor per point drawn at random.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use nalgebra::Vector3;
 use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::{
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot, budget,
+};
 use crate::design::collision::{CapsuleMm, Cell};
 use crate::design::poses::{PoseProblem, Sampling, SingularityLimits, generate, xyz_euler_deg};
 use crate::robot::ParamValues;
@@ -126,6 +131,26 @@ static INFO: StageInfo = StageInfo {
     }],
 };
 
+/// Bytes a target point may cost: the point (24), its per-point result while
+/// the points run in parallel (the pose with its joint angles, frames and
+/// rejection counts, a few hundred bytes) and its row of the output table (17
+/// columns of 8 bytes), rounded up.
+const BYTES_PER_POINT: f64 = 1024.0;
+
+/// Target points from which a run is announced as long (each point tries up to
+/// `orientation_attempts` inverse kinematics).
+const LONG_RUN_POINTS: usize = 100_000;
+
+impl PosesSettings {
+    /// Target points the settings ask for (before unreachable points are dropped).
+    fn target_points(&self) -> usize {
+        match self.sampling {
+            SamplingKind::Grid => self.points_per_axis.saturating_pow(3),
+            SamplingKind::Random | SamplingKind::LatinHypercube => self.count,
+        }
+    }
+}
+
 impl Stage for PosesStage {
     type Settings = PosesSettings;
 
@@ -133,25 +158,33 @@ impl Stage for PosesStage {
         &INFO
     }
 
+    /// The target points must fit in memory: checked before the grid is allocated.
+    fn check_settings(
+        &self,
+        settings: &PosesSettings,
+        _ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        let (key, asked) = match settings.sampling {
+            SamplingKind::Grid => (
+                "points_per_axis",
+                format!("points_per_axis = {} (cubed)", settings.points_per_axis),
+            ),
+            SamplingKind::Random | SamplingKind::LatinHypercube => {
+                ("count", format!("count = {}", settings.count))
+            }
+        };
+        let points = settings.target_points() as f64;
+        budget::over_budget(points * BYTES_PER_POINT, &format!("{points:.0} target points"))
+            .map(|why| SettingsProblem::new(key, format!("{asked}: {why}")))
+            .into_iter()
+            .collect()
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
         settings: &PosesSettings,
     ) -> Result<StageOutputs, StageError> {
-        for (key, value, upper) in [
-            (
-                "acceptance_half_angle_deg",
-                settings.acceptance_half_angle_deg,
-                90.0,
-            ),
-            ("roll_half_range_deg", settings.roll_half_range_deg, 180.0),
-        ] {
-            if !(0.0..=upper).contains(&value) {
-                return Err(StageError::Invalid(format!(
-                    "setting `{key}`: expected an angle in [0, {upper}] degrees, found {value}"
-                )));
-            }
-        }
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let tracker = match settings.tracker_mm {
             Some(t) => Vector3::from(t),
@@ -221,7 +254,17 @@ impl Stage for PosesStage {
             },
             cell,
         };
-        let outcome = generate(ctx.robot, &nominal, &problem, ctx.seed);
+        let points = settings.target_points();
+        if points >= LONG_RUN_POINTS {
+            ctx.progress.note(&format!(
+                "{points} target points with up to {} orientation attempts each: this takes a while",
+                settings.orientation_attempts
+            ));
+        }
+        ctx.progress.start(points as u64, "target points");
+        let done = AtomicU64::new(0);
+        let on_point = || ctx.progress.advance(done.fetch_add(1, Ordering::Relaxed) + 1);
+        let outcome = generate(ctx.robot, &nominal, &problem, ctx.seed, &on_point);
         if outcome.poses.is_empty() {
             return Err(StageError::Failed(format!(
                 "no reachable collision-free pose at any of the {} target points; rejections: {:?}",

@@ -8,6 +8,8 @@
 //! few hundred µs); the pose-dependent facets are built once per configuration
 //! and configurations run in parallel.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use polars::prelude::Column;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
@@ -16,7 +18,7 @@ use rayon::prelude::*;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, budget};
 use crate::cdpr::{AvailableWrenchSet, Feasibility};
 use crate::robot::{JOINTS, ParamValues};
 use crate::table::frame;
@@ -94,6 +96,13 @@ static INFO: StageInfo = StageInfo {
     }],
 };
 
+/// Bytes a wanted wrench may cost: its output row (23 columns of 8 bytes) and
+/// the kept wrench with its feasibility while configurations run, rounded up.
+const BYTES_PER_ROW: f64 = 512.0;
+
+/// Wanted wrenches from which a run is announced as long.
+const LONG_RUN_ROWS: f64 = 1e6;
+
 impl Stage for WrenchesStage {
     type Settings = WrenchesSettings;
 
@@ -118,6 +127,26 @@ impl Stage for WrenchesStage {
             .map_err(|e| StageError::Invalid(format!("setting `sigma_moment_nm`: {e}")))?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let wanted = settings.per_config;
+        // The row count is known only now (the poses input's): checked before the
+        // wrench sets are built, and announced when long.
+        let rows = config_ids.len() as f64 * wanted as f64;
+        if let Some(why) = budget::over_budget(
+            rows * BYTES_PER_ROW,
+            &format!(
+                "{} configurations × per_config = {wanted} wrenches",
+                config_ids.len()
+            ),
+        ) {
+            return Err(StageError::Invalid(format!(
+                "setting `per_config`: {why}; lower `per_config` or use fewer poses"
+            )));
+        }
+        if rows >= LONG_RUN_ROWS {
+            ctx.progress.note(&format!(
+                "{rows:.0} wrenches wanted ({} configurations × {wanted}), each a feasibility QP: this takes a while",
+                config_ids.len()
+            ));
+        }
         let max_attempts = settings.max_draws * wanted;
         let draw = |rng: &mut StdRng| -> [f64; 6] {
             std::array::from_fn(|i| {
@@ -134,6 +163,7 @@ impl Stage for WrenchesStage {
         };
         ctx.progress
             .start(config_ids.len() as u64, "configurations");
+        let done = AtomicU64::new(0);
         // Configurations run in parallel, each with its own seeded stream (so the
         // result does not depend on scheduling) and its wrench set built once.
         let per_config: Vec<ConfigWrenches> = (0..config_ids.len())
@@ -159,10 +189,11 @@ impl Stage for WrenchesStage {
                         found.kept.push((wrench, feasibility));
                     }
                 }
+                ctx.progress
+                    .advance(done.fetch_add(1, Ordering::Relaxed) + 1);
                 Ok(found)
             })
             .collect::<Result<_, StageError>>()?;
-        ctx.progress.advance(config_ids.len() as u64);
 
         let mut cw_id = Vec::new();
         let mut config = Vec::new();
