@@ -69,6 +69,18 @@ pub struct SimulatorSettings {
     pub seconds_per_row: f64,
 }
 
+impl SimulatorSettings {
+    /// `clock_start` in microseconds since 1970, or why it is not a time.
+    pub fn clock_start_us(&self) -> Result<i64, String> {
+        crate::table::parse_rfc3339_us(&self.clock_start).ok_or_else(|| {
+            format!(
+                "`{}` is not an RFC 3339 time (2026-01-01T00:00:00Z)",
+                self.clock_start
+            )
+        })
+    }
+}
+
 impl Default for SimulatorSettings {
     fn default() -> Self {
         SimulatorSettings {
@@ -110,13 +122,7 @@ impl Simulator {
         settings: SimulatorSettings,
         seed: u64,
     ) -> Result<Self, String> {
-        let clock_start_us =
-            crate::table::parse_rfc3339_us(&settings.clock_start).ok_or_else(|| {
-                format!(
-                    "clock_start `{}` is not RFC 3339 (2026-01-01T00:00:00Z)",
-                    settings.clock_start
-                )
-            })?;
+        let clock_start_us = settings.clock_start_us()?;
         let mut phase_rng = StdRng::seed_from_u64(seed ^ 0x5eed_0f7a);
         let phases_rad =
             std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU));

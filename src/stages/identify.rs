@@ -18,8 +18,8 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot,
-    conf_wrench_rows,
+    InputTable, SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo,
+    StageOutputs, TableSlot, conf_wrench_rows, model_name_problem, settings_error,
 };
 use crate::calibration::fit::{Algorithm, FitOptions, Loss, Observations};
 use crate::calibration::robust::RobustOptions;
@@ -161,15 +161,9 @@ impl Default for IdentifySettings {
 }
 
 impl IdentifySettings {
-    /// The fit options these settings describe.
-    pub fn fit_options(&self) -> Result<FitOptions, StageError> {
-        if !(self.outlier_threshold_mm > 0.0 && self.outlier_threshold_mm.is_finite()) {
-            return Err(StageError::Invalid(format!(
-                "setting `outlier_threshold_mm`: must be a positive number of mm, found {}",
-                self.outlier_threshold_mm
-            )));
-        }
-        Ok(FitOptions {
+    /// The fit options these settings describe (their ranges are checked in phase 2).
+    pub fn fit_options(&self) -> FitOptions {
+        FitOptions {
             algorithm: match self.algorithm {
                 AlgorithmSetting::LevenbergMarquardt => Algorithm::LevenbergMarquardt,
                 AlgorithmSetting::Paper => Algorithm::Paper,
@@ -184,65 +178,56 @@ impl IdentifySettings {
             stop_step_mm: self.stop_step_mm,
             stop_relative_cost: self.stop_relative_cost,
             chunk_rows: stream::CHUNK_ROWS,
-        })
+        }
     }
 
-    /// The robust fit's options (`None` unless loss = robust), checked.
-    pub fn robust_options(&self) -> Result<Option<RobustOptions>, StageError> {
-        let positive = |key: &str, value: f64, at_least: f64| {
-            if value.is_finite() && value >= at_least {
-                Ok(())
-            } else {
-                Err(StageError::Invalid(format!(
-                    "setting `{key}`: must be a number >= {at_least}, found {value}"
-                )))
-            }
-        };
-        positive("huber_sigmas", self.huber_sigmas, 1.0)?;
-        positive("reject_sigmas", self.reject_sigmas, 2.0)?;
-        if !(self.max_excluded_fraction >= 0.0 && self.max_excluded_fraction < 0.5) {
-            return Err(StageError::Invalid(format!(
-                "setting `max_excluded_fraction`: must be in [0, 0.5), found {}",
-                self.max_excluded_fraction
-            )));
-        }
-        if self.huber_sigmas > self.reject_sigmas {
-            return Err(StageError::Invalid(format!(
-                "setting `huber_sigmas` ({}) must not exceed `reject_sigmas` ({})",
-                self.huber_sigmas, self.reject_sigmas
-            )));
-        }
-        Ok((self.loss == LossSetting::Robust).then_some(RobustOptions {
+    /// The robust fit's options (`None` unless loss = robust); ranges and
+    /// `huber_sigmas` ≤ `reject_sigmas` are checked by [`Stage::check_settings`].
+    pub fn robust_options(&self) -> Option<RobustOptions> {
+        (self.loss == LossSetting::Robust).then_some(RobustOptions {
             huber_sigmas: self.huber_sigmas,
             reject_sigmas: self.reject_sigmas,
             max_excluded_fraction: self.max_excluded_fraction,
-        }))
+        })
     }
 
-    /// The fixed parameters with their values (`"nominal"`: the robot file's).
-    pub fn fixed_values(&self, nominal: &ParamValues) -> Result<Vec<(ParamId, f64)>, StageError> {
-        self.fixed
-            .iter()
-            .map(|(name, value)| {
-                let id = ParamId::from_name(name).ok_or_else(|| {
-                    StageError::Invalid(format!(
-                        "setting `fixed.{name}`: unknown parameter{}",
+    /// The fixed parameters with their values (`"nominal"`: the robot file's), or
+    /// every bad key and value.
+    pub fn fixed_values(
+        &self,
+        nominal: &ParamValues,
+    ) -> Result<Vec<(ParamId, f64)>, Vec<SettingsProblem>> {
+        let mut values = Vec::new();
+        let mut problems = Vec::new();
+        for (name, value) in &self.fixed {
+            let key = format!("fixed.{name}");
+            let Some(id) = ParamId::from_name(name) else {
+                problems.push(SettingsProblem::new(
+                    &key,
+                    format!(
+                        "unknown parameter{}",
                         crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
-                    ))
-                })?;
-                let value = match value {
-                    FixedValue::Value(v) if v.is_finite() => *v,
-                    FixedValue::Named(n) if n == "nominal" => nominal.get(id),
-                    other => {
-                        return Err(StageError::Invalid(format!(
-                            "setting `fixed.{name}`: expected a finite number in {} or \"nominal\", found {other:?}",
-                            id.unit()
-                        )));
-                    }
-                };
-                Ok((id, value))
-            })
-            .collect()
+                    ),
+                ));
+                continue;
+            };
+            match value {
+                FixedValue::Value(v) => values.push((id, *v)),
+                FixedValue::Named(n) if n == "nominal" => values.push((id, nominal.get(id))),
+                FixedValue::Named(n) => problems.push(SettingsProblem::new(
+                    &key,
+                    format!(
+                        "expected a number in {} or \"nominal\", found \"{n}\"",
+                        id.unit()
+                    ),
+                )),
+            }
+        }
+        if problems.is_empty() {
+            Ok(values)
+        } else {
+            Err(problems)
+        }
     }
 }
 
@@ -479,6 +464,33 @@ impl Stage for IdentifyStage {
         &INFO
     }
 
+    fn check_settings(
+        &self,
+        settings: &IdentifySettings,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        let mut problems: Vec<SettingsProblem> = settings
+            .models
+            .iter()
+            .enumerate()
+            .filter_map(|(i, m)| model_name_problem(&format!("models[{i}]"), m))
+            .collect();
+        problems.extend(model_name_problem("start_model", &settings.start_model));
+        if let Err(bad) = settings.fixed_values(&ParamValues::nominal(ctx.robot)) {
+            problems.extend(bad);
+        }
+        if settings.huber_sigmas > settings.reject_sigmas {
+            problems.push(SettingsProblem::new(
+                "huber_sigmas",
+                format!(
+                    "`huber_sigmas` ({}) must not exceed `reject_sigmas` ({}): rows are down-weighted before they are excluded",
+                    settings.huber_sigmas, settings.reject_sigmas
+                ),
+            ));
+        }
+        problems
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
@@ -493,8 +505,10 @@ impl Stage for IdentifyStage {
             })
             .collect::<Result<_, _>>()?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
-        let robust = settings.robust_options()?;
-        let mut fixed = settings.fixed_values(&nominal)?;
+        let robust = settings.robust_options();
+        let mut fixed = settings
+            .fixed_values(&nominal)
+            .map_err(|p| settings_error(&p))?;
         let start_set = match ctx.inputs.get("start") {
             Some(_) => Some(super::model_values(
                 ctx,
@@ -557,7 +571,7 @@ impl Stage for IdentifyStage {
         let options = CalibrationOptions {
             candidates: parse_candidates(&settings.candidates)?,
             rank_tolerance: settings.rank_tolerance,
-            fit: settings.fit_options()?,
+            fit: settings.fit_options(),
             robust,
             fixed,
             targets: targets.len().max(1),
@@ -1046,51 +1060,47 @@ mod tests {
         assert!(fixed.contains(&(ParamId::from_name("dd5").unwrap(), 0.1)));
 
         settings.fixed.insert("dd55".into(), FixedValue::Value(0.1));
-        let err = settings.fixed_values(&nominal).unwrap_err().to_string();
-        assert!(err.contains("fixed.dd55") && err.contains("dd5"), "{err}");
-        settings.fixed.remove("dd55");
         settings
             .fixed
             .insert("k2".into(), FixedValue::Named("zero".into()));
-        let err = settings.fixed_values(&nominal).unwrap_err().to_string();
-        assert!(
-            err.contains("fixed.k2") && err.contains("\"nominal\""),
-            "{err}"
-        );
+        let problems = settings.fixed_values(&nominal).unwrap_err();
+        assert_eq!(problems.len(), 2, "{problems:?}");
+        assert_eq!(problems[0].key, "fixed.dd55");
+        assert!(problems[0].message.contains("dd5"), "{problems:?}");
+        assert_eq!(problems[1].key, "fixed.k2");
+        assert!(problems[1].message.contains("\"nominal\""), "{problems:?}");
     }
 
     #[test]
     fn robust_settings_out_of_range_are_named() {
-        for (settings, key) in [
-            (
-                IdentifySettings {
-                    reject_sigmas: 1.0,
-                    ..Default::default()
-                },
-                "reject_sigmas",
-            ),
-            (
-                IdentifySettings {
-                    huber_sigmas: f64::NAN,
-                    ..Default::default()
-                },
-                "huber_sigmas",
-            ),
-            (
-                IdentifySettings {
-                    max_excluded_fraction: 0.7,
-                    ..Default::default()
-                },
-                "max_excluded_fraction",
-            ),
+        use crate::stages::StageKind;
+        for (toml, key) in [
+            ("reject_sigmas = 1.0", "reject_sigmas"),
+            ("huber_sigmas = nan", "huber_sigmas"),
+            ("max_excluded_fraction = 0.7", "max_excluded_fraction"),
+            ("outlier_threshold_mm = 0.0", "outlier_threshold_mm"),
         ] {
-            let err = settings.robust_options().unwrap_err().to_string();
-            assert!(err.contains(key), "{err}");
+            let raw: toml::Table = toml::from_str(toml).unwrap();
+            let problems = IdentifyStage.canonical_settings(&raw).unwrap_err();
+            assert_eq!(problems[0].key, key, "{problems:?}");
         }
+        let robot = irb1600();
+        let ctx = SettingsContext {
+            robot: robot.spec(),
+            cable_robot: &crate::cdpr::CableRobotSpec::default(),
+            job_dir: std::path::Path::new("."),
+        };
+        let crossed = IdentifySettings {
+            huber_sigmas: 5.0,
+            reject_sigmas: 3.0,
+            ..Default::default()
+        };
+        let problems = Stage::check_settings(&IdentifyStage, &crossed, &ctx);
+        assert_eq!(problems[0].key, "huber_sigmas", "{problems:?}");
         let least_squares = IdentifySettings {
             loss: LossSetting::LeastSquares,
             ..Default::default()
         };
-        assert_eq!(least_squares.robust_options().unwrap(), None);
+        assert_eq!(least_squares.robust_options(), None);
     }
 }

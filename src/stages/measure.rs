@@ -16,8 +16,8 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
-    model_values,
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot, conf_wrench_rows, model_name_problem, model_values,
 };
 use crate::journal::Journal;
 use crate::rig::driver::ExternalDriver;
@@ -171,6 +171,27 @@ impl Stage for MeasureStage {
         &INFO
     }
 
+    fn check_settings(
+        &self,
+        settings: &MeasureSettings,
+        _ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        let mut problems: Vec<SettingsProblem> =
+            model_name_problem("truth_model", &settings.truth_model)
+                .into_iter()
+                .collect();
+        if settings.driver == DriverKind::External && settings.command.is_empty() {
+            problems.push(SettingsProblem::new(
+                "command",
+                "driver = \"external\" needs `command`: the driver program and its arguments, e.g. [\"python3\", \"driver.py\"]",
+            ));
+        }
+        if let Err(m) = settings.simulator.clock_start_us() {
+            problems.push(SettingsProblem::new("simulator.clock_start", m));
+        }
+        problems
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
@@ -229,14 +250,9 @@ impl Stage for MeasureStage {
         let mut rig: Box<dyn Rig> = match settings.driver {
             DriverKind::Simulator => Box::new(
                 Simulator::new(ctx.robot.clone(), truth, settings.simulator.clone(), seed)
-                    .map_err(|m| StageError::Invalid(format!("setting `simulator.{m}")))?,
+                    .map_err(|m| StageError::Invalid(format!("setting `simulator.clock_start`: {m}")))?,
             ),
             DriverKind::External => {
-                if settings.command.is_empty() {
-                    return Err(StageError::Invalid(
-                        "driver = \"external\" needs `command`".into(),
-                    ));
-                }
                 let mut command = settings.command.clone();
                 if let Some(first) = command.first_mut() {
                     let local = ctx.job_dir.join(&*first);

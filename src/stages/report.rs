@@ -126,11 +126,6 @@ impl Stage for ReportStage {
         ctx: &StageContext,
         settings: &ReportSettings,
     ) -> Result<StageOutputs, StageError> {
-        if settings.histogram_bins == 0 {
-            return Err(StageError::Invalid(
-                "setting `histogram_bins`: must be at least 1".into(),
-            ));
-        }
         let truth = match ctx.inputs.get("truth") {
             Some(table) => Some(read_truth(table, &settings.truth_model)?),
             None => None,

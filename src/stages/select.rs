@@ -160,7 +160,7 @@ impl Stage for SelectStage {
         let (candidates, _) =
             Candidates::from_jacobian(&jacobian.jacobian, rows.len(), parameters.len());
         let mut results = Vec::new();
-        for restart in 0..settings.restarts.max(1) as u64 {
+        for restart in 0..settings.restarts as u64 {
             let options = Options {
                 n: settings.n,
                 criterion: settings.criterion,
