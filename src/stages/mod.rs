@@ -286,7 +286,15 @@ impl<S: Stage> StageKind for S {
         for (key, value) in raw {
             let mut single = toml::Table::new();
             single.insert(key.clone(), value.clone());
-            if let Err(e) = parse_settings::<S::Settings>(&single) {
+            if let Err(mut e) = parse_settings::<S::Settings>(&single) {
+                // A value of the wrong type (`per_config = 1e9`, `restarts = -1`)
+                // is told the range too.
+                if let Some(range) = schema["properties"]
+                    .get(e.key.as_str())
+                    .and_then(|p| settings_check::range_text(p, &schema))
+                {
+                    e.message = format!("{} (range {range})", e.message);
+                }
                 problems.push(e);
             }
         }
