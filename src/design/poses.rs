@@ -221,8 +221,7 @@ pub fn generate(
         .map(|(index, target)| {
             let mut rng =
                 StdRng::seed_from_u64(seed ^ (index as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
-            let result =
-                generate_one(robot, nominal, problem, index as i64 + 1, target, &mut rng);
+            let result = generate_one(robot, nominal, problem, index as i64 + 1, target, &mut rng);
             on_point();
             result
         })

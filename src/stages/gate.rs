@@ -195,7 +195,9 @@ impl Stage for GateStage {
     }
 
     fn check_settings(&self, settings: &GateSettings, _: &SettingsContext) -> Vec<SettingsProblem> {
-        model_name_problem("model", &settings.model).into_iter().collect()
+        model_name_problem("model", &settings.model)
+            .into_iter()
+            .collect()
     }
 
     fn run(&self, ctx: &StageContext, settings: &GateSettings) -> Result<StageOutputs, StageError> {

@@ -250,7 +250,9 @@ impl Stage for MeasureStage {
         let mut rig: Box<dyn Rig> = match settings.driver {
             DriverKind::Simulator => Box::new(
                 Simulator::new(ctx.robot.clone(), truth, settings.simulator.clone(), seed)
-                    .map_err(|m| StageError::Invalid(format!("setting `simulator.clock_start`: {m}")))?,
+                    .map_err(|m| {
+                        StageError::Invalid(format!("setting `simulator.clock_start`: {m}"))
+                    })?,
             ),
             DriverKind::External => {
                 let mut command = settings.command.clone();

@@ -282,33 +282,35 @@ impl<S: Stage> StageKind for S {
         if !problems.is_empty() {
             return Err(problems);
         }
-        // Check each key on its own so that every bad value is reported, not just the first.
+        // Check each key on its own so that every bad value is reported, not just
+        // the first: its type, then its range (the other settings are defaults,
+        // which are in range).
         for (key, value) in raw {
             let mut single = toml::Table::new();
             single.insert(key.clone(), value.clone());
-            if let Err(mut e) = parse_settings::<S::Settings>(&single) {
-                // A value of the wrong type (`per_config = 1e9`, `restarts = -1`)
-                // is told the range too.
-                if let Some(range) = schema["properties"]
-                    .get(e.key.as_str())
-                    .and_then(|p| settings_check::range_text(p, &schema))
-                {
-                    e.message = format!("{} (range {range})", e.message);
+            match parse_settings::<S::Settings>(&single) {
+                Ok(settings) => problems.extend(settings_check::range_problems(
+                    &serde_json::to_value(settings).expect("settings serialise"),
+                    &schema,
+                )),
+                Err(mut e) => {
+                    // A value of the wrong type (`per_config = 1e9`, `restarts = -1`)
+                    // is told the range too.
+                    if let Some(range) = schema["properties"]
+                        .get(e.key.as_str())
+                        .and_then(|p| settings_check::range_text(p, &schema))
+                    {
+                        e.message = format!("{} (range {range})", e.message);
+                    }
+                    problems.push(e);
                 }
-                problems.push(e);
             }
         }
         if !problems.is_empty() {
             return Err(problems);
         }
         let settings = parse_settings::<S::Settings>(raw).map_err(|e| vec![e])?;
-        let canonical = serde_json::to_value(settings).expect("settings serialise");
-        let problems = settings_check::range_problems(&canonical, &schema);
-        if problems.is_empty() {
-            Ok(canonical)
-        } else {
-            Err(problems)
-        }
+        Ok(serde_json::to_value(settings).expect("settings serialise"))
     }
 
     fn defaults(&self) -> serde_json::Value {

@@ -174,10 +174,13 @@ impl Stage for PosesStage {
             }
         };
         let points = settings.target_points() as f64;
-        budget::over_budget(points * BYTES_PER_POINT, &format!("{points:.0} target points"))
-            .map(|why| SettingsProblem::new(key, format!("{asked}: {why}")))
-            .into_iter()
-            .collect()
+        budget::over_budget(
+            points * BYTES_PER_POINT,
+            &format!("{points:.0} target points"),
+        )
+        .map(|why| SettingsProblem::new(key, format!("{asked}: {why}")))
+        .into_iter()
+        .collect()
     }
 
     fn run(
@@ -263,7 +266,10 @@ impl Stage for PosesStage {
         }
         ctx.progress.start(points as u64, "target points");
         let done = AtomicU64::new(0);
-        let on_point = || ctx.progress.advance(done.fetch_add(1, Ordering::Relaxed) + 1);
+        let on_point = || {
+            ctx.progress
+                .advance(done.fetch_add(1, Ordering::Relaxed) + 1)
+        };
         let outcome = generate(ctx.robot, &nominal, &problem, ctx.seed, &on_point);
         if outcome.poses.is_empty() {
             return Err(StageError::Failed(format!(

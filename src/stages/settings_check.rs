@@ -40,7 +40,11 @@ fn non_finite(value: &toml::Value, key: &str, problems: &mut Vec<SettingsProblem
             // Spelled as TOML spells it.
             message: format!(
                 "`{key}` is {}; expected a finite number",
-                if f.is_nan() { "nan".to_string() } else { f.to_string() }
+                if f.is_nan() {
+                    "nan".to_string()
+                } else {
+                    f.to_string()
+                }
             ),
         }),
         toml::Value::Array(items) => {
@@ -136,7 +140,14 @@ fn walk(value: &Value, schema: &Value, root: &Value, path: &str, out: &mut Vec<S
                 check_number(x, schema_obj, path, out);
             }
         }
-        Value::String(s) => check_count(s.chars().count(), "Length", "characters", schema_obj, path, out),
+        Value::String(s) => check_count(
+            s.chars().count(),
+            "Length",
+            "characters",
+            schema_obj,
+            path,
+            out,
+        ),
         Value::Array(items) => {
             check_count(items.len(), "Items", "items", schema_obj, path, out);
             let prefix = schema_obj.get("prefixItems").and_then(Value::as_array);
@@ -224,9 +235,17 @@ fn check_number(x: f64, schema: &Map<String, Value>, path: &str, out: &mut Vec<S
     let bound = |key: &str| schema.get(key).and_then(Value::as_f64);
     let violated = [
         ("minimum", "≥", bound("minimum").filter(|&m| x < m)),
-        ("exclusiveMinimum", ">", bound("exclusiveMinimum").filter(|&m| x <= m)),
+        (
+            "exclusiveMinimum",
+            ">",
+            bound("exclusiveMinimum").filter(|&m| x <= m),
+        ),
         ("maximum", "≤", bound("maximum").filter(|&m| x > m)),
-        ("exclusiveMaximum", "<", bound("exclusiveMaximum").filter(|&m| x >= m)),
+        (
+            "exclusiveMaximum",
+            "<",
+            bound("exclusiveMaximum").filter(|&m| x >= m),
+        ),
     ]
     .into_iter()
     .find_map(|(_, sign, b)| b.map(|b| (sign, b)));
@@ -375,7 +394,10 @@ mod tests {
         .unwrap();
         let problems = non_finite_problems(&raw);
         let keys: Vec<&str> = problems.iter().map(|p| p.key.as_str()).collect();
-        assert_eq!(keys, ["centre_mm[1]", "edge_mm", "simulator.tracker_noise_mm"]);
+        assert_eq!(
+            keys,
+            ["centre_mm[1]", "edge_mm", "simulator.tracker_noise_mm"]
+        );
         assert_eq!(
             problems[1].message,
             "`edge_mm` is nan; expected a finite number"

@@ -169,10 +169,7 @@ impl SimulateLogsSettings {
         parse_date(&self.first_day).ok_or_else(|| {
             SettingsProblem::new(
                 "first_day",
-                format!(
-                    "expected a date YYYY-MM-DD, found `{}`",
-                    self.first_day
-                ),
+                format!("expected a date YYYY-MM-DD, found `{}`", self.first_day),
             )
         })
     }
@@ -220,7 +217,9 @@ impl SimulateLogsSettings {
         let (ok, bad): (Vec<_>, Vec<_>) = self
             .offsets
             .iter()
-            .map(|(name, change)| parameter(&format!("offsets.{name}"), name).map(|id| (id, *change)))
+            .map(|(name, change)| {
+                parameter(&format!("offsets.{name}"), name).map(|id| (id, *change))
+            })
             .partition(Result::is_ok);
         if bad.is_empty() {
             Ok(ok.into_iter().filter_map(Result::ok).collect())
