@@ -615,13 +615,33 @@ pub fn sim_driver(
         Some(path) => {
             let text = std::fs::read_to_string(path)
                 .map_err(|e| CommandError::Usage(format!("cannot read {}: {e}", path.display())))?;
-            toml::from_str(&text).map_err(|e| {
+            let settings: SimulatorSettings = toml::from_str(&text).map_err(|e| {
                 CommandError::Usage(format!(
                     "{}: {}",
                     path.display(),
                     crate::toml_error::describe(&e, &text)
                 ))
-            })?
+            })?;
+            // The ranges a measure stage's `simulator` table is held to. NaN
+            // cannot slip through: the raw table is checked before serde_json.
+            let raw: toml::Table = toml::from_str(&text)
+                .map_err(|e| CommandError::Usage(format!("{}: {}", path.display(), e.message())))?;
+            let schema = serde_json::to_value(schemars::schema_for!(SimulatorSettings))
+                .expect("schema serialises");
+            let mut problems = stages::settings_check::non_finite_problems(&raw);
+            if problems.is_empty() {
+                let value = serde_json::to_value(&settings).expect("settings serialise");
+                problems = stages::settings_check::range_problems(&value, &schema);
+            }
+            if let Some(p) = problems.first() {
+                return Err(CommandError::Usage(format!(
+                    "{}: {}: {}",
+                    path.display(),
+                    p.key,
+                    p.message
+                )));
+            }
+            settings
         }
     };
     let mut simulator =
