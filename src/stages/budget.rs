@@ -15,7 +15,7 @@ const USABLE_SHARE: f64 = 0.75;
 
 /// Memory the machine can give without swapping: `MemAvailable` of
 /// `/proc/meminfo`, or [`FALLBACK_AVAILABLE_BYTES`]. Reads one small file.
-pub fn available_bytes() -> u64 {
+fn available_bytes() -> u64 {
     std::fs::read_to_string("/proc/meminfo")
         .ok()
         .and_then(|text| mem_available(&text))
@@ -46,7 +46,7 @@ pub fn over_budget(estimate_bytes: f64, what: &str) -> Option<String> {
 }
 
 /// Bytes in binary units, e.g. `2.4 GiB`; astronomically large values in powers of ten.
-pub fn human(bytes: f64) -> String {
+fn human(bytes: f64) -> String {
     const UNITS: [&str; 5] = ["B", "KiB", "MiB", "GiB", "TiB"];
     let mut value = bytes;
     for unit in UNITS {

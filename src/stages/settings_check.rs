@@ -210,7 +210,7 @@ pub fn range_text(schema: &Value, root: &Value) -> Option<String> {
         .find_map(|branch| range_text(branch, root))
 }
 
-/// A bound as text: integers without a fraction.
+/// A number as text: Rust's shortest form, so `1` not `1.0` and `0.02` exact.
 fn show(x: f64) -> String {
     format!("{x}")
 }
@@ -234,21 +234,13 @@ fn interval(schema: &Map<String, Value>) -> String {
 fn check_number(x: f64, schema: &Map<String, Value>, path: &str, out: &mut Vec<SettingsProblem>) {
     let bound = |key: &str| schema.get(key).and_then(Value::as_f64);
     let violated = [
-        ("minimum", "≥", bound("minimum").filter(|&m| x < m)),
-        (
-            "exclusiveMinimum",
-            ">",
-            bound("exclusiveMinimum").filter(|&m| x <= m),
-        ),
-        ("maximum", "≤", bound("maximum").filter(|&m| x > m)),
-        (
-            "exclusiveMaximum",
-            "<",
-            bound("exclusiveMaximum").filter(|&m| x >= m),
-        ),
+        ("≥", bound("minimum").filter(|&m| x < m)),
+        (">", bound("exclusiveMinimum").filter(|&m| x <= m)),
+        ("≤", bound("maximum").filter(|&m| x > m)),
+        ("<", bound("exclusiveMaximum").filter(|&m| x >= m)),
     ]
     .into_iter()
-    .find_map(|(_, sign, b)| b.map(|b| (sign, b)));
+    .find_map(|(sign, b)| b.map(|b| (sign, b)));
     if let Some((sign, b)) = violated {
         out.push(SettingsProblem {
             key: path.to_string(),

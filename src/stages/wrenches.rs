@@ -254,3 +254,57 @@ impl Stage for WrenchesStage {
         Ok(outputs)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+    use std::path::{Path, PathBuf};
+
+    use super::*;
+    use crate::cdpr::CableRobotSpec;
+    use crate::robot::test_support::irb1600;
+    use crate::stages::{InputTable, NoProgress, StageKind};
+
+    /// `configs` poses, all at the zero configuration.
+    fn poses(configs: usize) -> InputTable {
+        let mut columns = vec![Column::new(
+            "config_id".into(),
+            (1..=configs as i64).collect::<Vec<_>>(),
+        )];
+        for name in JOINT_COLUMNS {
+            columns.push(Column::new(name.into(), vec![0.0; configs]));
+        }
+        InputTable {
+            path: PathBuf::from("poses.parquet"),
+            df: frame(columns),
+        }
+    }
+
+    #[test]
+    fn too_many_wrenches_for_memory_are_refused_before_any_is_drawn() {
+        let robot = irb1600();
+        let cable_robot = CableRobotSpec::default();
+        let inputs = BTreeMap::from([("poses".to_string(), poses(1_000_000))]);
+        let ctx = StageContext {
+            robot: &robot,
+            cable_robot: &cable_robot,
+            seed: 1,
+            inputs: &inputs,
+            work_dir: Path::new("."),
+            job_dir: Path::new("."),
+            run_date: 0,
+            progress: &NoProgress,
+        };
+        let canonical = WrenchesStage
+            .canonical_settings(&toml::from_str("per_config = 10000").unwrap())
+            .unwrap();
+        // 10^10 wanted wrenches: refused at once, naming the setting and the sizes.
+        let err = StageKind::run(&WrenchesStage, &ctx, &canonical)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("setting `per_config`: 1000000 configurations × per_config = 10000 wrenches need about"),
+            "{err}"
+        );
+    }
+}
