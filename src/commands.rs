@@ -517,12 +517,14 @@ fn run_on_files(
         None => CableRobotSpec::default(),
     };
     let job_dir = Path::new(".");
+    let bound: Vec<&str> = inputs.iter().map(|(name, _)| name.as_str()).collect();
     let problems = stage_kind.check_settings(
         &settings,
         &stages::SettingsContext {
             robot: robot.spec(),
             cable_robot: &cable_robot,
             job_dir,
+            bound_inputs: &bound,
         },
     );
     if !problems.is_empty() {

@@ -174,10 +174,12 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
         // (their own problems are reported already).
         if let (Some(settings), Some(robot), Some(cable_robot)) = (&settings, &robot, &cable_robot)
         {
+            let bound: Vec<&str> = stage.inputs.keys().map(String::as_str).collect();
             let ctx = stages::SettingsContext {
                 robot,
                 cable_robot,
                 job_dir: &dir,
+                bound_inputs: &bound,
             };
             for p in kind.check_settings(settings, &ctx) {
                 problems.push(at(&settings_key(&stage.key, &p.key), p.message));

@@ -476,6 +476,15 @@ impl Stage for IdentifyStage {
             .filter_map(|(i, m)| model_name_problem(&format!("models[{i}]"), m))
             .collect();
         problems.extend(model_name_problem("start_model", &settings.start_model));
+        let reregistered = ModelName::Reregistered.as_str();
+        if let Some(i) = settings.models.iter().position(|m| m == reregistered)
+            && !ctx.bound_inputs.contains(&"start")
+        {
+            problems.push(SettingsProblem::new(
+                &format!("models[{i}]"),
+                "model `reregistered` needs the input `start` (an earlier calibration's parameters table)",
+            ));
+        }
         if let Err(bad) = settings.fixed_values(&ParamValues::nominal(ctx.robot)) {
             problems.extend(bad);
         }
@@ -518,11 +527,6 @@ impl Stage for IdentifyStage {
             )?),
             None => None,
         };
-        if models.contains(&ModelName::Reregistered) && start_set.is_none() {
-            return Err(StageError::Invalid(
-                "model `reregistered` needs the input `start` (an earlier calibration's parameters table)".into(),
-            ));
-        }
         let keep = match ctx.inputs.get("selection") {
             Some(selection) => Some(ids_with_role(selection, "calibration")?),
             None => None,
@@ -1072,7 +1076,7 @@ mod tests {
     }
 
     #[test]
-    fn robust_settings_out_of_range_are_named() {
+    fn settings_out_of_range_or_inconsistent_are_named() {
         use crate::stages::StageKind;
         for (toml, key) in [
             ("reject_sigmas = 1.0", "reject_sigmas"),
@@ -1089,6 +1093,7 @@ mod tests {
             robot: robot.spec(),
             cable_robot: &crate::cdpr::CableRobotSpec::default(),
             job_dir: std::path::Path::new("."),
+            bound_inputs: &["measurements"],
         };
         let crossed = IdentifySettings {
             huber_sigmas: 5.0,
@@ -1097,6 +1102,16 @@ mod tests {
         };
         let problems = Stage::check_settings(&IdentifyStage, &crossed, &ctx);
         assert_eq!(problems[0].key, "huber_sigmas", "{problems:?}");
+        let reregistered = IdentifySettings {
+            models: vec!["nominal".into(), "reregistered".into()],
+            ..Default::default()
+        };
+        let problems = Stage::check_settings(&IdentifyStage, &reregistered, &ctx);
+        assert_eq!(problems[0].key, "models[1]", "{problems:?}");
+        assert!(
+            problems[0].message.contains("input `start`"),
+            "{problems:?}"
+        );
         let least_squares = IdentifySettings {
             loss: LossSetting::LeastSquares,
             ..Default::default()

@@ -175,6 +175,8 @@ pub struct SettingsContext<'a> {
     pub cable_robot: &'a CableRobotSpec,
     /// The job file's folder: relative paths in settings resolve here.
     pub job_dir: &'a Path,
+    /// Names of the inputs the stage is given (a setting may need one bound).
+    pub bound_inputs: &'a [&'a str],
 }
 
 impl SettingsProblem {
@@ -334,10 +336,12 @@ impl<S: Stage> StageKind for S {
         canonical: &serde_json::Value,
     ) -> Result<StageOutputs, StageError> {
         let settings = typed_settings::<S>(canonical)?;
+        let bound: Vec<&str> = ctx.inputs.keys().map(String::as_str).collect();
         let checks = SettingsContext {
             robot: ctx.robot.spec(),
             cable_robot: ctx.cable_robot,
             job_dir: ctx.job_dir,
+            bound_inputs: &bound,
         };
         let problems = Stage::check_settings(self, &settings, &checks);
         if !problems.is_empty() {
