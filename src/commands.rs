@@ -512,22 +512,37 @@ fn run_on_files(
         ))
     })?;
     let info = stage_kind.info();
+    let settings_problems = |problems: Vec<stages::SettingsProblem>| {
+        CommandError::Usage(
+            problems
+                .iter()
+                .map(|p| format!("{settings_name}: {}: {}", p.key, p.message))
+                .collect::<Vec<_>>()
+                .join("\n"),
+        )
+    };
     let settings = stage_kind
         .canonical_settings(raw_settings)
-        .map_err(|problems| {
-            CommandError::Usage(
-                problems
-                    .iter()
-                    .map(|p| format!("{settings_name}: {}: {}", p.key, p.message))
-                    .collect::<Vec<_>>()
-                    .join("\n"),
-            )
-        })?;
+        .map_err(settings_problems)?;
     let robot = Robot::new(RobotSpec::load(robot_file)?);
     let cable_robot = match cable_robot_file {
         Some(path) => CableRobotSpec::load(path).map_err(|e| CommandError::Usage(e.to_string()))?,
         None => CableRobotSpec::default(),
     };
+    let job_dir = Path::new(".");
+    let bound: Vec<&str> = inputs.iter().map(|(name, _)| name.as_str()).collect();
+    let problems = stage_kind.check_settings(
+        &settings,
+        &stages::SettingsContext {
+            robot: robot.spec(),
+            cable_robot: &cable_robot,
+            job_dir,
+            bound_inputs: &bound,
+        },
+    );
+    if !problems.is_empty() {
+        return Err(settings_problems(problems));
+    }
     let mut tables = BTreeMap::new();
     for (name, path) in inputs {
         let slot = info.inputs.iter().find(|s| s.name == name).ok_or_else(|| {
@@ -565,7 +580,7 @@ fn run_on_files(
         seed,
         inputs: &tables,
         work_dir,
-        job_dir: Path::new("."),
+        job_dir,
         run_date,
         progress: &NoProgress,
     };
@@ -615,13 +630,33 @@ pub fn sim_driver(
         Some(path) => {
             let text = std::fs::read_to_string(path)
                 .map_err(|e| CommandError::Usage(format!("cannot read {}: {e}", path.display())))?;
-            toml::from_str(&text).map_err(|e| {
+            let settings: SimulatorSettings = toml::from_str(&text).map_err(|e| {
                 CommandError::Usage(format!(
                     "{}: {}",
                     path.display(),
                     crate::toml_error::describe(&e, &text)
                 ))
-            })?
+            })?;
+            // The ranges a measure stage's `simulator` table is held to. NaN
+            // cannot slip through: the raw table is checked before serde_json.
+            let raw: toml::Table = toml::from_str(&text)
+                .map_err(|e| CommandError::Usage(format!("{}: {}", path.display(), e.message())))?;
+            let schema = serde_json::to_value(schemars::schema_for!(SimulatorSettings))
+                .expect("schema serialises");
+            let mut problems = stages::settings_check::non_finite_problems(&raw);
+            if problems.is_empty() {
+                let value = serde_json::to_value(&settings).expect("settings serialise");
+                problems = stages::settings_check::range_problems(&value, &schema);
+            }
+            if let Some(p) = problems.first() {
+                return Err(CommandError::Usage(format!(
+                    "{}: {}: {}",
+                    path.display(),
+                    p.key,
+                    p.message
+                )));
+            }
+            settings
         }
     };
     let mut simulator =
@@ -675,24 +710,50 @@ pub fn list_stages() -> String {
             .expect("write");
         }
         let schema = kind.settings_schema();
-        let defaults = kind.defaults();
-        if let Some(props) = schema["properties"].as_object() {
-            for (name, prop) in props {
-                let description = prop["description"]
-                    .as_str()
-                    .unwrap_or("")
-                    .replace('\n', " ");
-                writeln!(
-                    out,
-                    "  set    {name:<16} = {:<12} {description}",
-                    defaults[name]
-                )
-                .expect("write");
-            }
-        }
+        list_settings(&mut out, &schema, &schema, &kind.defaults(), "");
         out.push('\n');
     }
     out
+}
+
+/// One `set` line per setting of `schema` (an object schema), with its default and
+/// range; a nested settings struct (`simulator`) lists its own settings as
+/// `simulator.<name>`.
+fn list_settings(
+    out: &mut String,
+    schema: &serde_json::Value,
+    root: &serde_json::Value,
+    defaults: &serde_json::Value,
+    prefix: &str,
+) {
+    let Some(props) = schema["properties"].as_object() else {
+        return;
+    };
+    for (name, prop) in props {
+        let key = format!("{prefix}{name}");
+        let nested = prop["$ref"]
+            .as_str()
+            .and_then(|r| r.strip_prefix('#'))
+            .and_then(|pointer| root.pointer(pointer))
+            .filter(|s| s["properties"].is_object());
+        if let Some(nested) = nested {
+            list_settings(out, nested, root, &defaults[name], &format!("{key}."));
+            continue;
+        }
+        let description = prop["description"]
+            .as_str()
+            .unwrap_or("")
+            .replace('\n', " ");
+        let range = stages::settings_check::range_text(prop, root)
+            .map(|r| format!(" Range: {r}."))
+            .unwrap_or_default();
+        writeln!(
+            out,
+            "  set    {key:<16} = {:<12} {description}{range}",
+            defaults[name]
+        )
+        .expect("write");
+    }
 }
 
 /// `egcal cache gc`.

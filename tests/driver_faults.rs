@@ -309,7 +309,9 @@ fn a_negative_reading_bound_is_refused_before_anything_moves() {
     let (code, stderr) = run(&job, dir.path());
     assert_eq!(code, 2, "{stderr}");
     assert!(
-        stderr.contains("setting `max_joint_error_deg` = -1 must be a number ≥ 0"),
+        stderr.contains("job.toml:")
+            && stderr.contains("max_joint_error_deg")
+            && stderr.contains("expected > 0"),
         "{stderr}"
     );
 }

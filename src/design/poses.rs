@@ -204,12 +204,14 @@ pub fn singularity_margins(joints: &[Frame; JOINTS + 1]) -> (f64, f64, f64) {
     (wrist, shoulder, elbow)
 }
 
-/// Generates one configuration per target point (or drops the point).
+/// Generates one configuration per target point (or drops the point), calling
+/// `on_point` after each point (from any thread) so a caller can show progress.
 pub fn generate(
     robot: &Robot,
     nominal: &ParamValues,
     problem: &PoseProblem,
     seed: u64,
+    on_point: &(dyn Fn() + Sync),
 ) -> PoseOutcome {
     let mut rng = StdRng::seed_from_u64(seed);
     let points = targets(problem, &mut rng);
@@ -219,7 +221,9 @@ pub fn generate(
         .map(|(index, target)| {
             let mut rng =
                 StdRng::seed_from_u64(seed ^ (index as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
-            generate_one(robot, nominal, problem, index as i64 + 1, target, &mut rng)
+            let result = generate_one(robot, nominal, problem, index as i64 + 1, target, &mut rng);
+            on_point();
+            result
         })
         .collect();
     let mut outcome = PoseOutcome {
@@ -432,7 +436,7 @@ mod tests {
                 safety_margin_mm: 5.0,
             },
         };
-        let outcome = generate(&robot, &nominal, &problem, 7);
+        let outcome = generate(&robot, &nominal, &problem, 7, &|| {});
         assert_eq!(outcome.targets, 27);
         assert_eq!(outcome.poses.len(), 27, "{:?}", outcome.rejections);
         for pose in &outcome.poses {
@@ -458,7 +462,7 @@ mod tests {
                 crate::robot::ik::branch_of(&robot, &pose.q_deg)
             );
         }
-        let again = generate(&robot, &nominal, &problem, 7);
+        let again = generate(&robot, &nominal, &problem, 7, &|| {});
         assert_eq!(again.poses, outcome.poses);
         assert_eq!(again.rejections, outcome.rejections);
     }

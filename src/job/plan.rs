@@ -181,11 +181,26 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
             Ok(s) => Some(s),
             Err(list) => {
                 for p in list {
-                    problems.push(at(&format!("{}.{}", stage.key, p.key), p.message));
+                    problems.push(at(&settings_key(&stage.key, &p.key), p.message));
                 }
                 None
             }
         };
+        // Checks across settings and against the robot: only with both files read
+        // (their own problems are reported already).
+        if let (Some(settings), Some(robot), Some(cable_robot)) = (&settings, &robot, &cable_robot)
+        {
+            let bound: Vec<&str> = stage.inputs.keys().map(String::as_str).collect();
+            let ctx = stages::SettingsContext {
+                robot,
+                cable_robot,
+                job_dir: &dir,
+                bound_inputs: &bound,
+            };
+            for p in kind.check_settings(settings, &ctx) {
+                problems.push(at(&settings_key(&stage.key, &p.key), p.message));
+            }
+        }
         let mut inputs = BTreeMap::new();
         for (name, reference) in &stage.inputs {
             let key = format!("{}.inputs.{name}", stage.key);
@@ -291,6 +306,16 @@ fn non_folder_ancestor(dir: &Path) -> Option<PathBuf> {
         .find(|p| p.exists())
         .filter(|p| !p.is_dir())
         .map(Path::to_path_buf)
+}
+
+/// The job-file key of a setting: `stages[2]` and `simulator.seed` make
+/// `stages[2].simulator.seed`; a problem of the whole settings names the stage.
+fn settings_key(stage_key: &str, setting: &str) -> String {
+    if setting.is_empty() {
+        stage_key.to_string()
+    } else {
+        format!("{stage_key}.{setting}")
+    }
 }
 
 /// Whether a reference names files rather than a stage.

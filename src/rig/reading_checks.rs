@@ -123,29 +123,6 @@ impl ReadingBounds {
         std::array::from_fn(|i| robot.limits_deg(i))
     }
 
-    /// The bounds themselves, or an error naming a setting that is negative or
-    /// not a number: it would reject every reading, after the rig had moved for
-    /// each row.
-    pub fn checked(self) -> Result<Self, String> {
-        let settings = [
-            (JOINT_TOLERANCE, Some(self.joint_tolerance_deg)),
-            (MAX_JOINT_ERROR, Some(self.max_joint_error_deg)),
-            (SENSOR_RANGE_N, Some(self.sensor_range_n)),
-            (SENSOR_RANGE_NM, Some(self.sensor_range_nm)),
-            (MAX_WRENCH_ERROR_N, self.max_wrench_error_n),
-            (MAX_WRENCH_ERROR_NM, self.max_wrench_error_nm),
-            (MAX_TRACKER_DISTANCE, Some(self.max_tracker_distance_mm)),
-        ];
-        for (name, value) in settings {
-            if let Some(value) = value
-                && (value.is_nan() || value < 0.0)
-            {
-                return Err(format!("setting `{name}` = {value} must be a number ≥ 0"));
-            }
-        }
-        Ok(self)
-    }
-
     /// Checks one row's readings against the bounds and the row's commands, in
     /// the order the rig reads them (wrench, joints, position); the first fault
     /// found is returned. A NaN breaks every bound.
@@ -257,8 +234,6 @@ mod tests {
             max_wrench_error_nm: max_wrench_error.map(|b| b / 10.0),
             max_tracker_distance_mm: 40_000.0,
         }
-        .checked()
-        .unwrap()
     }
 
     fn message(q: [f64; JOINTS], w: [f64; 6], p: [f64; 3], b: &ReadingBounds) -> String {
@@ -337,23 +312,5 @@ mod tests {
         w[3] = f64::INFINITY;
         assert!(message(Q, w, P, &b).contains("mx_nm = inf"));
         assert!(message(Q, W, [0.0, f64::NAN, 0.0], &b).contains("NaN mm from the tracker"));
-    }
-
-    #[test]
-    fn negative_or_nan_settings_are_refused_by_name() {
-        let e = ReadingBounds {
-            joint_tolerance_deg: -1.0,
-            ..bounds(None)
-        }
-        .checked()
-        .unwrap_err();
-        assert!(e.contains("`joint_tolerance_deg` = -1"), "{e}");
-        let e = ReadingBounds {
-            max_wrench_error_nm: Some(f64::NAN),
-            ..bounds(None)
-        }
-        .checked()
-        .unwrap_err();
-        assert!(e.contains("`max_wrench_error_nm`"), "{e}");
     }
 }

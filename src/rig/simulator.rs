@@ -28,31 +28,57 @@ use crate::robot::{JOINTS, ParamValues, Robot, Wrench};
 #[serde(deny_unknown_fields, default)]
 pub struct SimulatorSettings {
     /// Tracker noise, standard deviation per axis (mm).
+    #[schemars(range(min = 0.0, max = 100.0))]
     pub tracker_noise_mm: f64,
     /// Distance-proportional tracker noise (mm per m of distance to the tracker), per axis.
+    #[schemars(range(min = 0.0, max = 100.0))]
     pub tracker_noise_mm_per_m: f64,
     /// Joint encoder noise, standard deviation (deg).
+    #[schemars(range(min = 0.0, max = 10.0))]
     pub encoder_noise_deg: f64,
     /// Cable-robot force tracking error, relative (applied = commanded·(1+e) + offset).
+    #[schemars(range(min = 0.0, max = 1.0))]
     pub wrench_tracking_relative: f64,
     /// Cable-robot force tracking offset, standard deviation (N).
+    #[schemars(range(min = 0.0, max = 10_000.0))]
     pub force_tracking_n: f64,
     /// Cable-robot moment tracking offset, standard deviation (N·m).
+    #[schemars(range(min = 0.0, max = 1000.0))]
     pub moment_tracking_nm: f64,
     /// Force/torque sensor noise on forces (N).
+    #[schemars(range(min = 0.0, max = 10_000.0))]
     pub sensor_noise_n: f64,
     /// Force/torque sensor noise on moments (N·m).
+    #[schemars(range(min = 0.0, max = 1000.0))]
     pub sensor_noise_nm: f64,
     /// Amplitude of an unmodelled transmission error `A·sin(2q + φ_i)` per joint (deg).
+    #[schemars(range(min = 0.0, max = 10.0))]
     pub transmission_error_deg: f64,
     /// Unmodelled hardening of joints 2 and 3: extra deflection `c·τ·|τ|` (deg/(N·m)²).
+    #[schemars(range(min = 0.0, max = 1.0))]
     pub quadratic_compliance: f64,
     /// Probability that a tracker reading fails (beam lost); the row is retried.
+    #[schemars(range(min = 0.0))]
+    #[schemars(extend("exclusiveMaximum" = 1.0))]
     pub beam_loss_probability: f64,
     /// Simulated clock: time of row cw_id = start + cw_id · seconds_per_row (RFC 3339, UTC).
     pub clock_start: String,
     /// Simulated seconds between consecutive cw_ids.
+    #[schemars(range(max = 86_400.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub seconds_per_row: f64,
+}
+
+impl SimulatorSettings {
+    /// `clock_start` in microseconds since 1970, or why it is not a time.
+    pub fn clock_start_us(&self) -> Result<i64, String> {
+        crate::table::parse_rfc3339_us(&self.clock_start).ok_or_else(|| {
+            format!(
+                "`{}` is not an RFC 3339 time (2026-01-01T00:00:00Z)",
+                self.clock_start
+            )
+        })
+    }
 }
 
 impl Default for SimulatorSettings {
@@ -96,13 +122,7 @@ impl Simulator {
         settings: SimulatorSettings,
         seed: u64,
     ) -> Result<Self, String> {
-        let clock_start_us =
-            crate::table::parse_rfc3339_us(&settings.clock_start).ok_or_else(|| {
-                format!(
-                    "clock_start `{}` is not RFC 3339 (2026-01-01T00:00:00Z)",
-                    settings.clock_start
-                )
-            })?;
+        let clock_start_us = settings.clock_start_us()?;
         let mut phase_rng = StdRng::seed_from_u64(seed ^ 0x5eed_0f7a);
         let phases_rad =
             std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU));

@@ -20,7 +20,10 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::identify::{MeasuredRows, ids_with_role, measured_rows};
-use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::{
+    InputTable, SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo,
+    StageOutputs, TableSlot, model_name_problem,
+};
 use crate::gate::{self, ChangePoint, Decision, Holdout, Rules};
 use crate::robot::{ConfWrench, ParamId, ParamValues, batch_predict};
 use crate::table::parameters::{self, ModelName, ParamStatus, ParameterSet};
@@ -36,13 +39,19 @@ pub struct GateSettings {
     /// The model of both tables that is compared and put in service.
     pub model: String,
     /// Significance level of the paired t-test on hold-out errors.
+    #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 1.0))]
     pub alpha: f64,
     /// Smallest mean hold-out improvement worth publishing (mm).
+    #[schemars(range(max = 1000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub min_improvement_mm: f64,
     /// The in-service set has drifted when the candidate moves a reference pose's
     /// predicted position by more than this (mm).
+    #[schemars(range(max = 1000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub drift_threshold_mm: f64,
     /// Fewest hold-out rows the comparison needs.
+    #[schemars(range(min = 1, max = 1_000_000_000))]
     pub min_holdout_rows: usize,
     /// Calibration folder, relative to the job file: a published candidate becomes
     /// `current.parquet` there. Empty: decide and report only.
@@ -123,27 +132,13 @@ static INFO: StageInfo = StageInfo {
 };
 
 impl GateSettings {
-    fn rules(&self) -> Result<Rules, StageError> {
-        let positive = |key: &str, v: f64| {
-            if v > 0.0 && v.is_finite() {
-                Ok(v)
-            } else {
-                Err(StageError::Invalid(format!(
-                    "setting `{key}`: expected a positive number, found {v}"
-                )))
-            }
-        };
-        if !(self.alpha > 0.0 && self.alpha < 1.0) {
-            return Err(StageError::Invalid(format!(
-                "setting `alpha`: expected a level between 0 and 1, found {}",
-                self.alpha
-            )));
-        }
-        Ok(Rules {
+    /// The decision rules; their ranges are the settings' (checked in phase 2).
+    fn rules(&self) -> Rules {
+        Rules {
             alpha: self.alpha,
-            min_improvement_mm: positive("min_improvement_mm", self.min_improvement_mm)?,
-            drift_threshold_mm: positive("drift_threshold_mm", self.drift_threshold_mm)?,
-        })
+            min_improvement_mm: self.min_improvement_mm,
+            drift_threshold_mm: self.drift_threshold_mm,
+        }
     }
 }
 
@@ -199,8 +194,14 @@ impl Stage for GateStage {
         &INFO
     }
 
+    fn check_settings(&self, settings: &GateSettings, _: &SettingsContext) -> Vec<SettingsProblem> {
+        model_name_problem("model", &settings.model)
+            .into_iter()
+            .collect()
+    }
+
     fn run(&self, ctx: &StageContext, settings: &GateSettings) -> Result<StageOutputs, StageError> {
-        let rules = settings.rules()?;
+        let rules = settings.rules();
         let model: ModelName = settings
             .model
             .parse()

@@ -19,6 +19,7 @@ pub struct IdentifiabilityStage;
 pub struct IdentifiabilitySettings {
     /// A column is dependent when its part orthogonal to the kept columns is below
     /// this (columns scaled to unit norm); also the SVD rank threshold relative to σ_max.
+    #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 1.0))]
     pub rank_tolerance: f64,
     /// Analyse the kinematic model only (compliances excluded).
     pub kinematic_only: bool,

@@ -18,8 +18,8 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot,
-    conf_wrench_rows,
+    InputTable, SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo,
+    StageOutputs, TableSlot, conf_wrench_rows, model_name_problem, settings_error,
 };
 use crate::calibration::fit::{Algorithm, FitError, FitOptions, Loss, Observations};
 use crate::calibration::robust::RobustOptions;
@@ -76,7 +76,8 @@ pub enum BadRowsSetting {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(untagged)]
 pub enum FixedValue {
-    Value(f64),
+    /// ±100 000 of any parameter's unit (mm, deg, rad/(N·m)) can only be a mistake.
+    Value(#[schemars(range(min = -100_000.0, max = 100_000.0))] f64),
     Named(String),
 }
 
@@ -89,30 +90,40 @@ pub struct IdentifySettings {
     /// Parameters that may be freed (empty: all 42); rank analysis drops dependent ones.
     pub candidates: Vec<String>,
     /// Relative tolerance of the rank analysis on the column-scaled Jacobian.
+    #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 1.0))]
     pub rank_tolerance: f64,
     /// levenberg_marquardt (robust default) or paper (eq. (25) as published).
     pub algorithm: AlgorithmSetting,
     /// Steps tried at most, rejected Levenberg–Marquardt steps included.
+    #[schemars(range(min = 1, max = 100_000))]
     pub max_iterations: usize,
     /// Stop when a step changes no predicted position by more than this (mm). The
     /// paper used 0.05 mm.
+    #[schemars(range(min = 0.0, max = 100.0))]
     pub stop_step_mm: f64,
     /// Levenberg–Marquardt: stop when an accepted step lowers the cost by less than
     /// this fraction.
+    #[schemars(range(min = 0.0, max = 1.0))]
     pub stop_relative_cost: f64,
     /// robust (default), least_squares or huber. The robust fit's scale comes
     /// from each model's own residuals, so a kinematic model's systematic load
     /// errors are not taken for outliers.
     pub loss: LossSetting,
     /// loss = robust: Huber threshold of the second stage, in robust standard deviations.
+    #[schemars(range(min = 1.0, max = 100.0))]
     pub huber_sigmas: f64,
     /// loss = robust: rows beyond this many robust standard deviations are excluded.
+    #[schemars(range(min = 2.0, max = 100.0))]
     pub reject_sigmas: f64,
     /// loss = robust: fail rather than exclude more than this fraction of the rows,
     /// and fail when row checks drop more than this fraction.
+    #[schemars(range(min = 0.0))]
+    #[schemars(extend("exclusiveMaximum" = 0.5))]
     pub max_excluded_fraction: f64,
     /// loss = least_squares or huber: rows whose residual norm exceeds this are
     /// reported as outliers, and down-weighted with huber (mm).
+    #[schemars(range(max = 1000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub outlier_threshold_mm: f64,
     /// Rows outside the robot file's joint limits or with absurd values: drop (and
     /// name them) or fail.
@@ -150,15 +161,9 @@ impl Default for IdentifySettings {
 }
 
 impl IdentifySettings {
-    /// The fit options these settings describe.
-    pub fn fit_options(&self) -> Result<FitOptions, StageError> {
-        if !(self.outlier_threshold_mm > 0.0 && self.outlier_threshold_mm.is_finite()) {
-            return Err(StageError::Invalid(format!(
-                "setting `outlier_threshold_mm`: must be a positive number of mm, found {}",
-                self.outlier_threshold_mm
-            )));
-        }
-        Ok(FitOptions {
+    /// The fit options these settings describe (their ranges are checked in phase 2).
+    pub fn fit_options(&self) -> FitOptions {
+        FitOptions {
             algorithm: match self.algorithm {
                 AlgorithmSetting::LevenbergMarquardt => Algorithm::LevenbergMarquardt,
                 AlgorithmSetting::Paper => Algorithm::Paper,
@@ -173,65 +178,56 @@ impl IdentifySettings {
             stop_step_mm: self.stop_step_mm,
             stop_relative_cost: self.stop_relative_cost,
             chunk_rows: stream::CHUNK_ROWS,
-        })
+        }
     }
 
-    /// The robust fit's options (`None` unless loss = robust), checked.
-    pub fn robust_options(&self) -> Result<Option<RobustOptions>, StageError> {
-        let positive = |key: &str, value: f64, at_least: f64| {
-            if value.is_finite() && value >= at_least {
-                Ok(())
-            } else {
-                Err(StageError::Invalid(format!(
-                    "setting `{key}`: must be a number >= {at_least}, found {value}"
-                )))
-            }
-        };
-        positive("huber_sigmas", self.huber_sigmas, 1.0)?;
-        positive("reject_sigmas", self.reject_sigmas, 2.0)?;
-        if !(self.max_excluded_fraction >= 0.0 && self.max_excluded_fraction < 0.5) {
-            return Err(StageError::Invalid(format!(
-                "setting `max_excluded_fraction`: must be in [0, 0.5), found {}",
-                self.max_excluded_fraction
-            )));
-        }
-        if self.huber_sigmas > self.reject_sigmas {
-            return Err(StageError::Invalid(format!(
-                "setting `huber_sigmas` ({}) must not exceed `reject_sigmas` ({})",
-                self.huber_sigmas, self.reject_sigmas
-            )));
-        }
-        Ok((self.loss == LossSetting::Robust).then_some(RobustOptions {
+    /// The robust fit's options (`None` unless loss = robust); ranges and
+    /// `huber_sigmas` ≤ `reject_sigmas` are checked by [`Stage::check_settings`].
+    pub fn robust_options(&self) -> Option<RobustOptions> {
+        (self.loss == LossSetting::Robust).then_some(RobustOptions {
             huber_sigmas: self.huber_sigmas,
             reject_sigmas: self.reject_sigmas,
             max_excluded_fraction: self.max_excluded_fraction,
-        }))
+        })
     }
 
-    /// The fixed parameters with their values (`"nominal"`: the robot file's).
-    pub fn fixed_values(&self, nominal: &ParamValues) -> Result<Vec<(ParamId, f64)>, StageError> {
-        self.fixed
-            .iter()
-            .map(|(name, value)| {
-                let id = ParamId::from_name(name).ok_or_else(|| {
-                    StageError::Invalid(format!(
-                        "setting `fixed.{name}`: unknown parameter{}",
+    /// The fixed parameters with their values (`"nominal"`: the robot file's), or
+    /// every bad key and value.
+    pub fn fixed_values(
+        &self,
+        nominal: &ParamValues,
+    ) -> Result<Vec<(ParamId, f64)>, Vec<SettingsProblem>> {
+        let mut values = Vec::new();
+        let mut problems = Vec::new();
+        for (name, value) in &self.fixed {
+            let key = format!("fixed.{name}");
+            let Some(id) = ParamId::from_name(name) else {
+                problems.push(SettingsProblem::new(
+                    &key,
+                    format!(
+                        "unknown parameter{}",
                         crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
-                    ))
-                })?;
-                let value = match value {
-                    FixedValue::Value(v) if v.is_finite() => *v,
-                    FixedValue::Named(n) if n == "nominal" => nominal.get(id),
-                    other => {
-                        return Err(StageError::Invalid(format!(
-                            "setting `fixed.{name}`: expected a finite number in {} or \"nominal\", found {other:?}",
-                            id.unit()
-                        )));
-                    }
-                };
-                Ok((id, value))
-            })
-            .collect()
+                    ),
+                ));
+                continue;
+            };
+            match value {
+                FixedValue::Value(v) => values.push((id, *v)),
+                FixedValue::Named(n) if n == "nominal" => values.push((id, nominal.get(id))),
+                FixedValue::Named(n) => problems.push(SettingsProblem::new(
+                    &key,
+                    format!(
+                        "expected a number in {} or \"nominal\", found \"{n}\"",
+                        id.unit()
+                    ),
+                )),
+            }
+        }
+        if problems.is_empty() {
+            Ok(values)
+        } else {
+            Err(problems)
+        }
     }
 }
 
@@ -501,6 +497,42 @@ impl Stage for IdentifyStage {
         &INFO
     }
 
+    fn check_settings(
+        &self,
+        settings: &IdentifySettings,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        let mut problems: Vec<SettingsProblem> = settings
+            .models
+            .iter()
+            .enumerate()
+            .filter_map(|(i, m)| model_name_problem(&format!("models[{i}]"), m))
+            .collect();
+        problems.extend(model_name_problem("start_model", &settings.start_model));
+        let reregistered = ModelName::Reregistered.as_str();
+        if let Some(i) = settings.models.iter().position(|m| m == reregistered)
+            && !ctx.bound_inputs.contains(&"start")
+        {
+            problems.push(SettingsProblem::new(
+                &format!("models[{i}]"),
+                "model `reregistered` needs the input `start` (an earlier calibration's parameters table)",
+            ));
+        }
+        if let Err(bad) = settings.fixed_values(&ParamValues::nominal(ctx.robot)) {
+            problems.extend(bad);
+        }
+        if settings.huber_sigmas > settings.reject_sigmas {
+            problems.push(SettingsProblem::new(
+                "huber_sigmas",
+                format!(
+                    "`huber_sigmas` ({}) must not exceed `reject_sigmas` ({}): rows are down-weighted before they are excluded",
+                    settings.huber_sigmas, settings.reject_sigmas
+                ),
+            ));
+        }
+        problems
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
@@ -515,8 +547,10 @@ impl Stage for IdentifyStage {
             })
             .collect::<Result<_, _>>()?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
-        let robust = settings.robust_options()?;
-        let mut fixed = settings.fixed_values(&nominal)?;
+        let robust = settings.robust_options();
+        let mut fixed = settings
+            .fixed_values(&nominal)
+            .map_err(|p| settings_error(&p))?;
         let start_set = match ctx.inputs.get("start") {
             Some(_) => Some(super::model_values(
                 ctx,
@@ -526,11 +560,6 @@ impl Stage for IdentifyStage {
             )?),
             None => None,
         };
-        if models.contains(&ModelName::Reregistered) && start_set.is_none() {
-            return Err(StageError::Invalid(
-                "model `reregistered` needs the input `start` (an earlier calibration's parameters table)".into(),
-            ));
-        }
         let keep = match ctx.inputs.get("selection") {
             Some(selection) => Some(ids_with_role(selection, "calibration")?),
             None => None,
@@ -579,7 +608,7 @@ impl Stage for IdentifyStage {
         let options = CalibrationOptions {
             candidates: parse_candidates(&settings.candidates)?,
             rank_tolerance: settings.rank_tolerance,
-            fit: settings.fit_options()?,
+            fit: settings.fit_options(),
             robust,
             fixed,
             targets: targets.len().max(1),
@@ -1076,51 +1105,58 @@ mod tests {
         assert!(fixed.contains(&(ParamId::from_name("dd5").unwrap(), 0.1)));
 
         settings.fixed.insert("dd55".into(), FixedValue::Value(0.1));
-        let err = settings.fixed_values(&nominal).unwrap_err().to_string();
-        assert!(err.contains("fixed.dd55") && err.contains("dd5"), "{err}");
-        settings.fixed.remove("dd55");
         settings
             .fixed
             .insert("k2".into(), FixedValue::Named("zero".into()));
-        let err = settings.fixed_values(&nominal).unwrap_err().to_string();
-        assert!(
-            err.contains("fixed.k2") && err.contains("\"nominal\""),
-            "{err}"
-        );
+        let problems = settings.fixed_values(&nominal).unwrap_err();
+        assert_eq!(problems.len(), 2, "{problems:?}");
+        assert_eq!(problems[0].key, "fixed.dd55");
+        assert!(problems[0].message.contains("dd5"), "{problems:?}");
+        assert_eq!(problems[1].key, "fixed.k2");
+        assert!(problems[1].message.contains("\"nominal\""), "{problems:?}");
     }
 
     #[test]
-    fn robust_settings_out_of_range_are_named() {
-        for (settings, key) in [
-            (
-                IdentifySettings {
-                    reject_sigmas: 1.0,
-                    ..Default::default()
-                },
-                "reject_sigmas",
-            ),
-            (
-                IdentifySettings {
-                    huber_sigmas: f64::NAN,
-                    ..Default::default()
-                },
-                "huber_sigmas",
-            ),
-            (
-                IdentifySettings {
-                    max_excluded_fraction: 0.7,
-                    ..Default::default()
-                },
-                "max_excluded_fraction",
-            ),
+    fn settings_out_of_range_or_inconsistent_are_named() {
+        use crate::stages::StageKind;
+        for (toml, key) in [
+            ("reject_sigmas = 1.0", "reject_sigmas"),
+            ("huber_sigmas = nan", "huber_sigmas"),
+            ("max_excluded_fraction = 0.7", "max_excluded_fraction"),
+            ("outlier_threshold_mm = 0.0", "outlier_threshold_mm"),
         ] {
-            let err = settings.robust_options().unwrap_err().to_string();
-            assert!(err.contains(key), "{err}");
+            let raw: toml::Table = toml::from_str(toml).unwrap();
+            let problems = IdentifyStage.canonical_settings(&raw).unwrap_err();
+            assert_eq!(problems[0].key, key, "{problems:?}");
         }
+        let robot = irb1600();
+        let ctx = SettingsContext {
+            robot: robot.spec(),
+            cable_robot: &crate::cdpr::CableRobotSpec::default(),
+            job_dir: std::path::Path::new("."),
+            bound_inputs: &["measurements"],
+        };
+        let crossed = IdentifySettings {
+            huber_sigmas: 5.0,
+            reject_sigmas: 3.0,
+            ..Default::default()
+        };
+        let problems = Stage::check_settings(&IdentifyStage, &crossed, &ctx);
+        assert_eq!(problems[0].key, "huber_sigmas", "{problems:?}");
+        let reregistered = IdentifySettings {
+            models: vec!["nominal".into(), "reregistered".into()],
+            ..Default::default()
+        };
+        let problems = Stage::check_settings(&IdentifyStage, &reregistered, &ctx);
+        assert_eq!(problems[0].key, "models[1]", "{problems:?}");
+        assert!(
+            problems[0].message.contains("input `start`"),
+            "{problems:?}"
+        );
         let least_squares = IdentifySettings {
             loss: LossSetting::LeastSquares,
             ..Default::default()
         };
-        assert_eq!(least_squares.robust_options().unwrap(), None);
+        assert_eq!(least_squares.robust_options(), None);
     }
 }

@@ -37,7 +37,10 @@ use polars::prelude::{
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::{
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot, settings_error,
+};
 use crate::table::schema;
 use crate::table::time::parse_rfc3339_us;
 
@@ -209,6 +212,7 @@ pub struct Constants {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub robot_id: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
+    #[schemars(range(min = 0))]
     pub config_id: Option<i64>,
 }
 
@@ -225,6 +229,7 @@ pub struct ImportMeasurementsSettings {
     /// CSV numbers use a decimal comma (`1,5`); needs a separator other than ",".
     pub decimal_comma: bool,
     /// CSV lines to skip before the header (a preamble).
+    #[schemars(range(min = 0, max = 1_000_000_000))]
     pub skip_rows: usize,
     /// The CSV's first (unskipped) line names the columns; without a header the
     /// source columns are `column_1`, `column_2`, …
@@ -243,6 +248,7 @@ pub struct ImportMeasurementsSettings {
     pub moment_unit: MomentUnit,
     /// Import only data rows start ≤ row < end (0-based, half-open), e.g. half of a
     /// series; the default cw_id stays the row's number in the whole file.
+    #[schemars(inner(range(min = 0, max = 1_000_000_000)))]
     pub row_range: Option<[usize; 2]>,
 }
 
@@ -375,31 +381,36 @@ struct Checked {
 }
 
 impl ImportMeasurementsSettings {
-    fn check(&self, job_dir: &Path) -> Result<Checked, StageError> {
+    /// The settings resolved against the job folder, or every problem with them
+    /// (by key). Reads nothing: the file is only named.
+    fn check(&self, job_dir: &Path) -> Result<Checked, Vec<SettingsProblem>> {
         let mut problems = Vec::new();
         if self.path.trim().is_empty() {
-            problems.push(
-                "setting `path` is required: the export file, relative to the job file's folder"
-                    .to_string(),
-            );
+            problems.push(SettingsProblem::new(
+                "path",
+                "required: the export file, relative to the job file's folder",
+            ));
         }
         let file = job_dir.join(&self.path);
         let format = self.format.unwrap_or_else(|| format_of(&file));
         let separator = match self.separator.as_bytes() {
             [b] if b.is_ascii() && !matches!(b, b'"' | b'\n' | b'\r') => *b,
             _ => {
-                problems.push(format!(
-                    "setting `separator`: `{}` is not one ASCII character (other than a quote or a line break)",
-                    self.separator.escape_debug()
+                problems.push(SettingsProblem::new(
+                    "separator",
+                    format!(
+                        "`{}` is not one ASCII character (other than a quote or a line break)",
+                        self.separator.escape_debug()
+                    ),
                 ));
                 b','
             }
         };
         if self.decimal_comma && separator == b',' {
-            problems.push(
-                "setting `decimal_comma`: needs a separator other than \",\" (e.g. `separator = \";\"`)"
-                    .into(),
-            );
+            problems.push(SettingsProblem::new(
+                "decimal_comma",
+                "needs a separator other than \",\" (e.g. `separator = \";\"`)",
+            ));
         }
         if format == SourceFormat::Parquet {
             let defaults = ImportMeasurementsSettings::default();
@@ -410,33 +421,40 @@ impl ImportMeasurementsSettings {
                 ("has_header", !self.has_header),
             ] {
                 if set {
-                    problems.push(format!(
-                        "setting `{key}` applies to CSV files only, and {} is read as Parquet",
-                        file.display()
+                    problems.push(SettingsProblem::new(
+                        key,
+                        format!(
+                            "applies to CSV files only, and {} is read as Parquet",
+                            file.display()
+                        ),
                     ));
                 }
             }
         }
         for key in REQUIRED {
             if self.columns.get(key).is_none() {
-                problems.push(format!(
-                    "setting `columns.{key}` is required: the source column that holds `{key}`"
+                problems.push(SettingsProblem::new(
+                    &format!("columns.{key}"),
+                    format!("required: the source column that holds `{key}`"),
                 ));
             }
         }
         let sigmas = schema::SIGMA_COLUMNS.map(|c| self.columns.get(c).is_some());
         if sigmas.contains(&true) && sigmas.contains(&false) {
-            problems.push(
-                "settings `columns.sigma_x_mm`, `columns.sigma_y_mm`, `columns.sigma_z_mm`: map all three or none"
-                    .into(),
-            );
+            problems.push(SettingsProblem::new(
+                "columns.sigma_x_mm",
+                "`columns.sigma_x_mm`, `columns.sigma_y_mm`, `columns.sigma_z_mm`: map all three or none",
+            ));
         }
         for (key, constant) in [
             ("target_id", self.constant.target_id.as_deref()),
             ("robot_id", self.constant.robot_id.as_deref()),
         ] {
             if constant.is_some_and(|c| c.trim().is_empty()) {
-                problems.push(format!("setting `constant.{key}`: must not be empty"));
+                problems.push(SettingsProblem::new(
+                    &format!("constant.{key}"),
+                    "must not be empty",
+                ));
             }
         }
         for (key, constant) in [
@@ -445,8 +463,9 @@ impl ImportMeasurementsSettings {
             ("config_id", self.constant.config_id.is_some()),
         ] {
             if constant && self.columns.get(key).is_some() {
-                problems.push(format!(
-                    "settings `columns.{key}` and `constant.{key}` are both set: choose one"
+                problems.push(SettingsProblem::new(
+                    &format!("constant.{key}"),
+                    format!("`columns.{key}` and `constant.{key}` are both set: choose one"),
                 ));
             }
         }
@@ -455,20 +474,22 @@ impl ImportMeasurementsSettings {
             .filter_map(|(c, _)| self.columns.get(c).map(|s| (*c, s)))
         {
             if source.is_empty() {
-                problems.push(format!(
-                    "setting `columns.{key}`: the source column name is empty"
+                problems.push(SettingsProblem::new(
+                    &format!("columns.{key}"),
+                    "the source column name is empty",
                 ));
             }
         }
         if let Some([start, end]) = self.row_range
             && start >= end
         {
-            problems.push(format!(
-                "setting `row_range`: [{start}, {end}] is empty; it is [start, end) with start < end"
+            problems.push(SettingsProblem::new(
+                "row_range",
+                format!("[{start}, {end}] is empty; it is [start, end) with start < end"),
             ));
         }
         if !problems.is_empty() {
-            return Err(StageError::Invalid(problems.join("\n")));
+            return Err(problems);
         }
         let mapped = CONTRACT
             .iter()
@@ -502,10 +523,18 @@ impl Stage for ImportMeasurementsStage {
         job_dir: &Path,
         _run_date: i64,
     ) -> Result<serde_json::Value, StageError> {
-        let checked = settings.check(job_dir)?;
+        let checked = settings.check(job_dir).map_err(|p| settings_error(&p))?;
         let hash =
             crate::fsio::hash_file(&checked.file).map_err(|e| cannot_read(&checked.file, e))?;
         Ok(serde_json::json!({ "source_blake3": hash }))
+    }
+
+    fn check_settings(
+        &self,
+        settings: &ImportMeasurementsSettings,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        settings.check(ctx.job_dir).err().unwrap_or_default()
     }
 
     fn run(
@@ -536,7 +565,7 @@ pub fn import(
     settings: &ImportMeasurementsSettings,
     job_dir: &Path,
 ) -> Result<Imported, StageError> {
-    let checked = settings.check(job_dir)?;
+    let checked = settings.check(job_dir).map_err(|p| settings_error(&p))?;
     let bytes = std::fs::read(&checked.file).map_err(|e| cannot_read(&checked.file, e))?;
     let source = match checked.format {
         SourceFormat::Csv => Source::csv(&checked, settings, &bytes)?,
@@ -1316,8 +1345,8 @@ z_mm = "z"
         );
         for key in [
             "setting `separator`",
-            "setting `columns.q2_deg` is required",
-            "setting `columns.z_mm` is required",
+            "setting `columns.q2_deg`: required",
+            "setting `columns.z_mm`: required",
             "map all three or none",
             "setting `constant.robot_id`: must not be empty",
             "setting `row_range`: [5, 5] is empty",
@@ -1335,7 +1364,7 @@ z_mm = "z"
             "{err}"
         );
         assert!(
-            err.contains("settings `columns.target_id` and `constant.target_id` are both set"),
+            err.contains("`columns.target_id` and `constant.target_id` are both set"),
             "{err}"
         );
         let err = error(&format!("path = \"absent.csv\"\n{JOINTS_XYZ}"), dir.path());
@@ -1481,7 +1510,7 @@ z_mm = "z"
             dir.path(),
         );
         assert!(
-            err.contains("setting `separator` applies to CSV files only"),
+            err.contains("setting `separator`: applies to CSV files only"),
             "{err}"
         );
     }

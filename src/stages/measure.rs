@@ -20,8 +20,8 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, conf_wrench_rows,
-    model_values,
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot, conf_wrench_rows, model_name_problem, model_values,
 };
 use crate::calibration::row_checks::JOINT_LIMIT_TOLERANCE_DEG;
 use crate::journal::Journal;
@@ -57,14 +57,21 @@ pub struct MeasureSettings {
     /// a relative program path with a `/` (`./driver.sh`) is taken from there too.
     pub command: Vec<String>,
     /// Time limit of each driver request (s).
+    #[schemars(range(max = 86_400.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub timeout_s: f64,
     /// Extra attempts of a row after a transient failure.
+    #[schemars(range(min = 0, max = 100))]
     pub retries: u32,
     /// Stop the campaign at the first row that still fails after its retries.
     pub stop_on_failure: bool,
     /// Safety bound on each force component (N); a row beyond it stops the campaign.
+    #[schemars(range(max = 100_000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_force_n: f64,
     /// Safety bound on each moment component (N·m).
+    #[schemars(range(max = 10_000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_moment_nm: f64,
     /// Model of the `truth` input the simulator uses.
     pub truth_model: String,
@@ -78,24 +85,35 @@ pub struct MeasureSettings {
     // beyond a bound is retried, then recorded as a failed row, never as data.
     /// How far beyond the robot file's joint limits a joint reading may lie (deg);
     /// the same slack the identification's row checks allow.
+    #[schemars(range(min = 0.0, max = 360.0))]
     pub joint_tolerance_deg: f64,
     /// How far a joint reading may lie from its command (deg): a settled robot
     /// reads within hundredths of a degree, a reading degrees away is a fault.
+    #[schemars(range(max = 360.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_joint_error_deg: f64,
     /// The force/torque sensor's range per force component (N); a reading beyond
     /// it is saturated or corrupt. Set it to your sensor's rated range.
+    #[schemars(range(max = 1.0e6))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub sensor_range_n: f64,
     /// The force/torque sensor's range per moment component (N·m).
+    #[schemars(range(max = 1.0e5))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub sensor_range_nm: f64,
     /// How far each force reading may lie from the commanded force (N), to catch a
     /// slack cable or a sensor read in the wrong frame; unchecked when unset,
     /// since the row records (and the model uses) the wrench the sensor read.
+    #[schemars(range(min = 0.0, max = 1.0e6))]
     pub max_wrench_error_n: Option<f64>,
     /// How far each moment reading may lie from the commanded moment (N·m);
     /// unchecked when unset.
+    #[schemars(range(min = 0.0, max = 1.0e5))]
     pub max_wrench_error_nm: Option<f64>,
     /// How far from the tracker (the origin of its frame) a measured position may
     /// lie (mm): a robot cell is a few metres across.
+    #[schemars(range(max = 1.0e5))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_tracker_distance_mm: f64,
 }
 
@@ -201,6 +219,27 @@ impl Stage for MeasureStage {
         &INFO
     }
 
+    fn check_settings(
+        &self,
+        settings: &MeasureSettings,
+        _ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        let mut problems: Vec<SettingsProblem> =
+            model_name_problem("truth_model", &settings.truth_model)
+                .into_iter()
+                .collect();
+        if settings.driver == DriverKind::External && settings.command.is_empty() {
+            problems.push(SettingsProblem::new(
+                "command",
+                "driver = \"external\" needs `command`: the driver program and its arguments, e.g. [\"python3\", \"driver.py\"]",
+            ));
+        }
+        if let Err(m) = settings.simulator.clock_start_us() {
+            problems.push(SettingsProblem::new("simulator.clock_start", m));
+        }
+        problems
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
@@ -256,8 +295,6 @@ impl Stage for MeasureStage {
             ));
         }
 
-        // Before the rig starts: a bound that rejects every reading is refused
-        // before anything moves.
         let bounds = ReadingBounds {
             limits_deg: ReadingBounds::limits_of(ctx.robot),
             joint_tolerance_deg: settings.joint_tolerance_deg,
@@ -267,30 +304,23 @@ impl Stage for MeasureStage {
             max_wrench_error_n: settings.max_wrench_error_n,
             max_wrench_error_nm: settings.max_wrench_error_nm,
             max_tracker_distance_mm: settings.max_tracker_distance_mm,
-        }
-        .checked()
-        .map_err(StageError::Invalid)?;
+        };
 
         let mut rig: Box<dyn Rig> = match settings.driver {
             DriverKind::Simulator => Box::new(
                 Simulator::new(ctx.robot.clone(), truth, settings.simulator.clone(), seed)
-                    .map_err(|m| StageError::Invalid(format!("setting `simulator.{m}")))?,
+                    .map_err(|m| {
+                        StageError::Invalid(format!("setting `simulator.clock_start`: {m}"))
+                    })?,
             ),
-            DriverKind::External => {
-                if settings.command.is_empty() {
-                    return Err(StageError::Invalid(
-                        "driver = \"external\" needs `command`".into(),
-                    ));
-                }
-                Box::new(
-                    ExternalDriver::start(
-                        &settings.command,
-                        ctx.job_dir,
-                        timeout_from_seconds(settings.timeout_s),
-                    )
-                    .map_err(|e| StageError::Failed(e.to_string()))?,
+            DriverKind::External => Box::new(
+                ExternalDriver::start(
+                    &settings.command,
+                    ctx.job_dir,
+                    timeout_from_seconds(settings.timeout_s),
                 )
-            }
+                .map_err(|e| StageError::Failed(e.to_string()))?,
+            ),
         };
 
         ctx.progress.start(todo.len() as u64, "rows");

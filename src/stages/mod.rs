@@ -6,6 +6,7 @@
 //! (serde + JSON Schema + defaults) is the single source for job-file parsing,
 //! `egcal list-stages`, the job-file JSON Schema and the cache key.
 
+pub mod budget;
 pub mod gate;
 pub mod identifiability;
 pub mod identify;
@@ -16,6 +17,7 @@ pub mod predict;
 pub mod report;
 pub mod scan_logs;
 pub mod select;
+pub mod settings_check;
 pub mod simulate_logs;
 pub mod split;
 pub mod validate;
@@ -30,7 +32,7 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 
 use crate::cdpr::CableRobotSpec;
-use crate::robot::Robot;
+use crate::robot::{Robot, RobotSpec};
 use crate::table::{TableError, TableSchema};
 
 /// A named input or output table of a stage kind.
@@ -152,9 +154,59 @@ pub trait Stage: Sync {
     ) -> Result<serde_json::Value, StageError> {
         Ok(serde_json::Value::Null)
     }
+
+    /// Checks of the settings that a range on one value cannot express (one
+    /// setting against another, model and parameter names, the robot, the
+    /// machine's memory), run by job-file validation (`egcal check`) and before
+    /// [`Stage::run`]. Only what settings, robot, cable robot and job folder
+    /// decide belongs here; checks of input tables stay in `run`.
+    fn check_settings(
+        &self,
+        _settings: &Self::Settings,
+        _ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        Vec::new()
+    }
 }
 
-/// A settings value that failed to parse, with its key relative to the stage table.
+/// What job-file validation knows when it checks a stage's settings: no tables yet.
+pub struct SettingsContext<'a> {
+    pub robot: &'a RobotSpec,
+    pub cable_robot: &'a CableRobotSpec,
+    /// The job file's folder: relative paths in settings resolve here.
+    pub job_dir: &'a Path,
+    /// Names of the inputs the stage is given (a setting may need one bound).
+    pub bound_inputs: &'a [&'a str],
+}
+
+impl SettingsProblem {
+    pub fn new(key: &str, message: impl Into<String>) -> Self {
+        SettingsProblem {
+            key: key.to_string(),
+            message: message.into(),
+        }
+    }
+}
+
+/// A problem with a model name (`nominal`, `registered`, …) set under `key`.
+pub fn model_name_problem(key: &str, name: &str) -> Option<SettingsProblem> {
+    name.parse::<crate::table::parameters::ModelName>()
+        .err()
+        .map(|m| SettingsProblem::new(key, m))
+}
+
+/// Settings problems as one [`StageError::Invalid`], each line naming its setting.
+pub fn settings_error(problems: &[SettingsProblem]) -> StageError {
+    StageError::Invalid(
+        problems
+            .iter()
+            .map(|p| format!("setting `{}`: {}", p.key, p.message))
+            .collect::<Vec<_>>()
+            .join("\n"),
+    )
+}
+
+/// A settings value that failed to parse or check, with its key relative to the stage table.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SettingsProblem {
     pub key: String,
@@ -172,6 +224,14 @@ pub trait StageKind: Sync {
         raw: &toml::Table,
     ) -> Result<serde_json::Value, Vec<SettingsProblem>>;
     fn defaults(&self) -> serde_json::Value;
+    /// See [`Stage::check_settings`]; `canonical` comes from [`StageKind::canonical_settings`].
+    fn check_settings(
+        &self,
+        canonical: &serde_json::Value,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem>;
+    /// Runs the stage after [`StageKind::check_settings`], so library callers get
+    /// the checks job-file validation makes.
     fn run(
         &self,
         ctx: &StageContext,
@@ -219,13 +279,33 @@ impl<S: Stage> StageKind for S {
         if !unknown.is_empty() {
             return Err(unknown);
         }
-        let mut problems = Vec::new();
-        // Check each key on its own so that every bad value is reported, not just the first.
+        // Before serde: JSON has no NaN, and serde_json would turn one into null.
+        let mut problems = settings_check::non_finite_problems(raw);
+        if !problems.is_empty() {
+            return Err(problems);
+        }
+        // Check each key on its own so that every bad value is reported, not just
+        // the first: its type, then its range (the other settings are defaults,
+        // which are in range).
         for (key, value) in raw {
             let mut single = toml::Table::new();
             single.insert(key.clone(), value.clone());
-            if let Err(e) = parse_settings::<S::Settings>(&single) {
-                problems.push(e);
+            match parse_settings::<S::Settings>(&single) {
+                Ok(settings) => problems.extend(settings_check::range_problems(
+                    &serde_json::to_value(settings).expect("settings serialise"),
+                    &schema,
+                )),
+                Err(mut e) => {
+                    // A value of the wrong type (`per_config = 1e9`, `restarts = -1`)
+                    // is told the range too.
+                    if let Some(range) = schema["properties"]
+                        .get(e.key.as_str())
+                        .and_then(|p| settings_check::range_text(p, &schema))
+                    {
+                        e.message = format!("{} (range {range})", e.message);
+                    }
+                    problems.push(e);
+                }
             }
         }
         if !problems.is_empty() {
@@ -239,12 +319,35 @@ impl<S: Stage> StageKind for S {
         serde_json::to_value(S::Settings::default()).expect("settings serialise")
     }
 
+    fn check_settings(
+        &self,
+        canonical: &serde_json::Value,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        match typed_settings::<S>(canonical) {
+            Ok(settings) => Stage::check_settings(self, &settings, ctx),
+            Err(e) => vec![SettingsProblem::new("", e.to_string())],
+        }
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
         canonical: &serde_json::Value,
     ) -> Result<StageOutputs, StageError> {
-        Stage::run(self, ctx, &typed_settings::<S>(canonical)?)
+        let settings = typed_settings::<S>(canonical)?;
+        let bound: Vec<&str> = ctx.inputs.keys().map(String::as_str).collect();
+        let checks = SettingsContext {
+            robot: ctx.robot.spec(),
+            cable_robot: ctx.cable_robot,
+            job_dir: ctx.job_dir,
+            bound_inputs: &bound,
+        };
+        let problems = Stage::check_settings(self, &settings, &checks);
+        if !problems.is_empty() {
+            return Err(settings_error(&problems));
+        }
+        Stage::run(self, ctx, &settings)
     }
 
     fn external_key(

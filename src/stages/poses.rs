@@ -5,12 +5,17 @@
 //! by joint limits, singularity distance, collisions (links, pulleys, cables,
 //! platform, floor) and line of sight; one survivor per point drawn at random.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use nalgebra::Vector3;
 use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::{
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot, budget,
+};
 use crate::design::collision::{CapsuleMm, Cell};
 use crate::design::poses::{PoseProblem, Sampling, SingularityLimits, generate, xyz_euler_deg};
 use crate::robot::ParamValues;
@@ -38,37 +43,53 @@ pub struct PosesSettings {
     /// How target points fill the box: grid, random or latin_hypercube.
     pub sampling: SamplingKind,
     /// Grid points per axis (grid sampling).
+    #[schemars(range(min = 1, max = 1000))]
     pub points_per_axis: usize,
     /// Number of points (random and Latin-hypercube sampling).
+    #[schemars(range(min = 1, max = 100_000_000))]
     pub count: usize,
     /// Centre of the workspace box in the base frame (mm).
+    #[schemars(inner(range(min = -100_000.0, max = 100_000.0)))]
     pub centre_mm: [f64; 3],
     /// Edge of the (cubic) workspace box (mm).
+    #[schemars(range(max = 100_000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub edge_mm: f64,
     /// Tracker head in the base frame (mm); default: the robot file's nominal world origin.
+    #[schemars(inner(range(min = -100_000.0, max = 100_000.0)))]
     pub tracker_mm: Option<[f64; 3]>,
     /// Largest angle between the SMR axis (tool z) and the direction to the tracker.
+    #[schemars(range(min = 0.0, max = 90.0))]
     pub acceptance_half_angle_deg: f64,
     /// Tool roll about the SMR axis: uniform within ± this of the upright roll (tool
     /// x horizontal, y up). Kept small because the cable robot's wrench-feasible set
     /// depends strongly on the platform's orientation, and the default cable robot
     /// is designed for the upright platform; 180 allows any roll.
+    #[schemars(range(min = 0.0, max = 180.0))]
     pub roll_half_range_deg: f64,
     /// Orientations tried per point before it is dropped.
+    #[schemars(range(min = 1, max = 1_000_000))]
     pub orientation_attempts: usize,
     /// Smallest angle between axes 4 and 6, i.e. |q5| on the usual arms (wrist singularity).
+    #[schemars(range(min = 0.0, max = 180.0))]
     pub min_wrist_deg: f64,
     /// Smallest distance of the wrist point from the plane of axes 1 and 2, i.e. from axis 1 on arms without a lateral offset (shoulder singularity).
+    #[schemars(range(min = 0.0, max = 100_000.0))]
     pub min_shoulder_mm: f64,
     /// Smallest elbow bend from straight, seen along axis 3 (elbow singularity).
+    #[schemars(range(min = 0.0, max = 180.0))]
     pub min_elbow_deg: f64,
     /// Links 2–6 stay above this height in the base frame (mm).
+    #[schemars(range(min = -100_000.0, max = 100_000.0))]
     pub floor_z_mm: f64,
     /// Smallest allowed clearance between any two checked shapes (mm).
+    #[schemars(range(min = 0.0, max = 1000.0))]
     pub safety_margin_mm: f64,
     /// Pulley (anchor) ball radius of the cable robot's frame (mm).
+    #[schemars(range(min = 0.0, max = 1000.0))]
     pub pulley_radius_mm: f64,
     /// Cable radius (mm).
+    #[schemars(range(min = 0.0, max = 100.0))]
     pub cable_radius_mm: f64,
 }
 
@@ -110,6 +131,26 @@ static INFO: StageInfo = StageInfo {
     }],
 };
 
+/// Bytes a target point may cost: the point (24), its per-point result while
+/// the points run in parallel (the pose with its joint angles, frames and
+/// rejection counts, a few hundred bytes) and its row of the output table (17
+/// columns of 8 bytes), rounded up.
+const BYTES_PER_POINT: f64 = 1024.0;
+
+/// Target points from which a run is announced as long (each point tries up to
+/// `orientation_attempts` inverse kinematics).
+const LONG_RUN_POINTS: usize = 100_000;
+
+impl PosesSettings {
+    /// Target points the settings ask for (before unreachable points are dropped).
+    fn target_points(&self) -> usize {
+        match self.sampling {
+            SamplingKind::Grid => self.points_per_axis.saturating_pow(3),
+            SamplingKind::Random | SamplingKind::LatinHypercube => self.count,
+        }
+    }
+}
+
 impl Stage for PosesStage {
     type Settings = PosesSettings;
 
@@ -117,25 +158,36 @@ impl Stage for PosesStage {
         &INFO
     }
 
+    /// The target points must fit in memory: checked before the grid is allocated.
+    fn check_settings(
+        &self,
+        settings: &PosesSettings,
+        _ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        let (key, asked) = match settings.sampling {
+            SamplingKind::Grid => (
+                "points_per_axis",
+                format!("points_per_axis = {} (cubed)", settings.points_per_axis),
+            ),
+            SamplingKind::Random | SamplingKind::LatinHypercube => {
+                ("count", format!("count = {}", settings.count))
+            }
+        };
+        let points = settings.target_points() as f64;
+        budget::over_budget(
+            points * BYTES_PER_POINT,
+            &format!("{points:.0} target points"),
+        )
+        .map(|why| SettingsProblem::new(key, format!("{asked}: {why}")))
+        .into_iter()
+        .collect()
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
         settings: &PosesSettings,
     ) -> Result<StageOutputs, StageError> {
-        for (key, value, upper) in [
-            (
-                "acceptance_half_angle_deg",
-                settings.acceptance_half_angle_deg,
-                90.0,
-            ),
-            ("roll_half_range_deg", settings.roll_half_range_deg, 180.0),
-        ] {
-            if !(0.0..=upper).contains(&value) {
-                return Err(StageError::Invalid(format!(
-                    "setting `{key}`: expected an angle in [0, {upper}] degrees, found {value}"
-                )));
-            }
-        }
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let tracker = match settings.tracker_mm {
             Some(t) => Vector3::from(t),
@@ -205,7 +257,20 @@ impl Stage for PosesStage {
             },
             cell,
         };
-        let outcome = generate(ctx.robot, &nominal, &problem, ctx.seed);
+        let points = settings.target_points();
+        if points >= LONG_RUN_POINTS {
+            ctx.progress.note(&format!(
+                "{points} target points with up to {} orientation attempts each: this takes a while",
+                settings.orientation_attempts
+            ));
+        }
+        ctx.progress.start(points as u64, "target points");
+        let done = AtomicU64::new(0);
+        let on_point = || {
+            ctx.progress
+                .advance(done.fetch_add(1, Ordering::Relaxed) + 1)
+        };
+        let outcome = generate(ctx.robot, &nominal, &problem, ctx.seed, &on_point);
         if outcome.poses.is_empty() {
             return Err(StageError::Failed(format!(
                 "no reachable collision-free pose at any of the {} target points; rejections: {:?}",

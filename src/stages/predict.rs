@@ -6,8 +6,8 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{
-    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, commanded_rows,
-    model_values,
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot, commanded_rows, model_name_problem, model_values,
 };
 use crate::robot::batch_predict;
 use crate::table::frame;
@@ -67,6 +67,16 @@ impl Stage for PredictStage {
 
     fn info(&self) -> &'static StageInfo {
         &INFO
+    }
+
+    fn check_settings(
+        &self,
+        settings: &PredictSettings,
+        _: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        model_name_problem("model", &settings.model)
+            .into_iter()
+            .collect()
     }
 
     fn run(

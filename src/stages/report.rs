@@ -30,6 +30,7 @@ pub struct ReportSettings {
     /// Page title.
     pub title: String,
     /// Bins of each error histogram.
+    #[schemars(range(min = 1, max = 1000))]
     pub histogram_bins: usize,
     /// Model of the `truth` table whose values are the truth.
     pub truth_model: String,
@@ -125,11 +126,6 @@ impl Stage for ReportStage {
         ctx: &StageContext,
         settings: &ReportSettings,
     ) -> Result<StageOutputs, StageError> {
-        if settings.histogram_bins == 0 {
-            return Err(StageError::Invalid(
-                "setting `histogram_bins`: must be at least 1".into(),
-            ));
-        }
         let truth = match ctx.inputs.get("truth") {
             Some(table) => Some(read_truth(table, &settings.truth_model)?),
             None => None,

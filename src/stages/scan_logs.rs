@@ -13,7 +13,10 @@ use polars::prelude::*;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::{
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot, settings_error,
+};
 use crate::logs::{self, LogQuery, ScanReport};
 use crate::table::schema;
 use crate::table::time::{date_string, parse_date};
@@ -48,8 +51,10 @@ pub struct ScanLogsSettings {
     /// Last day of an absolute window (included), `YYYY-MM-DD`; default the run date.
     pub to: Option<String>,
     /// Newest logged days held out of identification (role `validation`).
+    #[schemars(range(min = 0, max = 36_600))]
     pub holdout_days: u32,
     /// Fewest identification (older-day) rows the window must hold.
+    #[schemars(range(min = 1, max = 1_000_000_000))]
     pub min_rows: usize,
     pub bad_data: BadData,
 }
@@ -92,47 +97,72 @@ static INFO: StageInfo = StageInfo {
     ],
 };
 
+/// Where the window starts, as the settings give it (before the run date is known).
+enum WindowStart {
+    /// `from`: a day.
+    Day(i64),
+    /// `last`: this many whole days ending on the last day.
+    Last(i64),
+}
+
 impl ScanLogsSettings {
-    fn query(&self, job_dir: &Path, run_date: i64) -> Result<LogQuery, StageError> {
-        let invalid = |message: String| StageError::Invalid(message);
+    /// The settings' window and logs, checked without the run date: every problem
+    /// by key, or the window's start and its last day when `to` is set.
+    fn window(&self) -> Result<(WindowStart, Option<i64>), Vec<SettingsProblem>> {
+        let mut problems = Vec::new();
         if self.logs.is_empty() {
-            return Err(invalid(
-                "setting `logs` is required: a log folder or glob".into(),
+            problems.push(SettingsProblem::new(
+                "logs",
+                "required: a log folder or glob",
             ));
         }
         if self.robot_id.is_empty() {
-            return Err(invalid("setting `robot_id` is required".into()));
+            problems.push(SettingsProblem::new("robot_id", "required"));
         }
-        let date = |key: &str, text: &str| {
-            parse_date(text).ok_or_else(|| {
-                invalid(format!(
-                    "setting `{key}`: `{text}` is not a date YYYY-MM-DD"
-                ))
-            })
+        let mut date = |key: &str, text: &str| {
+            let day = parse_date(text);
+            if day.is_none() {
+                problems.push(SettingsProblem::new(
+                    key,
+                    format!("`{text}` is not a date YYYY-MM-DD"),
+                ));
+            }
+            day
         };
-        let last_day = match &self.to {
-            Some(to) => date("to", to)?,
-            None => run_date,
-        };
-        let first_day = match &self.from {
-            Some(from) => date("from", from)?,
+        let to = self.to.as_deref().map(|to| date("to", to));
+        let start = match &self.from {
+            Some(from) => date("from", from).map(WindowStart::Day),
             None => {
                 let days = self
                     .last
                     .strip_suffix('d')
                     .and_then(|n| n.parse::<i64>().ok())
-                    .filter(|n| *n >= 1)
-                    .ok_or_else(|| {
-                        invalid(format!(
-                            "setting `last`: `{}` is not a number of days like \"14d\"",
-                            self.last
-                        ))
-                    })?;
-                last_day - days + 1
+                    .filter(|n| *n >= 1);
+                if days.is_none() {
+                    problems.push(SettingsProblem::new(
+                        "last",
+                        format!("`{}` is not a number of days like \"14d\"", self.last),
+                    ));
+                }
+                days.map(WindowStart::Last)
             }
         };
+        match (start, to) {
+            (Some(start), None) if problems.is_empty() => Ok((start, None)),
+            (Some(start), Some(Some(to))) if problems.is_empty() => Ok((start, Some(to))),
+            _ => Err(problems),
+        }
+    }
+
+    fn query(&self, job_dir: &Path, run_date: i64) -> Result<LogQuery, StageError> {
+        let (start, to) = self.window().map_err(|p| settings_error(&p))?;
+        let last_day = to.unwrap_or(run_date);
+        let first_day = match start {
+            WindowStart::Day(day) => day,
+            WindowStart::Last(days) => last_day - days + 1,
+        };
         if first_day > last_day {
-            return Err(invalid(format!(
+            return Err(StageError::Invalid(format!(
                 "the window {} .. {} is empty",
                 date_string(first_day),
                 date_string(last_day)
@@ -153,6 +183,14 @@ impl Stage for ScanLogsStage {
 
     fn info(&self) -> &'static StageInfo {
         &INFO
+    }
+
+    fn check_settings(
+        &self,
+        settings: &ScanLogsSettings,
+        _: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        settings.window().err().unwrap_or_default()
     }
 
     fn external_key(

@@ -22,12 +22,16 @@ pub struct SelectStage;
 #[serde(deny_unknown_fields, default)]
 pub struct SelectSettings {
     /// Number of calibration rows to select.
+    #[schemars(range(min = 1, max = 10_000_000))]
     pub n: usize,
     /// Upper bound on exchanges (the paper's loop stops earlier, when the row added is the row removed).
+    #[schemars(range(min = 1, max = 100_000_000))]
     pub max_iterations: usize,
     /// Rank tolerance when no identifiability input is bound.
+    #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 1.0))]
     pub rank_tolerance: f64,
     /// Independent random starts; the selection with the highest criterion is kept.
+    #[schemars(range(min = 1, max = 1000))]
     pub restarts: usize,
     /// Observability index to maximise: O1 (Borm & Menq, the paper's), O2 (σmin/σmax),
     /// O3 (σmin), O4 (σmin²/σmax) or O5 (1/Σ 1/σ).
@@ -37,6 +41,7 @@ pub struct SelectSettings {
     pub method: Method,
     /// Fast method with O2–O5: per addition, the criterion is evaluated exactly on
     /// this many outsiders, those with the best O1 gain; 0 evaluates all.
+    #[schemars(range(min = 0, max = 10_000_000))]
     pub shortlist: usize,
 }
 
@@ -153,7 +158,7 @@ impl Stage for SelectStage {
         let (candidates, _) =
             Candidates::from_jacobian(&jacobian.jacobian, rows.len(), parameters.len());
         let mut results = Vec::new();
-        for restart in 0..settings.restarts.max(1) as u64 {
+        for restart in 0..settings.restarts as u64 {
             let options = Options {
                 n: settings.n,
                 criterion: settings.criterion,

@@ -20,7 +20,10 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::measure::{Reading, measure_row, measurements_frame};
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::{
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot, model_name_problem, settings_error,
+};
 use crate::rig::simulator::{Simulator, SimulatorSettings};
 use crate::rig::{Rig, RigError};
 use crate::robot::{ConfWrench, ParamId, ParamValues};
@@ -36,6 +39,7 @@ pub struct Drift {
     /// Parameter name (spec §3), e.g. `da2`.
     pub parameter: String,
     /// Change per day, in the parameter's unit (mm, deg, rad/(N·m)).
+    #[schemars(range(min = -10_000.0, max = 10_000.0))]
     pub per_day: f64,
 }
 
@@ -47,6 +51,7 @@ pub struct Step {
     /// First day with the change, `YYYY-MM-DD`.
     pub date: String,
     /// Change in the parameter's unit.
+    #[schemars(range(min = -10_000.0, max = 10_000.0))]
     pub change: f64,
 }
 
@@ -59,22 +64,40 @@ pub struct SimulateLogsSettings {
     /// First logged day, `YYYY-MM-DD`. A fixed date keeps the logs reproducible.
     pub first_day: String,
     /// Logged days.
+    #[schemars(range(min = 1, max = 36_600))]
     pub days: u32,
     /// Rows measured per day, drawn from the pool without repetition within a day.
+    #[schemars(range(min = 1, max = 10_000_000))]
     pub rows_per_day: usize,
     /// Hour of the day (UTC) the daily check starts.
+    #[schemars(range(min = 0.0))]
+    #[schemars(extend("exclusiveMaximum" = 24.0))]
     pub start_hour_utc: f64,
     /// Seconds between rows of a day's check.
+    #[schemars(range(max = 86_400.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub seconds_per_row: f64,
     /// Model of the `truth` input the robot starts from.
     pub truth_model: String,
     /// This robot's own differences from the truth table (parameter name → change
     /// in its unit): two robots of a cell are not the same individual.
+    #[schemars(transform = parameter_change_range)]
     pub offsets: BTreeMap<String, f64>,
     pub drifts: Vec<Drift>,
     pub steps: Vec<Step>,
     /// Noise and unmodelled errors of the rig.
     pub simulator: SimulatorSettings,
+}
+
+/// The range of a map of parameter changes (`offsets`): a range attribute applies
+/// to numbers, not to a map's values, so it is set on `additionalProperties` here.
+/// The bound matches `Drift::per_day` and `Step::change`: ±10 000 of any
+/// parameter's unit (mm, deg, rad/(N·m)) can only be a typing mistake.
+fn parameter_change_range(schema: &mut schemars::Schema) {
+    if let Some(serde_json::Value::Object(values)) = schema.get_mut("additionalProperties") {
+        values.insert("minimum".into(), (-10_000.0).into());
+        values.insert("maximum".into(), 10_000.0.into());
+    }
 }
 
 impl Default for SimulateLogsSettings {
@@ -142,56 +165,80 @@ enum Change {
 }
 
 impl SimulateLogsSettings {
-    fn first_day(&self) -> Result<i64, StageError> {
+    fn first_day(&self) -> Result<i64, SettingsProblem> {
         parse_date(&self.first_day).ok_or_else(|| {
-            StageError::Invalid(format!(
-                "setting `first_day`: expected a date YYYY-MM-DD, found `{}`",
-                self.first_day
-            ))
+            SettingsProblem::new(
+                "first_day",
+                format!("expected a date YYYY-MM-DD, found `{}`", self.first_day),
+            )
         })
     }
 
-    fn changes(&self) -> Result<Vec<Change>, StageError> {
+    /// The drifts and steps resolved against the parameter list, or every bad
+    /// parameter name and date.
+    fn changes(&self) -> Result<Vec<Change>, Vec<SettingsProblem>> {
         let mut changes = Vec::new();
+        let mut problems = Vec::new();
         for (k, drift) in self.drifts.iter().enumerate() {
-            changes.push(Change::Drift {
-                id: parameter(&format!("drifts[{k}].parameter"), &drift.parameter)?,
-                per_day: finite(&format!("drifts[{k}].per_day"), drift.per_day)?,
-            });
+            match parameter(&format!("drifts[{k}].parameter"), &drift.parameter) {
+                Ok(id) => changes.push(Change::Drift {
+                    id,
+                    per_day: drift.per_day,
+                }),
+                Err(p) => problems.push(p),
+            }
         }
         for (k, step) in self.steps.iter().enumerate() {
-            changes.push(Change::Step {
-                id: parameter(&format!("steps[{k}].parameter"), &step.parameter)?,
-                from_day: parse_date(&step.date).ok_or_else(|| {
-                    StageError::Invalid(format!(
-                        "setting `steps[{k}].date`: expected a date YYYY-MM-DD, found `{}`",
-                        step.date
-                    ))
-                })?,
-                change: finite(&format!("steps[{k}].change"), step.change)?,
+            let id = parameter(&format!("steps[{k}].parameter"), &step.parameter);
+            let from_day = parse_date(&step.date).ok_or_else(|| {
+                SettingsProblem::new(
+                    &format!("steps[{k}].date"),
+                    format!("expected a date YYYY-MM-DD, found `{}`", step.date),
+                )
             });
+            match (id, from_day) {
+                (Ok(id), Ok(from_day)) => changes.push(Change::Step {
+                    id,
+                    from_day,
+                    change: step.change,
+                }),
+                (id, from_day) => problems.extend(id.err().into_iter().chain(from_day.err())),
+            }
         }
-        Ok(changes)
+        if problems.is_empty() {
+            Ok(changes)
+        } else {
+            Err(problems)
+        }
+    }
+
+    /// This robot's offsets from the truth, resolved against the parameter list.
+    fn offsets(&self) -> Result<Vec<(ParamId, f64)>, Vec<SettingsProblem>> {
+        let (ok, bad): (Vec<_>, Vec<_>) = self
+            .offsets
+            .iter()
+            .map(|(name, change)| {
+                parameter(&format!("offsets.{name}"), name).map(|id| (id, *change))
+            })
+            .partition(Result::is_ok);
+        if bad.is_empty() {
+            Ok(ok.into_iter().filter_map(Result::ok).collect())
+        } else {
+            Err(bad.into_iter().filter_map(Result::err).collect())
+        }
     }
 }
 
-fn parameter(key: &str, name: &str) -> Result<ParamId, StageError> {
+fn parameter(key: &str, name: &str) -> Result<ParamId, SettingsProblem> {
     ParamId::from_name(name).ok_or_else(|| {
-        StageError::Invalid(format!(
-            "setting `{key}`: unknown parameter `{name}`{}",
-            crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
-        ))
+        SettingsProblem::new(
+            key,
+            format!(
+                "unknown parameter `{name}`{}",
+                crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
+            ),
+        )
     })
-}
-
-fn finite(key: &str, value: f64) -> Result<f64, StageError> {
-    if value.is_finite() {
-        Ok(value)
-    } else {
-        Err(StageError::Invalid(format!(
-            "setting `{key}`: expected a finite number, found {value}"
-        )))
-    }
 }
 
 /// The robot's true parameters on `day`, `days_in` days after the first logged day.
@@ -220,31 +267,47 @@ impl Stage for SimulateLogsStage {
         &INFO
     }
 
+    fn check_settings(
+        &self,
+        settings: &SimulateLogsSettings,
+        _: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        let mut problems = Vec::new();
+        if settings.robot_id.is_empty() || settings.robot_id.contains(['/', '\\', '=']) {
+            problems.push(SettingsProblem::new(
+                "robot_id",
+                format!(
+                    "expected a name without `/`, `\\` or `=`, found `{}`",
+                    settings.robot_id
+                ),
+            ));
+        }
+        problems.extend(settings.first_day().err());
+        problems.extend(settings.changes().err().into_iter().flatten());
+        problems.extend(settings.offsets().err().into_iter().flatten());
+        problems.extend(model_name_problem("truth_model", &settings.truth_model));
+        let check_seconds = settings.start_hour_utc * 3600.0
+            + settings.rows_per_day as f64 * settings.seconds_per_row;
+        if check_seconds >= 86_400.0 {
+            problems.push(SettingsProblem::new(
+                "rows_per_day",
+                format!(
+                    "`start_hour_utc` = {} h and `rows_per_day` × `seconds_per_row` = {} × {} s: the daily check must end within its day",
+                    settings.start_hour_utc, settings.rows_per_day, settings.seconds_per_row
+                ),
+            ));
+        }
+        problems
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
         settings: &SimulateLogsSettings,
     ) -> Result<StageOutputs, StageError> {
         let invalid = |m: String| StageError::Invalid(m);
-        if settings.robot_id.is_empty() || settings.robot_id.contains(['/', '\\', '=']) {
-            return Err(invalid(format!(
-                "setting `robot_id`: expected a name without `/`, `\\` or `=`, found `{}`",
-                settings.robot_id
-            )));
-        }
-        let first_day = settings.first_day()?;
-        let changes = settings.changes()?;
-        let check_seconds = settings.start_hour_utc * 3600.0
-            + settings.rows_per_day as f64 * settings.seconds_per_row;
-        let fits_a_day = settings.start_hour_utc >= 0.0
-            && settings.seconds_per_row > 0.0
-            && check_seconds < 86_400.0;
-        if !fits_a_day {
-            return Err(invalid(format!(
-                "settings `start_hour_utc` = {} and `rows_per_day` x `seconds_per_row` = {} x {} s: the daily check must start at or after 0 h and end within its day",
-                settings.start_hour_utc, settings.rows_per_day, settings.seconds_per_row
-            )));
-        }
+        let first_day = settings.first_day().map_err(|p| settings_error(&[p]))?;
+        let changes = settings.changes().map_err(|p| settings_error(&p))?;
         let (pool_ids, pool) = super::commanded_rows(ctx, ctx.input("conf_wrenches")?)?;
         let day_limit = ROWS_PER_DAY_LIMIT.min(pool.len());
         if settings.rows_per_day == 0 || settings.rows_per_day > day_limit {
@@ -255,12 +318,8 @@ impl Stage for SimulateLogsStage {
             )));
         }
         let mut base = super::model_values(ctx, "truth", "truth_model", &settings.truth_model)?;
-        for (name, change) in &settings.offsets {
-            let id = parameter(&format!("offsets.{name}"), name)?;
-            base.set(
-                id,
-                base.get(id) + finite(&format!("offsets.{name}"), *change)?,
-            );
+        for (id, change) in settings.offsets().map_err(|p| settings_error(&p))? {
+            base.set(id, base.get(id) + change);
         }
 
         let mut outputs = StageOutputs::default();

@@ -34,6 +34,7 @@ pub struct SplitSettings {
     /// alternate (default) or halves.
     pub method: SplitMethod,
     /// Fraction of the rows that calibrate, in (0, 1).
+    #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 1.0))]
     pub calibration_fraction: f64,
 }
 
@@ -91,11 +92,6 @@ impl Stage for SplitStage {
         settings: &SplitSettings,
     ) -> Result<StageOutputs, StageError> {
         let fraction = settings.calibration_fraction;
-        if !(fraction > 0.0 && fraction < 1.0) {
-            return Err(StageError::Invalid(format!(
-                "setting `calibration_fraction`: must be in (0, 1), found {fraction}"
-            )));
-        }
         let input = ctx.input("measurements")?;
         let ids = i64_values(&input.df, "cw_id", &input.path)?;
         let n = ids.len();

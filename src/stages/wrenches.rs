@@ -8,6 +8,8 @@
 //! few hundred µs); the pose-dependent facets are built once per configuration
 //! and configurations run in parallel.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use polars::prelude::Column;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
@@ -16,7 +18,7 @@ use rayon::prelude::*;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, budget};
 use crate::cdpr::{AvailableWrenchSet, Feasibility};
 use crate::robot::{JOINTS, ParamValues};
 use crate::table::frame;
@@ -40,16 +42,22 @@ struct ConfigWrenches {
 #[serde(deny_unknown_fields, default)]
 pub struct WrenchesSettings {
     /// Wrenches per configuration.
+    #[schemars(range(min = 1, max = 10_000))]
     pub per_config: usize,
     /// Standard deviation of each force component (N).
+    #[schemars(range(min = 0.0, max = 100_000.0))]
     pub sigma_force_n: f64,
     /// Standard deviation of each moment component (N·m).
+    #[schemars(range(min = 0.0, max = 10_000.0))]
     pub sigma_moment_nm: f64,
     /// Forces are clipped to ±this (N).
+    #[schemars(range(min = 0.0, max = 100_000.0))]
     pub max_force_n: f64,
     /// Moments are clipped to ±this (N·m).
+    #[schemars(range(min = 0.0, max = 10_000.0))]
     pub max_moment_nm: f64,
     /// Draws per wanted wrench before the configuration is reported short.
+    #[schemars(range(min = 1, max = 1_000_000))]
     pub max_draws: usize,
 }
 
@@ -88,6 +96,13 @@ static INFO: StageInfo = StageInfo {
     }],
 };
 
+/// Bytes a wanted wrench may cost: its output row (23 columns of 8 bytes) and
+/// the kept wrench with its feasibility while configurations run, rounded up.
+const BYTES_PER_ROW: f64 = 512.0;
+
+/// Wanted wrenches from which a run is announced as long.
+const LONG_RUN_ROWS: f64 = 1e6;
+
 impl Stage for WrenchesStage {
     type Settings = WrenchesSettings;
 
@@ -112,6 +127,26 @@ impl Stage for WrenchesStage {
             .map_err(|e| StageError::Invalid(format!("setting `sigma_moment_nm`: {e}")))?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let wanted = settings.per_config;
+        // The row count is known only now (the poses input's): checked before the
+        // wrench sets are built, and announced when long.
+        let rows = config_ids.len() as f64 * wanted as f64;
+        if let Some(why) = budget::over_budget(
+            rows * BYTES_PER_ROW,
+            &format!(
+                "{} configurations × per_config = {wanted} wrenches",
+                config_ids.len()
+            ),
+        ) {
+            return Err(StageError::Invalid(format!(
+                "setting `per_config`: {why}; lower `per_config` or use fewer poses"
+            )));
+        }
+        if rows >= LONG_RUN_ROWS {
+            ctx.progress.note(&format!(
+                "{rows:.0} wrenches wanted ({} configurations × {wanted}), each a feasibility QP: this takes a while",
+                config_ids.len()
+            ));
+        }
         let max_attempts = settings.max_draws * wanted;
         let draw = |rng: &mut StdRng| -> [f64; 6] {
             std::array::from_fn(|i| {
@@ -128,6 +163,7 @@ impl Stage for WrenchesStage {
         };
         ctx.progress
             .start(config_ids.len() as u64, "configurations");
+        let done = AtomicU64::new(0);
         // Configurations run in parallel, each with its own seeded stream (so the
         // result does not depend on scheduling) and its wrench set built once.
         let per_config: Vec<ConfigWrenches> = (0..config_ids.len())
@@ -153,10 +189,11 @@ impl Stage for WrenchesStage {
                         found.kept.push((wrench, feasibility));
                     }
                 }
+                ctx.progress
+                    .advance(done.fetch_add(1, Ordering::Relaxed) + 1);
                 Ok(found)
             })
             .collect::<Result<_, StageError>>()?;
-        ctx.progress.advance(config_ids.len() as u64);
 
         let mut cw_id = Vec::new();
         let mut config = Vec::new();
@@ -215,5 +252,59 @@ impl Stage for WrenchesStage {
             .facts
             .insert("short_configs".into(), short_configs.to_string());
         Ok(outputs)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+    use std::path::{Path, PathBuf};
+
+    use super::*;
+    use crate::cdpr::CableRobotSpec;
+    use crate::robot::test_support::irb1600;
+    use crate::stages::{InputTable, NoProgress, StageKind};
+
+    /// `configs` poses, all at the zero configuration.
+    fn poses(configs: usize) -> InputTable {
+        let mut columns = vec![Column::new(
+            "config_id".into(),
+            (1..=configs as i64).collect::<Vec<_>>(),
+        )];
+        for name in JOINT_COLUMNS {
+            columns.push(Column::new(name.into(), vec![0.0; configs]));
+        }
+        InputTable {
+            path: PathBuf::from("poses.parquet"),
+            df: frame(columns),
+        }
+    }
+
+    #[test]
+    fn too_many_wrenches_for_memory_are_refused_before_any_is_drawn() {
+        let robot = irb1600();
+        let cable_robot = CableRobotSpec::default();
+        let inputs = BTreeMap::from([("poses".to_string(), poses(1_000_000))]);
+        let ctx = StageContext {
+            robot: &robot,
+            cable_robot: &cable_robot,
+            seed: 1,
+            inputs: &inputs,
+            work_dir: Path::new("."),
+            job_dir: Path::new("."),
+            run_date: 0,
+            progress: &NoProgress,
+        };
+        let canonical = WrenchesStage
+            .canonical_settings(&toml::from_str("per_config = 10000").unwrap())
+            .unwrap();
+        // 10^10 wanted wrenches: refused at once, naming the setting and the sizes.
+        let err = StageKind::run(&WrenchesStage, &ctx, &canonical)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.starts_with("setting `per_config`: 1000000 configurations × per_config = 10000 wrenches need about"),
+            "{err}"
+        );
     }
 }
