@@ -272,9 +272,10 @@ impl Stage for PosesStage {
         };
         let outcome = generate(ctx.robot, &nominal, &problem, ctx.seed, &on_point);
         if outcome.poses.is_empty() {
-            return Err(StageError::Failed(format!(
-                "no reachable collision-free pose at any of the {} target points; rejections: {:?}",
-                outcome.targets, outcome.rejections
+            // The settings put the box where this robot cannot work: bad input.
+            return Err(StageError::Invalid(format!(
+                "no reachable collision-free pose at any of the {} target points of the box at centre_mm = {:?}, edge_mm = {}; rejections: {:?}; move the box into the robot's reach or loosen the filter that rejects most",
+                outcome.targets, settings.centre_mm, settings.edge_mm, outcome.rejections
             )));
         }
         let poses = &outcome.poses;
