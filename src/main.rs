@@ -1,6 +1,7 @@
 //! The `egcal` binary: parses arguments, dispatches to [`egcal::commands`], prints
 //! the result or the error, and exits with the documented code.
 
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -250,12 +251,14 @@ fn main() -> ExitCode {
         Ok(Finished { message, code }) => {
             let message = message.trim_end();
             if !message.is_empty() {
-                println!("{message}");
+                // A reader that stops early (`egcal list-stages | head`) is not an
+                // error of the command: the result stands, nothing to report.
+                let _ = writeln!(std::io::stdout().lock(), "{message}");
             }
             ExitCode::from(code)
         }
         Err(e) => {
-            eprintln!("error: {e}");
+            let _ = writeln!(std::io::stderr().lock(), "error: {e}");
             ExitCode::from(e.exit_code())
         }
     }

@@ -264,3 +264,20 @@ fn every_bad_input_ends_in_a_clear_error() {
         problems.join("\n\n")
     );
 }
+
+/// `egcal list-stages | head` closes the pipe before egcal writes: the result
+/// stands and nothing panics.
+#[test]
+fn a_reader_that_stops_early_is_not_an_error() {
+    let mut child = common::egcal()
+        .arg("list-stages")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("egcal starts");
+    drop(child.stdout.take());
+    let output = child.wait_with_output().expect("egcal ends");
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(0), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}

@@ -2,6 +2,7 @@
 //! otherwise (CI logs, cron mail), nothing with `--quiet`.
 
 use std::io::IsTerminal;
+use std::io::Write;
 use std::sync::Mutex;
 use std::time::Instant;
 
@@ -36,7 +37,10 @@ impl Reporter {
     pub fn line(&self, message: &str) {
         match &self.mode {
             Mode::Quiet => {}
-            Mode::Lines => eprintln!("{message}"),
+            // A closed log pipe must not stop the run (eprintln! would panic).
+            Mode::Lines => {
+                let _ = writeln!(std::io::stderr().lock(), "{message}");
+            }
             Mode::Bars(multi) => {
                 let _ = multi.println(message);
             }
