@@ -311,6 +311,16 @@ fn owner(_: &fs::Metadata) -> Option<u32> {
     None
 }
 
+/// Whether process `pid` may still own a file it last changed at `modified`
+/// (a lock file, a temp): alive, not a zombie, and not a later process that
+/// reused the pid. Where `/proc` cannot tell, only its entry is looked at.
+pub fn owner_alive(pid: u32, modified: SystemTime) -> bool {
+    match Processes::visible() {
+        Some(processes) => processes.wrote(pid, modified),
+        None => std::path::Path::new(&format!("/proc/{pid}")).exists(),
+    }
+}
+
 /// What `/proc` says about processes, when it can see all of them.
 struct Processes {
     /// Wall-clock time of boot, whole seconds (rounded down, so start times

@@ -1,6 +1,7 @@
 //! One run per output folder at a time: a lock file holding the owner's pid,
 //! created exclusively. A lock left by a process that no longer exists (killed,
-//! Ctrl-C) is taken over with a message instead of blocking the next run forever.
+//! Ctrl-C), or whose pid a later process reuses, is taken over with a message
+//! instead of blocking the next run forever.
 
 use std::fs::{self, OpenOptions};
 use std::io::Write;
@@ -41,8 +42,14 @@ impl RunLock {
                 }
                 Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {
                     let owner = fs::read_to_string(&path).unwrap_or_default();
+                    let written = fs::metadata(&path)
+                        .and_then(|m| m.modified())
+                        .unwrap_or_else(|_| std::time::SystemTime::now());
                     match owner.trim().parse::<u32>() {
-                        Ok(pid) if process_alive(pid) && pid != std::process::id() => {
+                        Ok(pid)
+                            if pid != std::process::id()
+                                && crate::fsio::sweep::owner_alive(pid, written) =>
+                        {
                             return Err(LockError::Held {
                                 pid,
                                 dir: dir.to_path_buf(),
@@ -50,7 +57,7 @@ impl RunLock {
                         }
                         _ => {
                             on_stale(&format!(
-                                "taking over a stale lock {} (owner pid {} is gone)",
+                                "taking over a stale lock {} (its owner, pid {}, is no longer running)",
                                 path.display(),
                                 owner.trim()
                             ));
@@ -72,11 +79,6 @@ impl Drop for RunLock {
     fn drop(&mut self) {
         let _ = fs::remove_file(&self.path);
     }
-}
-
-/// Whether a process with this pid exists (Linux: its /proc entry).
-fn process_alive(pid: u32) -> bool {
-    Path::new(&format!("/proc/{pid}")).exists()
 }
 
 #[cfg(test)]
@@ -104,5 +106,27 @@ mod tests {
         fs::write(other.path().join("lock"), "1\n").unwrap();
         let err = RunLock::acquire(other.path(), |_| {}).unwrap_err();
         assert!(err.to_string().contains("pid 1"), "{err}");
+    }
+
+    #[test]
+    fn a_lock_older_than_its_pid_s_process_was_left_by_another_one() {
+        if !Path::new("/proc/1/stat").exists() {
+            return; // no /proc: only the pid's existence is known
+        }
+        // Pid 1 exists, but it started after 1970: the lock's writer had the pid
+        // before it was reused.
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("lock");
+        fs::write(&path, "1\n").unwrap();
+        fs::File::options()
+            .write(true)
+            .open(&path)
+            .unwrap()
+            .set_modified(std::time::UNIX_EPOCH + std::time::Duration::from_secs(1000))
+            .unwrap();
+        let messages = RefCell::new(Vec::new());
+        let _lock =
+            RunLock::acquire(dir.path(), |m| messages.borrow_mut().push(m.to_string())).unwrap();
+        assert!(messages.borrow()[0].contains("stale lock"));
     }
 }
