@@ -5,7 +5,7 @@ Arguments are faults, NAME=VALUE:
   joints=[...]                   what `read_joints` returns (JSON)
   wrench=[...]                   what `read_wrench` returns (JSON)
   position=[...]                 what `measure` returns (JSON)
-  measure=exit3|kill9|wrong_id   how to fail at the first `measure`
+  measure=exit3|kill9|wrong_id|silent   how to fail at the first `measure`
 Without faults it reads back the commanded joints, a zero wrench and a fixed
 position.
 """
@@ -39,6 +39,8 @@ for line in sys.stdin:
             sys.exit(3)
         if fault == "kill9":
             os.kill(os.getpid(), signal.SIGKILL)
+        if fault == "silent":
+            continue
         if fault == "wrong_id":
             rid += 7
         result = {"position_mm": json.loads(faults.get("position", "[1000.0, 0.0, 1000.0]"))}
