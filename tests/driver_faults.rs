@@ -74,30 +74,10 @@ for line in sys.stdin:
 /// (cw_id 1..=15) into `dir`, with `command` and further settings.
 fn job(dir: &Path, command: &str, settings: &str) -> PathBuf {
     std::fs::write(dir.join("driver.py"), FAULTY_DRIVER).unwrap();
-    let root = common::root();
-    let text = format!(
-        r#"[job]
-name = "faults"
-seed = 3
-robot = "{robot}"
-output = "out"
-
-[[stages]]
-id = "measure"
-kind = "measure"
-inputs = {{ conf_wrenches = "{rows}" }}
-driver = "external"
-command = {command}
-{settings}
-"#,
-        robot = root.join("jobs/robots/irb1600_145.toml").display(),
-        rows = root
-            .join("fixtures/measure/noiseless_simulator/conf_wrenches.parquet")
-            .display(),
-    );
-    let path = dir.join("job.toml");
-    std::fs::write(&path, text).unwrap();
-    path
+    common::measure_job(
+        dir,
+        &format!("driver = \"external\"\ncommand = {command}\n{settings}"),
+    )
 }
 
 /// A job whose driver misbehaves in `mode` on row `bad_row`.

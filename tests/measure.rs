@@ -8,33 +8,6 @@ use std::path::Path;
 
 use egcal::table;
 
-/// A job measuring the fixture's conf-wrench rows with the given measure settings.
-fn measure_job(dir: &Path, settings: &str) -> std::path::PathBuf {
-    let root = common::root();
-    let text = format!(
-        r#"[job]
-name = "campaign"
-seed = 3
-robot = "{robot}"
-output = "out"
-
-[[stages]]
-id = "measure"
-kind = "measure"
-inputs = {{ conf_wrenches = "{rows}", truth = "{truth}" }}
-{settings}
-"#,
-        robot = root.join("jobs/robots/irb1600_145.toml").display(),
-        rows = root
-            .join("fixtures/measure/noiseless_simulator/conf_wrenches.parquet")
-            .display(),
-        truth = root.join("jobs/truth/irb1600_paper.parquet").display(),
-    );
-    let path = dir.join("job.toml");
-    std::fs::write(&path, text).unwrap();
-    path
-}
-
 fn measurements(dir: &Path) -> polars::prelude::DataFrame {
     table::read_parquet(&dir.join("out/measure/measurements.parquet")).unwrap()
 }
@@ -42,7 +15,7 @@ fn measurements(dir: &Path) -> polars::prelude::DataFrame {
 #[test]
 fn external_driver_gives_the_same_rows_as_the_in_process_simulator() {
     let inproc = tempfile::tempdir().unwrap();
-    let job = measure_job(inproc.path(), "seed = 42");
+    let job = common::measure_job(inproc.path(), "seed = 42");
     let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], inproc.path());
     assert_eq!(code, 0, "{stderr}");
 
@@ -57,7 +30,7 @@ fn external_driver_gives_the_same_rows_as_the_in_process_simulator() {
             .join("jobs/truth/irb1600_paper.parquet")
             .display(),
     );
-    let job = measure_job(external.path(), &driver);
+    let job = common::measure_job(external.path(), &driver);
     let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], external.path());
     assert_eq!(code, 0, "{stderr}");
     let (a, b) = (measurements(inproc.path()), measurements(external.path()));
@@ -100,7 +73,7 @@ fn a_campaign_interrupted_by_driver_death_resumes_without_duplicates_or_losses()
     let script = dir.path().join("driver.py");
     std::fs::write(&script, DYING_DRIVER).unwrap();
     let job_with_limit = |limit: usize| {
-        measure_job(
+        common::measure_job(
             dir.path(),
             &format!(
                 "driver = \"external\"\ncommand = [\"python3\", \"{}\", \"{limit}\"]",
@@ -135,7 +108,7 @@ fn a_campaign_interrupted_by_driver_death_resumes_without_duplicates_or_losses()
 #[test]
 fn transient_failures_are_retried_then_recorded_without_stopping() {
     let dir = tempfile::tempdir().unwrap();
-    let job = measure_job(
+    let job = common::measure_job(
         dir.path(),
         "retries = 1\n[stages.simulator]\nbeam_loss_probability = 0.5",
     );
@@ -190,7 +163,7 @@ fn a_driver_timeout_fails_that_row_only_and_late_replies_are_ignored() {
     let dir = tempfile::tempdir().unwrap();
     let script = dir.path().join("driver.py");
     std::fs::write(&script, SLOW_DRIVER).unwrap();
-    let job = measure_job(
+    let job = common::measure_job(
         dir.path(),
         &format!(
             "driver = \"external\"\ncommand = [\"python3\", \"{}\"]\ntimeout_s = 1.5\nretries = 0",
@@ -279,7 +252,7 @@ fn a_garbage_reply_stops_the_campaign_with_a_clear_error_and_keeps_every_measure
         ("binary", "\"\u{fffd}\u{fffd}\\0\\u{1} garbage\""),
     ] {
         let dir = tempfile::tempdir().unwrap();
-        let job = measure_job(dir.path(), &garbage_driver_settings(dir.path(), mode, 4));
+        let job = common::measure_job(dir.path(), &garbage_driver_settings(dir.path(), mode, 4));
         let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
         assert_eq!(code, 3, "{mode}: {stderr}");
         for expected in [
@@ -295,7 +268,7 @@ fn a_garbage_reply_stops_the_campaign_with_a_clear_error_and_keeps_every_measure
         assert!(!dir.path().join("out/measure/measurements.parquet").exists());
 
         // A fixed driver resumes after the 3 rows; none is measured twice or lost.
-        let job = measure_job(dir.path(), &garbage_driver_settings(dir.path(), "none", 0));
+        let job = common::measure_job(dir.path(), &garbage_driver_settings(dir.path(), "none", 0));
         let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
         assert_eq!(code, 0, "{mode}: {stderr}");
         assert!(
@@ -319,7 +292,7 @@ fn an_unsafe_wrench_is_refused_before_the_move_and_the_rows_before_it_are_kept()
     let dir = tempfile::tempdir().unwrap();
     let driver = garbage_driver_settings(dir.path(), "none", 0);
     // cw_id 9 asks for fx = −118.8 N, beyond a 114 N bound; rows 1–8 are within it.
-    let job = measure_job(dir.path(), &format!("{driver}\nmax_force_n = 114.0"));
+    let job = common::measure_job(dir.path(), &format!("{driver}\nmax_force_n = 114.0"));
     let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
     assert_eq!(code, 3, "{stderr}");
     assert!(
@@ -331,7 +304,7 @@ fn an_unsafe_wrench_is_refused_before_the_move_and_the_rows_before_it_are_kept()
     // The driver never saw the unsafe row.
     assert_eq!(moves(dir.path()), (1..=8).collect::<Vec<i64>>());
 
-    let job = measure_job(dir.path(), &driver);
+    let job = common::measure_job(dir.path(), &driver);
     let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
     assert_eq!(code, 0, "{stderr}");
     assert!(

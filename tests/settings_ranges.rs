@@ -195,22 +195,22 @@ fn the_unmodified_job_checks_clean() {
 fn stage_on_files_names_the_settings_file_and_key() {
     let dir = tempfile::tempdir().unwrap();
     let settings = dir.path().join("poses.toml");
-    std::fs::write(&settings, "edge_mm = -300.0\nroll_half_range_deg = nan\n").unwrap();
     let robot = common::root().join("jobs/robots/irb1600_145.toml");
-    let (code, stdout, stderr) = common::run(
-        &[
-            "stage",
-            "poses",
-            "--robot",
-            robot.to_str().unwrap(),
+    let out = dir.path().join("out");
+    let poses_with = |text: &str| {
+        std::fs::write(&settings, text).unwrap();
+        let args = ["stage", "poses", "--robot", robot.to_str().unwrap()];
+        let files = [
             "--settings",
             settings.to_str().unwrap(),
             "--out",
-            dir.path().join("out").to_str().unwrap(),
-        ],
-        dir.path(),
-    );
-    assert_eq!(code, 2, "{stdout}{stderr}");
+            out.to_str().unwrap(),
+        ];
+        let (code, _, stderr) = common::run(&[&args[..], &files[..]].concat(), dir.path());
+        assert_eq!(code, 2, "{stderr}");
+        stderr
+    };
+    let stderr = poses_with("edge_mm = -300.0\nroll_half_range_deg = nan\n");
     assert!(
         stderr.contains(&format!(
             "{}: roll_half_range_deg: `roll_half_range_deg` is nan; expected a finite number",
@@ -218,22 +218,7 @@ fn stage_on_files_names_the_settings_file_and_key() {
         )),
         "{stderr}"
     );
-
-    std::fs::write(&settings, "edge_mm = -300.0\n").unwrap();
-    let (code, _, stderr) = common::run(
-        &[
-            "stage",
-            "poses",
-            "--robot",
-            robot.to_str().unwrap(),
-            "--settings",
-            settings.to_str().unwrap(),
-            "--out",
-            dir.path().join("out").to_str().unwrap(),
-        ],
-        dir.path(),
-    );
-    assert_eq!(code, 2, "{stderr}");
+    let stderr = poses_with("edge_mm = -300.0\n");
     assert!(
         stderr.contains(&format!(
             "{}: edge_mm: `edge_mm` is -300; expected > 0 (range (0, 100000])",

@@ -91,3 +91,30 @@ inputs = {{ conf_wrenches = "{fixture}" }}
     std::fs::write(&path, text).expect("write job");
     path
 }
+
+/// A job measuring the fixture's conf-wrench rows with the given measure settings.
+pub fn measure_job(dir: &Path, settings: &str) -> std::path::PathBuf {
+    let root = root();
+    let text = format!(
+        r#"[job]
+name = "campaign"
+seed = 3
+robot = "{robot}"
+output = "out"
+
+[[stages]]
+id = "measure"
+kind = "measure"
+inputs = {{ conf_wrenches = "{rows}", truth = "{truth}" }}
+{settings}
+"#,
+        robot = root.join("jobs/robots/irb1600_145.toml").display(),
+        rows = root
+            .join("fixtures/measure/noiseless_simulator/conf_wrenches.parquet")
+            .display(),
+        truth = root.join("jobs/truth/irb1600_paper.parquet").display(),
+    );
+    let path = dir.join("job.toml");
+    std::fs::write(&path, text).expect("write job");
+    path
+}
