@@ -950,6 +950,139 @@ pub fn predictions() -> TableSchema {
     }
 }
 
+/// Orientation columns of `targets` (spec §7): world←tool = Rot(x, rx)·Rot(y, ry)·Rot(z, rz).
+pub const ORIENTATION_COLUMNS: [&str; 3] = ["rx_deg", "ry_deg", "rz_deg"];
+/// The corrected Cartesian target of `commands` (spec §7), robot base frame.
+pub const COMMAND_POSITION_COLUMNS: [&str; 3] = ["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"];
+/// Its orientation as a unit quaternion (w, x, y, z), base←tool.
+pub const COMMAND_QUATERNION_COLUMNS: [&str; 4] = ["qw_cmd", "qx_cmd", "qy_cmd", "qz_cmd"];
+
+/// `targets` (spec §7): where the tool must be, and the wrench on it there.
+pub fn targets() -> TableSchema {
+    let mut columns = vec![col(
+        "target_id",
+        ColumnType::Int64,
+        "",
+        true,
+        "target id, unique; commands keep it",
+    )];
+    for name in POSITION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm",
+            true,
+            "tool point in the tracker (world) frame",
+        ));
+    }
+    for name in ORIENTATION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "deg",
+            true,
+            "tool orientation in the world frame: world←tool = Rot(x, rx)·Rot(y, ry)·Rot(z, rz)",
+        ));
+    }
+    for name in WRENCH_COLUMNS {
+        let unit = if name.starts_with('f') { "N" } else { "N·m" };
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            unit,
+            false,
+            "wrench on the robot at this target, tool axes, at the tool origin (0 when absent)",
+        ));
+    }
+    for name in JOINT_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "deg",
+            false,
+            "a configuration near the wanted one (branch hint)",
+        ));
+    }
+    TableSchema {
+        kind: "targets",
+        description: "Where the tool must be (spec §7): what a `compensate` stage reads.",
+        columns,
+        unique: Some("target_id"),
+    }
+}
+
+/// `commands` (spec §7): the joint command per target and what it corrects.
+pub fn commands() -> TableSchema {
+    let mut columns = vec![col(
+        "target_id",
+        ColumnType::Int64,
+        "",
+        true,
+        "the target's id",
+    )];
+    for name in JOINT_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "deg",
+            true,
+            "joint command that puts the calibrated, loaded robot's tool on the target (status ok); the solver's last iterate otherwise",
+        ));
+    }
+    columns.push(col(
+        "status",
+        ColumnType::Utf8,
+        "",
+        true,
+        "ok, or why not: unreachable, joint_limit, singular, not_converged",
+    ));
+    columns.push(col(
+        "residual_mm",
+        ColumnType::Float64,
+        "mm",
+        true,
+        "position error the solve left at the target",
+    ));
+    columns.push(col(
+        "correction_mm",
+        ColumnType::Float64,
+        "mm",
+        true,
+        "distance between where the nominal model puts this command and the target",
+    ));
+    columns.push(col(
+        "elastic_mm",
+        ColumnType::Float64,
+        "mm",
+        true,
+        "the part of the correction due to the load",
+    ));
+    for name in COMMAND_POSITION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm",
+            true,
+            "corrected Cartesian target for a controller with its nominal model: nominal FK of the command, nominal flange→tool, robot base frame",
+        ));
+    }
+    for name in COMMAND_QUATERNION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "",
+            true,
+            "orientation of the corrected Cartesian target, unit quaternion (w, x, y, z), base←tool",
+        ));
+    }
+    TableSchema {
+        kind: "commands",
+        description: "Joint commands per target and the corrected Cartesian targets (spec §7): what `compensate` writes.",
+        columns,
+        unique: Some("target_id"),
+    }
+}
+
 pub const TORQUE_COLUMNS: [&str; 6] = [
     "tau1_nm", "tau2_nm", "tau3_nm", "tau4_nm", "tau5_nm", "tau6_nm",
 ];
@@ -1143,6 +1276,8 @@ pub fn all() -> Vec<TableSchema> {
         measurement_failures(),
         parameters(),
         predictions(),
+        targets(),
+        commands(),
         selection(),
         identification_trace(),
         residuals(),
