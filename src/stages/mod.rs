@@ -6,6 +6,7 @@
 //! (serde + JSON Schema + defaults) is the single source for job-file parsing,
 //! `egcal list-stages`, the job-file JSON Schema and the cache key.
 
+pub mod accuracy;
 pub mod budget;
 pub mod gate;
 pub mod identifiability;
@@ -389,6 +390,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &validate::ValidateStage,
         &gate::GateStage,
         &predict::PredictStage,
+        &accuracy::AccuracyStage,
         &report::ReportStage,
     ]
 }

@@ -773,6 +773,65 @@ pub fn stats() -> TableSchema {
     }
 }
 
+/// Output of `accuracy`: the error the robot achieved at each target.
+pub fn target_errors() -> TableSchema {
+    let mut columns = vec![
+        col("target_id", ColumnType::Int64, "", true, "the target's id"),
+        col(
+            "run",
+            ColumnType::Utf8,
+            "",
+            true,
+            "which measured run: achieved, or baseline (the same targets without compensation)",
+        ),
+    ];
+    for (name, meaning) in [
+        ("ex_mm", "x error (measured − target), world frame"),
+        ("ey_mm", "y error, world frame"),
+        ("ez_mm", "z error, world frame"),
+        ("error_mm", "Euclidean norm of the error"),
+    ] {
+        columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
+    }
+    TableSchema {
+        kind: "target_errors",
+        description: "Position error the robot achieved at each target (measured tool point − target).",
+        columns,
+        unique: None,
+    }
+}
+
+/// Output of `accuracy`: statistics of the achieved errors per run.
+pub fn target_stats() -> TableSchema {
+    let mut columns = vec![
+        col("run", ColumnType::Utf8, "", true, "achieved or baseline"),
+        col("n", ColumnType::Int64, "", true, "targets measured"),
+        col(
+            "missing",
+            ColumnType::Int64,
+            "",
+            true,
+            "targets without a measurement in this run (not commanded, or failed)",
+        ),
+    ];
+    for (name, meaning) in [
+        ("mean_mm", "mean error norm"),
+        ("std_mm", "sample standard deviation (n − 1)"),
+        ("median_mm", "median"),
+        ("rms_mm", "root mean square"),
+        ("p95_mm", "95th percentile (linear interpolation)"),
+        ("max_mm", "maximum"),
+    ] {
+        columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
+    }
+    TableSchema {
+        kind: "target_stats",
+        description: "Statistics of the achieved error norms per run.",
+        columns,
+        unique: Some("run"),
+    }
+}
+
 /// Hypothesis tests between models on the same rows.
 pub fn tests() -> TableSchema {
     TableSchema {
@@ -1278,6 +1337,8 @@ pub fn all() -> Vec<TableSchema> {
         predictions(),
         targets(),
         commands(),
+        target_errors(),
+        target_stats(),
         selection(),
         identification_trace(),
         residuals(),
