@@ -12,6 +12,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::identify::measured_rows;
+use super::validate::TestColumns;
 use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
 use crate::stats;
 use crate::table::frame;
@@ -23,6 +24,8 @@ pub struct AccuracyStage;
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct AccuracySettings {}
+
+type TwoSampleTest = fn(&[f64], &[f64]) -> Result<stats::TestResult, stats::StatsError>;
 
 static INFO: StageInfo = StageInfo {
     kind: "accuracy",
@@ -61,7 +64,13 @@ static INFO: StageInfo = StageInfo {
             name: "target_stats",
             schema: schema::target_stats,
             required: true,
-            meaning: "per run: n, missing, mean, std, median, rms, p95, max",
+            meaning: "per run, over the targets every run reached: n, missing, mean, std, median, rms, p95, max",
+        },
+        TableSlot {
+            name: "tests",
+            schema: schema::tests,
+            required: true,
+            meaning: "with a baseline: paired t and Wilcoxon tests of achieved against baseline error norms (empty without)",
         },
     ],
 };
@@ -80,26 +89,54 @@ impl Stage for AccuracyStage {
             runs.push(("baseline", baseline));
         }
         let mut errors = ErrorColumns::default();
+        let mut norms_by_run = Vec::with_capacity(runs.len());
+        for (run, table) in &runs {
+            norms_by_run.push(run_errors(run, table, &targets.points, &mut errors)?);
+        }
+        // Compared on the targets every run reached: a compensation that
+        // leaves out its unreachable targets must not look better for it.
+        let compared: Vec<i64> = targets
+            .order
+            .iter()
+            .copied()
+            .filter(|id| norms_by_run.iter().all(|norms| norms.contains_key(id)))
+            .collect();
         let mut outputs = StageOutputs::default();
         let mut stats_columns = StatsColumns::default();
-        for (run, table) in runs {
-            let norms = run_errors(run, table, &targets, &mut errors)?;
-            let summary = stats::summary(&norms).map_err(|e| {
+        let mut compared_norms = Vec::with_capacity(runs.len());
+        for ((run, table), norms) in runs.iter().zip(&norms_by_run) {
+            let values: Vec<f64> = compared.iter().map(|id| norms[id]).collect();
+            let summary = stats::summary(&values).map_err(|e| {
                 StageError::Invalid(format!(
-                    "{}: {run}: {e} (rows whose cw_id is a target_id)",
+                    "{}: {run}: {e} (targets measured in every run)",
                     table.path.display()
                 ))
             })?;
-            let missing = targets.len() - norms.len();
+            let missing = targets.order.len() - norms.len();
             stats_columns.push(run, &summary, missing);
             outputs.facts.insert(
                 format!("{run}_mean_mm"),
                 format!("{:.4} over {} targets", summary.mean, summary.n),
             );
             ctx.progress.note(&format!(
-                "{run}: mean {:.4} mm, max {:.4} mm over {} targets ({missing} missing)",
+                "{run}: mean {:.4} mm, max {:.4} mm over {} targets ({missing} not measured)",
                 summary.mean, summary.max, summary.n
             ));
+            compared_norms.push(values);
+        }
+        let mut tests = TestColumns::default();
+        if let [achieved, baseline] = compared_norms.as_slice() {
+            for (name, test) in [
+                ("paired_t", stats::paired_t as TwoSampleTest),
+                ("wilcoxon", stats::wilcoxon_signed_rank),
+            ] {
+                match test(achieved, baseline) {
+                    Ok(result) => tests.push("achieved", "baseline", name, &result),
+                    Err(err) => ctx
+                        .progress
+                        .note(&format!("{name} achieved vs baseline: {err}")),
+                }
+            }
         }
         outputs
             .tables
@@ -107,34 +144,47 @@ impl Stage for AccuracyStage {
         outputs
             .tables
             .insert("target_stats".into(), stats_columns.into_frame());
+        outputs.tables.insert("tests".into(), tests.into_frame());
         Ok(outputs)
     }
 }
 
-/// Target id → target point (world frame, mm).
-fn target_points(table: &InputTable) -> Result<HashMap<i64, Vector3<f64>>, StageError> {
+/// The targets' points (world frame, mm) and their order in the table.
+struct TargetPoints {
+    points: HashMap<i64, Vector3<f64>>,
+    order: Vec<i64>,
+}
+
+fn target_points(table: &InputTable) -> Result<TargetPoints, StageError> {
     let ids = i64_values(&table.df, "target_id", &table.path)?;
     let axes = POSITION_COLUMNS
         .iter()
         .map(|c| f64_values(&table.df, c, &table.path))
         .collect::<Result<Vec<_>, _>>()?;
-    Ok(ids
-        .iter()
-        .enumerate()
-        .map(|(k, id)| (*id, Vector3::new(axes[0][k], axes[1][k], axes[2][k])))
-        .collect())
+    let mut points = HashMap::with_capacity(ids.len());
+    for (k, id) in ids.iter().enumerate() {
+        let point = Vector3::new(axes[0][k], axes[1][k], axes[2][k]);
+        if points.insert(*id, point).is_some() {
+            return Err(StageError::Invalid(format!(
+                "{}: row {k}: target_id {id} appears twice",
+                table.path.display()
+            )));
+        }
+    }
+    Ok(TargetPoints { points, order: ids })
 }
 
-/// Appends one run's errors; returns their norms. A measured row whose cw_id is
-/// no target is bad input: the run was not of these targets.
+/// Appends one run's errors; returns each target's error norm. A measured row
+/// whose cw_id is no target is bad input (the run was not of these targets),
+/// and so is a target measured twice (which of the two was achieved?).
 fn run_errors(
     run: &'static str,
     table: &InputTable,
     targets: &HashMap<i64, Vector3<f64>>,
     errors: &mut ErrorColumns,
-) -> Result<Vec<f64>, StageError> {
+) -> Result<HashMap<i64, f64>, StageError> {
     let rows = measured_rows(table, None)?;
-    let mut norms = Vec::with_capacity(rows.ids.len());
+    let mut norms = HashMap::with_capacity(rows.ids.len());
     for (k, id) in rows.ids.iter().enumerate() {
         let target = targets.get(id).ok_or_else(|| {
             StageError::Invalid(format!(
@@ -144,13 +194,19 @@ fn run_errors(
             ))
         })?;
         let error = rows.positions[k] - target;
+        if norms.insert(*id, error.norm()).is_some() {
+            return Err(StageError::Invalid(format!(
+                "{}: row {}: target {id} was measured twice; keep one row per target",
+                table.path.display(),
+                rows.file_rows[k]
+            )));
+        }
         errors.target_id.push(*id);
         errors.run.push(run);
         errors.ex.push(error.x);
         errors.ey.push(error.y);
         errors.ez.push(error.z);
         errors.norm.push(error.norm());
-        norms.push(error.norm());
     }
     Ok(norms)
 }

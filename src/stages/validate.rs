@@ -159,14 +159,7 @@ impl Stage for ValidateStage {
             for (model_b, b) in &norms[i + 1..] {
                 for (name, test) in &tests {
                     match test(a, b) {
-                        Ok(result) => {
-                            t.model_a.push(model_a.as_str());
-                            t.model_b.push(model_b.as_str());
-                            t.test.push(*name);
-                            t.statistic.push(result.statistic);
-                            t.dof.push(result.dof);
-                            t.p_value.push(result.p_value);
-                        }
+                        Ok(result) => t.push(model_a.as_str(), model_b.as_str(), *name, &result),
                         Err(err) => ctx
                             .progress
                             .note(&format!("{name} {model_a} vs {model_b}: {err}")),
@@ -245,8 +238,9 @@ impl StatsColumns {
     }
 }
 
+/// Rows of a `tests` table (also written by `accuracy`).
 #[derive(Default)]
-struct TestColumns {
+pub(super) struct TestColumns {
     model_a: Vec<&'static str>,
     model_b: Vec<&'static str>,
     test: Vec<&'static str>,
@@ -256,7 +250,22 @@ struct TestColumns {
 }
 
 impl TestColumns {
-    fn into_frame(self) -> polars::prelude::DataFrame {
+    pub(super) fn push(
+        &mut self,
+        model_a: &'static str,
+        model_b: &'static str,
+        test: &'static str,
+        result: &TestResult,
+    ) {
+        self.model_a.push(model_a);
+        self.model_b.push(model_b);
+        self.test.push(test);
+        self.statistic.push(result.statistic);
+        self.dof.push(result.dof);
+        self.p_value.push(result.p_value);
+    }
+
+    pub(super) fn into_frame(self) -> polars::prelude::DataFrame {
         frame(vec![
             Column::new("model_a".into(), self.model_a),
             Column::new("model_b".into(), self.model_b),

@@ -805,7 +805,13 @@ pub fn target_errors() -> TableSchema {
 pub fn target_stats() -> TableSchema {
     let mut columns = vec![
         col("run", ColumnType::Utf8, "", true, "achieved or baseline"),
-        col("n", ColumnType::Int64, "", true, "targets measured"),
+        col(
+            "n",
+            ColumnType::Int64,
+            "",
+            true,
+            "targets compared: those measured in every run of the stage",
+        ),
         col(
             "missing",
             ColumnType::Int64,
