@@ -159,7 +159,7 @@ impl Stage for ValidateStage {
             for (model_b, b) in &norms[i + 1..] {
                 for (name, test) in &tests {
                     match test(a, b) {
-                        Ok(result) => t.push(model_a.as_str(), model_b.as_str(), *name, &result),
+                        Ok(result) => t.push(model_a.as_str(), model_b.as_str(), name, &result),
                         Err(err) => ctx
                             .progress
                             .note(&format!("{name} {model_a} vs {model_b}: {err}")),
