@@ -4,6 +4,7 @@
 pub mod calibration;
 pub mod cdpr;
 pub mod commands;
+pub mod compensation;
 pub mod design;
 pub mod fsio;
 pub mod gate;

@@ -76,7 +76,8 @@ fn joints_problem(robot: &Robot, row: &ConfWrench) -> Option<String> {
     None
 }
 
-fn wrench_problem(row: &ConfWrench) -> Option<String> {
+/// Why a row's wrench is absurd (a force or moment beyond the bounds above).
+pub fn wrench_problem(row: &ConfWrench) -> Option<String> {
     let force = row.wrench.force_n.norm();
     if force.is_nan() || force > MAX_FORCE_N {
         return Some(format!(

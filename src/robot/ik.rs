@@ -290,34 +290,99 @@ pub fn solve_loaded(
     seed_deg: &[f64; JOINTS],
     options: &NumericOptions,
 ) -> Result<[f64; JOINTS], IkError> {
-    let mut q = damped_least_squares(
+    solve_loaded_iterate(robot, p, wrench, tool_in_world, seed_deg, options).into_result(options)
+}
+
+/// [`solve_loaded`] that also returns where it stopped when it did not converge:
+/// a caller that reports per row (compensation) keeps the last iterate and its
+/// errors instead of an error value.
+pub fn solve_loaded_iterate(
+    robot: &Robot,
+    p: &ParamValues,
+    wrench: &Wrench,
+    tool_in_world: &Frame,
+    seed_deg: &[f64; JOINTS],
+    options: &NumericOptions,
+) -> Iterate {
+    let mut iterate = damped_least_squares(
         |q| deflected_tool_and_joints(robot, p, q, wrench),
         tool_in_world,
         seed_deg,
         options,
-    )?;
+    );
     // The same configuration, in the turn of each joint nearest the seed.
-    for i in 0..JOINTS {
-        q[i] -= 360.0 * ((q[i] - seed_deg[i]) / 360.0).round();
+    for (q, seed) in iterate.q_deg.iter_mut().zip(seed_deg) {
+        *q -= 360.0 * ((*q - seed) / 360.0).round();
     }
-    Ok(q)
+    iterate
+}
+
+/// Where the damped least-squares solver stopped.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Iterate {
+    /// The last accepted joint vector (deg): the seed or a step that lowered a
+    /// finite error, so it is finite whenever the seed is.
+    pub q_deg: [f64; JOINTS],
+    pub position_error_mm: f64,
+    pub orientation_error_rad: f64,
+    /// Both errors below the tolerances.
+    pub converged: bool,
+    /// Not converged because no damped step lowered the error any more (a local
+    /// minimum of the pose error, e.g. the arm stretched towards a point beyond
+    /// its reach) or the error was not finite, rather than because the
+    /// iterations ran out.
+    pub stalled: bool,
+    pub iterations: usize,
+}
+
+impl Iterate {
+    fn into_result(self, options: &NumericOptions) -> Result<[f64; JOINTS], IkError> {
+        if self.converged {
+            Ok(self.q_deg)
+        } else {
+            Err(IkError::NotConverged {
+                iterations: options.max_iterations,
+                position_error_mm: self.position_error_mm,
+                orientation_error_rad: self.orientation_error_rad,
+            })
+        }
+    }
+}
+
+/// The geometric Jacobian (6×6) at the tool of a chain given in one frame: a
+/// joint's column is its axis's moment about the tool (mm/rad), then its axis
+/// scaled by [`RAD_AS_MM`], so position and orientation rows weigh alike.
+pub(crate) fn scaled_geometric_jacobian(
+    tool: &Frame,
+    joints: &[Frame; JOINTS + 1],
+) -> Matrix6<f64> {
+    let mut jacobian = Matrix6::zeros();
+    for i in 0..JOINTS {
+        let z = joints[i + 1].axis(2);
+        let linear = z.cross(&(tool.origin_mm - joints[i + 1].origin_mm));
+        jacobian.fixed_view_mut::<3, 1>(0, i).copy_from(&linear);
+        jacobian
+            .fixed_view_mut::<3, 1>(3, i)
+            .copy_from(&(z * RAD_AS_MM));
+    }
+    jacobian
 }
 
 /// Orientation in mm-equivalent (1 rad ~ 1000 mm) so both errors count.
-const RAD_AS_MM: f64 = 1000.0;
+pub(crate) const RAD_AS_MM: f64 = 1000.0;
 
 /// Levenberg–Marquardt on the 6-dof error between `target` and the tool frame of
 /// `chain(q)`, which returns the tool and the joint frames 0..=6 in the target's
 /// frame. The step uses the geometric Jacobian of those frames (a joint's column
 /// is its axis and the axis's moment about the tool). A step is accepted only when
-/// it lowers the error. Returns the joint vector (deg, not wrapped) once the
-/// position and orientation errors are below the tolerances.
+/// it lowers the error. Stops with the joint vector (deg, not wrapped) once the
+/// position and orientation errors are below the tolerances, or where it got.
 fn damped_least_squares(
     chain: impl Fn(&[f64; JOINTS]) -> (Frame, [Frame; JOINTS + 1]),
     target: &Frame,
     seed_deg: &[f64; JOINTS],
     options: &NumericOptions,
-) -> Result<[f64; JOINTS], IkError> {
+) -> Iterate {
     let residual = |q: &[f64; JOINTS]| {
         let (tool, joints) = chain(q);
         let position = target.origin_mm - tool.origin_mm;
@@ -334,24 +399,28 @@ fn damped_least_squares(
     let mut q = *seed_deg;
     let (mut tool, mut joints, mut position, mut orientation) = residual(&q);
     let mut lambda = options.damping;
-    for _ in 0..options.max_iterations {
+    let stop = |q, position: &Vector3<f64>, orientation: &Vector3<f64>, stalled, iterations| {
+        let (position_error_mm, orientation_error_rad) = (position.norm(), orientation.norm());
+        Iterate {
+            q_deg: q,
+            position_error_mm,
+            orientation_error_rad,
+            converged: position_error_mm < options.position_tolerance_mm
+                && orientation_error_rad < options.orientation_tolerance_rad,
+            stalled,
+            iterations,
+        }
+    };
+    for iteration in 0..options.max_iterations {
         if !(position.norm().is_finite() && orientation.norm().is_finite()) {
-            break;
+            return stop(q, &position, &orientation, true, iteration);
         }
         if position.norm() < options.position_tolerance_mm
             && orientation.norm() < options.orientation_tolerance_rad
         {
-            return Ok(q);
+            return stop(q, &position, &orientation, false, iteration);
         }
-        let mut jacobian = Matrix6::zeros();
-        for i in 0..JOINTS {
-            let z = joints[i + 1].axis(2);
-            let linear = z.cross(&(tool.origin_mm - joints[i + 1].origin_mm));
-            jacobian.fixed_view_mut::<3, 1>(0, i).copy_from(&linear);
-            jacobian
-                .fixed_view_mut::<3, 1>(3, i)
-                .copy_from(&(z * RAD_AS_MM));
-        }
+        let jacobian = scaled_geometric_jacobian(&tool, &joints);
         let error = stacked(&position, &orientation);
         let jtj = jacobian.transpose() * jacobian;
         let jte = jacobian.transpose() * error;
@@ -379,14 +448,10 @@ fn damped_least_squares(
             lambda = lambda * 10.0 + 1e-9;
         }
         if !accepted {
-            break;
+            return stop(q, &position, &orientation, true, iteration);
         }
     }
-    Err(IkError::NotConverged {
-        iterations: options.max_iterations,
-        position_error_mm: position.norm(),
-        orientation_error_rad: orientation.norm(),
-    })
+    stop(q, &position, &orientation, false, options.max_iterations)
 }
 
 /// Every configuration of the nominal arm that puts the flange at `flange_in_base`,
@@ -464,7 +529,9 @@ pub fn numeric(
         .chain(start_points(robot, options.starts));
     let mut configurations: Vec<[f64; JOINTS]> = Vec::new();
     for start in starts {
-        let Ok(q) = damped_least_squares(chain, flange_in_base, &start, &options.solver) else {
+        let Ok(q) = damped_least_squares(chain, flange_in_base, &start, &options.solver)
+            .into_result(&options.solver)
+        else {
             continue;
         };
         let wrapped = q.map(wrap_deg);

@@ -8,6 +8,7 @@
 
 pub mod accuracy;
 pub mod budget;
+pub mod compensate;
 pub mod gate;
 pub mod identifiability;
 pub mod identify;
@@ -390,6 +391,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &validate::ValidateStage,
         &gate::GateStage,
         &predict::PredictStage,
+        &compensate::CompensateStage,
         &accuracy::AccuracyStage,
         &report::ReportStage,
     ]

@@ -1,0 +1,310 @@
+//! Load-aware compensation: for each Cartesian target, the joint command that
+//! puts the calibrated robot's tool there under the target's wrench, and what a
+//! controller that keeps its nominal model must be sent instead of the target.
+//!
+//! Controllers keep their nominal kinematics, so a calibration pays off only
+//! when someone turns it into motion offline. This module is that step, a pure
+//! function over targets ([`compensate`]); the `compensate` stage only reads and
+//! writes the tables (`../shared/spec/model.md` §7).
+//!
+//! The model is the one `predict` uses ([`Robot::tool_in_world`]): the chosen
+//! parameter set's world and tool frames and geometry errors, and the compliance
+//! deflection under the load torques of gravity (links and the robot file's
+//! payload) plus the target's wrench. So a command is right for the load the
+//! robot carries at that target, not only for its geometry.
+//!
+//! Per target, in three passes (the first and last in parallel):
+//!
+//! 1. **Candidates.** Every configuration of the nominal arm ([`ik::solve`]: the
+//!    closed form where it applies, else the numeric search) for the flange pose
+//!    that puts the tool on the target with the chosen set's world and tool
+//!    frames ([`ik::flange_target_in_base`]). Using the set's frames, not the
+//!    robot file's, keeps the seeds right when the file's `[world]` is far off
+//!    (a tracker put anywhere, spec §7).
+//! 2. **Seed** (sequential, cheap). The target's branch hint (its q columns) when
+//!    given, used as it is. Otherwise the candidate closest (Euclidean distance of
+//!    the joint vectors in degrees) to the previous target's seed, so a path does
+//!    not flip branches; the first target takes the candidate closest to the
+//!    home configuration q = 0. The previous *seed* rather than the previous
+//!    command is the reference so that the solves stay independent (parallel);
+//!    the two differ by the compensation, a fraction of a degree. A target without
+//!    candidates is seeded by its hint, else the previous seed, else q = 0, so
+//!    the solve still reports how close it gets.
+//! 3. **Solve** ([`ik::solve_loaded_iterate`], Levenberg–Marquardt on the
+//!    calibrated loaded model), then the status and the derived values.
+//!
+//! Statuses, first match wins (never NaN, never a clipped command):
+//!
+//! * converged: `joint_limit` when the command lies outside the robot file's
+//!   limits (the command is kept and reported); `singular` when the scaled
+//!   geometric Jacobian's smallest singular value at the command is below the
+//!   threshold ([`Options::singular_sigma_min_mm_per_rad`]: a joint motion of
+//!   1 rad moves the tool less than that along its weakest direction, 1 rad of
+//!   tool rotation counting as 1000 mm); `ok` otherwise;
+//! * not converged: `singular` when the nominal inverse kinematics found the
+//!   pose singular; `unreachable` when the nominal arm has no configuration for
+//!   it within the limits, or the solve stalled (no step lowers the pose error:
+//!   a local minimum such as the arm stretched towards a point beyond its
+//!   reach); `not_converged` when the iterations ran out while it still improved.
+//!
+//! A row that is not `ok` carries the solver's last iterate: the last joint
+//! vector whose step lowered the error (the seed if none did), finite because the
+//! seed is.
+
+use nalgebra::{Rotation3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+
+use crate::robot::frame::{Frame, rot_x, rot_y, rot_z};
+use crate::robot::ik::{self, IkError, IkSolution, NumericOptions};
+use crate::robot::jacobian::deflected_tool_and_joints;
+use crate::robot::{JOINTS, ParamValues, Robot, Wrench};
+
+const DEG: f64 = std::f64::consts::PI / 180.0;
+
+/// One target row: where the tool must be, in the world (tracker) frame, and
+/// the wrench on the robot there.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Target {
+    pub tool_in_world: Frame,
+    /// Applied to the robot, tool axes, at the tool origin.
+    pub wrench: Wrench,
+    /// A configuration near the wanted one (deg), used as the seed.
+    pub hint_deg: Option<[f64; JOINTS]>,
+}
+
+impl Target {
+    /// From the `targets` columns: position (mm) and orientation
+    /// world←tool = Rot(x, rx)·Rot(y, ry)·Rot(z, rz) (deg).
+    pub fn from_columns(
+        position_mm: [f64; 3],
+        orientation_deg: [f64; 3],
+        wrench: Wrench,
+        hint_deg: Option<[f64; JOINTS]>,
+    ) -> Self {
+        let [rx, ry, rz] = orientation_deg.map(|a| a * DEG);
+        Target {
+            tool_in_world: Frame {
+                rotation: rot_x(rx) * rot_y(ry) * rot_z(rz),
+                origin_mm: Vector3::from(position_mm),
+            },
+            wrench,
+            hint_deg,
+        }
+    }
+}
+
+/// Why a command is or is not one to send (see the module doc for the rules).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Status {
+    Ok,
+    Unreachable,
+    JointLimit,
+    Singular,
+    NotConverged,
+}
+
+impl Status {
+    pub const ALL: [Status; 5] = [
+        Status::Ok,
+        Status::Unreachable,
+        Status::JointLimit,
+        Status::Singular,
+        Status::NotConverged,
+    ];
+
+    /// The `status` value of the `commands` table.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Status::Ok => "ok",
+            Status::Unreachable => "unreachable",
+            Status::JointLimit => "joint_limit",
+            Status::Singular => "singular",
+            Status::NotConverged => "not_converged",
+        }
+    }
+}
+
+/// The compensated command for one target.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Command {
+    pub q_deg: [f64; JOINTS],
+    pub status: Status,
+    /// Tool position error the solve left on the calibrated loaded model.
+    pub residual_mm: f64,
+    /// Distance between where the controller's nominal model puts the tool at
+    /// this command and the target: nominal arm, robot file's flange → tool, zero
+    /// compliance (so the wrench moves nothing), placed in the world with the
+    /// chosen set's world frame, because a controller has no world frame of its
+    /// own and the target reaches it through that registration.
+    pub correction_mm: f64,
+    /// The part due to the load: distance between the calibrated model's tool
+    /// position at this command with and without the compliance deflection of
+    /// gravity (links and payload) plus the target's wrench.
+    pub elastic_mm: f64,
+    /// The corrected Cartesian target for a controller with its nominal model:
+    /// nominal forward kinematics of the command with the robot file's flange →
+    /// tool, in the robot base frame.
+    pub tool_in_base_cmd: Frame,
+    /// Its orientation, base←tool, as a unit quaternion (w, x, y, z) with w ≥ 0
+    /// (q and −q are the same rotation; the sign is fixed so the table is
+    /// reproducible).
+    pub quaternion_wxyz_cmd: [f64; 4],
+    /// Smallest singular value of the scaled geometric Jacobian at the command
+    /// (mm/rad), the singularity measure.
+    pub sigma_min_mm_per_rad: f64,
+}
+
+/// Solver tolerances and the singularity threshold.
+#[derive(Debug, Clone, Copy)]
+pub struct Options {
+    pub solver: NumericOptions,
+    /// A converged command whose scaled geometric Jacobian has a smallest
+    /// singular value below this (mm/rad) is `singular`. For the IRB 1600 the
+    /// wrist measure is about 7 mm/rad per degree of q5 near q5 = 0.
+    pub singular_sigma_min_mm_per_rad: f64,
+}
+
+/// The nominal model as the controller sees it, placed in the world by the
+/// chosen set's world frame: robot file's geometry and tool, zero compliance.
+fn controller_model(robot: &Robot, calibrated: &ParamValues) -> ParamValues {
+    let mut values = ParamValues::nominal(robot.spec());
+    values.0[..6].copy_from_slice(&calibrated.0[..6]);
+    values
+}
+
+/// What the nominal inverse kinematics says about one target.
+enum Candidates {
+    Found(Vec<IkSolution>),
+    Singular,
+    None,
+}
+
+fn candidates(robot: &Robot, calibrated: &ParamValues, target: &Target) -> Candidates {
+    let flange = ik::flange_target_in_base(robot, calibrated, &target.tool_in_world);
+    match ik::solve(robot, &flange) {
+        Ok(solutions) => Candidates::Found(solutions),
+        Err(IkError::Singular(_)) => Candidates::Singular,
+        Err(_) => Candidates::None,
+    }
+}
+
+fn distance_deg(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// The seed rule of the module doc, over all targets in order.
+fn seeds(targets: &[Target], candidates: &[Candidates]) -> Vec<[f64; JOINTS]> {
+    let mut previous = [0.0; JOINTS];
+    targets
+        .iter()
+        .zip(candidates)
+        .map(|(target, found)| {
+            let seed = match (target.hint_deg, found) {
+                (Some(hint), _) => hint,
+                (None, Candidates::Found(solutions)) => solutions
+                    .iter()
+                    .map(|s| s.q_deg)
+                    .min_by(|a, b| {
+                        distance_deg(a, &previous).total_cmp(&distance_deg(b, &previous))
+                    })
+                    .unwrap_or(previous),
+                (None, _) => previous,
+            };
+            previous = seed;
+            seed
+        })
+        .collect()
+}
+
+/// Compensates every target with the parameter set `calibrated`; one
+/// [`Command`] per target, in order. An unreachable or singular target does not
+/// affect the others' commands except as the previous seed of an unhinted
+/// successor.
+///
+/// Cost per target: the nominal inverse kinematics (µs for the closed form, ~1 ms
+/// for the numeric search of arms without one) and a few Levenberg–Marquardt
+/// steps on the loaded model; the first and last run in parallel over targets.
+pub fn compensate(
+    robot: &Robot,
+    calibrated: &ParamValues,
+    targets: &[Target],
+    options: &Options,
+) -> Vec<Command> {
+    let found: Vec<Candidates> = targets
+        .par_iter()
+        .map(|t| candidates(robot, calibrated, t))
+        .collect();
+    let seeds = seeds(targets, &found);
+    let controller = controller_model(robot, calibrated);
+    let controller_prepared = robot.prepare(&controller);
+    let calibrated_prepared = robot.prepare(calibrated);
+    targets
+        .par_iter()
+        .zip(&found)
+        .zip(&seeds)
+        .map(|((target, found), seed)| {
+            let iterate = ik::solve_loaded_iterate(
+                robot,
+                calibrated,
+                &target.wrench,
+                &target.tool_in_world,
+                seed,
+                &options.solver,
+            );
+            let q = iterate.q_deg;
+            let (tool, joints) = deflected_tool_and_joints(robot, calibrated, &q, &target.wrench);
+            let sigma_min_mm_per_rad = ik::scaled_geometric_jacobian(&tool, &joints)
+                .singular_values()
+                .min();
+            let status = if iterate.converged {
+                if !robot.within_limits(&q) {
+                    Status::JointLimit
+                } else if sigma_min_mm_per_rad < options.singular_sigma_min_mm_per_rad {
+                    Status::Singular
+                } else {
+                    Status::Ok
+                }
+            } else {
+                match found {
+                    Candidates::Singular => Status::Singular,
+                    Candidates::None => Status::Unreachable,
+                    Candidates::Found(_) if iterate.stalled => Status::Unreachable,
+                    Candidates::Found(_) => Status::NotConverged,
+                }
+            };
+            let unloaded = calibrated_prepared.chain(&q, &[0.0; JOINTS]).tool;
+            let elastic_mm = (calibrated_prepared
+                .world_from_base
+                .transform_point(&unloaded.origin_mm)
+                - tool.origin_mm)
+                .norm();
+            let tool_in_base_cmd = controller_prepared.chain(&q, &[0.0; JOINTS]).tool;
+            let correction_mm = (controller_prepared
+                .world_from_base
+                .transform_point(&tool_in_base_cmd.origin_mm)
+                - target.tool_in_world.origin_mm)
+                .norm();
+            Command {
+                q_deg: q,
+                status,
+                residual_mm: iterate.position_error_mm,
+                correction_mm,
+                elastic_mm,
+                tool_in_base_cmd,
+                quaternion_wxyz_cmd: quaternion_wxyz(&tool_in_base_cmd),
+                sigma_min_mm_per_rad,
+            }
+        })
+        .collect()
+}
+
+/// Unit quaternion (w, x, y, z) of a frame's rotation, w ≥ 0.
+fn quaternion_wxyz(frame: &Frame) -> [f64; 4] {
+    let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(frame.rotation));
+    let sign = if q.w < 0.0 { -1.0 } else { 1.0 };
+    [q.w * sign, q.i * sign, q.j * sign, q.k * sign]
+}

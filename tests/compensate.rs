@@ -1,0 +1,471 @@
+//! The `compensate` maths and stage against the model it inverts: the forward
+//! model `predict` uses (`Robot::tool_in_world` / `Robot::predict`) with the
+//! truth parameters of `jobs/truth/irb1600_paper.parquet` under wrenches, the
+//! nominal inverse kinematics for the corrected Cartesian targets, and the
+//! statuses of targets that cannot be reached.
+
+mod common;
+
+use std::path::Path;
+
+use egcal::compensation::{Command, Options, Status, Target, compensate};
+use egcal::robot::ik::{self, NumericOptions};
+use egcal::robot::{Frame, JOINTS, ParamValues, Robot, RobotSpec, Wrench};
+use egcal::table::parameters::{ModelName, from_frame};
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use polars::prelude::*;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+
+fn robot() -> Robot {
+    Robot::new(RobotSpec::load(&common::root().join("jobs/robots/irb1600_145.toml")).unwrap())
+}
+
+/// The elasto-geometric set of the truth table, as `predict` reads it.
+fn truth(robot: &Robot) -> ParamValues {
+    let path = common::root().join("jobs/truth/irb1600_paper.parquet");
+    let df = egcal::table::read_parquet(&path).unwrap();
+    from_frame(&df, &path, &ParamValues::nominal(robot.spec()))
+        .unwrap()
+        .into_iter()
+        .find(|s| s.model == ModelName::Elastogeometric)
+        .unwrap()
+        .values
+}
+
+fn options() -> Options {
+    Options {
+        solver: NumericOptions {
+            position_tolerance_mm: 1e-6,
+            orientation_tolerance_rad: 1e-6,
+            ..NumericOptions::default()
+        },
+        singular_sigma_min_mm_per_rad: 3.5,
+    }
+}
+
+/// A joint vector away from the limits, the wrist singularity (q5 = 0) and the
+/// stretched elbow (q3 = -90°, where a nominal pose can lie beyond the
+/// calibrated arm's reach).
+fn well_conditioned_q(rng: &mut StdRng) -> [f64; JOINTS] {
+    let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+    let elbow = if rng.random_bool(0.5) {
+        rng.random_range(-200.0..-110.0)
+    } else {
+        rng.random_range(-70.0..40.0)
+    };
+    [
+        rng.random_range(-150.0..150.0),
+        rng.random_range(-60.0..90.0),
+        elbow,
+        rng.random_range(-170.0..170.0),
+        sign * rng.random_range(20.0..100.0),
+        rng.random_range(-300.0..300.0),
+    ]
+}
+
+fn random_wrench(rng: &mut StdRng) -> Wrench {
+    Wrench::from_array(std::array::from_fn(|i| {
+        let bound = if i < 3 { 120.0 } else { 10.0 };
+        rng.random_range(-bound..bound)
+    }))
+}
+
+fn target(tool_in_world: Frame, wrench: Wrench) -> Target {
+    Target {
+        tool_in_world,
+        wrench,
+        hint_deg: None,
+    }
+}
+
+fn max_joint_difference_deg(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+/// The corrected Cartesian target from the table's columns (position and
+/// quaternion), to the nominal flange, whose nominal IK must give the command.
+fn command_round_trips(robot: &Robot, command: &Command) -> bool {
+    let [w, x, y, z] = command.quaternion_wxyz_cmd;
+    assert!(w >= 0.0, "{command:?}");
+    assert!(((w * w + x * x + y * y + z * z).sqrt() - 1.0).abs() < 1e-12);
+    let tool_in_base = Frame {
+        rotation: *UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z))
+            .to_rotation_matrix()
+            .matrix(),
+        origin_mm: command.tool_in_base_cmd.origin_mm,
+    };
+    // The nominal tool and world = identity: flange_target_in_base then maps base ← tool.
+    let mut nominal_tool = ParamValues::nominal(robot.spec());
+    nominal_tool.0[..6].copy_from_slice(&[0.0; 6]);
+    let flange = ik::flange_target_in_base(robot, &nominal_tool, &tool_in_base);
+    ik::solve(robot, &flange)
+        .unwrap()
+        .iter()
+        .any(|s| max_joint_difference_deg(&s.q_deg, &command.q_deg) < 1e-6)
+}
+
+#[test]
+fn with_nominal_parameters_and_no_load_the_command_is_nominal_ik() {
+    let robot = robot();
+    let nominal = ParamValues::nominal(robot.spec());
+    let mut rng = StdRng::seed_from_u64(1);
+    let targets: Vec<Target> = (0..50)
+        .map(|_| {
+            let q = well_conditioned_q(&mut rng);
+            target(
+                robot.tool_in_world(&nominal, &q, &Wrench::zero()),
+                Wrench::zero(),
+            )
+        })
+        .collect();
+    let commands = compensate(&robot, &nominal, &targets, &options());
+    for (t, c) in targets.iter().zip(&commands) {
+        assert_eq!(c.status, Status::Ok, "{c:?}");
+        assert!(c.correction_mm <= 1e-9, "{c:?}");
+        assert!(c.residual_mm <= 1e-9 && c.elastic_mm == 0.0, "{c:?}");
+        let flange = ik::flange_target_in_base(&robot, &nominal, &t.tool_in_world);
+        let solutions = ik::solve(&robot, &flange).unwrap();
+        assert!(
+            solutions
+                .iter()
+                .any(|s| max_joint_difference_deg(&s.q_deg, &c.q_deg) < 1e-9),
+            "{c:?} not among {solutions:?}"
+        );
+    }
+    // The first target takes the nominal solution closest to q = 0.
+    let flange = ik::flange_target_in_base(&robot, &nominal, &targets[0].tool_in_world);
+    let closest = ik::solve(&robot, &flange)
+        .unwrap()
+        .into_iter()
+        .map(|s| s.q_deg)
+        .min_by(|a, b| norm(a).total_cmp(&norm(b)))
+        .unwrap();
+    assert!(max_joint_difference_deg(&closest, &commands[0].q_deg) < 1e-9);
+}
+
+fn norm(q: &[f64; JOINTS]) -> f64 {
+    q.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+#[test]
+fn the_calibrated_loaded_model_puts_every_ok_command_on_its_target() {
+    let robot = robot();
+    let truth = truth(&robot);
+    let nominal = ParamValues::nominal(robot.spec());
+    let mut rigid = truth;
+    rigid.0[36..42].copy_from_slice(&[0.0; 6]);
+    let mut rng = StdRng::seed_from_u64(2);
+    // Targets a user would send: nominal poses, each under its own wrench.
+    let targets: Vec<Target> = (0..200)
+        .map(|_| {
+            let q = well_conditioned_q(&mut rng);
+            target(
+                robot.tool_in_world(&nominal, &q, &Wrench::zero()),
+                random_wrench(&mut rng),
+            )
+        })
+        .collect();
+    let commands = compensate(&robot, &truth, &targets, &options());
+    let ok = commands.iter().filter(|c| c.status == Status::Ok).count();
+    assert!(ok >= 190, "{ok} of 200 ok");
+    for (t, c) in targets.iter().zip(&commands) {
+        assert!(c.q_deg.iter().all(|q| q.is_finite()), "{c:?}");
+        if c.status != Status::Ok {
+            continue;
+        }
+        // The forward model `predict` uses, loaded with the target's wrench.
+        let reached = robot.tool_in_world(&truth, &c.q_deg, &t.wrench);
+        let predicted = robot.predict(&truth, &c.q_deg, &t.wrench).position_mm;
+        assert!((reached.origin_mm - predicted).norm() < 1e-9);
+        assert!(
+            (predicted - t.tool_in_world.origin_mm).norm() <= 1e-6,
+            "{c:?}"
+        );
+        assert!(reached.angle_to(&t.tool_in_world) <= 1e-6, "{c:?}");
+        assert!(command_round_trips(&robot, c), "{c:?}");
+        // The elastic part: loaded against rigid calibrated model at the command.
+        let unloaded = robot.predict(&rigid, &c.q_deg, &Wrench::zero()).position_mm;
+        assert!((c.elastic_mm - (predicted - unloaded).norm()).abs() < 1e-9);
+        // The correction: where the nominal controller (truth world frame) goes.
+        let mut controller = nominal;
+        controller.0[..6].copy_from_slice(&truth.0[..6]);
+        let nominal_goes = robot.tool_in_world(&controller, &c.q_deg, &t.wrench);
+        assert!(
+            (c.correction_mm - (nominal_goes.origin_mm - t.tool_in_world.origin_mm).norm()).abs()
+                < 1e-9
+        );
+        assert!(c.correction_mm > 0.01, "{c:?}");
+    }
+}
+
+#[test]
+fn unreachable_out_of_limit_and_singular_targets_get_their_status_and_spare_the_others() {
+    let robot = robot();
+    let truth = truth(&robot);
+    let nominal = ParamValues::nominal(robot.spec());
+    let mut rng = StdRng::seed_from_u64(3);
+    // Hinted, so that which branch each takes does not depend on its
+    // predecessor (unhinted rows follow whatever came before, bad rows included).
+    let good: Vec<Target> = (0..20)
+        .map(|_| {
+            let q = well_conditioned_q(&mut rng);
+            Target {
+                tool_in_world: robot.tool_in_world(&nominal, &q, &Wrench::zero()),
+                wrench: random_wrench(&mut rng),
+                hint_deg: Some(q),
+            }
+        })
+        .collect();
+    let alone = compensate(&robot, &truth, &good, &options());
+    assert!(alone.iter().all(|c| c.status == Status::Ok));
+
+    let base_q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
+    let mut far = robot.tool_in_world(&nominal, &base_q, &Wrench::zero());
+    far.origin_mm += Vector3::new(4000.0, 0.0, 0.0);
+    // The calibrated arm's straight wrist (q5 = 0; the nominal one's lies about
+    // 2° away on this calibrated arm, where the measure is 15 mm/rad).
+    let straight_wrist = [10.0, 20.0, -10.0, 30.0, 0.0, 50.0];
+    let singular = robot.tool_in_world(&truth, &straight_wrist, &Wrench::zero());
+    // q5 = 120 lies beyond the file's ±115°; the hint asks for that branch.
+    let beyond = [10.0, 20.0, -10.0, 30.0, 120.0, 50.0];
+    let out_of_limit = Target {
+        tool_in_world: robot.tool_in_world(&nominal, &beyond, &Wrench::zero()),
+        wrench: Wrench::zero(),
+        hint_deg: Some([11.0, 19.0, -9.0, 31.0, 119.0, 49.0]),
+    };
+    let mut mixed = good.clone();
+    mixed.insert(5, target(far, Wrench::zero()));
+    mixed.insert(11, target(singular, Wrench::zero()));
+    mixed.insert(15, out_of_limit);
+    let commands = compensate(&robot, &truth, &mixed, &options());
+    assert_eq!(commands[5].status, Status::Unreachable, "{:?}", commands[5]);
+    assert!(commands[5].residual_mm > 1000.0, "{:?}", commands[5]);
+    assert_eq!(commands[11].status, Status::Singular, "{:?}", commands[11]);
+    let beyond = &commands[15];
+    assert_eq!(beyond.status, Status::JointLimit, "{beyond:?}");
+    assert!((beyond.q_deg[4] - 120.0).abs() < 2.0, "{beyond:?}");
+    for c in &commands {
+        assert!(c.q_deg.iter().all(|q| q.is_finite()), "{c:?}");
+        assert!(c.residual_mm.is_finite() && c.correction_mm.is_finite());
+    }
+    let spared: Vec<&Command> = commands
+        .iter()
+        .enumerate()
+        .filter(|(k, _)| ![5, 11, 15].contains(k))
+        .map(|(_, c)| c)
+        .collect();
+    for (a, b) in alone.iter().zip(spared) {
+        assert_eq!(a, b);
+    }
+}
+
+#[test]
+fn a_line_path_keeps_its_branch() {
+    let robot = robot();
+    let truth = truth(&robot);
+    let nominal = ParamValues::nominal(robot.spec());
+    // A 300 mm line with constant orientation under a constant drilling thrust.
+    let start = robot.tool_in_world(
+        &nominal,
+        &[20.0, 10.0, -20.0, 40.0, 60.0, -30.0],
+        &Wrench::zero(),
+    );
+    let thrust = Wrench::from_array([0.0, 0.0, -100.0, 0.0, 0.0, 0.0]);
+    let targets: Vec<Target> = (0..60)
+        .map(|k| {
+            let mut pose = start;
+            pose.origin_mm += Vector3::new(0.0, 5.0 * k as f64, 0.0);
+            target(pose, thrust)
+        })
+        .collect();
+    let commands = compensate(&robot, &truth, &targets, &options());
+    let branch = ik::branch_of(&robot, &commands[0].q_deg);
+    for pair in commands.windows(2) {
+        assert_eq!(pair[1].status, Status::Ok, "{:?}", pair[1]);
+        assert_eq!(ik::branch_of(&robot, &pair[1].q_deg), branch);
+        let step = max_joint_difference_deg(&pair[0].q_deg, &pair[1].q_deg);
+        assert!(
+            step < 3.0,
+            "{step} deg between {:?} and {:?}",
+            pair[0],
+            pair[1]
+        );
+    }
+}
+
+/// The stage: `commands` in target order with every status counted, and the ok
+/// rows as `conf_wrenches` for a measure stage.
+#[test]
+fn the_stage_writes_commands_and_conf_wrenches() {
+    let dir = tempfile::tempdir().unwrap();
+    let robot = robot();
+    let nominal = ParamValues::nominal(robot.spec());
+    let poses = [
+        robot.tool_in_world(
+            &nominal,
+            &[10.0, 20.0, -10.0, 30.0, 40.0, 50.0],
+            &Wrench::zero(),
+        ),
+        {
+            let mut far = Frame::identity();
+            far.origin_mm = Vector3::new(9000.0, 0.0, 0.0);
+            far
+        },
+        robot.tool_in_world(
+            &nominal,
+            &[-30.0, 10.0, -30.0, -20.0, 60.0, 10.0],
+            &Wrench::zero(),
+        ),
+    ];
+    let ids = vec![30_i64, 10, 20];
+    let mut columns = vec![Column::new("target_id".into(), ids.clone())];
+    for (axis, name) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
+        columns.push(Column::new(
+            (*name).into(),
+            poses.iter().map(|p| p.origin_mm[axis]).collect::<Vec<_>>(),
+        ));
+    }
+    for (axis, name) in ["rx_deg", "ry_deg", "rz_deg"].iter().enumerate() {
+        columns.push(Column::new(
+            (*name).into(),
+            poses
+                .iter()
+                .map(|p| xyz_euler_deg(p)[axis])
+                .collect::<Vec<_>>(),
+        ));
+    }
+    // Only a thrust column; the other wrench columns are absent (0).
+    columns.push(Column::new("fz_n".into(), vec![-100.0, 0.0, 0.0]));
+    let mut df = DataFrame::new(3, columns).unwrap();
+    let targets = dir.path().join("targets.parquet");
+    egcal::table::write_parquet(&mut df, &targets, None).unwrap();
+    let settings = dir.path().join("settings.toml");
+    std::fs::write(&settings, "model = \"elastogeometric\"\n").unwrap();
+    let out = dir.path().join("out");
+    let args = [
+        "stage".to_string(),
+        "compensate".into(),
+        "--robot".into(),
+        common::root()
+            .join("jobs/robots/irb1600_145.toml")
+            .display()
+            .to_string(),
+        "--settings".into(),
+        settings.display().to_string(),
+        "--out".into(),
+        out.display().to_string(),
+        "--input".into(),
+        format!("targets={}", targets.display()),
+        "--input".into(),
+        format!(
+            "parameters={}",
+            common::root()
+                .join("jobs/truth/irb1600_paper.parquet")
+                .display()
+        ),
+    ];
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (code, stdout, stderr) = common::run(&args, dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("ok") && stdout.contains("unreachable"),
+        "{stdout}"
+    );
+    let commands = egcal::table::read_parquet(&out.join("commands.parquet")).unwrap();
+    egcal::table::schema::commands()
+        .check(&commands, Path::new("commands.parquet"))
+        .unwrap();
+    let got_ids: Vec<i64> = commands
+        .column("target_id")
+        .unwrap()
+        .i64()
+        .unwrap()
+        .into_no_null_iter()
+        .collect();
+    assert_eq!(got_ids, ids);
+    let status: Vec<String> = commands
+        .column("status")
+        .unwrap()
+        .str()
+        .unwrap()
+        .iter()
+        .map(|s| s.unwrap().to_string())
+        .collect();
+    assert_eq!(status, ["ok", "unreachable", "ok"]);
+    let rows = egcal::table::read_parquet(&out.join("conf_wrenches.parquet")).unwrap();
+    egcal::table::schema::conf_wrenches()
+        .check(&rows, Path::new("conf_wrenches.parquet"))
+        .unwrap();
+    let cw: Vec<i64> = rows
+        .column("cw_id")
+        .unwrap()
+        .i64()
+        .unwrap()
+        .into_no_null_iter()
+        .collect();
+    assert_eq!(cw, [30, 20]);
+    let fz: Vec<f64> = rows
+        .column("fz_n")
+        .unwrap()
+        .f64()
+        .unwrap()
+        .into_no_null_iter()
+        .collect();
+    assert_eq!(fz, [-100.0, 0.0]);
+    let q1_command = commands
+        .column("q1_deg")
+        .unwrap()
+        .f64()
+        .unwrap()
+        .get(0)
+        .unwrap();
+    let q1_row = rows
+        .column("q1_deg")
+        .unwrap()
+        .f64()
+        .unwrap()
+        .get(0)
+        .unwrap();
+    assert_eq!(q1_command, q1_row);
+}
+
+/// (rx, ry, rz) deg with rotation = Rot(x, rx)·Rot(y, ry)·Rot(z, rz).
+fn xyz_euler_deg(frame: &Frame) -> [f64; 3] {
+    let r = &frame.rotation;
+    let ry = r[(0, 2)].clamp(-1.0, 1.0).asin();
+    let rx = (-r[(1, 2)]).atan2(r[(2, 2)]);
+    let rz = (-r[(0, 1)]).atan2(r[(0, 0)]);
+    [rx.to_degrees(), ry.to_degrees(), rz.to_degrees()]
+}
+
+/// Debug-build timing of 10,000 targets (run with `--ignored --nocapture`); the
+/// release figure comes from `cargo bench --bench compensate`.
+#[test]
+#[ignore]
+fn timing_of_10000_targets() {
+    let robot = robot();
+    let truth = truth(&robot);
+    let nominal = ParamValues::nominal(robot.spec());
+    let mut rng = StdRng::seed_from_u64(4);
+    let targets: Vec<Target> = (0..10_000)
+        .map(|_| {
+            let q = well_conditioned_q(&mut rng);
+            target(
+                robot.tool_in_world(&nominal, &q, &Wrench::zero()),
+                random_wrench(&mut rng),
+            )
+        })
+        .collect();
+    let started = std::time::Instant::now();
+    let commands = compensate(&robot, &truth, &targets, &options());
+    let seconds = started.elapsed().as_secs_f64();
+    let ok = commands.iter().filter(|c| c.status == Status::Ok).count();
+    println!(
+        "10000 targets: {seconds:.3} s ({:.1} µs per target, {ok} ok)",
+        seconds * 1e6 / 10_000.0
+    );
+}
