@@ -1,16 +1,22 @@
 """Targets a user would send to the calibrated robot, for jobs/compensate_sim.toml.
 
 Writes two `targets` tables (../shared/spec/model.md §7), in the tracker (world)
-frame of jobs/robots/irb1600_145.toml:
+frame of jobs/robots/irb1600_145.toml. The loop measures the achieved tool
+(SMR) positions with the tracker, so every target faces the tracker as the
+calibration campaign's poses do (tool z towards the tracker, upright roll as
+the `poses` stage builds it); that also keeps the targets in the configurations
+the calibration measured.
 
-* grid.parquet: a 5 x 5 x 5 grid over the calibration cube (centre (900, 0, 900)
-  mm, edge 500 mm, robot base frame), tool pointing straight down, no load;
-* drilling.parquet: a 5 x 4 pattern of holes on a vertical plate at x = 1100 mm
-  (base frame), tool axis along +x into the plate, a 100 N drilling thrust: the
-  plate pushes the tool back along its axis, fz = -100 N in tool axes.
+* grid.parquet: a 5 x 5 x 5 grid with a 400 mm edge inside the calibration
+  cube (centre (900, 0, 900) mm, robot base frame), no load;
+* drilling.parquet: a 5 x 4 pattern of holes, 100 mm apart, on a plate through
+  the cube's centre, square to the tracker's line of sight; the tool axis along
+  the plate's normal and a 100 N drilling thrust: the plate pushes the tool back
+  along its axis, fz = -100 N in tool axes.
 
 The world frame is the robot file's nominal [world]: world <- base =
-Rot(x, -180 deg) . Trans(1326, 1362, -1476), so p_world = R (p_base + t).
+Rot(x, -180 deg) . Trans(1326, 1362, -1476), so p_world = R (p_base + t) and the
+tracker (the world origin) is at -t in the base frame.
 
     python3 jobs/targets/make_targets.py     # rewrites both files
 """
@@ -37,22 +43,26 @@ def euler_xyz_deg(r):
     return np.degrees([rx, ry, rz])
 
 
-def rot_x(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+TRACKER_BASE = -T_WORLD
+CENTRE_BASE = np.array([900.0, 0.0, 900.0])
 
 
-def rot_y(a):
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+def upright_facing(facing):
+    """Tool frame (base) with z along `facing` and y as close to base z as it
+    can be: the poses stage's upright_tool_frame with no roll."""
+    z = facing / np.linalg.norm(facing)
+    up = np.array([0.0, 0.0, 1.0])
+    y = up - z * (up @ z)
+    y /= np.linalg.norm(y)
+    return np.column_stack([np.cross(y, z), y, z])
 
 
-def write(name, points_base, base_from_tool, wrench):
+def write(name, points_base, wrench):
     rows = {k: [] for k in ["target_id", "x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg",
                             "fx_n", "fy_n", "fz_n", "mx_nm", "my_nm", "mz_nm"]}
-    world_from_tool = R_WORLD @ base_from_tool
-    rx, ry, rz = euler_xyz_deg(world_from_tool)
     for i, p in enumerate(points_base):
+        base_from_tool = upright_facing(TRACKER_BASE - np.asarray(p))
+        rx, ry, rz = euler_xyz_deg(R_WORLD @ base_from_tool)
         x, y, z = to_world(p)
         rows["target_id"].append(i + 1)
         for key, value in zip(["x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"], [x, y, z, rx, ry, rz]):
@@ -64,11 +74,13 @@ def write(name, points_base, base_from_tool, wrench):
 
 
 def main():
-    axis = np.linspace(-250.0, 250.0, 5)
-    grid = [[900.0 + dx, dy, 900.0 + dz] for dx in axis for dy in axis for dz in axis]
-    write("grid.parquet", grid, rot_x(np.pi), [0.0] * 6)
-    holes = [[1100.0, y, z] for z in np.linspace(750.0, 1050.0, 4) for y in np.linspace(-200.0, 200.0, 5)]
-    write("drilling.parquet", holes, rot_y(np.pi / 2), [0.0, 0.0, -100.0, 0.0, 0.0, 0.0])
+    axis = np.linspace(-200.0, 200.0, 5)
+    grid = [CENTRE_BASE + [dx, dy, dz] for dx in axis for dy in axis for dz in axis]
+    write("grid.parquet", grid, [0.0] * 6)
+    plate = upright_facing(TRACKER_BASE - CENTRE_BASE)
+    holes = [CENTRE_BASE + u * plate[:, 0] + v * plate[:, 1]
+             for v in np.linspace(-150.0, 150.0, 4) for u in np.linspace(-200.0, 200.0, 5)]
+    write("drilling.parquet", holes, [0.0, 0.0, -100.0, 0.0, 0.0, 0.0])
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{Rig, RigError};
+use crate::robot::params::{ParamId, ParamKind};
 use crate::robot::{JOINTS, ParamValues, Robot, Wrench};
 
 /// Noise and error settings of the simulator.
@@ -123,9 +124,7 @@ impl Simulator {
         seed: u64,
     ) -> Result<Self, String> {
         let clock_start_us = settings.clock_start_us()?;
-        let mut phase_rng = StdRng::seed_from_u64(seed ^ 0x5eed_0f7a);
-        let phases_rad =
-            std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU));
+        let phases_rad = transmission_phases_rad(&truth);
         Ok(Simulator {
             robot,
             truth,
@@ -164,6 +163,31 @@ impl Simulator {
             .position_mm;
         [p.x, p.y, p.z]
     }
+}
+
+/// The phases of the unmodelled transmission error. They belong to the simulated
+/// robot, not to the stage that measures it: every measure stage over the same
+/// truth (the calibration campaign, then the compensated commands) meets the same
+/// gearboxes. So they are drawn from a hash of the truth's arm parameters, without
+/// the world and tool frames (moving the tracker does not change the gearboxes).
+fn transmission_phases_rad(truth: &ParamValues) -> [f64; JOINTS] {
+    let mut hasher = blake3::Hasher::new();
+    for id in ParamId::all() {
+        if !matches!(
+            id.kind(),
+            ParamKind::WorldTranslation(_)
+                | ParamKind::WorldRotation(_)
+                | ParamKind::ToolTranslation { .. }
+                | ParamKind::ToolRotation(_)
+        ) {
+            hasher.update(&truth.0[id.index()].to_le_bytes());
+        }
+    }
+    let bytes = hasher.finalize();
+    let mut seed = [0u8; 8];
+    seed.copy_from_slice(&bytes.as_bytes()[..8]);
+    let mut phase_rng = StdRng::seed_from_u64(u64::from_le_bytes(seed));
+    std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU))
 }
 
 impl Rig for Simulator {

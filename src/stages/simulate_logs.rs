@@ -123,7 +123,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Daily check logs of a simulated robot whose parameters drift, as Hive-partitioned Parquet",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "conf_wrenches",
