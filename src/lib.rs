@@ -5,6 +5,7 @@ pub mod calibration;
 pub mod cdpr;
 pub mod commands;
 pub mod design;
+pub mod export;
 pub mod fsio;
 pub mod gate;
 pub mod job;

@@ -7,6 +7,7 @@
 //! `egcal list-stages`, the job-file JSON Schema and the cache key.
 
 pub mod budget;
+pub mod export_program;
 pub mod gate;
 pub mod identifiability;
 pub mod identify;
@@ -389,6 +390,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &validate::ValidateStage,
         &gate::GateStage,
         &predict::PredictStage,
+        &export_program::ExportProgramStage,
         &report::ReportStage,
     ]
 }
