@@ -93,10 +93,11 @@ pub struct ExportProgramSettings {
     /// RAPID work object name; it must be the robot base frame.
     pub wobj_name: String,
     /// KRL `TOOL_DATA` index of the robot file's nominal tool (0 = `$NULLFRAME`,
-    /// the flange).
+    /// the flange; KUKA's array has 16 entries).
     #[schemars(range(min = 0, max = 16))]
     pub krl_tool: u32,
-    /// KRL `BASE_DATA` index of the robot base frame (0 = `$NULLFRAME`).
+    /// KRL `BASE_DATA` index of the robot base frame (0 = `$NULLFRAME`; KUKA's
+    /// array has 32 entries).
     #[schemars(range(min = 0, max = 32))]
     pub krl_base: u32,
     /// `joint`, `linear` or `both`.
@@ -248,7 +249,9 @@ impl Stage for ExportProgramStage {
             if problems.iter().any(|p| p.key == key) {
                 continue;
             }
-            if let Some(message) = export::identifier_problem(name, max_len, language) {
+            if let Some(message) = export::identifier_problem(name, max_len, language)
+                .or_else(|| export::generated_name_clash(name))
+            {
                 problems.push(SettingsProblem::new(key, message));
             }
         }
