@@ -10,7 +10,11 @@
 //!   system is negative (overhead area); bit 1 = 1 when A3 ≥ φ (φ: the A3 angle
 //!   at which the wrist root point lies on the line through A2 and A3), read
 //!   geometrically as the wrist centre on the positive side of that line about
-//!   A3's axis; bit 2 = 1 when A5 lies in [−180°, 0°) or at 180° and beyond.
+//!   A3's axis: KUKA gives φ = 0° only for arms whose axes 3 and 4 intersect
+//!   and says it moves with the offset between them, which the geometric test
+//!   covers without a table per robot type; bit 2 = 1 when A5 lies in
+//!   [−180°, 0°) or at 180° and beyond (KUKA's table; plainly "A5 < 0" within
+//!   ±180°).
 //!   Bit 4 (point taught with an absolutely accurate robot) stays 0: the
 //!   numbers assume the nominal model.
 //! * Turn T: bit i−1 = 1 when axis i is negative.
@@ -27,11 +31,6 @@ use crate::robot::{JOINTS, Robot};
 
 /// Longest KRL name.
 pub const MAX_IDENTIFIER_LEN: usize = 24;
-
-/// Largest index of KUKA's `TOOL_DATA` array.
-pub const MAX_TOOL_INDEX: u32 = 16;
-/// Largest index of KUKA's `BASE_DATA` array.
-pub const MAX_BASE_INDEX: u32 = 32;
 
 /// KUKA's Status of a joint command on `robot`'s nominal geometry.
 pub fn status(robot: &Robot, q_deg: &[f64; JOINTS]) -> u32 {
@@ -152,6 +151,10 @@ pub fn src(
 ) -> String {
     let mut out = format!("DEF {}( )\n", motion.name);
     header(&mut out, provenance, "KUKA KRL program", commands, frames);
+    // KUKA's standard initialisation: accelerations, orientation control and
+    // the other motion variables a program must set before its first move get
+    // the controller's defaults; the lines after it set what egcal chooses.
+    out.push_str("BAS(#INITMOV, 0)\n");
     for axis in 1..=JOINTS {
         out.push_str(&format!(
             "$VEL_AXIS[{axis}] = {}\n",
@@ -185,10 +188,12 @@ pub fn src(
         out.push_str("; Cartesian moves to the corrected targets\n");
         for (k, c) in ok.iter().enumerate() {
             let name = data_name("XP_", c.target_id);
+            // The last move stops exactly: there is nothing to blend into.
+            let approximate = if k + 1 == ok.len() { "" } else { approximation };
             if k == 0 {
                 out.push_str(&format!("PTP {name}\n"));
             } else {
-                out.push_str(&format!("LIN {name}{approximation}\n"));
+                out.push_str(&format!("LIN {name}{approximate}\n"));
             }
         }
     }
@@ -232,6 +237,55 @@ mod tests {
         assert_eq!(status(&robot, &[0.0, 0.0, 0.0, 0.0, -30.0, 0.0]), 6);
         // Folded back over the lower arm: overhead, A3 below φ.
         assert_eq!(status(&robot, &[0.0, 0.0, -180.0, 0.0, 30.0, 0.0]), 1);
+    }
+
+    #[test]
+    fn every_declared_name_is_one_the_settings_check_refuses() {
+        let command = |target_id| Command {
+            target_id,
+            q_deg: [10.0, 20.0, -30.0, 40.0, 50.0, 60.0],
+            status: crate::export::STATUS_OK.into(),
+            residual_mm: 0.0,
+            correction_mm: 0.0,
+            elastic_mm: 0.0,
+            position_mm: [900.0, 0.0, 800.0],
+            quaternion_wxyz: [1.0, 0.0, 0.0, 0.0],
+        };
+        let motion = MotionSettings {
+            name: "EGCAL_PROGRAM".into(),
+            speed_mm_s: 100.0,
+            joint_speed_percent: 20.0,
+            zone_mm: None,
+            motions: crate::export::Motions {
+                joint: true,
+                linear: true,
+            },
+        };
+        let provenance = Provenance {
+            version: "0".into(),
+            source: "commands.parquet".into(),
+            robot: "r".into(),
+        };
+        let frames = Frames { tool: 1, base: 0 };
+        let text = dat(
+            &irb1600(),
+            &[command(1), command(-2)],
+            &motion,
+            frames,
+            &provenance,
+        );
+        let declared: Vec<&str> = text
+            .lines()
+            .filter_map(|l| l.strip_prefix("DECL "))
+            .filter_map(|rest| rest.split(['=', ' ']).nth(1))
+            .collect();
+        assert_eq!(declared, ["XJ_1", "XP_1", "XJ_N2", "XP_N2"]);
+        for name in declared {
+            assert!(
+                crate::export::generated_name_clash(name).is_some(),
+                "{name}"
+            );
+        }
     }
 
     #[test]

@@ -87,7 +87,9 @@ pub fn module(
     {
         line(&mut out, &format!("  ! {text}"));
     }
-    let speed = format!("{}_speed", short(&motion.name));
+    // Not derived from the module name, so it never collides with it and stays
+    // within the identifier limit.
+    let speed = "egcal_speed";
     line(
         &mut out,
         &format!(
@@ -144,14 +146,23 @@ pub fn module(
         line(&mut out, "    path_linear;");
     }
     line(&mut out, "  ENDPROC");
-    let tail = format!("{speed}, {zone}, {tool_name}\\WObj:={wobj_name};");
+    // The last move of a path stops exactly: a corner zone there has no next
+    // move to blend into.
+    let tail = |k: usize| {
+        let zone = if k + 1 == ok.len() { "fine" } else { &zone };
+        format!("{speed}, {zone}, {tool_name}\\WObj:={wobj_name};")
+    };
     if motion.motions.joint {
         line(&mut out, "");
         line(&mut out, "  PROC path_joint()");
-        for c in &ok {
+        for (k, c) in ok.iter().enumerate() {
             line(
                 &mut out,
-                &format!("    MoveAbsJ {}, {tail}", data_name("jt_", c.target_id)),
+                &format!(
+                    "    MoveAbsJ {}, {}",
+                    data_name("jt_", c.target_id),
+                    tail(k)
+                ),
             );
         }
         line(&mut out, "  ENDPROC");
@@ -164,8 +175,9 @@ pub fn module(
             line(
                 &mut out,
                 &format!(
-                    "    {instruction} {}, {tail}",
-                    data_name("pt_", c.target_id)
+                    "    {instruction} {}, {}",
+                    data_name("pt_", c.target_id),
+                    tail(k)
                 ),
             );
         }
@@ -173,12 +185,6 @@ pub fn module(
     }
     line(&mut out, "ENDMODULE");
     out
-}
-
-/// A prefix of the program name that leaves room for a suffix within the
-/// identifier limit.
-fn short(name: &str) -> &str {
-    &name[..name.len().min(MAX_IDENTIFIER_LEN - "_speed".len())]
 }
 
 /// The quaternion scaled to unit length (the table's is unit to rounding).
@@ -235,6 +241,62 @@ mod tests {
                 cfx: 6
             }
         );
+    }
+
+    #[test]
+    fn every_declared_name_is_one_the_settings_check_refuses() {
+        let command = |target_id| Command {
+            target_id,
+            q_deg: [10.0, 20.0, -30.0, 40.0, 50.0, 60.0],
+            status: crate::export::STATUS_OK.into(),
+            residual_mm: 0.0,
+            correction_mm: 0.0,
+            elastic_mm: 0.0,
+            position_mm: [900.0, 0.0, 800.0],
+            quaternion_wxyz: [1.0, 0.0, 0.0, 0.0],
+        };
+        let motion = MotionSettings {
+            name: "EGCAL_PROGRAM".into(),
+            speed_mm_s: 100.0,
+            joint_speed_percent: 20.0,
+            zone_mm: Some(10),
+            motions: crate::export::Motions {
+                joint: true,
+                linear: true,
+            },
+        };
+        let provenance = Provenance {
+            version: "0".into(),
+            source: "commands.parquet".into(),
+            robot: "r".into(),
+        };
+        let text = module(
+            &irb1600(),
+            &[command(1), command(-2)],
+            &motion,
+            "tool0",
+            "wobj0",
+            &provenance,
+        );
+        let declared: Vec<&str> = text
+            .lines()
+            .filter_map(|l| {
+                let l = l.trim();
+                l.strip_prefix("PROC ")
+                    .map(|rest| rest.trim_end_matches("()"))
+                    .or_else(|| {
+                        l.strip_prefix("CONST ")
+                            .and_then(|rest| rest.split_whitespace().nth(1))
+                    })
+            })
+            .collect();
+        assert_eq!(declared.len(), 8, "{declared:?}");
+        for name in declared {
+            assert!(
+                crate::export::generated_name_clash(name).is_some(),
+                "{name}"
+            );
+        }
     }
 
     #[test]
