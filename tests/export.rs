@@ -258,21 +258,18 @@ fn rapid_and_krl_read_back_give_the_commands_to_the_printed_precision() {
     );
     for (name, v) in &joints {
         let row = ok.iter().find(|r| r.id == id_of(name, "jt_")).unwrap();
-        for j in 0..6 {
-            assert!((v[j] - row.q[j]).abs() <= joint_tol, "{name} q{}", j + 1);
+        for (j, (printed, q)) in v.iter().zip(row.q).enumerate() {
+            assert!((printed - q).abs() <= joint_tol, "{name} q{}", j + 1);
         }
         assert!(v[6..].iter().all(|e| *e == 9e9));
     }
     for (name, v) in &targets {
         let row = ok.iter().find(|r| r.id == id_of(name, "pt_")).unwrap();
-        for k in 0..3 {
-            assert!((v[k] - row.p[k]).abs() <= pos_tol, "{name} pos");
+        for (printed, p) in v.iter().zip(row.p) {
+            assert!((printed - p).abs() <= pos_tol, "{name} pos");
         }
-        for k in 0..4 {
-            assert!(
-                (v[3 + k] - row.quat[k]).abs() <= quat_tol,
-                "{name} quaternion"
-            );
+        for (printed, q) in v[3..].iter().zip(row.quat) {
+            assert!((printed - q).abs() <= quat_tol, "{name} quaternion");
         }
         // confdata: quadrants ⌊q/90⌋ of axes 1, 4, 6; cfx's last bit is axis 5's sign.
         let quadrant = |q: f64| (q / 90.0).floor();
@@ -444,8 +441,18 @@ fn three(text: &str) -> [f64; 3] {
     [v[0], v[1], v[2]]
 }
 
-/// The URDF's joints in file order: (type, parent, child, origin, axis).
-fn urdf_joints(text: &str) -> Vec<(String, String, String, Matrix4<f64>, Option<[f64; 3]>)> {
+/// A URDF joint as read back.
+#[derive(Debug, Clone)]
+struct UrdfJoint {
+    kind: String,
+    parent: String,
+    child: String,
+    origin: Matrix4<f64>,
+    axis: Option<[f64; 3]>,
+}
+
+/// The URDF's joints in file order.
+fn urdf_joints(text: &str) -> Vec<UrdfJoint> {
     text.split("<joint ")
         .skip(1)
         .map(|chunk| {
@@ -456,16 +463,16 @@ fn urdf_joints(text: &str) -> Vec<(String, String, String, Matrix4<f64>, Option<
             let axis = element
                 .find("<axis")
                 .map(|i| three(attribute(&element[i..], "xyz")));
-            (
-                attribute(element, "type").to_string(),
-                parent.to_string(),
-                child.to_string(),
-                urdf_transform(
+            UrdfJoint {
+                kind: attribute(element, "type").to_string(),
+                parent: parent.to_string(),
+                child: child.to_string(),
+                origin: urdf_transform(
                     three(attribute(origin, "xyz")),
                     three(attribute(origin, "rpy")),
                 ),
                 axis,
-            )
+            }
         })
         .collect()
 }
@@ -473,10 +480,10 @@ fn urdf_joints(text: &str) -> Vec<(String, String, String, Matrix4<f64>, Option<
 #[test]
 fn urdf_forward_kinematics_equals_the_rigid_calibrated_model() {
     let robot = robot();
-    let root = common::root();
     let spec = robot.spec();
     let mut values =
-        ParamValues::load_overrides(spec, &root.join("jobs/truth/irb1600_paper.toml")).unwrap();
+        ParamValues::load_overrides(spec, &common::root().join("jobs/truth/irb1600_paper.toml"))
+            .unwrap();
     // Parameters the truth leaves nominal, so that every kind reaches the URDF.
     for (name, value) in [
         ("dtheta1", 0.05),
@@ -493,8 +500,27 @@ fn urdf_forward_kinematics_equals_the_rigid_calibrated_model() {
     ] {
         values.set(ParamId::from_name(name).unwrap(), value);
     }
-    let nominal = ParamValues::nominal(spec);
-    let set = ParameterSet::fixed(ModelName::Elastogeometric, values);
+    let text = urdf_matches_the_model(&robot, &values);
+    assert!(text.contains("Compliance (joint stiffness) cannot be expressed in URDF"));
+    assert!(text.contains("k2 = 0.0001"), "{text}");
+    assert!(!text.contains("EGCAL_PROGRAM"));
+
+    // Joint 2 (α = −90°, θ_offset = −90°) a hair away from gimbal lock in its
+    // URDF rpy: a tiny identified Δθ2 and no Δα2, then exactly nominal.
+    for dtheta2 in [1e-9, 0.0] {
+        values.set(ParamId::from_name("dtheta2").unwrap(), dtheta2);
+        values.set(ParamId::from_name("dalpha2").unwrap(), 0.0);
+        urdf_matches_the_model(&robot, &values);
+    }
+}
+
+/// Writes the URDF of `values` (as an elasto-geometric model of a parameters
+/// table), composes its forward kinematics here from the xyz/rpy origins, and
+/// asserts that it equals egcal's rigid model at 1000 random configurations to
+/// 1e-9 mm (positions) and 1e-12 (rotation elements). Returns the URDF text.
+fn urdf_matches_the_model(robot: &Robot, values: &ParamValues) -> String {
+    let nominal = ParamValues::nominal(robot.spec());
+    let set = ParameterSet::fixed(ModelName::Elastogeometric, *values);
     let dir = tempfile::tempdir().unwrap();
     let parameters_file = dir.path().join("parameters.parquet");
     egcal::table::write_parquet(
@@ -503,7 +529,7 @@ fn urdf_forward_kinematics_equals_the_rigid_calibrated_model() {
         None,
     )
     .unwrap();
-    let rows = random_rows(&robot, 2, 5);
+    let rows = random_rows(robot, 2, 5);
     let (code, log, out) = export(
         dir.path(),
         &rows,
@@ -512,21 +538,21 @@ fn urdf_forward_kinematics_equals_the_rigid_calibrated_model() {
     );
     assert_eq!(code, 0, "{log}");
     let text = std::fs::read_to_string(out.join("robot.urdf")).unwrap();
-    assert!(text.contains("Compliance (joint stiffness) cannot be expressed in URDF"));
-    assert!(text.contains("k2 = 0.0001"), "{text}");
-    assert!(!text.contains("EGCAL_PROGRAM"));
 
     let joints = urdf_joints(&text);
     assert_eq!(joints.len(), 8);
     // The chain from `world` to `tool`, in order.
     let mut link = "world".to_string();
     let mut chain = Vec::new();
-    while let Some(j) = joints.iter().find(|j| j.1 == link) {
+    while let Some(j) = joints.iter().find(|j| j.parent == link) {
         chain.push(j.clone());
-        link = j.2.clone();
+        link = j.child.clone();
     }
     assert_eq!(link, "tool");
-    assert_eq!(chain.iter().filter(|j| j.0 == "revolute").count(), JOINTS);
+    assert_eq!(
+        chain.iter().filter(|j| j.kind == "revolute").count(),
+        JOINTS
+    );
 
     let mut rng = StdRng::seed_from_u64(99);
     let mut worst = 0.0f64;
@@ -537,27 +563,28 @@ fn urdf_forward_kinematics_equals_the_rigid_calibrated_model() {
         });
         let mut t = Matrix4::identity();
         let mut joint = 0;
-        for (kind, _, _, origin, axis) in &chain {
-            t *= origin;
-            if kind == "revolute" {
-                assert_eq!(axis.unwrap(), [0.0, 0.0, 1.0]);
+        for j in &chain {
+            t *= j.origin;
+            if j.kind == "revolute" {
+                assert_eq!(j.axis, Some([0.0, 0.0, 1.0]));
                 t *= urdf_transform([0.0; 3], [0.0, 0.0, q[joint].to_radians()]);
                 joint += 1;
             }
         }
         let urdf_mm = Vector3::new(t[(0, 3)], t[(1, 3)], t[(2, 3)]) * 1000.0;
-        let (_, tool) = robot.frames_in_base(&values, &q);
+        let (_, tool) = robot.frames_in_base(values, &q);
         let egcal_mm = robot
-            .world_from_base(&values)
+            .world_from_base(values)
             .transform_point(&tool.origin_mm);
         worst = worst.max((urdf_mm - egcal_mm).norm());
-        let rotation = robot.world_from_base(&values).rotation * tool.rotation;
+        let rotation = robot.world_from_base(values).rotation * tool.rotation;
         assert!((t.fixed_view::<3, 3>(0, 0) - rotation).abs().max() < 1e-12);
     }
     assert!(
         worst <= 1e-9,
         "URDF FK differs from egcal's rigid model by {worst} mm"
     );
+    text
 }
 
 #[test]
@@ -605,6 +632,16 @@ fn check_refuses_bad_settings_with_their_key() {
         ),
         ("zone = \"z7\"", "stages[0].zone", "unknown zone `z7`"),
         (
+            "tool_name = \"main\"",
+            "stages[0].tool_name",
+            "name the exported programs declare",
+        ),
+        (
+            "wobj_name = \"pt_base\"",
+            "stages[0].wobj_name",
+            "prefix of the exported target data",
+        ),
+        (
             "speed_mm_s = 0.0",
             "stages[0].speed_mm_s",
             "range [1, 7000]",
@@ -627,4 +664,79 @@ fn check_refuses_bad_settings_with_their_key() {
             "`{setting}`: expected `{key}` and `{expected}` in\n{stderr}"
         );
     }
+}
+
+#[test]
+fn export_program_runs_in_a_job_and_publishes_its_files() {
+    let robot = robot();
+    let dir = tempfile::tempdir().unwrap();
+    let mut rows = random_rows(&robot, 4, 21);
+    rows[2].status = "singular";
+    egcal::table::write_parquet(
+        &mut commands_frame(&rows),
+        &dir.path().join("commands.parquet"),
+        None,
+    )
+    .unwrap();
+    let nominal = ParamValues::nominal(robot.spec());
+    let set = ParameterSet::fixed(ModelName::Elastogeometric, nominal);
+    egcal::table::write_parquet(
+        &mut parameters::to_frame(&nominal, &[set]),
+        &dir.path().join("parameters.parquet"),
+        None,
+    )
+    .unwrap();
+    let job = format!(
+        "[job]\nname = \"cell\"\nseed = 1\nrobot = \"{}\"\noutput = \"out\"\n\n\
+         [[stages]]\nid = \"program\"\nkind = \"export_program\"\n\
+         inputs = {{ commands = \"commands.parquet\", parameters = \"parameters.parquet\" }}\n\
+         module_name = \"CELL_A\"\nmotion = \"both\"\nzone = \"z10\"\n",
+        common::root()
+            .join("jobs/robots/irb1600_145.toml")
+            .display()
+    );
+    std::fs::write(dir.path().join("job.toml"), job).unwrap();
+    let (code, stdout, stderr) = common::run(&["run", "job.toml"], dir.path());
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    let log = format!("{stdout}{stderr}");
+    assert!(
+        log.contains("exported=3") && log.contains("skipped=1"),
+        "{log}"
+    );
+    let out = dir.path().join("out/program");
+    let read = |name: &str| {
+        std::fs::read_to_string(out.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"))
+    };
+    let (module, src, dat, csv, urdf) = (
+        read("CELL_A.mod"),
+        read("CELL_A.src"),
+        read("CELL_A.dat"),
+        read("commands.csv"),
+        read("robot.urdf"),
+    );
+    assert!(module.starts_with("MODULE CELL_A\n  ! ABB RAPID module generated by egcal"));
+    assert!(src.starts_with("DEF CELL_A( )\n; KUKA KRL program generated by egcal"));
+    assert!(dat.starts_with("DEFDAT CELL_A\n; KUKA KRL data list generated by egcal"));
+    assert!(csv.starts_with("# CSV of joint commands generated by egcal"));
+    assert!(urdf.starts_with("<?xml version=\"1.0\"?>\n<!--\n  URDF generated by egcal"));
+    for text in [&module, &src, &dat, &csv] {
+        assert!(text.contains("NOMINAL kinematic model"), "{text}");
+        assert!(text.contains("target_id 3: singular"), "{text}");
+    }
+    assert!(urdf.contains("cannot be expressed in URDF"));
+    // Corner zones between moves, an exact stop at the end of each path.
+    assert!(module.contains(", z10, tool0\\WObj:=wobj0;"));
+    assert!(module.contains("MoveAbsJ jt_4, egcal_speed, fine, tool0\\WObj:=wobj0;"));
+    assert!(module.contains("MoveL pt_4, egcal_speed, fine, tool0\\WObj:=wobj0;"));
+    assert!(src.contains("$APO.CDIS = 10 ; mm\n") && src.contains("LIN XP_2 C_DIS\n"));
+    assert!(src.contains("LIN XP_4\n"));
+
+    // A second run finds everything cached and leaves the files in place.
+    let (code, stdout, stderr) = common::run(&["run", "job.toml"], dir.path());
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    assert!(
+        format!("{stdout}{stderr}").contains("program: cached"),
+        "{stdout}{stderr}"
+    );
+    assert_eq!(read("CELL_A.mod"), module);
 }
