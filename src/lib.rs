@@ -6,6 +6,7 @@ pub mod cdpr;
 pub mod commands;
 pub mod compensation;
 pub mod design;
+pub mod export;
 pub mod fsio;
 pub mod gate;
 pub mod job;

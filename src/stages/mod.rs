@@ -9,6 +9,7 @@
 pub mod accuracy;
 pub mod budget;
 pub mod compensate;
+pub mod export_program;
 pub mod gate;
 pub mod identifiability;
 pub mod identify;
@@ -392,6 +393,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &gate::GateStage,
         &predict::PredictStage,
         &compensate::CompensateStage,
+        &export_program::ExportProgramStage,
         &accuracy::AccuracyStage,
         &report::ReportStage,
     ]
