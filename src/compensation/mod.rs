@@ -308,3 +308,90 @@ fn quaternion_wxyz(frame: &Frame) -> [f64; 4] {
     let sign = if q.w < 0.0 { -1.0 } else { 1.0 };
     [q.w * sign, q.i * sign, q.j * sign, q.k * sign]
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::test_support::{irb1600, truth_params};
+
+    fn solution(q_deg: [f64; JOINTS]) -> IkSolution {
+        IkSolution { q_deg, branch: 0 }
+    }
+
+    #[test]
+    fn seeds_start_nearest_home_then_follow_the_previous_seed_or_the_hint() {
+        let pose = Target::from_columns([0.0; 3], [0.0; 3], Wrench::zero(), None);
+        let a = [10.0, 0.0, 0.0, 0.0, 30.0, 0.0];
+        let b = [-170.0, 0.0, 0.0, 0.0, -30.0, 0.0];
+        let hint = [-160.0, 0.0, 0.0, 0.0, -25.0, 0.0];
+        let targets = [
+            pose,
+            pose,
+            Target {
+                hint_deg: Some(hint),
+                ..pose
+            },
+            pose,
+            pose,
+        ];
+        let found = [
+            Candidates::Found(vec![solution(b), solution(a)]),
+            Candidates::Found(vec![solution(b), solution(a)]),
+            Candidates::Found(vec![solution(a)]),
+            Candidates::Found(vec![solution(a), solution(b)]),
+            Candidates::None,
+        ];
+        // Nearest q = 0, then nearest the previous seed; a hint is taken as it
+        // is and becomes the reference; no candidates keeps the previous seed.
+        assert_eq!(seeds(&targets, &found), [a, a, hint, b, b]);
+    }
+
+    #[test]
+    fn the_quaternion_has_w_at_least_zero_and_is_the_rotation() {
+        for angle_deg in [0.0, 90.0, 179.0, 181.0, 350.0] {
+            let frame = Frame {
+                rotation: rot_z(angle_deg * DEG) * rot_x(0.3),
+                origin_mm: Vector3::zeros(),
+            };
+            let [w, x, y, z] = quaternion_wxyz(&frame);
+            assert!(w >= 0.0, "{angle_deg}");
+            let back = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+            assert!((back.to_rotation_matrix().matrix() - frame.rotation).norm() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn running_out_of_iterations_is_not_converged_and_keeps_a_finite_iterate() {
+        let robot = irb1600();
+        let truth = truth_params(&robot);
+        let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
+        let wrench = Wrench::from_array([50.0, -80.0, 100.0, 5.0, 0.0, -5.0]);
+        let target = Target {
+            tool_in_world: robot.tool_in_world(&truth, &q, &wrench),
+            wrench,
+            hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0]),
+        };
+        let options = Options {
+            solver: NumericOptions {
+                max_iterations: 1,
+                position_tolerance_mm: 1e-9,
+                orientation_tolerance_rad: 1e-9,
+                ..NumericOptions::default()
+            },
+            singular_sigma_min_mm_per_rad: 3.5,
+        };
+        let one = compensate(&robot, &truth, &[target], &options)[0];
+        assert_eq!(one.status, Status::NotConverged, "{one:?}");
+        assert!(one.q_deg.iter().all(|v| v.is_finite()) && one.residual_mm > 1e-9);
+        let options = Options {
+            solver: NumericOptions {
+                max_iterations: 100,
+                ..options.solver
+            },
+            ..options
+        };
+        let done = compensate(&robot, &truth, &[target], &options)[0];
+        assert_eq!(done.status, Status::Ok, "{done:?}");
+        assert!(done.q_deg.iter().zip(&q).all(|(a, b)| (a - b).abs() < 1e-6));
+    }
+}
