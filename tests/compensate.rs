@@ -433,6 +433,50 @@ fn the_stage_writes_commands_and_conf_wrenches() {
     assert_eq!(q1_command, q1_row);
 }
 
+/// A `targets` table that is not one (a NaN, a missing column, a repeated id, a
+/// hint beyond the joint limits, an absurd wrench, ...) is refused with exit 2
+/// (bad input), naming the file; the fixture cases `fixtures/compensate/bad_*`
+/// check the rest of each message.
+#[test]
+fn bad_targets_tables_exit_2_naming_the_file() {
+    let cases = common::root().join("fixtures/compensate");
+    let mut checked = 0;
+    for case in std::fs::read_dir(&cases).unwrap().flatten() {
+        let name = case.file_name().to_string_lossy().into_owned();
+        if !name.starts_with("bad_") {
+            continue;
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let settings = dir.path().join("settings.toml");
+        std::fs::write(&settings, "").unwrap();
+        let targets = case.path().join("targets.parquet");
+        let args = [
+            "stage".to_string(),
+            "compensate".into(),
+            "--robot".into(),
+            common::root()
+                .join("jobs/robots/irb1600_145.toml")
+                .display()
+                .to_string(),
+            "--settings".into(),
+            settings.display().to_string(),
+            "--out".into(),
+            dir.path().join("out").display().to_string(),
+            "--input".into(),
+            format!("targets={}", targets.display()),
+        ];
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (code, _, stderr) = common::run(&args, dir.path());
+        assert_eq!(code, 2, "{name}: {stderr}");
+        assert!(
+            stderr.contains(&targets.display().to_string()),
+            "{name}: {stderr}"
+        );
+        checked += 1;
+    }
+    assert!(checked >= 7, "{checked} bad cases");
+}
+
 /// (rx, ry, rz) deg with rotation = Rot(x, rx)·Rot(y, ry)·Rot(z, rz).
 fn xyz_euler_deg(frame: &Frame) -> [f64; 3] {
     let r = &frame.rotation;

@@ -30,7 +30,7 @@ pub fn row_problem(
     measured_mm: &Vector3<f64>,
     sigma_mm: Option<&Vector3<f64>>,
 ) -> Option<String> {
-    if let Some(problem) = joints_problem(robot, row) {
+    if let Some(problem) = joints_problem(robot, &row.q_deg) {
         return Some(problem);
     }
     let norm = measured_mm.norm();
@@ -58,12 +58,13 @@ pub fn row_problem(
 /// Why a commanded row (joints and wrench, nothing measured) is not one this
 /// robot can take: what the model would predict for it is meaningless.
 pub fn conf_wrench_problem(robot: &Robot, row: &ConfWrench) -> Option<String> {
-    joints_problem(robot, row).or_else(|| wrench_problem(row))
+    joints_problem(robot, &row.q_deg).or_else(|| wrench_problem(row))
 }
 
-fn joints_problem(robot: &Robot, row: &ConfWrench) -> Option<String> {
-    for joint in 0..JOINTS {
-        let q = row.q_deg[joint];
+/// Why a joint vector lies outside the robot file's limits (beyond
+/// [`JOINT_LIMIT_TOLERANCE_DEG`]), naming the first such joint.
+pub fn joints_problem(robot: &Robot, q_deg: &[f64; JOINTS]) -> Option<String> {
+    for (joint, &q) in q_deg.iter().enumerate() {
         let [lo, hi] = robot.limits_deg(joint);
         if !(q >= lo - JOINT_LIMIT_TOLERANCE_DEG && q <= hi + JOINT_LIMIT_TOLERANCE_DEG) {
             return Some(format!(

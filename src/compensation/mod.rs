@@ -22,10 +22,12 @@
 //!    robot file's, keeps the seeds right when the file's `[world]` is far off
 //!    (a tracker put anywhere, spec §7).
 //! 2. **Seed** (sequential, cheap). The target's branch hint (its q columns) when
-//!    given, used as it is. Otherwise the candidate closest (Euclidean distance of
-//!    the joint vectors in degrees) to the previous target's seed, so a path does
-//!    not flip branches; the first target takes the candidate closest to the
-//!    home configuration q = 0. The previous *seed* rather than the previous
+//!    given, used as it is. Otherwise the candidate within the joint limits
+//!    closest (Euclidean distance of the joint vectors in degrees) to the
+//!    previous target's seed, so a path does not flip branches until its branch
+//!    leaves the limits; the first target takes the candidate closest to the
+//!    home configuration q = 0. Only when every candidate is beyond the limits
+//!    does the closest of those seed the solve (status `joint_limit`). The previous *seed* rather than the previous
 //!    command is the reference so that the solves stay independent (parallel);
 //!    the two differ by the compensation, a fraction of a degree. A target without
 //!    candidates is seeded by its hint, else the previous seed, else q = 0, so
@@ -196,8 +198,12 @@ fn distance_deg(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
         .sqrt()
 }
 
-/// The seed rule of the module doc, over all targets in order.
-fn seeds(targets: &[Target], candidates: &[Candidates]) -> Vec<[f64; JOINTS]> {
+/// The seed rule of the module doc, over all targets in order. A target's
+/// candidates within the joint limits come first (the nearest of them to the
+/// previous seed), so a path leaves its branch only where that branch leaves
+/// the limits; only when every candidate is beyond them does the nearest of
+/// those seed the solve (which then ends `joint_limit`).
+fn seeds(robot: &Robot, targets: &[Target], candidates: &[Candidates]) -> Vec<[f64; JOINTS]> {
     let mut previous = [0.0; JOINTS];
     targets
         .iter()
@@ -205,13 +211,18 @@ fn seeds(targets: &[Target], candidates: &[Candidates]) -> Vec<[f64; JOINTS]> {
         .map(|(target, found)| {
             let seed = match (target.hint_deg, found) {
                 (Some(hint), _) => hint,
-                (None, Candidates::Found(solutions)) => solutions
-                    .iter()
-                    .map(|s| s.q_deg)
-                    .min_by(|a, b| {
-                        distance_deg(a, &previous).total_cmp(&distance_deg(b, &previous))
-                    })
-                    .unwrap_or(previous),
+                (None, Candidates::Found(solutions)) => {
+                    let nearest = |within_limits: bool| {
+                        solutions
+                            .iter()
+                            .map(|s| s.q_deg)
+                            .filter(|q| robot.within_limits(q) == within_limits)
+                            .min_by(|a, b| {
+                                distance_deg(a, &previous).total_cmp(&distance_deg(b, &previous))
+                            })
+                    };
+                    nearest(true).or_else(|| nearest(false)).unwrap_or(previous)
+                }
                 (None, _) => previous,
             };
             previous = seed;
@@ -238,7 +249,7 @@ pub fn compensate(
         .par_iter()
         .map(|t| candidates(robot, calibrated, t))
         .collect();
-    let seeds = seeds(targets, &found);
+    let seeds = seeds(robot, targets, &found);
     let controller = controller_model(robot, calibrated);
     let controller_prepared = robot.prepare(&controller);
     let calibrated_prepared = robot.prepare(calibrated);
@@ -307,4 +318,108 @@ fn quaternion_wxyz(frame: &Frame) -> [f64; 4] {
     let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(frame.rotation));
     let sign = if q.w < 0.0 { -1.0 } else { 1.0 };
     [q.w * sign, q.i * sign, q.j * sign, q.k * sign]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::test_support::{irb1600, truth_params};
+
+    fn solution(q_deg: [f64; JOINTS]) -> IkSolution {
+        IkSolution { q_deg, branch: 0 }
+    }
+
+    #[test]
+    fn seeds_start_nearest_home_then_follow_the_previous_seed_or_the_hint() {
+        let pose = Target::from_columns([0.0; 3], [0.0; 3], Wrench::zero(), None);
+        let a = [10.0, 0.0, 0.0, 0.0, 30.0, 0.0];
+        let b = [-170.0, 0.0, 0.0, 0.0, -30.0, 0.0];
+        let hint = [-160.0, 0.0, 0.0, 0.0, -25.0, 0.0];
+        let targets = [
+            pose,
+            pose,
+            Target {
+                hint_deg: Some(hint),
+                ..pose
+            },
+            pose,
+            pose,
+        ];
+        let found = [
+            Candidates::Found(vec![solution(b), solution(a)]),
+            Candidates::Found(vec![solution(b), solution(a)]),
+            Candidates::Found(vec![solution(a)]),
+            Candidates::Found(vec![solution(a), solution(b)]),
+            Candidates::None,
+        ];
+        // Nearest q = 0, then nearest the previous seed; a hint is taken as it
+        // is and becomes the reference; no candidates keeps the previous seed.
+        assert_eq!(seeds(&irb1600(), &targets, &found), [a, a, hint, b, b]);
+    }
+
+    #[test]
+    fn a_candidate_within_the_limits_is_preferred_to_a_nearer_one_beyond() {
+        let robot = irb1600();
+        let pose = Target::from_columns([0.0; 3], [0.0; 3], Wrench::zero(), None);
+        // q5 beyond its ±115° limit, nearer q = 0 than the other branch.
+        let beyond = [0.0, 0.0, 0.0, 0.0, 120.0, 0.0];
+        let within = [150.0, 0.0, 0.0, 0.0, -100.0, 0.0];
+        let also_beyond = [0.0, 0.0, 0.0, 0.0, 130.0, 0.0];
+        assert!(!robot.within_limits(&beyond) && robot.within_limits(&within));
+        let found = [
+            Candidates::Found(vec![solution(beyond), solution(within)]),
+            Candidates::Found(vec![solution(also_beyond), solution(beyond)]),
+        ];
+        // Every candidate beyond: the nearest of them (and `joint_limit` later).
+        assert_eq!(seeds(&robot, &[pose, pose], &found), [within, beyond]);
+    }
+
+    #[test]
+    fn the_quaternion_has_w_at_least_zero_and_is_the_rotation() {
+        for angle_deg in [0.0, 90.0, 179.0, 181.0, 350.0] {
+            let frame = Frame {
+                rotation: rot_z(angle_deg * DEG) * rot_x(0.3),
+                origin_mm: Vector3::zeros(),
+            };
+            let [w, x, y, z] = quaternion_wxyz(&frame);
+            assert!(w >= 0.0, "{angle_deg}");
+            let back = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+            assert!((back.to_rotation_matrix().matrix() - frame.rotation).norm() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn running_out_of_iterations_is_not_converged_and_keeps_a_finite_iterate() {
+        let robot = irb1600();
+        let truth = truth_params(&robot);
+        let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
+        let wrench = Wrench::from_array([50.0, -80.0, 100.0, 5.0, 0.0, -5.0]);
+        let target = Target {
+            tool_in_world: robot.tool_in_world(&truth, &q, &wrench),
+            wrench,
+            hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0]),
+        };
+        let options = Options {
+            solver: NumericOptions {
+                max_iterations: 1,
+                position_tolerance_mm: 1e-9,
+                orientation_tolerance_rad: 1e-9,
+                ..NumericOptions::default()
+            },
+            singular_sigma_min_mm_per_rad: 3.5,
+        };
+        let one = compensate(&robot, &truth, &[target], &options)[0];
+        assert_eq!(one.status, Status::NotConverged, "{one:?}");
+        assert!(one.q_deg.iter().all(|v| v.is_finite()) && one.residual_mm > 1e-9);
+        let options = Options {
+            solver: NumericOptions {
+                max_iterations: 100,
+                ..options.solver
+            },
+            ..options
+        };
+        let done = compensate(&robot, &truth, &[target], &options)[0];
+        assert_eq!(done.status, Status::Ok, "{done:?}");
+        assert!(done.q_deg.iter().zip(&q).all(|(a, b)| (a - b).abs() < 1e-6));
+    }
 }

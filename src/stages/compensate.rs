@@ -17,10 +17,10 @@ use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, model_name_problem, model_values,
 };
-use crate::calibration::row_checks::{MAX_POSITION_MM, compact, wrench_problem};
+use crate::calibration::row_checks::{MAX_POSITION_MM, compact, joints_problem, wrench_problem};
 use crate::compensation::{self, Command, Options, Status, Target};
 use crate::robot::ik::NumericOptions;
-use crate::robot::{ConfWrench, JOINTS, Wrench};
+use crate::robot::{ConfWrench, JOINTS, Robot, Wrench};
 use crate::table::frame;
 use crate::table::parameters::ModelName;
 use crate::table::schema::{
@@ -127,7 +127,7 @@ impl Stage for CompensateStage {
     ) -> Result<StageOutputs, StageError> {
         let values = model_values(ctx, "parameters", "model", &settings.model)?;
         let input = ctx.input("targets")?;
-        let (ids, targets) = target_rows(&input.df, &input.path)?;
+        let (ids, targets) = target_rows(ctx.robot, &input.df, &input.path)?;
         let options = Options {
             solver: NumericOptions {
                 max_iterations: settings.max_iterations,
@@ -180,8 +180,11 @@ fn optional_f64(
 /// The checked `targets` rows. A missing wrench value is 0; a branch hint is used
 /// only when all six q columns are given on the row. Refused, naming the row: a
 /// position farther than [`MAX_POSITION_MM`] from the tracker, a wrench beyond
-/// `row_checks`' bounds, a partial hint.
+/// `row_checks`' bounds, a partial hint, a hint outside the robot file's joint
+/// limits (a seed there asks for a branch the robot cannot take, and says the
+/// row was typed for another robot or in radians).
 fn target_rows(
+    robot: &Robot,
     df: &DataFrame,
     file: &std::path::Path,
 ) -> Result<(Vec<i64>, Vec<Target>), StageError> {
@@ -213,7 +216,8 @@ fn target_rows(
     for row in 0..ids.len() {
         let position_mm: [f64; 3] = std::array::from_fn(|i| position[i][row]);
         let distance = nalgebra::Vector3::from(position_mm).norm();
-        if distance > MAX_POSITION_MM {
+        // A NaN too, should one get past the schema check.
+        if distance.is_nan() || distance > MAX_POSITION_MM {
             return Err(bad(
                 row,
                 format!(
@@ -229,7 +233,13 @@ fn target_rows(
         let given: Vec<f64> = hint.iter().filter_map(|c| c[row]).collect();
         let hint_deg = match given.len() {
             0 => None,
-            JOINTS => Some(std::array::from_fn(|i| given[i])),
+            JOINTS => {
+                let hint_deg: [f64; JOINTS] = std::array::from_fn(|i| given[i]);
+                if let Some(problem) = joints_problem(robot, &hint_deg) {
+                    return Err(bad(row, format!("branch hint: {problem}")));
+                }
+                Some(hint_deg)
+            }
             n => {
                 return Err(bad(
                     row,
