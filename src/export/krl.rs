@@ -204,13 +204,7 @@ pub fn src(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn irb1600() -> Robot {
-        let text = include_str!("../../jobs/robots/irb1600_145.toml");
-        Robot::new(
-            crate::robot::RobotSpec::parse(text, std::path::Path::new("irb1600_145.toml")).unwrap(),
-        )
-    }
+    use crate::robot::test_support::irb1600;
 
     #[test]
     fn abc_of_fixed_quaternions() {

@@ -410,15 +410,9 @@ const RESERVED: &[&str] = &[
 mod tests {
     use super::*;
     use crate::robot::frame::{rot_x, rot_y, rot_z};
+    use crate::robot::test_support::irb1600;
 
     const DEG: f64 = std::f64::consts::PI / 180.0;
-
-    fn irb1600() -> Robot {
-        let text = include_str!("../../jobs/robots/irb1600_145.toml");
-        Robot::new(
-            crate::robot::RobotSpec::parse(text, std::path::Path::new("irb1600_145.toml")).unwrap(),
-        )
-    }
 
     #[test]
     fn zyx_angles_of_fixed_rotations() {

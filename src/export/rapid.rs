@@ -196,13 +196,7 @@ fn normalised(q: [f64; 4]) -> [f64; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn irb1600() -> Robot {
-        let text = include_str!("../../jobs/robots/irb1600_145.toml");
-        Robot::new(
-            crate::robot::RobotSpec::parse(text, std::path::Path::new("irb1600_145.toml")).unwrap(),
-        )
-    }
+    use crate::robot::test_support::irb1600;
 
     #[test]
     fn quadrants_follow_abb() {
