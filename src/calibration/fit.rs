@@ -231,6 +231,11 @@ pub struct Fit {
     pub correlation: Vec<f64>,
     /// Covariance of the estimates in the parameters' units, row-major `m × m`.
     pub covariance: Vec<f64>,
+    /// σ² of the covariance: the residual variance of a unit-weight equation,
+    /// `Σ w_k‖s_k∘r_k‖² / (3n − m)` (mm² without per-point σ; dimensionless with,
+    /// a row's noise then being σ²·σ_row²). Kept so that a prediction's error can
+    /// be judged against measurement noise as well as parameter uncertainty.
+    pub variance_factor: f64,
 }
 
 impl Fit {
@@ -766,6 +771,7 @@ fn iterate(problem: &Problem<'_>, mut point: Point) -> Result<Fit, FitError> {
         free: free.to_vec(),
         correlation: statistics.correlation,
         covariance: statistics.covariance,
+        variance_factor: statistics.variance_factor,
     })
 }
 
@@ -774,6 +780,7 @@ struct Statistics {
     condition_number: f64,
     correlation: Vec<f64>,
     covariance: Vec<f64>,
+    variance_factor: f64,
 }
 
 /// Covariance `σ²·(JᵀWJ)⁻¹` at the solution with `σ² = Σ w_k‖r_k‖² / (3n − m)`
@@ -824,6 +831,7 @@ fn statistics(point: &Point, system: &System, free: &[ParamId]) -> Result<Statis
         condition_number: s_max / s_min,
         correlation,
         covariance,
+        variance_factor: sigma2,
     })
 }
 

@@ -12,6 +12,7 @@ pub mod registration;
 pub mod robust;
 pub mod row_checks;
 pub mod stream;
+pub mod uncertainty;
 
 use nalgebra::Vector3;
 
@@ -98,6 +99,8 @@ pub struct Diagnostics {
     /// The identified parameters and their covariance (parameters' units, row-major).
     pub free: Vec<ParamId>,
     pub covariance: Vec<f64>,
+    /// σ² the covariance is scaled by ([`fit::Fit::variance_factor`]).
+    pub variance_factor: f64,
 }
 
 /// Identifies one model from the rows and measured positions, starting from
@@ -190,6 +193,7 @@ pub fn calibrate(
         correlations: fit.strongest_correlations(CORRELATIONS_REPORTED),
         free: fit.free.clone(),
         covariance: fit.covariance.clone(),
+        variance_factor: fit.variance_factor,
     };
     let mut set = ParameterSet::fixed(model, fit.values);
     set.std_errors = fit.std_errors;

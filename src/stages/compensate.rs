@@ -8,6 +8,11 @@
 //! target_id, q = the command, the target's wrench), so a `measure` stage can run
 //! them on a rig or the simulator and the achieved positions can be compared
 //! with the targets.
+//!
+//! With the optional `covariance` input, `commands` also carries the predicted
+//! position's uncertainty at each command (spec §7, J·Σ·Jᵀ at the command and
+//! the target's wrench): how well the calibration knows where the command puts
+//! the tool. Null for a model without a covariance; absent without the input.
 
 use polars::prelude::{Column, DataFrame, DataType};
 use schemars::JsonSchema;
@@ -15,12 +20,13 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
-    TableSlot, model_name_problem, model_values,
+    TableSlot, bound_covariance, covariance_binding_problem, covariance_columns,
+    model_name_problem, model_set, row_covariances,
 };
 use crate::calibration::row_checks::{MAX_POSITION_MM, compact, joints_problem, wrench_problem};
 use crate::compensation::{self, Command, Options, Status, Target};
 use crate::robot::ik::NumericOptions;
-use crate::robot::{ConfWrench, JOINTS, Robot, Wrench};
+use crate::robot::{ConfWrench, JOINTS, ParamValues, Robot, Wrench};
 use crate::table::frame;
 use crate::table::parameters::ModelName;
 use crate::table::schema::{
@@ -72,7 +78,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Load-aware compensation: joint commands that put the calibrated, loaded tool on each target, and corrected Cartesian targets for the nominal controller",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "targets",
@@ -86,6 +92,7 @@ static INFO: StageInfo = StageInfo {
             required: false,
             meaning: "parameter sets; nominal when absent",
         },
+        super::COVARIANCE_INPUT,
     ],
     outputs: &[
         TableSlot {
@@ -113,10 +120,11 @@ impl Stage for CompensateStage {
     fn check_settings(
         &self,
         settings: &CompensateSettings,
-        _: &SettingsContext,
+        ctx: &SettingsContext,
     ) -> Vec<SettingsProblem> {
         model_name_problem("model", &settings.model)
             .into_iter()
+            .chain(covariance_binding_problem(ctx))
             .collect()
     }
 
@@ -125,7 +133,10 @@ impl Stage for CompensateStage {
         ctx: &StageContext,
         settings: &CompensateSettings,
     ) -> Result<StageOutputs, StageError> {
-        let values = model_values(ctx, "parameters", "model", &settings.model)?;
+        let set = model_set(ctx, "parameters", "model", &settings.model)?;
+        let values = set
+            .as_ref()
+            .map_or_else(|| ParamValues::nominal(ctx.robot.spec()), |set| set.values);
         let input = ctx.input("targets")?;
         let (ids, targets) = target_rows(ctx.robot, &input.df, &input.path)?;
         let options = Options {
@@ -138,10 +149,25 @@ impl Stage for CompensateStage {
             singular_sigma_min_mm_per_rad: settings.singular_sigma_min_mm_per_rad,
         };
         let commands = compensation::compensate(ctx.robot, &values, &targets, &options);
+        let mut commands_table = commands_frame(&ids, &commands);
+        if let Some(set) = &set
+            && let Some(covariance) = bound_covariance(ctx, set)?
+        {
+            // Compensation aims the set's first target (one-target tool).
+            let rows: Vec<ConfWrench> = targets
+                .iter()
+                .zip(&commands)
+                .map(|(target, command)| ConfWrench::new(command.q_deg, target.wrench))
+                .collect();
+            let covariances = row_covariances(ctx, set, covariance.as_ref(), &rows);
+            for column in covariance_columns(&covariances) {
+                commands_table
+                    .with_column(column)
+                    .map_err(|e| StageError::Failed(format!("commands: {e}")))?;
+            }
+        }
         let mut outputs = StageOutputs::default();
-        outputs
-            .tables
-            .insert("commands".into(), commands_frame(&ids, &commands));
+        outputs.tables.insert("commands".into(), commands_table);
         outputs.tables.insert(
             "conf_wrenches".into(),
             conf_wrenches_frame(&ids, &targets, &commands),

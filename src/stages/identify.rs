@@ -236,7 +236,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 4,
+    code_version: 5,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -1025,6 +1025,7 @@ struct CovarianceColumns {
     name_i: Vec<String>,
     name_j: Vec<String>,
     value: Vec<f64>,
+    variance_factor: Vec<f64>,
 }
 
 impl CovarianceColumns {
@@ -1040,6 +1041,7 @@ impl CovarianceColumns {
                 self.name_i.push(result.set.name_of(*a));
                 self.name_j.push(result.set.name_of(*b));
                 self.value.push(diagnostics.covariance[i * m + j]);
+                self.variance_factor.push(diagnostics.variance_factor);
             }
         }
     }
@@ -1050,6 +1052,7 @@ impl CovarianceColumns {
             Column::new("name_i".into(), self.name_i),
             Column::new("name_j".into(), self.name_j),
             Column::new("value".into(), self.value),
+            Column::new("variance_factor".into(), self.variance_factor),
         ])
     }
 }

@@ -413,10 +413,24 @@ pub fn model_values(
     setting: &str,
     model: &str,
 ) -> Result<crate::robot::ParamValues, StageError> {
+    Ok(model_set(ctx, input, setting, model)?.map_or_else(
+        || crate::robot::ParamValues::nominal(ctx.robot.spec()),
+        |set| set.values,
+    ))
+}
+
+/// The parameter set of one model of a bound parameters table, as
+/// [`model_values`]; `None` when the input is not bound.
+pub fn model_set(
+    ctx: &StageContext,
+    input: &str,
+    setting: &str,
+    model: &str,
+) -> Result<Option<crate::table::parameters::ParameterSet>, StageError> {
     use crate::table::parameters::{self, ModelName};
     let nominal = crate::robot::ParamValues::nominal(ctx.robot.spec());
     let Some(table) = ctx.inputs.get(input) else {
-        return Ok(nominal);
+        return Ok(None);
     };
     let model: ModelName = model
         .parse()
@@ -424,7 +438,7 @@ pub fn model_values(
     parameters::from_frame(&table.df, &table.path, &nominal)?
         .into_iter()
         .find(|s| s.model == model)
-        .map(|s| s.values)
+        .map(Some)
         .ok_or_else(|| {
             StageError::Table(TableError::BadValue {
                 file: table.path.clone(),
@@ -433,6 +447,86 @@ pub fn model_values(
                 message: format!("no rows for model `{model}`"),
             })
         })
+}
+
+/// The optional input of the stages that write the §7 predicted-position
+/// uncertainty (`predict`, `validate`, `compensate`).
+pub const COVARIANCE_INPUT: TableSlot = TableSlot {
+    name: "covariance",
+    schema: crate::table::schema::covariance,
+    required: false,
+    meaning: "identify's parameter covariance: adds cov_xx_mm2..cov_zz_mm2 (J·Σ·Jᵀ), null for a model without one; the columns are absent when not bound",
+};
+
+/// The covariance input's rows for `set` ([`crate::table::parameters::covariance_of`]):
+/// `None` when the input is not bound, `Some(None)` when the model identifies nothing.
+pub fn bound_covariance(
+    ctx: &StageContext,
+    set: &crate::table::parameters::ParameterSet,
+) -> Result<Option<Option<crate::table::parameters::ModelCovariance>>, StageError> {
+    let Some(table) = ctx.inputs.get(COVARIANCE_INPUT.name) else {
+        return Ok(None);
+    };
+    Ok(Some(crate::table::parameters::covariance_of(
+        &table.df,
+        &table.path,
+        set,
+    )?))
+}
+
+/// The problem of a `covariance` input bound without the `parameters` it
+/// belongs to (a covariance of nominal values means nothing).
+pub fn covariance_binding_problem(ctx: &SettingsContext) -> Option<SettingsProblem> {
+    (ctx.bound_inputs.contains(&COVARIANCE_INPUT.name) && !ctx.bound_inputs.contains(&"parameters"))
+        .then(|| {
+            SettingsProblem::new(
+                "inputs.covariance",
+                "input `covariance` needs the input `parameters` it was identified with",
+            )
+        })
+}
+
+/// `J·Σ·Jᵀ` of each row under `set` with its covariance; `None` per row for a
+/// model without a covariance.
+pub fn row_covariances(
+    ctx: &StageContext,
+    set: &crate::table::parameters::ParameterSet,
+    covariance: Option<&crate::table::parameters::ModelCovariance>,
+    rows: &[crate::robot::ConfWrench],
+) -> Vec<Option<nalgebra::Matrix3<f64>>> {
+    match covariance {
+        Some(c) => crate::calibration::uncertainty::position_covariances(
+            ctx.robot,
+            &set.values,
+            &c.free,
+            &c.matrix,
+            rows,
+        )
+        .into_iter()
+        .map(Some)
+        .collect(),
+        None => vec![None; rows.len()],
+    }
+}
+
+/// The six §7 columns `cov_xx_mm2 … cov_zz_mm2` of `covariances`, null where a
+/// row has none.
+pub fn covariance_columns(
+    covariances: &[Option<nalgebra::Matrix3<f64>>],
+) -> Vec<polars::prelude::Column> {
+    use crate::table::schema::POSITION_COVARIANCE_COLUMNS;
+    POSITION_COVARIANCE_COLUMNS
+        .iter()
+        .map(|(name, i, j)| {
+            polars::prelude::Column::new(
+                (*name).into(),
+                covariances
+                    .iter()
+                    .map(|c| c.map(|c| c[(*i, *j)]))
+                    .collect::<Vec<Option<f64>>>(),
+            )
+        })
+        .collect()
 }
 
 /// Reads conf-wrench rows (cw_id, q1..q6, wrench) from a checked table.

@@ -1,15 +1,21 @@
 //! `predict`: the forward model over a table of conf-wrench rows — SMR position,
 //! load torques and deflections per row, for one model of a parameters table (or
 //! the robot file's nominal values when no parameters table is bound).
+//!
+//! With the optional `covariance` input (identify's), also the predicted
+//! position's uncertainty J·Σ·Jᵀ (spec §7, [`crate::calibration::uncertainty`]):
+//! columns `cov_xx_mm2 … cov_zz_mm2`, null when the model identifies nothing
+//! (nominal); without the input the columns are left out.
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
-    TableSlot, commanded_rows, model_name_problem, model_values,
+    TableSlot, bound_covariance, commanded_rows, covariance_binding_problem, covariance_columns,
+    model_name_problem, model_set, row_covariances,
 };
-use crate::robot::batch_predict;
+use crate::robot::{ParamValues, batch_predict};
 use crate::table::frame;
 use crate::table::parameters::ModelName;
 use crate::table::schema::{self, DEFLECTION_COLUMNS, POSITION_COLUMNS, TORQUE_COLUMNS};
@@ -39,7 +45,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Forward model: SMR position, load torques and deflections for conf-wrench rows",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "conf_wrenches",
@@ -53,12 +59,13 @@ static INFO: StageInfo = StageInfo {
             required: false,
             meaning: "parameter sets; nominal when absent",
         },
+        super::COVARIANCE_INPUT,
     ],
     outputs: &[TableSlot {
         name: "predictions",
         schema: schema::predictions,
         required: true,
-        meaning: "cw_id, x_mm..z_mm, tau1_nm..tau6_nm, dq1_deg..dq6_deg",
+        meaning: "cw_id, x_mm..z_mm, tau1_nm..tau6_nm, dq1_deg..dq6_deg, cov_xx_mm2..cov_zz_mm2 with a covariance",
     }],
 };
 
@@ -72,10 +79,11 @@ impl Stage for PredictStage {
     fn check_settings(
         &self,
         settings: &PredictSettings,
-        _: &SettingsContext,
+        ctx: &SettingsContext,
     ) -> Vec<SettingsProblem> {
         model_name_problem("model", &settings.model)
             .into_iter()
+            .chain(covariance_binding_problem(ctx))
             .collect()
     }
 
@@ -84,7 +92,10 @@ impl Stage for PredictStage {
         ctx: &StageContext,
         settings: &PredictSettings,
     ) -> Result<StageOutputs, StageError> {
-        let values = model_values(ctx, "parameters", "model", &settings.model)?;
+        let set = model_set(ctx, "parameters", "model", &settings.model)?;
+        let values = set
+            .as_ref()
+            .map_or_else(|| ParamValues::nominal(ctx.robot.spec()), |set| set.values);
         let input = ctx.input("conf_wrenches")?;
         let (ids, rows) = commanded_rows(ctx, input)?;
         let predictions = batch_predict(ctx.robot, &values, &rows);
@@ -103,6 +114,12 @@ impl Stage for PredictStage {
                 .map(|p| p.deflections_deg[joint])
                 .collect();
             columns.push(Column::new((*name).into(), v));
+        }
+        if let Some(set) = &set
+            && let Some(covariance) = bound_covariance(ctx, set)?
+        {
+            let covariances = row_covariances(ctx, set, covariance.as_ref(), &rows);
+            columns.extend(covariance_columns(&covariances));
         }
         let mut outputs = StageOutputs::default();
         outputs.tables.insert("predictions".into(), frame(columns));

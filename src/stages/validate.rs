@@ -2,13 +2,29 @@
 //! and compares each with the measurements (paper §VI, eq. (30), Table III), then
 //! tests every pair of models on the same rows: paired t, Welch's t, Student's t
 //! (the paper's) and the Wilcoxon signed-rank test (error norms are not normal).
+//!
+//! With the optional `covariance` input (identify's), each model's rows also get
+//! their predicted-position uncertainty J·Σ·Jᵀ (spec §7) and whether the error
+//! lies inside the 95 % ellipsoid of `J·Σ·Jᵀ + σ²·N`, σ² the fit's variance
+//! factor (the `covariance` table's `variance_factor`) and `N` the identity, or
+//! `diag(σ_row²)` for rows with the §7 per-point σ columns (validation rows are
+//! taken to be weighted as the calibration rows were). `stats` gets the share
+//! of covered rows, `coverage_95`: near 0.95 when the calibration's uncertainty
+//! is honest, below when the model misses effects the noise does not explain.
+//! Without the input those columns are left out; for a model without a
+//! covariance (nominal) they are null.
 
+use nalgebra::Matrix3;
 use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::identify::{MeasuredRows, ids_with_role, measured_rows};
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::{
+    Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, bound_covariance,
+    covariance_columns, row_covariances,
+};
+use crate::calibration::uncertainty::{chi_squared_3_quantile, within_ellipsoid};
 use crate::robot::{ParamValues, batch_predict};
 use crate::stats::{self, TestResult};
 use crate::table::parameters::{self, ModelName};
@@ -29,7 +45,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Validation errors per model, statistics (Table III) and pairwise hypothesis tests",
-    code_version: 3,
+    code_version: 4,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -49,19 +65,20 @@ static INFO: StageInfo = StageInfo {
             required: false,
             meaning: "rows with role = validation are used; all rows when absent",
         },
+        super::COVARIANCE_INPUT,
     ],
     outputs: &[
         TableSlot {
             name: "errors",
             schema: schema::errors,
             required: true,
-            meaning: "per row and model: error components and norm",
+            meaning: "per row and model: error components and norm; with a covariance, J·Σ·Jᵀ and whether the error is inside its 95 % ellipsoid",
         },
         TableSlot {
             name: "stats",
             schema: schema::stats,
             required: true,
-            meaning: "per model: n, mean, std, median, rms, p95, max",
+            meaning: "per model: n, mean, std, median, rms, p95, max; coverage_95 with a covariance",
         },
         TableSlot {
             name: "tests",
@@ -95,6 +112,7 @@ impl Stage for ValidateStage {
             rows,
             positions: measured,
             target_ids,
+            sigma_mm,
             ..
         } = data;
         if ids.len() < 2 {
@@ -110,6 +128,8 @@ impl Stage for ValidateStage {
 
         let mut e = ErrorColumns::default();
         let mut norms: Vec<(ModelName, Vec<f64>)> = Vec::new();
+        let mut coverages: Vec<Option<f64>> = Vec::new();
+        let radius_squared = chi_squared_3_quantile(COVERAGE_PROBABILITY);
         for set in &sets {
             // Each row's SMR: the set's translation of the row's target (spec §7).
             let targets = set.target_indices(target_ids.as_deref()).map_err(|m| {
@@ -120,7 +140,13 @@ impl Stage for ValidateStage {
                 row.target = *target;
             }
             let predictions = batch_predict(ctx.robot, &set.values, &rows);
+            let covariance = bound_covariance(ctx, set)?;
             let mut model_norms = Vec::with_capacity(rows.len());
+            let mut covered = Vec::with_capacity(rows.len());
+            let covariances = covariance
+                .as_ref()
+                .map(|c| row_covariances(ctx, set, c.as_ref(), &rows));
+            let variance_factor = covariance.flatten().and_then(|c| c.variance_factor);
             for (k, prediction) in predictions.iter().enumerate() {
                 let error = prediction.position_mm - measured[k];
                 e.cw_id.push(ids[k]);
@@ -130,12 +156,29 @@ impl Stage for ValidateStage {
                 e.ez.push(error.z);
                 e.norm.push(error.norm());
                 model_norms.push(error.norm());
+                let inside = covariances.as_ref().and_then(|c| c[k]).and_then(|c| {
+                    let noise = sigma_mm.as_ref().map_or_else(Matrix3::identity, |s| {
+                        Matrix3::from_diagonal(&s[k].component_mul(&s[k]))
+                    });
+                    within_ellipsoid(&error, &(c + noise * variance_factor?), radius_squared)
+                });
+                covered.push(inside);
             }
+            if let Some(c) = covariances {
+                e.covariances.extend(c);
+                e.covered.extend(&covered);
+            }
+            let checked: Vec<bool> = covered.iter().flatten().copied().collect();
+            let coverage = (!checked.is_empty())
+                .then(|| checked.iter().filter(|c| **c).count() as f64 / checked.len() as f64);
             norms.push((set.model, model_norms));
+            coverages.push(coverage);
         }
+        let with_covariance = ctx.inputs.contains_key(super::COVARIANCE_INPUT.name);
 
         let mut s = StatsColumns::default();
-        for (model, values) in &norms {
+        for ((model, values), coverage) in norms.iter().zip(&coverages) {
+            s.coverage_95.push(*coverage);
             let summary = stats::summary(values)
                 .map_err(|err| StageError::Failed(format!("{model}: {err}")))?;
             s.model.push(model.as_str());
@@ -175,14 +218,23 @@ impl Stage for ValidateStage {
         if let Some(summary) = left_out {
             outputs.facts.insert("rows_left_out".into(), summary);
         }
-        for (model, values) in &norms {
+        for ((model, values), coverage) in norms.iter().zip(&coverages) {
             let max = values.iter().cloned().fold(0.0, f64::max);
             outputs
                 .facts
                 .insert(format!("{model}_max_mm"), format!("{max:.3}"));
+            if let Some(coverage) = coverage {
+                outputs
+                    .facts
+                    .insert(format!("{model}_coverage_95"), format!("{coverage:.3}"));
+            }
         }
-        outputs.tables.insert("errors".into(), e.into_frame());
-        outputs.tables.insert("stats".into(), s.into_frame());
+        outputs
+            .tables
+            .insert("errors".into(), e.into_frame(with_covariance));
+        outputs
+            .tables
+            .insert("stats".into(), s.into_frame(with_covariance));
         outputs.tables.insert("tests".into(), t.into_frame());
         Ok(outputs)
     }
@@ -196,20 +248,32 @@ struct ErrorColumns {
     ey: Vec<f64>,
     ez: Vec<f64>,
     norm: Vec<f64>,
+    /// J·Σ·Jᵀ per row, filled only with a covariance input.
+    covariances: Vec<Option<Matrix3<f64>>>,
+    covered: Vec<Option<bool>>,
 }
 
 impl ErrorColumns {
-    fn into_frame(self) -> polars::prelude::DataFrame {
-        frame(vec![
+    /// The table; with `with_covariance`, also the uncertainty columns.
+    fn into_frame(self, with_covariance: bool) -> polars::prelude::DataFrame {
+        let mut columns = vec![
             Column::new("cw_id".into(), self.cw_id),
             Column::new("model".into(), self.model),
             Column::new("ex_mm".into(), self.ex),
             Column::new("ey_mm".into(), self.ey),
             Column::new("ez_mm".into(), self.ez),
             Column::new("error_mm".into(), self.norm),
-        ])
+        ];
+        if with_covariance {
+            columns.extend(covariance_columns(&self.covariances));
+            columns.push(Column::new("covered_95".into(), self.covered));
+        }
+        frame(columns)
     }
 }
+
+/// The probability of the ellipsoid `coverage_95` counts rows inside.
+const COVERAGE_PROBABILITY: f64 = 0.95;
 
 #[derive(Default)]
 struct StatsColumns {
@@ -221,11 +285,13 @@ struct StatsColumns {
     rms: Vec<f64>,
     p95: Vec<f64>,
     max: Vec<f64>,
+    coverage_95: Vec<Option<f64>>,
 }
 
 impl StatsColumns {
-    fn into_frame(self) -> polars::prelude::DataFrame {
-        frame(vec![
+    /// The table; with `with_covariance`, also `coverage_95`.
+    fn into_frame(self, with_covariance: bool) -> polars::prelude::DataFrame {
+        let mut columns = vec![
             Column::new("model".into(), self.model),
             Column::new("n".into(), self.n),
             Column::new("mean_mm".into(), self.mean),
@@ -234,7 +300,11 @@ impl StatsColumns {
             Column::new("rms_mm".into(), self.rms),
             Column::new("p95_mm".into(), self.p95),
             Column::new("max_mm".into(), self.max),
-        ])
+        ];
+        if with_covariance {
+            columns.push(Column::new("coverage_95".into(), self.coverage_95));
+        }
+        frame(columns)
     }
 }
 

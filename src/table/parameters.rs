@@ -332,6 +332,160 @@ pub fn from_frame(
     Ok(sets)
 }
 
+/// One model's parameter covariance from a `covariance` table (spec §7).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelCovariance {
+    /// The identified parameters, in the order of `matrix`.
+    pub free: Vec<ParamId>,
+    /// Row-major `m × m`, in the products of the parameters' units.
+    pub matrix: Vec<f64>,
+    /// σ² the covariance is scaled by; `None` for a table without the column.
+    pub variance_factor: Option<f64>,
+}
+
+/// Relative tolerance of the checks that a covariance belongs to its parameter
+/// set: identify writes both from the same numbers, so only rounding differs.
+const COVARIANCE_MATCH: f64 = 1e-9;
+
+/// The covariance of `set`'s model from a `covariance` table, checked against
+/// the set: exactly its identified parameters, every pair once, symmetric,
+/// with the diagonal equal to the squared `std_error`s. A table from another
+/// calibration fails these checks, naming the row, rather than giving a
+/// confident uncertainty for the wrong parameters. `None` when the model
+/// identifies nothing (nominal) and the table has no rows for it.
+pub fn covariance_of(
+    df: &DataFrame,
+    file: &Path,
+    set: &ParameterSet,
+) -> Result<Option<ModelCovariance>, TableError> {
+    schema::covariance().check(df, file)?;
+    let models = str_values(df, "model", file)?;
+    let names_i = str_values(df, "name_i", file)?;
+    let names_j = str_values(df, "name_j", file)?;
+    let values = f64_values(df, "value", file)?;
+    let factors: Option<Vec<Option<f64>>> = match df.column("variance_factor") {
+        Ok(c) => Some(
+            c.cast(&DataType::Float64)
+                .map_err(|e| schema::io_error(file, e))?
+                .f64()
+                .map_err(|e| schema::io_error(file, e))?
+                .iter()
+                .collect(),
+        ),
+        Err(_) => None,
+    };
+    let bad = |row: usize, column: &str, message: String| TableError::BadValue {
+        file: file.to_path_buf(),
+        column: column.to_string(),
+        row,
+        message,
+    };
+    let model = set.model;
+    let free: Vec<ParamId> = set
+        .ids()
+        .filter(|id| set.status[id.index()] == ParamStatus::Identified)
+        .collect();
+    let names: Vec<String> = free.iter().map(|id| set.name_of(*id)).collect();
+    let m = free.len();
+    let rows: Vec<usize> = (0..df.height())
+        .filter(|row| models[*row].as_deref() == Some(model.as_str()))
+        .collect();
+    if rows.is_empty() {
+        if m == 0 {
+            return Ok(None);
+        }
+        return Err(bad(
+            0,
+            "model",
+            format!("no rows for model `{model}`, whose parameters identify {m}"),
+        ));
+    }
+    let mut matrix = vec![f64::NAN; m * m];
+    let index = |row: usize, column: &str, name: &Option<String>| {
+        let name = name.as_deref().unwrap_or_default();
+        names.iter().position(|n| n == name).ok_or_else(|| {
+            bad(
+                row,
+                column,
+                format!(
+                    "`{name}` is not an identified parameter of the `{model}` parameters; the covariance belongs to another calibration"
+                ),
+            )
+        })
+    };
+    for row in &rows {
+        let (i, j) = (
+            index(*row, "name_i", &names_i[*row])?,
+            index(*row, "name_j", &names_j[*row])?,
+        );
+        if !matrix[i * m + j].is_nan() {
+            return Err(bad(
+                *row,
+                "name_j",
+                format!(
+                    "the pair ({}, {}) appears twice for model `{model}`",
+                    names[i], names[j]
+                ),
+            ));
+        }
+        matrix[i * m + j] = values[*row];
+    }
+    if let Some(missing) = matrix.iter().position(|v| v.is_nan()) {
+        return Err(bad(
+            rows[0],
+            "name_i",
+            format!(
+                "model `{model}` lacks the pair ({}, {}); the covariance has both orders of every pair of identified parameters",
+                names[missing / m],
+                names[missing % m]
+            ),
+        ));
+    }
+    for i in 0..m {
+        let variance = matrix[i * m + i];
+        if variance <= 0.0 {
+            return Err(bad(
+                rows[0],
+                "value",
+                format!("the variance of `{}` is {variance}, expected > 0", names[i]),
+            ));
+        }
+        if let Some(std_error) = set.std_errors[free[i].index()]
+            && (variance.sqrt() - std_error).abs() > COVARIANCE_MATCH * std_error
+        {
+            return Err(bad(
+                rows[0],
+                "value",
+                format!(
+                    "the standard deviation of `{}` is {:e}, but the parameters table's std_error is {std_error:e}; the covariance belongs to another calibration",
+                    names[i],
+                    variance.sqrt()
+                ),
+            ));
+        }
+        for j in 0..i {
+            let (a, b) = (matrix[i * m + j], matrix[j * m + i]);
+            let scale = (variance * matrix[j * m + j]).sqrt();
+            if (a - b).abs() > COVARIANCE_MATCH * scale {
+                return Err(bad(
+                    rows[0],
+                    "value",
+                    format!(
+                        "not symmetric: ({0}, {1}) is {a:e} but ({1}, {0}) is {b:e}",
+                        names[i], names[j]
+                    ),
+                ));
+            }
+        }
+    }
+    let variance_factor = factors.and_then(|f| f[rows[0]]);
+    Ok(Some(ModelCovariance {
+        free,
+        matrix,
+        variance_factor,
+    }))
+}
+
 /// The set of `model` from a parameters file.
 pub fn load_model(
     path: &Path,
@@ -409,6 +563,54 @@ mod tests {
         assert!(
             err.contains("`nest_z`") && err.contains("nest_a, nest_b, nest_c"),
             "{err}"
+        );
+    }
+
+    /// The covariance must be the one identify wrote with these parameters.
+    #[test]
+    fn a_covariance_is_checked_against_its_parameters() {
+        let robot = irb1600();
+        let nominal = ParamValues::nominal(robot.spec());
+        let mut set = ParameterSet::fixed(ModelName::Kinematic, nominal);
+        for (name, se) in [("x_w", 0.1), ("dtheta2", 0.002)] {
+            let id = ParamId::from_name(name).unwrap();
+            set.status[id.index()] = ParamStatus::Identified;
+            set.std_errors[id.index()] = Some(se);
+        }
+        let table = |names: [(&str, &str); 4], values: [f64; 4]| {
+            super::super::frame(vec![
+                Column::new("model".into(), vec!["kinematic"; 4]),
+                Column::new("name_i".into(), names.map(|n| n.0).to_vec()),
+                Column::new("name_j".into(), names.map(|n| n.1).to_vec()),
+                Column::new("value".into(), values.to_vec()),
+                Column::new("variance_factor".into(), vec![0.0004; 4]),
+            ])
+        };
+        let pairs = [
+            ("x_w", "x_w"),
+            ("x_w", "dtheta2"),
+            ("dtheta2", "x_w"),
+            ("dtheta2", "dtheta2"),
+        ];
+        let file = Path::new("c.parquet");
+        let good = covariance_of(&table(pairs, [0.01, 1e-5, 1e-5, 4e-6]), file, &set)
+            .unwrap()
+            .unwrap();
+        assert_eq!(good.matrix, vec![0.01, 1e-5, 1e-5, 4e-6]);
+        assert_eq!(good.variance_factor, Some(0.0004));
+        let err = |df: DataFrame| covariance_of(&df, file, &set).unwrap_err().to_string();
+        let wrong_se = err(table(pairs, [0.02, 1e-5, 1e-5, 4e-6]));
+        assert!(wrong_se.contains("std_error"), "{wrong_se}");
+        let asymmetric = err(table(pairs, [0.01, 1e-5, 2e-5, 4e-6]));
+        assert!(asymmetric.contains("not symmetric"), "{asymmetric}");
+        let mut other = pairs;
+        other[3] = ("dtheta3", "dtheta3");
+        let unknown = err(table(other, [0.01, 1e-5, 1e-5, 4e-6]));
+        assert!(unknown.contains("`dtheta3`"), "{unknown}");
+        let nominal_set = ParameterSet::fixed(ModelName::Nominal, nominal);
+        assert_eq!(
+            covariance_of(&table(pairs, [0.01, 1e-5, 1e-5, 4e-6]), file, &nominal_set).unwrap(),
+            None
         );
     }
 

@@ -596,6 +596,13 @@ pub fn covariance() -> TableSchema {
                 true,
                 "covariance, in the product of the two parameters' units",
             ),
+            col(
+                "variance_factor",
+                ColumnType::Float64,
+                "mm² (1 with per-point σ)",
+                false,
+                "σ² the covariance is scaled by, the same on every row of the model: the fit's residual variance per coordinate (without per-point σ), or the variance factor of the σ-weighted rows (a row's noise is then σ²·σ_row²); what `validate` adds to J·Σ·Jᵀ for its coverage",
+            ),
         ],
         unique: None,
     }
@@ -704,7 +711,7 @@ pub fn observability() -> TableSchema {
 
 /// Per-row position errors of each model on validation rows (paper eq. (30)).
 pub fn errors() -> TableSchema {
-    TableSchema {
+    let mut schema = TableSchema {
         kind: "errors",
         description: "Position error (predicted − measured) of each model on each validation row.",
         columns: vec![
@@ -746,7 +753,16 @@ pub fn errors() -> TableSchema {
             ),
         ],
         unique: None,
-    }
+    };
+    position_covariance_columns(&mut schema.columns);
+    schema.columns.push(col(
+        "covered_95",
+        ColumnType::Boolean,
+        "",
+        false,
+        "whether the error lies inside the 95 % ellipsoid of J·Σ·Jᵀ plus the fit's residual noise; present when the input `covariance` is bound, null for a model without one",
+    ));
+    schema
 }
 
 /// Error statistics per model (the paper's Table III and more).
@@ -765,6 +781,13 @@ pub fn stats() -> TableSchema {
     ] {
         columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
     }
+    columns.push(col(
+        "coverage_95",
+        ColumnType::Float64,
+        "",
+        false,
+        "share of the rows whose error lies inside the 95 % ellipsoid of J·Σ·Jᵀ plus the fit's residual noise (0.95 when the uncertainty is honest); present when the input `covariance` is bound, null for a model without one",
+    ));
     TableSchema {
         kind: "stats",
         description: "Statistics of the error norms per model on the validation rows.",
@@ -971,6 +994,31 @@ pub const TENSION_COLUMNS: [&str; 8] = [
     "tension8_n",
 ];
 
+/// The predicted-position uncertainty columns (spec §7) and the entry of the
+/// 3 × 3 covariance each holds.
+pub const POSITION_COVARIANCE_COLUMNS: [(&str, usize, usize); 6] = [
+    ("cov_xx_mm2", 0, 0),
+    ("cov_xy_mm2", 0, 1),
+    ("cov_xz_mm2", 0, 2),
+    ("cov_yy_mm2", 1, 1),
+    ("cov_yz_mm2", 1, 2),
+    ("cov_zz_mm2", 2, 2),
+];
+
+/// The optional §7 uncertainty columns, present when the stage's `covariance`
+/// input is bound.
+fn position_covariance_columns(columns: &mut Vec<ColumnSpec>) {
+    for (name, _, _) in POSITION_COVARIANCE_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm²",
+            false,
+            "covariance of the predicted position from the parameters' covariance alone (J·Σ·Jᵀ, world frame, measurement noise not included); present when the input `covariance` is bound, null for a model without one",
+        ));
+    }
+}
+
 /// Output of `predict`.
 pub fn predictions() -> TableSchema {
     let mut columns = vec![col(
@@ -1007,6 +1055,7 @@ pub fn predictions() -> TableSchema {
             "compliance deflection k_i·tau_i",
         ));
     }
+    position_covariance_columns(&mut columns);
     TableSchema {
         kind: "predictions",
         description: "Model predictions for conf-wrench rows: position, load torques, deflections.",
@@ -1140,6 +1189,7 @@ pub fn commands() -> TableSchema {
             "orientation of the corrected Cartesian target, unit quaternion (w, x, y, z), base←tool",
         ));
     }
+    position_covariance_columns(&mut columns);
     TableSchema {
         kind: "commands",
         description: "Joint commands per target and the corrected Cartesian targets (spec §7): what `compensate` writes.",
