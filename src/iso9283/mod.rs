@@ -120,7 +120,10 @@ pub fn pose_characteristics(
     }
     let barycentre = attained_mm.iter().sum::<Vector3<f64>>() / n as f64;
     let ap_xyz_mm = barycentre - commanded_mm;
-    let l: Vec<f64> = attained_mm.iter().map(|p| (p - barycentre).norm()).collect();
+    let l: Vec<f64> = attained_mm
+        .iter()
+        .map(|p| (p - barycentre).norm())
+        .collect();
     let (mean, std) = mean_and_sample_std(&l);
     Ok(PoseCharacteristics {
         n,
