@@ -9,6 +9,7 @@ pub mod design;
 pub mod export;
 pub mod fsio;
 pub mod gate;
+pub mod iso9283;
 pub mod job;
 pub mod journal;
 pub mod logs;

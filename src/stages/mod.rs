@@ -14,6 +14,8 @@ pub mod gate;
 pub mod identifiability;
 pub mod identify;
 pub mod import_measurements;
+pub mod iso9283;
+pub mod iso_cube;
 pub mod measure;
 pub mod poses;
 pub mod predict;
@@ -392,9 +394,11 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &validate::ValidateStage,
         &gate::GateStage,
         &predict::PredictStage,
+        &iso_cube::IsoCubeStage,
         &compensate::CompensateStage,
         &export_program::ExportProgramStage,
         &accuracy::AccuracyStage,
+        &iso9283::Iso9283Stage,
         &report::ReportStage,
     ]
 }

@@ -1198,6 +1198,142 @@ pub fn commands() -> TableSchema {
     }
 }
 
+/// `targets` of an ISO 9283 test (what `iso_cube` writes): the spec §7
+/// `targets` columns, one row per visit in the order the robot runs them, with
+/// the point and the cycle each row is. A `compensate` stage reads it as any
+/// `targets` table (extra columns are allowed).
+pub fn iso_targets() -> TableSchema {
+    let mut schema = targets();
+    schema.kind = "iso_targets";
+    schema.description = "An ISO 9283 cycle plan as targets (spec §7 columns), one row per visit in running order: what `iso_cube` writes and `compensate` reads.";
+    schema.columns.push(col(
+        "point",
+        ColumnType::Utf8,
+        "",
+        true,
+        "ISO 9283 test point: P1 (cube centre) … P5",
+    ));
+    schema.columns.push(col(
+        "cycle",
+        ColumnType::Int64,
+        "",
+        true,
+        "test cycle, from 1",
+    ));
+    schema
+}
+
+/// Input of `iso9283`: the positions an ISO 9283 pose test attained.
+pub fn iso_measurements() -> TableSchema {
+    let mut columns = vec![
+        col(
+            "point",
+            ColumnType::Utf8,
+            "",
+            true,
+            "ISO 9283 test point: P1 … P5",
+        ),
+        col(
+            "cycle",
+            ColumnType::Int64,
+            "",
+            true,
+            "test cycle; one row per (point, cycle)",
+        ),
+    ];
+    for name in COMMAND_POSITION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm",
+            true,
+            "commanded position of the point, tracker (world) frame; the same in every cycle",
+        ));
+    }
+    for name in POSITION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm",
+            true,
+            "attained position measured by the tracker, tracker (world) frame",
+        ));
+    }
+    TableSchema {
+        kind: "iso_measurements",
+        description: "Commanded and attained positions of an ISO 9283 pose test, one row per point and cycle: what `iso9283` reads.",
+        columns,
+        unique: None,
+    }
+}
+
+/// Output of `iso9283`: pose accuracy and repeatability per point (positions only).
+pub fn iso9283() -> TableSchema {
+    let mut columns = vec![
+        col("point", ColumnType::Utf8, "", true, "ISO 9283 test point"),
+        col("n", ColumnType::Int64, "", true, "cycles measured"),
+    ];
+    for (name, meaning) in [
+        (
+            "ap_mm",
+            "pose accuracy AP_P: distance of the barycentre of the attained positions from the commanded one",
+        ),
+        ("apx_mm", "x̄ − x_c, tracker frame"),
+        ("apy_mm", "ȳ − y_c, tracker frame"),
+        ("apz_mm", "z̄ − z_c, tracker frame"),
+        (
+            "rp_mm",
+            "pose repeatability RP_l = l̄ + 3·S_l, l the distances from the barycentre, S_l with the n − 1 divisor",
+        ),
+    ] {
+        columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
+    }
+    TableSchema {
+        kind: "iso9283",
+        description: "ISO 9283 §7.2 pose accuracy and repeatability per test point, positions only.",
+        columns,
+        unique: Some("point"),
+    }
+}
+
+/// Output of `iso9283`: distance accuracy and repeatability per pair of points.
+pub fn iso9283_distances() -> TableSchema {
+    let mut columns = vec![
+        col(
+            "from",
+            ColumnType::Utf8,
+            "",
+            true,
+            "first point of the pair",
+        ),
+        col("to", ColumnType::Utf8, "", true, "second point of the pair"),
+        col(
+            "n",
+            ColumnType::Int64,
+            "",
+            true,
+            "cycles in which both points were measured",
+        ),
+    ];
+    for (name, meaning) in [
+        ("d_cmd_mm", "commanded distance D_c"),
+        ("d_mean_mm", "mean attained distance D̄"),
+        ("ad_mm", "distance accuracy AD = |D̄ − D_c|"),
+        (
+            "rd_mm",
+            "distance repeatability RD = 3·S_D, S_D with the n − 1 divisor (the standard writes ±RD)",
+        ),
+    ] {
+        columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
+    }
+    TableSchema {
+        kind: "iso9283_distances",
+        description: "ISO 9283 §7.3 distance accuracy and repeatability per pair of test points, positions only.",
+        columns,
+        unique: None,
+    }
+}
+
 pub const TORQUE_COLUMNS: [&str; 6] = [
     "tau1_nm", "tau2_nm", "tau3_nm", "tau4_nm", "tau5_nm", "tau6_nm",
 ];
@@ -1393,6 +1529,10 @@ pub fn all() -> Vec<TableSchema> {
         predictions(),
         targets(),
         commands(),
+        iso_targets(),
+        iso_measurements(),
+        iso9283(),
+        iso9283_distances(),
         target_errors(),
         target_stats(),
         selection(),
