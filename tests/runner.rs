@@ -116,6 +116,33 @@ fn an_upstream_rerun_with_identical_output_does_not_cascade() {
     assert!(cached.contains(&"wrenches".to_string()));
 }
 
+/// Two stages alike but for their ids draw different random streams: each gets
+/// its own cache entry (no shared key, so no race on one entry, and neither
+/// receives the other's draw as a cache hit).
+#[test]
+fn twin_stages_with_different_ids_get_their_own_entries_and_draws() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = common::measure_job(dir.path(), "simulator = { tracker_noise_mm = 0.05 }");
+    let text = std::fs::read_to_string(&job).unwrap();
+    let twin =
+        text[text.find("[[stages]]").unwrap()..].replace("id = \"measure\"", "id = \"twin\"");
+    std::fs::write(&job, format!("{text}\n{twin}")).unwrap();
+    let job = job.to_str().unwrap();
+    let (code, _, stderr) = run(&["run", job], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    let (ran, _) = ran_and_cached(&stderr);
+    assert_eq!(ran.len(), 2, "{stderr}");
+    let x = |stage: &str| {
+        let file = dir.path().join(format!("out/{stage}/measurements.parquet"));
+        let df = egcal::table::read_parquet(&file).unwrap();
+        egcal::table::schema::f64_values(&df, "x_mm", &file).unwrap()
+    };
+    assert_ne!(x("measure"), x("twin"), "the twins measured the same noise");
+    let (code, _, stderr) = run(&["run", job], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(ran_and_cached(&stderr).1.len(), 2, "{stderr}");
+}
+
 #[test]
 fn outputs_carry_provenance() {
     let dir = tempfile::tempdir().unwrap();

@@ -2,7 +2,8 @@
 //! skipped when its cache key is already in the cache.
 //!
 //! Cache key = blake3 of (stage kind, its code version, canonical settings, the
-//! content hash of each input, the robot file's canonical hash, the job seed).
+//! content hash of each input, the robot file's canonical hash, the stage's seed:
+//! the job seed mixed with the stage id).
 //! Upstream tables enter by their *data* hash, so an upstream re-run that produces
 //! the same table does not cascade. External files enter by their bytes, hashed
 //! before the stage runs and checked again after it.
@@ -377,7 +378,9 @@ fn key_parts(
             .info()
             .uses_cable_robot
             .then(|| hash_json(&plan.cable_robot)),
-        seed: plan.seed,
+        // The seed the stage draws from, not the job's: two stages alike but for
+        // their ids draw different streams, so they must not share an entry.
+        seed: stage_seed(plan.seed, &stage.id),
         external,
     })
 }
@@ -729,7 +732,7 @@ fn explain(previous: Option<StageState>, now: &KeyParts) -> Vec<String> {
         reasons.push("cable-robot geometry changed".into());
     }
     if before.seed != now.seed {
-        reasons.push(format!("seed changed ({} -> {})", before.seed, now.seed));
+        reasons.push("seed changed (the job's seed, or the stage's id)".into());
     }
     if reasons.is_empty() {
         reasons.push("cache entry missing (removed by gc or by hand)".into());
