@@ -289,10 +289,12 @@ mod tests {
     }
 
     fn free() -> Vec<ParamId> {
-        ["x_w", "y_w", "z_w", "da2", "da3", "dd4", "dtheta2", "dtheta3"]
-            .iter()
-            .map(|n| ParamId::from_name(n).expect("parameter name"))
-            .collect()
+        [
+            "x_w", "y_w", "z_w", "da2", "da3", "dd4", "dtheta2", "dtheta3",
+        ]
+        .iter()
+        .map(|n| ParamId::from_name(n).expect("parameter name"))
+        .collect()
     }
 
     #[test]

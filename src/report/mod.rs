@@ -17,13 +17,17 @@ use crate::table::Provenance;
 use plots::{Axes, HistogramSeries, LineSeries2, PosePoint};
 
 /// The report's sections: anchor id and heading, in page order.
-pub const SECTIONS: [(&str, &str); 8] = [
+pub const SECTIONS: [(&str, &str); 9] = [
     (
         "errors",
         "Position errors on the validation rows (Table III)",
     ),
     ("histograms", "Error histograms (Fig. 7)"),
     ("poses", "Measurement poses (Fig. 4)"),
+    (
+        "accuracy",
+        "Accuracy map: predicted 95 % position uncertainty",
+    ),
     ("parameters", "Identified parameters"),
     ("observability", "Observability of the DETMAX selection"),
     ("convergence", "Convergence of the identification"),
@@ -145,6 +149,24 @@ pub struct ExcludedRow {
     pub reason: String,
 }
 
+/// A row of an `accuracy_map` table (positions in the world frame, mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapPoint {
+    pub slice: i64,
+    pub position_mm: [f64; 3],
+    pub inside_box: bool,
+    /// `None` where the point is not reachable.
+    pub u95_mm: Option<f64>,
+}
+
+/// The accuracy map and the calibration positions it was built around.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AccuracyMap {
+    pub points: Vec<MapPoint>,
+    /// World frame, mm; empty when the `calibration_positions` input is not bound.
+    pub calibration_mm: Vec<[f64; 3]>,
+}
+
 /// Excluded rows listed one by one in the page; the rest are counted.
 const EXCLUDED_LISTED: usize = 50;
 
@@ -198,6 +220,8 @@ pub struct ReportData {
     pub identification_trace: Option<Vec<TraceRow>>,
     /// Rows the identification left out, when its `excluded_rows` is bound.
     pub excluded_rows: Option<Vec<ExcludedRow>>,
+    /// The predicted uncertainty over the workspace, when `accuracy_map` is bound.
+    pub accuracy_map: Option<AccuracyMap>,
     pub truth: Option<Truth>,
     pub sources: Vec<InputSource>,
 }
@@ -429,15 +453,17 @@ pub fn render(data: &ReportData) -> String {
     section(&mut out, 2);
     poses_section(&mut out, data);
     section(&mut out, 3);
-    parameters_section(&mut out, data);
+    accuracy_map_section(&mut out, data);
     section(&mut out, 4);
-    detmax_section(&mut out, data);
+    parameters_section(&mut out, data);
     section(&mut out, 5);
+    detmax_section(&mut out, data);
+    section(&mut out, 6);
     convergence_section(&mut out, data, &models, &colors);
     excluded_rows_part(&mut out, data);
-    section(&mut out, 6);
-    tests_section(&mut out, data);
     section(&mut out, 7);
+    tests_section(&mut out, data);
+    section(&mut out, 8);
     provenance_section(&mut out, data);
 
     let _ = writeln!(
@@ -658,6 +684,169 @@ fn poses_section(out: &mut String, data: &ReportData) {
         ),
         "Target points and tool z axes, as the paper's Fig. 4.",
     );
+}
+
+/// The median of `values` (sorted in place); `None` when empty.
+fn median(values: &mut [f64]) -> Option<f64> {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(values[n / 2]),
+        _ => Some((values[n / 2 - 1] + values[n / 2]) / 2.0),
+    }
+}
+
+/// One heat map per slice of the accuracy map, on a colour scale shared by
+/// all slices, with the calibration positions of that slice's height band and
+/// the box they span drawn over it.
+fn accuracy_map_section(out: &mut String, data: &ReportData) {
+    let Some(map) = data.accuracy_map.as_ref().filter(|m| !m.points.is_empty()) else {
+        note(
+            out,
+            "No accuracy_map input is bound to this report stage, so the map of the predicted uncertainty is left out.",
+        );
+        return;
+    };
+    let mut slices: Vec<i64> = map.points.iter().map(|p| p.slice).collect();
+    slices.sort_unstable();
+    slices.dedup();
+    let reachable: Vec<f64> = map.points.iter().filter_map(|p| p.u95_mm).collect();
+    let value_range = reachable
+        .iter()
+        .fold((f64::INFINITY, 0.0_f64), |(lo, hi), v| {
+            (lo.min(*v), hi.max(*v))
+        });
+    let value_range = if value_range.0.is_finite() {
+        value_range
+    } else {
+        (0.0, 1.0)
+    };
+    let mut inside: Vec<f64> = map
+        .points
+        .iter()
+        .filter(|p| p.inside_box)
+        .filter_map(|p| p.u95_mm)
+        .collect();
+    let mut margin: Vec<f64> = map
+        .points
+        .iter()
+        .filter(|p| !p.inside_box)
+        .filter_map(|p| p.u95_mm)
+        .collect();
+    let summary = |values: &mut Vec<f64>| {
+        median(values).map_or_else(
+            || "no reachable point".to_string(),
+            |m| format!("{} mm", mm(m)),
+        )
+    };
+    let _ = writeln!(
+        out,
+        "<p>The radius u95 of the 95 % uncertainty of the predicted tool position (sqrt(χ²₃(0.95)·λ<sub>max</sub>) of \
+         J·Σ·Jᵀ, the parameters' covariance propagated to the position, no measurement noise, no external wrench) \
+         over a grid of {} points in {} horizontal slices of the world (tracker) frame. The grid spans the box of the \
+         calibration rows' tool positions (white outline) and a margin around it, where the calibration extrapolates; \
+         each point keeps the tool orientation of the nearest calibration pose. Grey cells: no configuration within \
+         the joint limits ({} of {}). Median u95 inside the box: {}; in the margin: {}.</p>",
+        map.points.len(),
+        slices.len(),
+        map.points.len() - reachable.len(),
+        map.points.len(),
+        summary(&mut inside),
+        summary(&mut margin),
+    );
+    let box_of = |points: &mut dyn Iterator<Item = [f64; 3]>| {
+        points.fold(None, |acc: Option<([f64; 3], [f64; 3])>, p| {
+            Some(match acc {
+                None => (p, p),
+                Some((lo, hi)) => (
+                    std::array::from_fn(|i| lo[i].min(p[i])),
+                    std::array::from_fn(|i| hi[i].max(p[i])),
+                ),
+            })
+        })
+    };
+    let calibration_box = box_of(&mut map.calibration_mm.iter().copied());
+    out.push_str("<div class=\"grid\">\n");
+    for slice in &slices {
+        let points: Vec<&MapPoint> = map.points.iter().filter(|p| p.slice == *slice).collect();
+        let z = points.first().map_or(0.0, |p| p.position_mm[2]);
+        let spacing = |axis: usize| {
+            let mut levels: Vec<f64> = points.iter().map(|p| p.position_mm[axis]).collect();
+            levels.sort_by(f64::total_cmp);
+            levels.dedup();
+            levels
+                .windows(2)
+                .map(|w| w[1] - w[0])
+                .fold(f64::INFINITY, f64::min)
+        };
+        let cell_mm = (spacing(0), spacing(1));
+        let cell_mm = (
+            if cell_mm.0.is_finite() {
+                cell_mm.0
+            } else {
+                1.0
+            },
+            if cell_mm.1.is_finite() {
+                cell_mm.1
+            } else {
+                1.0
+            },
+        );
+        // Calibration positions within half a slice spacing of this slice's height.
+        let mut heights: Vec<f64> = map.points.iter().map(|p| p.position_mm[2]).collect();
+        heights.sort_by(f64::total_cmp);
+        heights.dedup();
+        let band = heights
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .fold(f64::INFINITY, f64::min)
+            / 2.0;
+        let overlay: Vec<(f64, f64)> = map
+            .calibration_mm
+            .iter()
+            .filter(|p| !band.is_finite() || (p[2] - z).abs() <= band)
+            .map(|p| (p[0], p[1]))
+            .collect();
+        let outline = calibration_box
+            .filter(|(lo, hi)| z >= lo[2] && z <= hi[2])
+            .map(|(lo, hi)| ((lo[0], lo[1]), (hi[0], hi[1])));
+        let cells: Vec<plots::HeatCell> = points
+            .iter()
+            .map(|p| plots::HeatCell {
+                x: p.position_mm[0],
+                y: p.position_mm[1],
+                value: p.u95_mm,
+            })
+            .collect();
+        let title = format!("u95 at z = {z:.0} mm");
+        let chart = plots::heat_map(
+            &plots::HeatMap {
+                title: &title,
+                x: "x (mm, world)",
+                y: "y (mm, world)",
+                value: "u95 (mm)",
+                value_range,
+                cell_mm,
+                overlay: &overlay,
+                outline,
+            },
+            &cells,
+            (620, 520),
+        );
+        figure(
+            out,
+            chart,
+            &format!(
+                "Slice {} (z = {z:.0} mm): u95 per grid point, one colour scale for all slices; red dots: the {} \
+                 calibration positions within {:.0} mm of this height.",
+                slice + 1,
+                overlay.len(),
+                if band.is_finite() { band } else { 0.0 },
+            ),
+        );
+    }
+    out.push_str("</div>\n");
 }
 
 fn parameters_section(out: &mut String, data: &ReportData) {
@@ -1293,6 +1482,26 @@ mod tests {
                     })
                     .collect(),
             ),
+            accuracy_map: Some(AccuracyMap {
+                // Two slices of 3 × 3 points; u95 grows away from the centre, one
+                // corner unreachable.
+                points: (0..2)
+                    .flat_map(|slice| {
+                        (0..9).map(move |k| {
+                            let (x, y) = ((k % 3) as f64 * 100.0, (k / 3) as f64 * 100.0);
+                            MapPoint {
+                                slice,
+                                position_mm: [x, y, 500.0 + 200.0 * slice as f64],
+                                inside_box: k == 4 && slice == 0,
+                                u95_mm: (k != 8).then(|| {
+                                    0.05 + 0.001 * ((x - 100.0).abs() + (y - 100.0).abs())
+                                }),
+                            }
+                        })
+                    })
+                    .collect(),
+                calibration_mm: vec![[90.0, 110.0, 510.0], [110.0, 90.0, 490.0]],
+            }),
             truth: Some(truth),
             sources: vec![
                 InputSource {
@@ -1335,9 +1544,15 @@ mod tests {
         );
         assert!(html.contains("<td class=\"paper\">Elasto-geometrical calibration</td><td class=\"num paper\">0.264</td>"));
         assert!(html.contains("no counterpart in the paper"));
-        // Overlay + 5 per-model histograms + poses + O1 + convergence.
-        assert_eq!(html.matches("<svg").count(), 9);
-        assert_eq!(html.matches("</svg>").count(), 9);
+        // Overlay + 5 per-model histograms + poses + 2 map slices + O1 + convergence.
+        assert_eq!(html.matches("<svg").count(), 11);
+        assert_eq!(html.matches("</svg>").count(), 11);
+        // The accuracy map: what is drawn, the medians inside the box and in the margin.
+        assert!(html.contains("Median u95 inside the box: 0.050 mm; in the margin: 0.150 mm."));
+        assert!(html.contains("(2 of 18)"), "unreachable points counted");
+        assert!(
+            html.contains("red dots: the 2 calibration positions within 100 mm of this height")
+        );
         assert_eq!(
             html.matches("<section").count(),
             html.matches("</section>").count()
@@ -1398,6 +1613,7 @@ mod tests {
         data.detmax_trace = None;
         data.identification_trace = None;
         data.truth = None;
+        data.accuracy_map = None;
         let html = render(&data);
         for (id, _) in SECTIONS {
             assert!(html.contains(&format!("<section id=\"{id}\">")), "{id}");
@@ -1407,6 +1623,7 @@ mod tests {
         assert!(html.contains("No identification_trace input is bound"));
         assert!(html.contains("No tests input is bound"));
         assert!(html.contains("No truth input is bound"));
+        assert!(html.contains("No accuracy_map input is bound"));
         // Overlay + 5 per-model histograms only.
         assert_eq!(html.matches("<svg").count(), 6);
     }

@@ -15,8 +15,8 @@ use serde::{Deserialize, Serialize};
 
 use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
 use crate::report::{
-    self, DetmaxStep, ExcludedRow, InputSource, ParamRow, Pose, ReportData, StatsRow, TestRow,
-    TraceRow, Truth,
+    self, AccuracyMap, DetmaxStep, ExcludedRow, InputSource, MapPoint, ParamRow, Pose, ReportData,
+    StatsRow, TestRow, TraceRow, Truth,
 };
 use crate::table::schema::{self, f64_values, i64_values, io_error, str_values};
 use crate::table::{self as tables, TableError};
@@ -53,8 +53,8 @@ static INFO: StageInfo = StageInfo {
     kind: "report",
     uses_cable_robot: false,
     updates_input: None,
-    summary: "Self-contained HTML report (report.html): Table III, Fig. 4 and 7, parameters, traces, tests, provenance",
-    code_version: 2,
+    summary: "Self-contained HTML report (report.html): Table III, Fig. 4 and 7, accuracy map, parameters, traces, tests, provenance",
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "stats",
@@ -103,6 +103,18 @@ static INFO: StageInfo = StageInfo {
             schema: schema::excluded_rows,
             required: false,
             meaning: "rows the identification left out and why (identify)",
+        },
+        TableSlot {
+            name: "accuracy_map",
+            schema: schema::accuracy_map,
+            required: false,
+            meaning: "predicted 95 % uncertainty over a grid around the calibration rows (accuracy_map), drawn as a heat map per slice",
+        },
+        TableSlot {
+            name: "calibration_positions",
+            schema: schema::calibration_positions,
+            required: false,
+            meaning: "the calibration rows' tool positions (accuracy_map), drawn over the map",
         },
         TableSlot {
             name: "truth",
@@ -155,6 +167,11 @@ impl Stage for ReportStage {
                 .inputs
                 .get("excluded_rows")
                 .map(read_excluded)
+                .transpose()?,
+            accuracy_map: ctx
+                .inputs
+                .get("accuracy_map")
+                .map(|map| read_accuracy_map(map, ctx.inputs.get("calibration_positions")))
                 .transpose()?,
             truth,
             sources: ctx
@@ -383,6 +400,44 @@ fn read_excluded(table: &InputTable) -> Result<Vec<ExcludedRow>, TableError> {
             reason: reason[k].clone(),
         })
         .collect())
+}
+
+fn read_accuracy_map(
+    table: &InputTable,
+    positions: Option<&InputTable>,
+) -> Result<AccuracyMap, TableError> {
+    let slice = ints(table, "slice")?;
+    let [x, y, z] = ["x_mm", "y_mm", "z_mm"].map(|c| floats(table, c));
+    let (x, y, z) = (x?, y?, z?);
+    let inside: Vec<bool> = table
+        .df
+        .column("inside_box")
+        .and_then(|c| c.bool().cloned())
+        .map_err(|e| io_error(&table.path, e))?
+        .iter()
+        .map(Option::unwrap_or_default)
+        .collect();
+    let u95 = optional_floats(&table.df, "u95_mm", &table.path)?;
+    let points = (0..slice.len())
+        .map(|k| MapPoint {
+            slice: slice[k],
+            position_mm: [x[k], y[k], z[k]],
+            inside_box: inside[k],
+            u95_mm: u95[k].filter(|v| v.is_finite()),
+        })
+        .collect();
+    let calibration_mm = match positions {
+        Some(table) => {
+            let [x, y, z] = ["x_mm", "y_mm", "z_mm"].map(|c| floats(table, c));
+            let (x, y, z) = (x?, y?, z?);
+            (0..x.len()).map(|k| [x[k], y[k], z[k]]).collect()
+        }
+        None => Vec::new(),
+    };
+    Ok(AccuracyMap {
+        points,
+        calibration_mm,
+    })
 }
 
 fn read_trace(table: &InputTable) -> Result<Vec<TraceRow>, TableError> {
