@@ -17,7 +17,7 @@ use crate::table::Provenance;
 use plots::{Axes, HistogramSeries, LineSeries2, PosePoint};
 
 /// The report's sections: anchor id and heading, in page order.
-pub const SECTIONS: [(&str, &str); 9] = [
+pub const SECTIONS: [(&str, &str); 10] = [
     (
         "errors",
         "Position errors on the validation rows (Table III)",
@@ -28,6 +28,7 @@ pub const SECTIONS: [(&str, &str); 9] = [
         "accuracy",
         "Accuracy map: predicted 95 % position uncertainty",
     ),
+    ("iso9283", "ISO 9283 pose accuracy and repeatability"),
     ("parameters", "Identified parameters"),
     ("observability", "Observability of the DETMAX selection"),
     ("convergence", "Convergence of the identification"),
@@ -167,6 +168,34 @@ pub struct AccuracyMap {
     pub calibration_mm: Vec<[f64; 3]>,
 }
 
+/// A row of an `iso9283` table (mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct IsoPoint {
+    pub point: String,
+    pub n: i64,
+    pub ap_mm: f64,
+    pub rp_mm: f64,
+}
+
+/// A row of an `iso9283_distances` table (mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct IsoDistance {
+    pub from: String,
+    pub to: String,
+    pub n: i64,
+    pub d_cmd_mm: f64,
+    pub ad_mm: f64,
+    pub rd_mm: f64,
+}
+
+/// One ISO 9283 test: its points and the distances between pairs of them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IsoTest {
+    pub points: Vec<IsoPoint>,
+    /// Empty when the distances input is not bound.
+    pub distances: Vec<IsoDistance>,
+}
+
 /// Excluded rows listed one by one in the page; the rest are counted.
 const EXCLUDED_LISTED: usize = 50;
 
@@ -222,6 +251,10 @@ pub struct ReportData {
     pub excluded_rows: Option<Vec<ExcludedRow>>,
     /// The predicted uncertainty over the workspace, when `accuracy_map` is bound.
     pub accuracy_map: Option<AccuracyMap>,
+    /// The ISO 9283 test of the compensated commands, when `iso9283` is bound.
+    pub iso9283: Option<IsoTest>,
+    /// The same test run with the nominal commands, when `iso9283_baseline` is bound.
+    pub iso9283_baseline: Option<IsoTest>,
     pub truth: Option<Truth>,
     pub sources: Vec<InputSource>,
 }
@@ -455,15 +488,17 @@ pub fn render(data: &ReportData) -> String {
     section(&mut out, 3);
     accuracy_map_section(&mut out, data);
     section(&mut out, 4);
-    parameters_section(&mut out, data);
+    iso9283_section(&mut out, data);
     section(&mut out, 5);
-    detmax_section(&mut out, data);
+    parameters_section(&mut out, data);
     section(&mut out, 6);
+    detmax_section(&mut out, data);
+    section(&mut out, 7);
     convergence_section(&mut out, data, &models, &colors);
     excluded_rows_part(&mut out, data);
-    section(&mut out, 7);
-    tests_section(&mut out, data);
     section(&mut out, 8);
+    tests_section(&mut out, data);
+    section(&mut out, 9);
     provenance_section(&mut out, data);
 
     let _ = writeln!(
@@ -847,6 +882,118 @@ fn accuracy_map_section(out: &mut String, data: &ReportData) {
         );
     }
     out.push_str("</div>\n");
+}
+
+/// A cell of a value the baseline may lack: the value, or a dash.
+fn optional_mm(value: Option<f64>) -> String {
+    value.map_or_else(|| "—".to_string(), mm)
+}
+
+/// The ISO 9283 statistics per point and per pair of points, the compensated
+/// commands beside the nominal ones when both tests are bound, so the gain of
+/// compensation reads off one table.
+fn iso9283_section(out: &mut String, data: &ReportData) {
+    let Some(test) = data.iso9283.as_ref() else {
+        note(
+            out,
+            "No iso9283 input is bound to this report stage, so the ISO 9283 statistics are left out.",
+        );
+        return;
+    };
+    let baseline = data.iso9283_baseline.as_ref();
+    out.push_str(
+        "<p>ISO 9283 pose accuracy AP (distance of the barycentre of the attained positions from the commanded one) \
+         and repeatability RP (mean distance from the barycentre plus three standard deviations) per test point, \
+         positions only, in the tracker frame",
+    );
+    out.push_str(if baseline.is_some() {
+        "; <em>compensated</em>: the calibrated commands, <em>nominal</em>: the same targets commanded with the \
+         robot file's model (the baseline test).</p>\n"
+    } else {
+        ".</p>\n"
+    });
+    let header = if baseline.is_some() {
+        "<th class=\"num\">AP compensated (mm)</th><th class=\"num\">AP nominal (mm)</th>\
+         <th class=\"num\">RP compensated (mm)</th><th class=\"num\">RP nominal (mm)</th>"
+    } else {
+        "<th class=\"num\">AP (mm)</th><th class=\"num\">RP (mm)</th>"
+    };
+    let _ = writeln!(
+        out,
+        "<table class=\"iso9283\">\n<thead><tr><th>point</th><th class=\"num\">n</th>{header}</tr></thead>\n<tbody>"
+    );
+    for p in &test.points {
+        let base = baseline.and_then(|b| b.points.iter().find(|q| q.point == p.point));
+        let values = match baseline {
+            Some(_) => format!(
+                "<td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>",
+                mm(p.ap_mm),
+                optional_mm(base.map(|b| b.ap_mm)),
+                mm(p.rp_mm),
+                optional_mm(base.map(|b| b.rp_mm)),
+            ),
+            None => format!(
+                "<td class=\"num\">{}</td><td class=\"num\">{}</td>",
+                mm(p.ap_mm),
+                mm(p.rp_mm)
+            ),
+        };
+        let _ = writeln!(
+            out,
+            "<tr><td>{}</td><td class=\"num\">{}</td>{values}</tr>",
+            escape(&p.point),
+            p.n
+        );
+    }
+    out.push_str("</tbody>\n</table>\n");
+    if test.distances.is_empty() {
+        return;
+    }
+    out.push_str(
+        "<p>Distance accuracy AD (|mean attained distance − commanded distance|) and repeatability RD (three \
+         standard deviations of the attained distance) between pairs of points.</p>\n",
+    );
+    let header = if baseline.is_some() {
+        "<th class=\"num\">AD compensated (mm)</th><th class=\"num\">AD nominal (mm)</th>\
+         <th class=\"num\">RD compensated (mm)</th><th class=\"num\">RD nominal (mm)</th>"
+    } else {
+        "<th class=\"num\">AD (mm)</th><th class=\"num\">RD (mm)</th>"
+    };
+    let _ = writeln!(
+        out,
+        "<table class=\"iso9283_distances\">\n<thead><tr><th>from</th><th>to</th><th class=\"num\">n</th>\
+         <th class=\"num\">commanded (mm)</th>{header}</tr></thead>\n<tbody>"
+    );
+    for d in &test.distances {
+        let base = baseline.and_then(|b| {
+            b.distances
+                .iter()
+                .find(|e| e.from == d.from && e.to == d.to)
+        });
+        let values = match baseline {
+            Some(_) => format!(
+                "<td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>",
+                mm(d.ad_mm),
+                optional_mm(base.map(|b| b.ad_mm)),
+                mm(d.rd_mm),
+                optional_mm(base.map(|b| b.rd_mm)),
+            ),
+            None => format!(
+                "<td class=\"num\">{}</td><td class=\"num\">{}</td>",
+                mm(d.ad_mm),
+                mm(d.rd_mm)
+            ),
+        };
+        let _ = writeln!(
+            out,
+            "<tr><td>{}</td><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>{values}</tr>",
+            escape(&d.from),
+            escape(&d.to),
+            d.n,
+            mm(d.d_cmd_mm)
+        );
+    }
+    out.push_str("</tbody>\n</table>\n");
 }
 
 fn parameters_section(out: &mut String, data: &ReportData) {
@@ -1502,6 +1649,31 @@ mod tests {
                     .collect(),
                 calibration_mm: vec![[90.0, 110.0, 510.0], [110.0, 90.0, 490.0]],
             }),
+            iso9283: Some(IsoTest {
+                points: vec![IsoPoint {
+                    point: "P1".into(),
+                    n: 30,
+                    ap_mm: 0.061,
+                    rp_mm: 0.084,
+                }],
+                distances: vec![IsoDistance {
+                    from: "P2".into(),
+                    to: "P4".into(),
+                    n: 30,
+                    d_cmd_mm: 692.82,
+                    ad_mm: 0.012,
+                    rd_mm: 0.09,
+                }],
+            }),
+            iso9283_baseline: Some(IsoTest {
+                points: vec![IsoPoint {
+                    point: "P1".into(),
+                    n: 30,
+                    ap_mm: 2.5,
+                    rp_mm: 0.085,
+                }],
+                distances: Vec::new(),
+            }),
             truth: Some(truth),
             sources: vec![
                 InputSource {
@@ -1614,6 +1786,7 @@ mod tests {
         data.identification_trace = None;
         data.truth = None;
         data.accuracy_map = None;
+        data.iso9283 = None;
         let html = render(&data);
         for (id, _) in SECTIONS {
             assert!(html.contains(&format!("<section id=\"{id}\">")), "{id}");
@@ -1624,6 +1797,7 @@ mod tests {
         assert!(html.contains("No tests input is bound"));
         assert!(html.contains("No truth input is bound"));
         assert!(html.contains("No accuracy_map input is bound"));
+        assert!(html.contains("No iso9283 input is bound"));
         // Overlay + 5 per-model histograms only.
         assert_eq!(html.matches("<svg").count(), 6);
     }

@@ -15,8 +15,8 @@ use serde::{Deserialize, Serialize};
 
 use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
 use crate::report::{
-    self, AccuracyMap, DetmaxStep, ExcludedRow, InputSource, MapPoint, ParamRow, Pose, ReportData,
-    StatsRow, TestRow, TraceRow, Truth,
+    self, AccuracyMap, DetmaxStep, ExcludedRow, InputSource, IsoDistance, IsoPoint, IsoTest,
+    MapPoint, ParamRow, Pose, ReportData, StatsRow, TestRow, TraceRow, Truth,
 };
 use crate::table::schema::{self, f64_values, i64_values, io_error, str_values};
 use crate::table::{self as tables, TableError};
@@ -53,7 +53,7 @@ static INFO: StageInfo = StageInfo {
     kind: "report",
     uses_cable_robot: false,
     updates_input: None,
-    summary: "Self-contained HTML report (report.html): Table III, Fig. 4 and 7, accuracy map, parameters, traces, tests, provenance",
+    summary: "Self-contained HTML report (report.html): Table III, Fig. 4 and 7, accuracy map, ISO 9283, parameters, traces, tests, provenance",
     code_version: 3,
     inputs: &[
         TableSlot {
@@ -117,6 +117,30 @@ static INFO: StageInfo = StageInfo {
             meaning: "the calibration rows' tool positions (accuracy_map), drawn over the map",
         },
         TableSlot {
+            name: "iso9283",
+            schema: schema::iso9283,
+            required: false,
+            meaning: "ISO 9283 AP and RP per point of the compensated commands (iso9283)",
+        },
+        TableSlot {
+            name: "iso9283_distances",
+            schema: schema::iso9283_distances,
+            required: false,
+            meaning: "AD and RD per pair of points of that test (iso9283)",
+        },
+        TableSlot {
+            name: "iso9283_baseline",
+            schema: schema::iso9283,
+            required: false,
+            meaning: "the same test with the nominal commands, shown beside it",
+        },
+        TableSlot {
+            name: "iso9283_distances_baseline",
+            schema: schema::iso9283_distances,
+            required: false,
+            meaning: "AD and RD of the baseline test",
+        },
+        TableSlot {
             name: "truth",
             schema: schema::parameters,
             required: false,
@@ -173,6 +197,8 @@ impl Stage for ReportStage {
                 .get("accuracy_map")
                 .map(|map| read_accuracy_map(map, ctx.inputs.get("calibration_positions")))
                 .transpose()?,
+            iso9283: read_iso_test(ctx, "iso9283", "iso9283_distances")?,
+            iso9283_baseline: read_iso_test(ctx, "iso9283_baseline", "iso9283_distances_baseline")?,
             truth,
             sources: ctx
                 .inputs
@@ -438,6 +464,49 @@ fn read_accuracy_map(
         points,
         calibration_mm,
     })
+}
+
+/// An ISO 9283 test from its per-point input and optional distances input;
+/// `None` when the per-point input is not bound.
+fn read_iso_test(
+    ctx: &StageContext,
+    points: &str,
+    distances: &str,
+) -> Result<Option<IsoTest>, TableError> {
+    let Some(table) = ctx.inputs.get(points) else {
+        return Ok(None);
+    };
+    let point = strings(table, "point")?;
+    let n = ints(table, "n")?;
+    let (ap, rp) = (floats(table, "ap_mm")?, floats(table, "rp_mm")?);
+    let points = (0..point.len())
+        .map(|k| IsoPoint {
+            point: point[k].clone(),
+            n: n[k],
+            ap_mm: ap[k],
+            rp_mm: rp[k],
+        })
+        .collect();
+    let distances = match ctx.inputs.get(distances) {
+        Some(table) => {
+            let (from, to) = (strings(table, "from")?, strings(table, "to")?);
+            let n = ints(table, "n")?;
+            let [d_cmd, ad, rd] = ["d_cmd_mm", "ad_mm", "rd_mm"].map(|c| floats(table, c));
+            let (d_cmd, ad, rd) = (d_cmd?, ad?, rd?);
+            (0..from.len())
+                .map(|k| IsoDistance {
+                    from: from[k].clone(),
+                    to: to[k].clone(),
+                    n: n[k],
+                    d_cmd_mm: d_cmd[k],
+                    ad_mm: ad[k],
+                    rd_mm: rd[k],
+                })
+                .collect()
+        }
+        None => Vec::new(),
+    };
+    Ok(Some(IsoTest { points, distances }))
 }
 
 fn read_trace(table: &InputTable) -> Result<Vec<TraceRow>, TableError> {
