@@ -5,6 +5,7 @@
 //! brings AP far below the nominal IK's, and RP, which only the tracker noise
 //! makes (the simulator repeats a command exactly), is about 3.6 σ of that
 //! noise (the mean plus three standard deviations of a Maxwell distribution).
+//! The job's report shows both tests in one table.
 
 mod common;
 
@@ -72,5 +73,22 @@ fn compensation_brings_iso_pose_accuracy_down_and_repeatability_is_the_tracker_n
         "AD compensated {}, nominal {}",
         ad("iso_compensated"),
         ad("iso_nominal")
+    );
+
+    // The job's report shows both tests side by side, per point and per pair.
+    let html = std::fs::read_to_string(out.join("report/report.html")).unwrap();
+    assert!(html.contains("<table class=\"iso9283\">"), "ISO 9283 table");
+    assert!(html.contains(
+        "<th class=\"num\">AP compensated (mm)</th><th class=\"num\">AP nominal (mm)</th>"
+    ));
+    for point in ["P1", "P2", "P3", "P4", "P5"] {
+        assert!(
+            html.contains(&format!("<tr><td>{point}</td><td class=\"num\">30</td>")),
+            "{point}"
+        );
+    }
+    assert!(
+        html.contains("<table class=\"iso9283_distances\">")
+            && html.contains("<tr><td>P2</td><td>P4</td>")
     );
 }

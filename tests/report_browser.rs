@@ -60,6 +60,13 @@ kind = "validate"
 inputs = {{ measurements = "measure.measurements", parameters = "identify", selection = "select.selection" }}
 
 [[stages]]
+id = "accuracy_map"
+kind = "accuracy_map"
+inputs = {{ parameters = "identify.parameters", covariance = "identify.covariance", measurements = "measure.measurements", selection = "select.selection" }}
+points_per_axis = 8
+slices = 2
+
+[[stages]]
 id = "report"
 kind = "report"
 title = "Small <campaign> report"
@@ -73,6 +80,8 @@ tests = "validate.tests"
 poses = "poses"
 observability = "select.observability"
 identification_trace = "identify.identification_trace"
+accuracy_map = "accuracy_map.accuracy_map"
+calibration_positions = "accuracy_map.calibration_positions"
 truth = "{truth}"
 "#,
         robot = root.join("jobs/robots/irb1600_145.toml").display(),
@@ -168,6 +177,7 @@ fn report_renders_in_a_headless_browser() {
         "errors",
         "histograms",
         "poses",
+        "accuracy",
         "parameters",
         "observability",
         "convergence",
@@ -179,8 +189,15 @@ fn report_renders_in_a_headless_browser() {
             "section {id}"
         );
     }
-    // Overlay + 4 per-model histograms + poses + O1 + convergence.
-    assert_eq!(html.matches("<svg").count(), 8, "charts");
+    // Overlay + 4 per-model histograms + poses + 2 map slices + O1 + convergence.
+    assert_eq!(html.matches("<svg").count(), 10, "charts");
+    // The accuracy map: one heat map per slice, its caption and the medians.
+    assert!(html.contains("u95 at z = "), "accuracy map slices");
+    assert!(
+        html.contains("Median u95 inside the box:")
+            && html.contains("calibration positions within"),
+        "accuracy map text"
+    );
     assert!(
         html.contains("small_report") && html.contains("created at"),
         "provenance"
@@ -235,7 +252,7 @@ fn report_renders_in_a_headless_browser() {
         dom.contains("x_w") && dom.contains("k6"),
         "parameter rows in the DOM"
     );
-    assert_eq!(dom.matches("<svg").count(), 8, "svg elements in the DOM");
+    assert_eq!(dom.matches("<svg").count(), 10, "svg elements in the DOM");
     assert!(
         dom.matches("<rect").count() > 20 && dom.contains("<circle"),
         "chart content in the DOM"

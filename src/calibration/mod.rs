@@ -5,6 +5,7 @@
 //! Both work on any number of rows in bounded memory: each pass over the rows is
 //! chunked, parallel, and reduced to a small triangular factor ([`stream`]).
 
+pub mod accuracy_map;
 mod dense;
 pub mod fit;
 pub mod rank;

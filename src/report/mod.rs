@@ -17,13 +17,18 @@ use crate::table::Provenance;
 use plots::{Axes, HistogramSeries, LineSeries2, PosePoint};
 
 /// The report's sections: anchor id and heading, in page order.
-pub const SECTIONS: [(&str, &str); 8] = [
+pub const SECTIONS: [(&str, &str); 10] = [
     (
         "errors",
         "Position errors on the validation rows (Table III)",
     ),
     ("histograms", "Error histograms (Fig. 7)"),
     ("poses", "Measurement poses (Fig. 4)"),
+    (
+        "accuracy",
+        "Accuracy map: predicted 95 % position uncertainty",
+    ),
+    ("iso9283", "ISO 9283 pose accuracy and repeatability"),
     ("parameters", "Identified parameters"),
     ("observability", "Observability of the DETMAX selection"),
     ("convergence", "Convergence of the identification"),
@@ -145,6 +150,52 @@ pub struct ExcludedRow {
     pub reason: String,
 }
 
+/// A row of an `accuracy_map` table (positions in the world frame, mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MapPoint {
+    pub slice: i64,
+    pub position_mm: [f64; 3],
+    pub inside_box: bool,
+    /// `None` where the point is not reachable.
+    pub u95_mm: Option<f64>,
+}
+
+/// The accuracy map and the calibration positions it was built around.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AccuracyMap {
+    pub points: Vec<MapPoint>,
+    /// World frame, mm; empty when the `calibration_positions` input is not bound.
+    pub calibration_mm: Vec<[f64; 3]>,
+}
+
+/// A row of an `iso9283` table (mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct IsoPoint {
+    pub point: String,
+    pub n: i64,
+    pub ap_mm: f64,
+    pub rp_mm: f64,
+}
+
+/// A row of an `iso9283_distances` table (mm).
+#[derive(Debug, Clone, PartialEq)]
+pub struct IsoDistance {
+    pub from: String,
+    pub to: String,
+    pub n: i64,
+    pub d_cmd_mm: f64,
+    pub ad_mm: f64,
+    pub rd_mm: f64,
+}
+
+/// One ISO 9283 test: its points and the distances between pairs of them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct IsoTest {
+    pub points: Vec<IsoPoint>,
+    /// Empty when the distances input is not bound.
+    pub distances: Vec<IsoDistance>,
+}
+
 /// Excluded rows listed one by one in the page; the rest are counted.
 const EXCLUDED_LISTED: usize = 50;
 
@@ -198,6 +249,12 @@ pub struct ReportData {
     pub identification_trace: Option<Vec<TraceRow>>,
     /// Rows the identification left out, when its `excluded_rows` is bound.
     pub excluded_rows: Option<Vec<ExcludedRow>>,
+    /// The predicted uncertainty over the workspace, when `accuracy_map` is bound.
+    pub accuracy_map: Option<AccuracyMap>,
+    /// The ISO 9283 test of the compensated commands, when `iso9283` is bound.
+    pub iso9283: Option<IsoTest>,
+    /// The same test run with the nominal commands, when `iso9283_baseline` is bound.
+    pub iso9283_baseline: Option<IsoTest>,
     pub truth: Option<Truth>,
     pub sources: Vec<InputSource>,
 }
@@ -429,15 +486,19 @@ pub fn render(data: &ReportData) -> String {
     section(&mut out, 2);
     poses_section(&mut out, data);
     section(&mut out, 3);
-    parameters_section(&mut out, data);
+    accuracy_map_section(&mut out, data);
     section(&mut out, 4);
-    detmax_section(&mut out, data);
+    iso9283_section(&mut out, data);
     section(&mut out, 5);
+    parameters_section(&mut out, data);
+    section(&mut out, 6);
+    detmax_section(&mut out, data);
+    section(&mut out, 7);
     convergence_section(&mut out, data, &models, &colors);
     excluded_rows_part(&mut out, data);
-    section(&mut out, 6);
+    section(&mut out, 8);
     tests_section(&mut out, data);
-    section(&mut out, 7);
+    section(&mut out, 9);
     provenance_section(&mut out, data);
 
     let _ = writeln!(
@@ -658,6 +719,281 @@ fn poses_section(out: &mut String, data: &ReportData) {
         ),
         "Target points and tool z axes, as the paper's Fig. 4.",
     );
+}
+
+/// The median of `values` (sorted in place); `None` when empty.
+fn median(values: &mut [f64]) -> Option<f64> {
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(values[n / 2]),
+        _ => Some((values[n / 2 - 1] + values[n / 2]) / 2.0),
+    }
+}
+
+/// One heat map per slice of the accuracy map, on a colour scale shared by
+/// all slices, with the calibration positions of that slice's height band and
+/// the box they span drawn over it.
+fn accuracy_map_section(out: &mut String, data: &ReportData) {
+    let Some(map) = data.accuracy_map.as_ref().filter(|m| !m.points.is_empty()) else {
+        note(
+            out,
+            "No accuracy_map input is bound to this report stage, so the map of the predicted uncertainty is left out.",
+        );
+        return;
+    };
+    let mut slices: Vec<i64> = map.points.iter().map(|p| p.slice).collect();
+    slices.sort_unstable();
+    slices.dedup();
+    let reachable: Vec<f64> = map.points.iter().filter_map(|p| p.u95_mm).collect();
+    let value_range = reachable
+        .iter()
+        .fold((f64::INFINITY, 0.0_f64), |(lo, hi), v| {
+            (lo.min(*v), hi.max(*v))
+        });
+    let value_range = if value_range.0.is_finite() {
+        value_range
+    } else {
+        (0.0, 1.0)
+    };
+    let mut inside: Vec<f64> = map
+        .points
+        .iter()
+        .filter(|p| p.inside_box)
+        .filter_map(|p| p.u95_mm)
+        .collect();
+    let mut margin: Vec<f64> = map
+        .points
+        .iter()
+        .filter(|p| !p.inside_box)
+        .filter_map(|p| p.u95_mm)
+        .collect();
+    let summary = |values: &mut Vec<f64>| {
+        median(values).map_or_else(
+            || "no reachable point".to_string(),
+            |m| format!("{} mm", mm(m)),
+        )
+    };
+    let _ = writeln!(
+        out,
+        "<p>The radius u95 of the 95 % uncertainty of the predicted tool position (sqrt(χ²₃(0.95)·λ<sub>max</sub>) of \
+         J·Σ·Jᵀ, the parameters' covariance propagated to the position, no measurement noise, no external wrench) \
+         over a grid of {} points in {} horizontal slices of the world (tracker) frame. The grid spans the box of the \
+         calibration rows' tool positions (white outline) and a margin around it, where the calibration extrapolates; \
+         each point keeps the tool orientation of the nearest calibration pose. Grey cells: no configuration within \
+         the joint limits ({} of {}). Median u95 inside the box: {}; in the margin: {}.</p>",
+        map.points.len(),
+        slices.len(),
+        map.points.len() - reachable.len(),
+        map.points.len(),
+        summary(&mut inside),
+        summary(&mut margin),
+    );
+    let box_of = |points: &mut dyn Iterator<Item = [f64; 3]>| {
+        points.fold(None, |acc: Option<([f64; 3], [f64; 3])>, p| {
+            Some(match acc {
+                None => (p, p),
+                Some((lo, hi)) => (
+                    std::array::from_fn(|i| lo[i].min(p[i])),
+                    std::array::from_fn(|i| hi[i].max(p[i])),
+                ),
+            })
+        })
+    };
+    let calibration_box = box_of(&mut map.calibration_mm.iter().copied());
+    out.push_str("<div class=\"grid\">\n");
+    for slice in &slices {
+        let points: Vec<&MapPoint> = map.points.iter().filter(|p| p.slice == *slice).collect();
+        let z = points.first().map_or(0.0, |p| p.position_mm[2]);
+        let spacing = |axis: usize| {
+            let mut levels: Vec<f64> = points.iter().map(|p| p.position_mm[axis]).collect();
+            levels.sort_by(f64::total_cmp);
+            levels.dedup();
+            levels
+                .windows(2)
+                .map(|w| w[1] - w[0])
+                .fold(f64::INFINITY, f64::min)
+        };
+        let cell_mm = (spacing(0), spacing(1));
+        let cell_mm = (
+            if cell_mm.0.is_finite() {
+                cell_mm.0
+            } else {
+                1.0
+            },
+            if cell_mm.1.is_finite() {
+                cell_mm.1
+            } else {
+                1.0
+            },
+        );
+        // Calibration positions within half a slice spacing of this slice's height.
+        let mut heights: Vec<f64> = map.points.iter().map(|p| p.position_mm[2]).collect();
+        heights.sort_by(f64::total_cmp);
+        heights.dedup();
+        let band = heights
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .fold(f64::INFINITY, f64::min)
+            / 2.0;
+        let overlay: Vec<(f64, f64)> = map
+            .calibration_mm
+            .iter()
+            .filter(|p| !band.is_finite() || (p[2] - z).abs() <= band)
+            .map(|p| (p[0], p[1]))
+            .collect();
+        let outline = calibration_box
+            .filter(|(lo, hi)| z >= lo[2] && z <= hi[2])
+            .map(|(lo, hi)| ((lo[0], lo[1]), (hi[0], hi[1])));
+        let cells: Vec<plots::HeatCell> = points
+            .iter()
+            .map(|p| plots::HeatCell {
+                x: p.position_mm[0],
+                y: p.position_mm[1],
+                value: p.u95_mm,
+            })
+            .collect();
+        let title = format!("u95 at z = {z:.0} mm");
+        let chart = plots::heat_map(
+            &plots::HeatMap {
+                title: &title,
+                x: "x (mm, world)",
+                y: "y (mm, world)",
+                value: "u95 (mm)",
+                value_range,
+                cell_mm,
+                overlay: &overlay,
+                outline,
+            },
+            &cells,
+            (620, 520),
+        );
+        figure(
+            out,
+            chart,
+            &format!(
+                "Slice {} (z = {z:.0} mm): u95 per grid point, one colour scale for all slices; red dots: the {} \
+                 calibration positions within {:.0} mm of this height.",
+                slice + 1,
+                overlay.len(),
+                if band.is_finite() { band } else { 0.0 },
+            ),
+        );
+    }
+    out.push_str("</div>\n");
+}
+
+/// A cell of a value the baseline may lack: the value, or a dash.
+fn optional_mm(value: Option<f64>) -> String {
+    value.map_or_else(|| "—".to_string(), mm)
+}
+
+/// The ISO 9283 statistics per point and per pair of points, the compensated
+/// commands beside the nominal ones when both tests are bound, so the gain of
+/// compensation reads off one table.
+fn iso9283_section(out: &mut String, data: &ReportData) {
+    let Some(test) = data.iso9283.as_ref() else {
+        note(
+            out,
+            "No iso9283 input is bound to this report stage, so the ISO 9283 statistics are left out.",
+        );
+        return;
+    };
+    let baseline = data.iso9283_baseline.as_ref();
+    out.push_str(
+        "<p>ISO 9283 pose accuracy AP (distance of the barycentre of the attained positions from the commanded one) \
+         and repeatability RP (mean distance from the barycentre plus three standard deviations) per test point, \
+         positions only, in the tracker frame",
+    );
+    out.push_str(if baseline.is_some() {
+        "; <em>compensated</em>: the calibrated commands, <em>nominal</em>: the same targets commanded with the \
+         robot file's model (the baseline test).</p>\n"
+    } else {
+        ".</p>\n"
+    });
+    let header = if baseline.is_some() {
+        "<th class=\"num\">AP compensated (mm)</th><th class=\"num\">AP nominal (mm)</th>\
+         <th class=\"num\">RP compensated (mm)</th><th class=\"num\">RP nominal (mm)</th>"
+    } else {
+        "<th class=\"num\">AP (mm)</th><th class=\"num\">RP (mm)</th>"
+    };
+    let _ = writeln!(
+        out,
+        "<table class=\"iso9283\">\n<thead><tr><th>point</th><th class=\"num\">n</th>{header}</tr></thead>\n<tbody>"
+    );
+    for p in &test.points {
+        let base = baseline.and_then(|b| b.points.iter().find(|q| q.point == p.point));
+        let values = match baseline {
+            Some(_) => format!(
+                "<td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>",
+                mm(p.ap_mm),
+                optional_mm(base.map(|b| b.ap_mm)),
+                mm(p.rp_mm),
+                optional_mm(base.map(|b| b.rp_mm)),
+            ),
+            None => format!(
+                "<td class=\"num\">{}</td><td class=\"num\">{}</td>",
+                mm(p.ap_mm),
+                mm(p.rp_mm)
+            ),
+        };
+        let _ = writeln!(
+            out,
+            "<tr><td>{}</td><td class=\"num\">{}</td>{values}</tr>",
+            escape(&p.point),
+            p.n
+        );
+    }
+    out.push_str("</tbody>\n</table>\n");
+    if test.distances.is_empty() {
+        return;
+    }
+    out.push_str(
+        "<p>Distance accuracy AD (|mean attained distance − commanded distance|) and repeatability RD (three \
+         standard deviations of the attained distance) between pairs of points.</p>\n",
+    );
+    let header = if baseline.is_some() {
+        "<th class=\"num\">AD compensated (mm)</th><th class=\"num\">AD nominal (mm)</th>\
+         <th class=\"num\">RD compensated (mm)</th><th class=\"num\">RD nominal (mm)</th>"
+    } else {
+        "<th class=\"num\">AD (mm)</th><th class=\"num\">RD (mm)</th>"
+    };
+    let _ = writeln!(
+        out,
+        "<table class=\"iso9283_distances\">\n<thead><tr><th>from</th><th>to</th><th class=\"num\">n</th>\
+         <th class=\"num\">commanded (mm)</th>{header}</tr></thead>\n<tbody>"
+    );
+    for d in &test.distances {
+        let base = baseline.and_then(|b| {
+            b.distances
+                .iter()
+                .find(|e| e.from == d.from && e.to == d.to)
+        });
+        let values = match baseline {
+            Some(_) => format!(
+                "<td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>",
+                mm(d.ad_mm),
+                optional_mm(base.map(|b| b.ad_mm)),
+                mm(d.rd_mm),
+                optional_mm(base.map(|b| b.rd_mm)),
+            ),
+            None => format!(
+                "<td class=\"num\">{}</td><td class=\"num\">{}</td>",
+                mm(d.ad_mm),
+                mm(d.rd_mm)
+            ),
+        };
+        let _ = writeln!(
+            out,
+            "<tr><td>{}</td><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td>{values}</tr>",
+            escape(&d.from),
+            escape(&d.to),
+            d.n,
+            mm(d.d_cmd_mm)
+        );
+    }
+    out.push_str("</tbody>\n</table>\n");
 }
 
 fn parameters_section(out: &mut String, data: &ReportData) {
@@ -1293,6 +1629,51 @@ mod tests {
                     })
                     .collect(),
             ),
+            accuracy_map: Some(AccuracyMap {
+                // Two slices of 3 × 3 points; u95 grows away from the centre, one
+                // corner unreachable.
+                points: (0..2)
+                    .flat_map(|slice| {
+                        (0..9).map(move |k| {
+                            let (x, y) = ((k % 3) as f64 * 100.0, (k / 3) as f64 * 100.0);
+                            MapPoint {
+                                slice,
+                                position_mm: [x, y, 500.0 + 200.0 * slice as f64],
+                                inside_box: k == 4 && slice == 0,
+                                u95_mm: (k != 8).then(|| {
+                                    0.05 + 0.001 * ((x - 100.0).abs() + (y - 100.0).abs())
+                                }),
+                            }
+                        })
+                    })
+                    .collect(),
+                calibration_mm: vec![[90.0, 110.0, 510.0], [110.0, 90.0, 490.0]],
+            }),
+            iso9283: Some(IsoTest {
+                points: vec![IsoPoint {
+                    point: "P1".into(),
+                    n: 30,
+                    ap_mm: 0.061,
+                    rp_mm: 0.084,
+                }],
+                distances: vec![IsoDistance {
+                    from: "P2".into(),
+                    to: "P4".into(),
+                    n: 30,
+                    d_cmd_mm: 692.82,
+                    ad_mm: 0.012,
+                    rd_mm: 0.09,
+                }],
+            }),
+            iso9283_baseline: Some(IsoTest {
+                points: vec![IsoPoint {
+                    point: "P1".into(),
+                    n: 30,
+                    ap_mm: 2.5,
+                    rp_mm: 0.085,
+                }],
+                distances: Vec::new(),
+            }),
             truth: Some(truth),
             sources: vec![
                 InputSource {
@@ -1335,9 +1716,15 @@ mod tests {
         );
         assert!(html.contains("<td class=\"paper\">Elasto-geometrical calibration</td><td class=\"num paper\">0.264</td>"));
         assert!(html.contains("no counterpart in the paper"));
-        // Overlay + 5 per-model histograms + poses + O1 + convergence.
-        assert_eq!(html.matches("<svg").count(), 9);
-        assert_eq!(html.matches("</svg>").count(), 9);
+        // Overlay + 5 per-model histograms + poses + 2 map slices + O1 + convergence.
+        assert_eq!(html.matches("<svg").count(), 11);
+        assert_eq!(html.matches("</svg>").count(), 11);
+        // The accuracy map: what is drawn, the medians inside the box and in the margin.
+        assert!(html.contains("Median u95 inside the box: 0.050 mm; in the margin: 0.150 mm."));
+        assert!(html.contains("(2 of 18)"), "unreachable points counted");
+        assert!(
+            html.contains("red dots: the 2 calibration positions within 100 mm of this height")
+        );
         assert_eq!(
             html.matches("<section").count(),
             html.matches("</section>").count()
@@ -1398,6 +1785,8 @@ mod tests {
         data.detmax_trace = None;
         data.identification_trace = None;
         data.truth = None;
+        data.accuracy_map = None;
+        data.iso9283 = None;
         let html = render(&data);
         for (id, _) in SECTIONS {
             assert!(html.contains(&format!("<section id=\"{id}\">")), "{id}");
@@ -1407,6 +1796,8 @@ mod tests {
         assert!(html.contains("No identification_trace input is bound"));
         assert!(html.contains("No tests input is bound"));
         assert!(html.contains("No truth input is bound"));
+        assert!(html.contains("No accuracy_map input is bound"));
+        assert!(html.contains("No iso9283 input is bound"));
         // Overlay + 5 per-model histograms only.
         assert_eq!(html.matches("<svg").count(), 6);
     }

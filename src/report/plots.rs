@@ -461,6 +461,156 @@ pub fn poses_3d(title: &str, poses: &[PosePoint], size: (u32, u32)) -> Result<St
     })
 }
 
+/// One cell of a heat map: its centre (mm) and value, `None` where there is none
+/// (drawn grey).
+pub struct HeatCell {
+    pub x: f64,
+    pub y: f64,
+    pub value: Option<f64>,
+}
+
+/// What a heat map draws besides its cells.
+pub struct HeatMap<'a> {
+    pub title: &'a str,
+    pub x: &'a str,
+    pub y: &'a str,
+    /// Name of the value, for the colour bar.
+    pub value: &'a str,
+    /// The colour scale's ends (shared by the slices of one map).
+    pub value_range: (f64, f64),
+    /// Cell width and height (mm).
+    pub cell_mm: (f64, f64),
+    /// Points drawn over the cells (the calibration positions).
+    pub overlay: &'a [(f64, f64)],
+    /// A rectangle outlined over the cells: lower and upper corners (the box
+    /// the overlay points span).
+    pub outline: Option<((f64, f64), (f64, f64))>,
+}
+
+/// The viridis colour map at `t` in [0, 1], from nine of its colours: perceptually
+/// even and legible in grey, so low and high read the same for every reader.
+pub fn viridis(t: f64) -> RGBColor {
+    const STOPS: [(u8, u8, u8); 9] = [
+        (68, 1, 84),
+        (71, 44, 122),
+        (59, 81, 139),
+        (44, 113, 142),
+        (33, 144, 141),
+        (39, 173, 129),
+        (92, 200, 99),
+        (170, 220, 50),
+        (253, 231, 37),
+    ];
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    let scaled = t * (STOPS.len() - 1) as f64;
+    let k = (scaled.floor() as usize).min(STOPS.len() - 2);
+    let f = scaled - k as f64;
+    let mix = |a: u8, b: u8| (a as f64 + (b as f64 - a as f64) * f).round() as u8;
+    let (a, b) = (STOPS[k], STOPS[k + 1]);
+    RGBColor(mix(a.0, b.0), mix(a.1, b.1), mix(a.2, b.2))
+}
+
+/// A heat map of cells on a regular grid with a colour bar, points and a
+/// rectangle drawn over it; equal scales are not enforced (the page's width is).
+pub fn heat_map(map: &HeatMap, cells: &[HeatCell], size: (u32, u32)) -> Result<String, String> {
+    let (dx, dy) = map.cell_mm;
+    let (x_lo, x_hi, y_lo, y_hi) = cells.iter().fold(
+        (
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ),
+        |(a, b, c, d), cell| (a.min(cell.x), b.max(cell.x), c.min(cell.y), d.max(cell.y)),
+    );
+    if !x_lo.is_finite() || !y_lo.is_finite() {
+        return Err("no grid points".into());
+    }
+    let (x_lo, x_hi, y_lo, y_hi) = (
+        x_lo - dx / 2.0,
+        x_hi + dx / 2.0,
+        y_lo - dy / 2.0,
+        y_hi + dy / 2.0,
+    );
+    let (v_lo, v_hi) = map.value_range;
+    let v_hi = if v_hi > v_lo { v_hi } else { v_lo + 1.0 };
+    let color_of = |v: f64| viridis((v - v_lo) / (v_hi - v_lo));
+    render(size, map.title, |root| {
+        let (main, bar) = root.split_horizontally(size.0.saturating_sub(110));
+        let mut chart = ChartBuilder::on(&main)
+            .caption(map.title, font(17))
+            .margin(12)
+            .x_label_area_size(42)
+            .y_label_area_size(70)
+            .build_cartesian_2d(x_lo..x_hi, y_lo..y_hi)?;
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc(map.x)
+            .y_desc(map.y)
+            .axis_desc_style(font(14))
+            .label_style(font(12))
+            .x_label_formatter(&|v| format!("{v:.0}"))
+            .y_label_formatter(&|v| format!("{v:.0}"))
+            .draw()?;
+        chart.draw_series(cells.iter().map(|cell| {
+            let color = cell.value.map_or(RGBColor(225, 225, 225), color_of);
+            Rectangle::new(
+                [
+                    (cell.x - dx / 2.0, cell.y - dy / 2.0),
+                    (cell.x + dx / 2.0, cell.y + dy / 2.0),
+                ],
+                color.filled(),
+            )
+        }))?;
+        if let Some(((bx_lo, by_lo), (bx_hi, by_hi))) = map.outline {
+            chart.draw_series(std::iter::once(Rectangle::new(
+                [(bx_lo, by_lo), (bx_hi, by_hi)],
+                WHITE.stroke_width(2),
+            )))?;
+        }
+        chart.draw_series(
+            map.overlay
+                .iter()
+                .map(|&p| Circle::new(p, 4, ShapeStyle::from(&RGBColor(214, 39, 40)).filled())),
+        )?;
+        chart.draw_series(
+            map.overlay
+                .iter()
+                .map(|&p| Circle::new(p, 4, WHITE.stroke_width(1))),
+        )?;
+        let mut scale = ChartBuilder::on(&bar)
+            .margin_top(40)
+            .margin_bottom(54)
+            .margin_right(8)
+            .y_label_area_size(56)
+            .build_cartesian_2d(0.0..1.0, v_lo..v_hi)?;
+        scale
+            .configure_mesh()
+            .disable_mesh()
+            .disable_x_axis()
+            .y_desc(map.value)
+            .axis_desc_style(font(13))
+            .label_style(font(11))
+            .y_label_formatter(&|v| short(*v))
+            .draw()?;
+        const STEPS: usize = 64;
+        let step = (v_hi - v_lo) / STEPS as f64;
+        scale.draw_series((0..STEPS).map(|k| {
+            let lo = v_lo + step * k as f64;
+            Rectangle::new(
+                [(0.0, lo), (1.0, lo + step)],
+                color_of(lo + step / 2.0).filled(),
+            )
+        }))?;
+        Ok(())
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -535,5 +685,38 @@ mod tests {
                 .contains("<circle")
         );
         assert!(poses_3d("p", &[], (500, 400)).is_err());
+        let cells = [
+            HeatCell {
+                x: 0.0,
+                y: 0.0,
+                value: Some(0.1),
+            },
+            HeatCell {
+                x: 10.0,
+                y: 0.0,
+                value: None,
+            },
+        ];
+        let map = HeatMap {
+            title: "m",
+            x: "x",
+            y: "y",
+            value: "u95 (mm)",
+            value_range: (0.0, 0.2),
+            cell_mm: (10.0, 10.0),
+            overlay: &[(0.0, 0.0)],
+            outline: Some(((0.0, 0.0), (5.0, 5.0))),
+        };
+        let svg = heat_map(&map, &cells, (600, 400)).unwrap();
+        assert!(svg.contains("<circle") && svg.contains("<rect"));
+        assert!(heat_map(&map, &[], (600, 400)).is_err());
+    }
+
+    #[test]
+    fn viridis_runs_from_purple_to_yellow() {
+        assert_eq!(viridis(0.0), RGBColor(68, 1, 84));
+        assert_eq!(viridis(1.0), RGBColor(253, 231, 37));
+        assert_eq!(viridis(2.0), viridis(1.0));
+        assert_eq!(viridis(0.5), RGBColor(33, 144, 141));
     }
 }

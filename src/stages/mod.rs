@@ -7,6 +7,7 @@
 //! `egcal list-stages`, the job-file JSON Schema and the cache key.
 
 pub mod accuracy;
+pub mod accuracy_map;
 pub mod budget;
 pub mod compensate;
 pub mod export_program;
@@ -399,6 +400,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &export_program::ExportProgramStage,
         &accuracy::AccuracyStage,
         &iso9283::Iso9283Stage,
+        &accuracy_map::AccuracyMapStage,
         &report::ReportStage,
     ]
 }

@@ -15,8 +15,8 @@ use serde::{Deserialize, Serialize};
 
 use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
 use crate::report::{
-    self, DetmaxStep, ExcludedRow, InputSource, ParamRow, Pose, ReportData, StatsRow, TestRow,
-    TraceRow, Truth,
+    self, AccuracyMap, DetmaxStep, ExcludedRow, InputSource, IsoDistance, IsoPoint, IsoTest,
+    MapPoint, ParamRow, Pose, ReportData, StatsRow, TestRow, TraceRow, Truth,
 };
 use crate::table::schema::{self, f64_values, i64_values, io_error, str_values};
 use crate::table::{self as tables, TableError};
@@ -53,8 +53,8 @@ static INFO: StageInfo = StageInfo {
     kind: "report",
     uses_cable_robot: false,
     updates_input: None,
-    summary: "Self-contained HTML report (report.html): Table III, Fig. 4 and 7, parameters, traces, tests, provenance",
-    code_version: 2,
+    summary: "Self-contained HTML report (report.html): Table III, Fig. 4 and 7, accuracy map, ISO 9283, parameters, traces, tests, provenance",
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "stats",
@@ -103,6 +103,42 @@ static INFO: StageInfo = StageInfo {
             schema: schema::excluded_rows,
             required: false,
             meaning: "rows the identification left out and why (identify)",
+        },
+        TableSlot {
+            name: "accuracy_map",
+            schema: schema::accuracy_map,
+            required: false,
+            meaning: "predicted 95 % uncertainty over a grid around the calibration rows (accuracy_map), drawn as a heat map per slice",
+        },
+        TableSlot {
+            name: "calibration_positions",
+            schema: schema::calibration_positions,
+            required: false,
+            meaning: "the calibration rows' tool positions (accuracy_map), drawn over the map",
+        },
+        TableSlot {
+            name: "iso9283",
+            schema: schema::iso9283,
+            required: false,
+            meaning: "ISO 9283 AP and RP per point of the compensated commands (iso9283)",
+        },
+        TableSlot {
+            name: "iso9283_distances",
+            schema: schema::iso9283_distances,
+            required: false,
+            meaning: "AD and RD per pair of points of that test (iso9283)",
+        },
+        TableSlot {
+            name: "iso9283_baseline",
+            schema: schema::iso9283,
+            required: false,
+            meaning: "the same test with the nominal commands, shown beside it",
+        },
+        TableSlot {
+            name: "iso9283_distances_baseline",
+            schema: schema::iso9283_distances,
+            required: false,
+            meaning: "AD and RD of the baseline test",
         },
         TableSlot {
             name: "truth",
@@ -156,6 +192,13 @@ impl Stage for ReportStage {
                 .get("excluded_rows")
                 .map(read_excluded)
                 .transpose()?,
+            accuracy_map: ctx
+                .inputs
+                .get("accuracy_map")
+                .map(|map| read_accuracy_map(map, ctx.inputs.get("calibration_positions")))
+                .transpose()?,
+            iso9283: read_iso_test(ctx, "iso9283", "iso9283_distances")?,
+            iso9283_baseline: read_iso_test(ctx, "iso9283_baseline", "iso9283_distances_baseline")?,
             truth,
             sources: ctx
                 .inputs
@@ -383,6 +426,87 @@ fn read_excluded(table: &InputTable) -> Result<Vec<ExcludedRow>, TableError> {
             reason: reason[k].clone(),
         })
         .collect())
+}
+
+fn read_accuracy_map(
+    table: &InputTable,
+    positions: Option<&InputTable>,
+) -> Result<AccuracyMap, TableError> {
+    let slice = ints(table, "slice")?;
+    let [x, y, z] = ["x_mm", "y_mm", "z_mm"].map(|c| floats(table, c));
+    let (x, y, z) = (x?, y?, z?);
+    let inside: Vec<bool> = table
+        .df
+        .column("inside_box")
+        .and_then(|c| c.bool().cloned())
+        .map_err(|e| io_error(&table.path, e))?
+        .iter()
+        .map(Option::unwrap_or_default)
+        .collect();
+    let u95 = optional_floats(&table.df, "u95_mm", &table.path)?;
+    let points = (0..slice.len())
+        .map(|k| MapPoint {
+            slice: slice[k],
+            position_mm: [x[k], y[k], z[k]],
+            inside_box: inside[k],
+            u95_mm: u95[k].filter(|v| v.is_finite()),
+        })
+        .collect();
+    let calibration_mm = match positions {
+        Some(table) => {
+            let [x, y, z] = ["x_mm", "y_mm", "z_mm"].map(|c| floats(table, c));
+            let (x, y, z) = (x?, y?, z?);
+            (0..x.len()).map(|k| [x[k], y[k], z[k]]).collect()
+        }
+        None => Vec::new(),
+    };
+    Ok(AccuracyMap {
+        points,
+        calibration_mm,
+    })
+}
+
+/// An ISO 9283 test from its per-point input and optional distances input;
+/// `None` when the per-point input is not bound.
+fn read_iso_test(
+    ctx: &StageContext,
+    points: &str,
+    distances: &str,
+) -> Result<Option<IsoTest>, TableError> {
+    let Some(table) = ctx.inputs.get(points) else {
+        return Ok(None);
+    };
+    let point = strings(table, "point")?;
+    let n = ints(table, "n")?;
+    let (ap, rp) = (floats(table, "ap_mm")?, floats(table, "rp_mm")?);
+    let points = (0..point.len())
+        .map(|k| IsoPoint {
+            point: point[k].clone(),
+            n: n[k],
+            ap_mm: ap[k],
+            rp_mm: rp[k],
+        })
+        .collect();
+    let distances = match ctx.inputs.get(distances) {
+        Some(table) => {
+            let (from, to) = (strings(table, "from")?, strings(table, "to")?);
+            let n = ints(table, "n")?;
+            let [d_cmd, ad, rd] = ["d_cmd_mm", "ad_mm", "rd_mm"].map(|c| floats(table, c));
+            let (d_cmd, ad, rd) = (d_cmd?, ad?, rd?);
+            (0..from.len())
+                .map(|k| IsoDistance {
+                    from: from[k].clone(),
+                    to: to[k].clone(),
+                    n: n[k],
+                    d_cmd_mm: d_cmd[k],
+                    ad_mm: ad[k],
+                    rd_mm: rd[k],
+                })
+                .collect()
+        }
+        None => Vec::new(),
+    };
+    Ok(Some(IsoTest { points, distances }))
 }
 
 fn read_trace(table: &InputTable) -> Result<Vec<TraceRow>, TableError> {

@@ -1334,6 +1334,95 @@ pub fn iso9283_distances() -> TableSchema {
     }
 }
 
+/// Output of `accuracy_map`: the predicted 95 % position uncertainty per grid
+/// point around the calibration rows (`crate::calibration::accuracy_map`).
+pub fn accuracy_map() -> TableSchema {
+    let mut columns = vec![
+        col(
+            "point_id",
+            ColumnType::Int64,
+            "",
+            true,
+            "grid point, 0-based, slice by slice, y then x within a slice",
+        ),
+        col(
+            "slice",
+            ColumnType::Int64,
+            "",
+            true,
+            "horizontal slice (world z level), 0 at the bottom",
+        ),
+    ];
+    for name in POSITION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm",
+            true,
+            "grid point, world (tracker) frame",
+        ));
+    }
+    columns.push(col(
+        "inside_box",
+        ColumnType::Boolean,
+        "",
+        true,
+        "whether the point lies in the bounding box of the calibration rows' tool positions (false: in the margin, an extrapolation)",
+    ));
+    columns.push(col(
+        "status",
+        ColumnType::Utf8,
+        "",
+        true,
+        "reachable, unreachable (no configuration within the joint limits) or singular; only reachable points have an uncertainty",
+    ));
+    joint_columns(
+        &mut columns,
+        "configuration used: nominal IK for the orientation of the nearest calibration pose, the solution closest to its configuration; null when not reachable",
+    );
+    for column in columns.iter_mut().filter(|c| c.name.starts_with('q')) {
+        column.required = false;
+    }
+    position_covariance_columns(&mut columns);
+    for column in columns.iter_mut().filter(|c| c.name.starts_with("cov_")) {
+        column.meaning = "covariance of the position from the parameters' covariance alone (J·Σ·Jᵀ, world frame, no external wrench, measurement noise not included); null when not reachable";
+    }
+    columns.push(col(
+        "u95_mm",
+        ColumnType::Float64,
+        "mm",
+        false,
+        "radius of the 95 % uncertainty: sqrt(χ²₃(0.95)·λ_max(J·Σ·Jᵀ)), the longest semi-axis of the 95 % ellipsoid; null when not reachable",
+    ));
+    TableSchema {
+        kind: "accuracy_map",
+        description: "Predicted 95 % position uncertainty over a grid of the workspace the calibration rows covered, and a margin beyond it.",
+        columns,
+        unique: Some("point_id"),
+    }
+}
+
+/// Output of `accuracy_map`: the calibration rows' tool positions the map was
+/// built around.
+pub fn calibration_positions() -> TableSchema {
+    let mut columns = vec![col("cw_id", ColumnType::Int64, "", true, "calibration row")];
+    for name in POSITION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm",
+            true,
+            "unloaded tool position under the calibrated parameters, world (tracker) frame",
+        ));
+    }
+    TableSchema {
+        kind: "calibration_positions",
+        description: "Tool positions of the calibration rows an accuracy map was built around.",
+        columns,
+        unique: Some("cw_id"),
+    }
+}
+
 pub const TORQUE_COLUMNS: [&str; 6] = [
     "tau1_nm", "tau2_nm", "tau3_nm", "tau4_nm", "tau5_nm", "tau6_nm",
 ];
@@ -1533,6 +1622,8 @@ pub fn all() -> Vec<TableSchema> {
         iso_measurements(),
         iso9283(),
         iso9283_distances(),
+        accuracy_map(),
+        calibration_positions(),
         target_errors(),
         target_stats(),
         selection(),

@@ -1,0 +1,264 @@
+//! `accuracy_map`: the predicted 95 % position uncertainty over a grid of the
+//! workspace the calibration rows covered and a margin beyond it (issue #16),
+//! so a user sees where the calibration holds and where it extrapolates. The
+//! maths (grid, configurations, `u95`) is [`crate::calibration::accuracy_map`];
+//! this file reads the calibration rows as `identify` takes them (the
+//! `measurements`, restricted to a `selection`'s calibration rows when one is
+//! bound), the model and its covariance, and writes the tables.
+
+use polars::prelude::Column;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+use super::identify::ids_with_role;
+use super::{
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot, bound_covariance, conf_wrench_rows, covariance_columns, model_name_problem,
+    model_set,
+};
+use crate::calibration::accuracy_map::{self, GridSpec, MapPoint, PointStatus};
+use crate::robot::Wrench;
+use crate::table::frame;
+use crate::table::parameters::ModelName;
+use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS};
+
+pub struct AccuracyMapStage;
+
+/// Settings of `accuracy_map`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct AccuracyMapSettings {
+    /// Which model of the `parameters` input (and of `covariance`) to map:
+    /// registered, kinematic, elastogeometric or reregistered.
+    pub model: String,
+    /// Grid points along world x and along world y in each slice.
+    #[schemars(range(min = 2, max = 200))]
+    pub points_per_axis: usize,
+    /// Horizontal slices (world z levels) from the bottom to the top of the
+    /// enlarged box; one slice lies at mid height.
+    #[schemars(range(min = 1, max = 20))]
+    pub slices: usize,
+    /// How far (mm) the grid extends beyond the calibration rows' bounding box
+    /// on every side, so that extrapolation shows.
+    #[schemars(range(min = 0.0, max = 5000.0))]
+    pub margin_mm: f64,
+}
+
+impl Default for AccuracyMapSettings {
+    fn default() -> Self {
+        AccuracyMapSettings {
+            model: ModelName::Elastogeometric.as_str().to_string(),
+            points_per_axis: 15,
+            slices: 3,
+            margin_mm: 200.0,
+        }
+    }
+}
+
+static INFO: StageInfo = StageInfo {
+    kind: "accuracy_map",
+    uses_cable_robot: false,
+    updates_input: None,
+    summary: "Predicted 95 % position uncertainty (J·Σ·Jᵀ) over a grid around the calibration rows, for the report's accuracy map",
+    code_version: 1,
+    inputs: &[
+        TableSlot {
+            name: "parameters",
+            schema: schema::parameters,
+            required: true,
+            meaning: "identified parameter sets (identify); the model of the `model` setting is mapped",
+        },
+        TableSlot {
+            name: "covariance",
+            schema: schema::covariance,
+            required: true,
+            meaning: "identify's parameter covariance of that model",
+        },
+        TableSlot {
+            name: "measurements",
+            schema: schema::measurements,
+            required: true,
+            meaning: "the rows identify was given: their configurations place the grid and its orientations",
+        },
+        TableSlot {
+            name: "selection",
+            schema: schema::selection,
+            required: false,
+            meaning: "rows with role = calibration are the calibration rows; all rows when absent",
+        },
+    ],
+    outputs: &[
+        TableSlot {
+            name: "accuracy_map",
+            schema: schema::accuracy_map,
+            required: true,
+            meaning: "per grid point: position, inside_box, status, configuration, cov_xx_mm2..cov_zz_mm2, u95_mm",
+        },
+        TableSlot {
+            name: "calibration_positions",
+            schema: schema::calibration_positions,
+            required: true,
+            meaning: "the calibration rows' unloaded tool positions the grid was built around",
+        },
+    ],
+};
+
+impl Stage for AccuracyMapStage {
+    type Settings = AccuracyMapSettings;
+
+    fn info(&self) -> &'static StageInfo {
+        &INFO
+    }
+
+    fn check_settings(
+        &self,
+        settings: &AccuracyMapSettings,
+        _ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        let mut problems: Vec<SettingsProblem> = model_name_problem("model", &settings.model)
+            .into_iter()
+            .collect();
+        if settings.model == ModelName::Nominal.as_str() {
+            problems.push(SettingsProblem::new(
+                "model",
+                "the nominal model identifies nothing, so it has no covariance to map; choose registered, kinematic, elastogeometric or reregistered",
+            ));
+        }
+        problems
+    }
+
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &AccuracyMapSettings,
+    ) -> Result<StageOutputs, StageError> {
+        let set = model_set(ctx, "parameters", "model", &settings.model)?
+            .ok_or_else(|| StageError::Invalid("input `parameters` is not bound".into()))?;
+        let covariance = bound_covariance(ctx, &set)?.flatten().ok_or_else(|| {
+            StageError::Invalid(format!(
+                "input `covariance` ({}) has no covariance for model `{}`",
+                ctx.input("covariance")
+                    .map_or_else(|_| "not bound".into(), |t| t.path.display().to_string()),
+                settings.model
+            ))
+        })?;
+        let measurements = ctx.input("measurements")?;
+        let (ids, rows) = conf_wrench_rows(measurements)?;
+        let keep = ctx
+            .inputs
+            .get("selection")
+            .map(|s| ids_with_role(s, "calibration"))
+            .transpose()?;
+        let (calibration_ids, calibration_q): (Vec<i64>, Vec<_>) = ids
+            .iter()
+            .zip(&rows)
+            .filter(|(id, _)| keep.as_ref().is_none_or(|k| k.contains(id)))
+            .map(|(id, row)| (*id, row.q_deg))
+            .unzip();
+        if calibration_q.is_empty() {
+            return Err(StageError::Invalid(format!(
+                "{}: no calibration rows (the selection marks none, or the table is empty)",
+                measurements.path.display()
+            )));
+        }
+        let spec = GridSpec {
+            points_per_axis: settings.points_per_axis,
+            slices: settings.slices,
+            margin_mm: settings.margin_mm,
+        };
+        let map = accuracy_map::accuracy_map(
+            ctx.robot,
+            &set.values,
+            &covariance.free,
+            &covariance.matrix,
+            &calibration_q,
+            &spec,
+        );
+        let mut outputs = StageOutputs::default();
+        outputs
+            .tables
+            .insert("accuracy_map".into(), map_frame(&map));
+        let positions: Vec<_> = calibration_q
+            .iter()
+            .map(|q| {
+                ctx.robot
+                    .tool_in_world(&set.values, q, &Wrench::zero())
+                    .origin_mm
+            })
+            .collect();
+        let mut columns = vec![Column::new("cw_id".into(), calibration_ids)];
+        for (axis, name) in POSITION_COLUMNS.iter().enumerate() {
+            let v: Vec<f64> = positions.iter().map(|p| p[axis]).collect();
+            columns.push(Column::new((*name).into(), v));
+        }
+        outputs
+            .tables
+            .insert("calibration_positions".into(), frame(columns));
+        let reachable = map
+            .iter()
+            .filter(|p| p.status == PointStatus::Reachable)
+            .count();
+        outputs.facts.insert("points".into(), map.len().to_string());
+        outputs
+            .facts
+            .insert("reachable".into(), reachable.to_string());
+        for (inside, name) in [
+            (true, "median_u95_inside_mm"),
+            (false, "median_u95_margin_mm"),
+        ] {
+            if let Some(median) = median_u95(&map, inside) {
+                outputs.facts.insert(name.into(), format!("{median:.4}"));
+            }
+        }
+        Ok(outputs)
+    }
+}
+
+/// The median `u95` of the reachable points inside (or outside) the box.
+fn median_u95(map: &[MapPoint], inside: bool) -> Option<f64> {
+    let mut u: Vec<f64> = map
+        .iter()
+        .filter(|p| p.inside_box == inside)
+        .filter_map(MapPoint::u95_mm)
+        .collect();
+    u.sort_by(f64::total_cmp);
+    let n = u.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(u[n / 2]),
+        _ => Some((u[n / 2 - 1] + u[n / 2]) / 2.0),
+    }
+}
+
+fn map_frame(map: &[MapPoint]) -> polars::prelude::DataFrame {
+    let mut columns = vec![
+        Column::new("point_id".into(), (0..map.len() as i64).collect::<Vec<_>>()),
+        Column::new(
+            "slice".into(),
+            map.iter().map(|p| p.slice as i64).collect::<Vec<_>>(),
+        ),
+    ];
+    for (axis, name) in POSITION_COLUMNS.iter().enumerate() {
+        let v: Vec<f64> = map.iter().map(|p| p.position_mm[axis]).collect();
+        columns.push(Column::new((*name).into(), v));
+    }
+    columns.push(Column::new(
+        "inside_box".into(),
+        map.iter().map(|p| p.inside_box).collect::<Vec<_>>(),
+    ));
+    columns.push(Column::new(
+        "status".into(),
+        map.iter().map(|p| p.status.as_str()).collect::<Vec<_>>(),
+    ));
+    for (joint, name) in JOINT_COLUMNS.iter().enumerate() {
+        let v: Vec<Option<f64>> = map.iter().map(|p| p.q_deg.map(|q| q[joint])).collect();
+        columns.push(Column::new((*name).into(), v));
+    }
+    let covariances: Vec<_> = map.iter().map(|p| p.covariance_mm2).collect();
+    columns.extend(covariance_columns(&covariances));
+    columns.push(Column::new(
+        "u95_mm".into(),
+        map.iter().map(MapPoint::u95_mm).collect::<Vec<_>>(),
+    ));
+    frame(columns)
+}
