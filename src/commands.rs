@@ -9,7 +9,7 @@ use polars::prelude::*;
 
 use crate::cdpr::CableRobotSpec;
 use crate::gate::Decision;
-use crate::job::{InputSource, JobProblems, Plan};
+use crate::job::{InputSource, JobOverrides, JobProblems, Plan};
 use crate::robot::{Robot, RobotSpec};
 use crate::runner::{self, RunError, RunOptions, progress::Reporter};
 use crate::stages::{self, InputTable, NoProgress, StageContext, StageError};
@@ -33,6 +33,8 @@ pub enum CommandError {
         kind: String,
         source: Box<StageError>,
     },
+    #[error(transparent)]
+    Fleet(Box<crate::fleet::FleetError>),
 }
 
 /// Exit codes (documented in the README).
@@ -116,6 +118,7 @@ impl CommandError {
             | CommandError::Table(_)
             | CommandError::Robot(_) => exit::BAD_INPUT,
             CommandError::Stage { source, .. } => stage_code(source),
+            CommandError::Fleet(e) => e.exit_code(),
             CommandError::Run(e) => match e.as_ref() {
                 RunError::Lock(runner::lock::LockError::Held { .. }) => exit::LOCKED,
                 RunError::Lock(_) | RunError::Io { .. } => exit::INTERNAL,
@@ -137,8 +140,23 @@ fn stage_code(e: &StageError) -> u8 {
 }
 
 /// `egcal run`.
-pub fn run(job: &Path, options: &RunOptions, quiet: bool) -> Result<Finished, CommandError> {
-    let mut plan = Plan::load(job)?;
+pub fn run(
+    job: &Path,
+    overrides: &JobOverrides,
+    options: &RunOptions,
+    quiet: bool,
+) -> Result<Finished, CommandError> {
+    let plan = Plan::load_with(job, overrides)?;
+    run_plan(plan, options, quiet)
+}
+
+/// Runs a loaded plan (`egcal run`, and each robot-night of a fleet); the exit code
+/// is the most urgent of its gate stages' decisions.
+pub fn run_plan(
+    mut plan: Plan,
+    options: &RunOptions,
+    quiet: bool,
+) -> Result<Finished, CommandError> {
     if let Some(day) = options.run_date {
         plan.run_date = day;
     }
@@ -173,8 +191,12 @@ pub fn run(job: &Path, options: &RunOptions, quiet: bool) -> Result<Finished, Co
 }
 
 /// `egcal status`.
-pub fn status(job: &Path, run_date: Option<i64>) -> Result<String, CommandError> {
-    let mut plan = Plan::load(job)?;
+pub fn status(
+    job: &Path,
+    overrides: &JobOverrides,
+    run_date: Option<i64>,
+) -> Result<String, CommandError> {
+    let mut plan = Plan::load_with(job, overrides)?;
     if let Some(day) = run_date {
         plan.run_date = day;
     }
@@ -191,8 +213,8 @@ pub fn status(job: &Path, run_date: Option<i64>) -> Result<String, CommandError>
 }
 
 /// `egcal check`: the plan, and each external input's data checked against its schema.
-pub fn check(job: &Path) -> Result<String, CommandError> {
-    let plan = Plan::load(job)?;
+pub fn check(job: &Path, overrides: &JobOverrides) -> Result<String, CommandError> {
+    let plan = Plan::load_with(job, overrides)?;
     let mut out = format!(
         "{}: {} stage(s) ok; robot {}; output {}\n",
         plan.name,

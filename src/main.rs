@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use egcal::commands::{self, CommandError, Finished};
+use egcal::job::JobOverrides;
 use egcal::runner::RunOptions;
 
 #[derive(Parser)]
@@ -43,6 +44,10 @@ enum Command {
         /// Day relative time windows end on, YYYY-MM-DD (default: today, UTC).
         #[arg(long, value_parser = parse_run_date)]
         run_date: Option<i64>,
+        /// NAME=VALUE for the job file's `{NAME}` placeholders (over `[job] vars`);
+        /// repeatable.
+        #[arg(long = "var", value_parser = parse_var)]
+        vars: Vec<(String, String)>,
     },
     /// Dry run: each stage cached or stale, and why.
     Status {
@@ -50,6 +55,9 @@ enum Command {
         /// As for `run`.
         #[arg(long, value_parser = parse_run_date)]
         run_date: Option<i64>,
+        /// As for `run`.
+        #[arg(long = "var", value_parser = parse_var)]
+        vars: Vec<(String, String)>,
     },
     /// Print the stage graph (Mermaid, or DOT with --dot).
     Dag {
@@ -58,7 +66,12 @@ enum Command {
         dot: bool,
     },
     /// Validate the job file and its external inputs; run nothing.
-    Check { job: PathBuf },
+    Check {
+        job: PathBuf,
+        /// As for `run`.
+        #[arg(long = "var", value_parser = parse_var)]
+        vars: Vec<(String, String)>,
+    },
     /// Schema, provenance and first rows of a Parquet table.
     Show {
         table: PathBuf,
@@ -136,10 +149,61 @@ enum Command {
         #[command(subcommand)]
         action: CacheAction,
     },
+    /// A fleet's nightly re-calibration: every robot's night of one job template.
+    Fleet {
+        #[command(subcommand)]
+        action: FleetAction,
+    },
     /// Regenerate the JSON schemas (job file, robot file, tables) into a folder.
     Schemas {
         #[arg(long, default_value = "schemas")]
         out: PathBuf,
+    },
+}
+
+#[derive(Subcommand)]
+enum FleetAction {
+    /// Run every robot's night on this machine, then gather it.
+    Run {
+        fleet: PathBuf,
+        /// Robot-nights at once (default: 1; each night uses the cores left).
+        #[arg(long, short, default_value_t = 1)]
+        jobs: usize,
+        /// The night, YYYY-MM-DD (default: today, UTC).
+        #[arg(long, value_parser = parse_run_date)]
+        run_date: Option<i64>,
+    },
+    /// Submit the night to Slurm as a job array (several robot-nights per task).
+    Submit {
+        fleet: PathBuf,
+        #[arg(long, value_parser = parse_run_date)]
+        run_date: Option<i64>,
+        /// Tasks at once (`--array=…%M`); 0: no limit. Default: `[slurm] max_parallel`.
+        #[arg(long)]
+        max_parallel: Option<usize>,
+        /// Wait for the tasks, then gather (exit code as `gather`).
+        #[arg(long)]
+        wait: bool,
+    },
+    /// Run one task of a submitted night (what each array task runs).
+    Task {
+        fleet: PathBuf,
+        /// Task index; default SLURM_ARRAY_TASK_ID, else JOB_COMPLETION_INDEX.
+        #[arg(long)]
+        index: Option<usize>,
+        /// Added to the index (arrays after the first, when a night is split at
+        /// the cluster's MaxArraySize).
+        #[arg(long, default_value_t = 0)]
+        index_offset: usize,
+        #[arg(long, value_parser = parse_run_date)]
+        run_date: Option<i64>,
+    },
+    /// Collect the night's decisions into one table and page; exit 3 when a night
+    /// failed or is missing, else 11 / 10 / 0 as the most urgent gate decision.
+    Gather {
+        fleet: PathBuf,
+        #[arg(long, value_parser = parse_run_date)]
+        run_date: Option<i64>,
     },
 }
 
@@ -156,6 +220,17 @@ fn parse_input(text: &str) -> Result<(String, PathBuf), String> {
     Ok((name.to_string(), PathBuf::from(path)))
 }
 
+fn parse_var(text: &str) -> Result<(String, String), String> {
+    let (name, value) = text
+        .split_once('=')
+        .ok_or_else(|| format!("expected NAME=VALUE, found `{text}`"))?;
+    Ok((name.to_string(), value.to_string()))
+}
+
+fn overrides(vars: Vec<(String, String)>) -> JobOverrides {
+    JobOverrides::with_vars(vars.into_iter().collect())
+}
+
 fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
     match cli.command {
         Command::Run {
@@ -165,11 +240,13 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
             force,
             jobs,
             run_date,
+            vars,
         } => {
             let jobs =
                 jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
             commands::run(
                 &job,
+                &overrides(vars),
                 &RunOptions {
                     only,
                     from,
@@ -180,9 +257,13 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
                 cli.quiet,
             )
         }
-        Command::Status { job, run_date } => commands::status(&job, run_date).map(Finished::from),
+        Command::Status {
+            job,
+            run_date,
+            vars,
+        } => commands::status(&job, &overrides(vars), run_date).map(Finished::from),
         Command::Dag { job, dot } => commands::dag(&job, dot).map(Finished::from),
-        Command::Check { job } => commands::check(&job).map(Finished::from),
+        Command::Check { job, vars } => commands::check(&job, &overrides(vars)).map(Finished::from),
         Command::Show { table, rows } => commands::show(&table, rows).map(Finished::from),
         Command::Stage {
             kind,
@@ -241,8 +322,92 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
         Command::Cache {
             action: CacheAction::Gc { job },
         } => commands::cache_gc(&job).map(Finished::from),
+        Command::Fleet { action } => fleet_command(action, cli.quiet),
         Command::Schemas { out } => commands::write_schemas(&out).map(Finished::from),
     }
+}
+
+/// `egcal fleet …`: errors keep their own exit codes.
+fn fleet_command(action: FleetAction, quiet: bool) -> Result<Finished, CommandError> {
+    use egcal::fleet::{self, Fleet, FleetError};
+    let today = egcal::table::time::today;
+    let ran = |r: Result<Finished, FleetError>| r.map_err(|e| CommandError::Fleet(Box::new(e)));
+    let gathered = |g: fleet::gather::Gathered| Finished {
+        message: g.summary,
+        code: g.code,
+    };
+    ran((|| match action {
+        FleetAction::Run {
+            fleet,
+            jobs,
+            run_date,
+        } => {
+            let fleet = Fleet::load(&fleet)?;
+            let options = fleet::local::LocalOptions {
+                run_date: run_date.unwrap_or_else(today),
+                jobs,
+                quiet,
+            };
+            fleet::local::run(&fleet, &options).map(gathered)
+        }
+        FleetAction::Submit {
+            fleet,
+            run_date,
+            max_parallel,
+            wait,
+        } => {
+            let fleet = Fleet::load(&fleet)?;
+            let run_date = run_date.unwrap_or_else(today);
+            let submitted = fleet::slurm::submit(
+                &fleet,
+                &fleet::slurm::SubmitOptions {
+                    run_date,
+                    max_parallel,
+                    wait,
+                },
+            )?;
+            if let Some(g) = submitted.gathered {
+                return Ok(gathered(g));
+            }
+            let m = &submitted.manifest;
+            let arrays: Vec<String> = m
+                .arrays
+                .iter()
+                .map(|a| {
+                    format!(
+                        "{} (tasks {}..{})",
+                        a.job_id,
+                        a.first_task,
+                        a.first_task + a.tasks - 1
+                    )
+                })
+                .collect();
+            Ok(Finished::from(format!(
+                "fleet {}, night {}: {} robot-night(s) in {} task(s) submitted as Slurm job {}\nwhen they are done: egcal fleet gather {} --run-date {}",
+                fleet.name,
+                m.run_date,
+                fleet.robots.len(),
+                m.tasks.len(),
+                arrays.join(", "),
+                fleet.file.display(),
+                m.run_date
+            )))
+        }
+        FleetAction::Task {
+            fleet,
+            index,
+            index_offset,
+            run_date,
+        } => {
+            let fleet = Fleet::load(&fleet)?;
+            let index = fleet::slurm::task_index(index)? + index_offset;
+            fleet::slurm::task(&fleet, run_date.unwrap_or_else(today), index)
+        }
+        FleetAction::Gather { fleet, run_date } => {
+            let fleet = Fleet::load(&fleet)?;
+            fleet::gather::gather(&fleet, run_date.unwrap_or_else(today)).map(gathered)
+        }
+    })())
 }
 
 fn main() -> ExitCode {

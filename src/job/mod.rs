@@ -2,6 +2,7 @@
 //! resolves paths, stage kinds and input references, reads the footers of external
 //! Parquet inputs and orders the stages. Both phases report every problem at once.
 
+pub mod overrides;
 pub mod plan;
 pub mod raw;
 pub mod schema;
@@ -9,6 +10,7 @@ pub mod schema;
 use std::fmt;
 use std::path::PathBuf;
 
+pub use overrides::JobOverrides;
 pub use plan::{InputSource, Plan, PlannedStage};
 
 /// One problem in a job file.

@@ -11,7 +11,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 
 use super::raw::{self, RawJob};
-use super::{JobProblem, JobProblems};
+use super::{JobOverrides, JobProblem, JobProblems};
 use crate::cdpr::CableRobotSpec;
 use crate::robot::RobotSpec;
 use crate::stages::{self, StageKind, TableSlot};
@@ -64,6 +64,12 @@ impl Plan {
 
     /// Reads, parses and validates a job file.
     pub fn load(path: &Path) -> Result<Plan, JobProblems> {
+        Plan::load_with(path, &JobOverrides::default())
+    }
+
+    /// [`Plan::load`] with placeholder values and stage settings from outside the
+    /// file (`egcal run --var`, a fleet's robots).
+    pub fn load_with(path: &Path, overrides: &JobOverrides) -> Result<Plan, JobProblems> {
         let text = std::fs::read_to_string(path).map_err(|e| {
             JobProblems(vec![JobProblem {
                 file: path.to_path_buf(),
@@ -72,7 +78,7 @@ impl Plan {
                 message: format!("cannot read job file: {e}"),
             }])
         })?;
-        let raw = raw::parse(&text, path)?;
+        let raw = raw::parse_with(&text, path, overrides)?;
         build(raw, path)
     }
 

@@ -10,6 +10,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use toml::de::{DeTable, DeValue};
 
+use super::overrides::{JobOverrides, substitute};
 use super::{JobProblem, JobProblems};
 
 /// The `[job]` table.
@@ -30,6 +31,11 @@ pub struct JobHeader {
     /// geometry (`jobs/cdpr/default.toml`) when absent.
     #[serde(default)]
     pub cable_robot: Option<String>,
+    /// Default values of the `{name}` placeholders used in the file's strings
+    /// (`egcal run --var name=value` and a fleet's robots override them), e.g.
+    /// `vars = { robot_id = "robot_a" }` for `publish_dir = "calibration/{robot_id}"`.
+    #[serde(default)]
+    pub vars: BTreeMap<String, String>,
 }
 
 /// One `[[stages]]` entry before validation.
@@ -57,7 +63,7 @@ pub struct RawJob {
 pub struct LineIndex(BTreeMap<String, usize>);
 
 impl LineIndex {
-    fn build(text: &str, table: &DeTable) -> LineIndex {
+    pub fn build(text: &str, table: &DeTable) -> LineIndex {
         let mut index = BTreeMap::new();
         visit(table, "", &mut |path, start, _| {
             index.insert(
@@ -134,6 +140,16 @@ const STAGE_KEYS: [&str; 3] = ["id", "kind", "inputs"];
 
 /// Parses job-file text; `path` only names the file in messages.
 pub fn parse(text: &str, path: &Path) -> Result<RawJob, JobProblems> {
+    parse_with(text, path, &JobOverrides::default())
+}
+
+/// Parses job-file text with placeholder values and stage settings from outside
+/// the file (see [`JobOverrides`]).
+pub fn parse_with(
+    text: &str,
+    path: &Path,
+    overrides: &JobOverrides,
+) -> Result<RawJob, JobProblems> {
     let problem = |line: Option<usize>, key: &str, message: String| JobProblem {
         file: path.to_path_buf(),
         line,
@@ -169,7 +185,7 @@ pub fn parse(text: &str, path: &Path) -> Result<RawJob, JobProblems> {
                 .collect(),
         ));
     }
-    let root: toml::Table = toml::from_str(text).map_err(|e| {
+    let mut root: toml::Table = toml::from_str(text).map_err(|e| {
         JobProblems(vec![problem(
             None,
             "",
@@ -178,6 +194,11 @@ pub fn parse(text: &str, path: &Path) -> Result<RawJob, JobProblems> {
     })?;
     let mut problems = Vec::new();
     let at = |key: &str, message: String| problem(lines.line_of(key), key, message);
+    problems.extend(
+        apply_overrides(&mut root, overrides)
+            .into_iter()
+            .map(|(key, message)| at(&key, message)),
+    );
 
     for key in root.keys().filter(|k| *k != "job" && *k != "stages") {
         problems.push(at(
@@ -209,7 +230,7 @@ pub fn parse(text: &str, path: &Path) -> Result<RawJob, JobProblems> {
                 let message = e.inner().message().to_string();
                 let hint = unknown_field_hint(
                     &message,
-                    &["name", "seed", "output", "robot", "cable_robot"],
+                    &["name", "seed", "output", "robot", "cable_robot", "vars"],
                 );
                 problems.push(at(&key, format!("{message}{hint}")));
                 None
@@ -246,6 +267,101 @@ pub fn parse(text: &str, path: &Path) -> Result<RawJob, JobProblems> {
         }),
         _ => Err(JobProblems(problems)),
     }
+}
+
+/// Merges the overrides' stage settings into `root` and fills the placeholders of
+/// every string outside `[job] vars`; problems as (key, message).
+fn apply_overrides(root: &mut toml::Table, overrides: &JobOverrides) -> Vec<(String, String)> {
+    let mut problems = Vec::new();
+    let mut vars = BTreeMap::new();
+    match root.get("job").and_then(|job| job.get("vars")) {
+        None => {}
+        Some(toml::Value::Table(table)) => {
+            for (name, value) in table {
+                match value.as_str() {
+                    Some(text) => {
+                        vars.insert(name.clone(), text.to_string());
+                    }
+                    None => problems.push((
+                        format!("job.vars.{name}"),
+                        format!("expected a string, found {}", value.type_str()),
+                    )),
+                }
+            }
+        }
+        Some(other) => problems.push((
+            "job.vars".to_string(),
+            format!(
+                "expected a table of name = \"value\", found {}",
+                other.type_str()
+            ),
+        )),
+    }
+    vars.extend(overrides.vars.clone());
+
+    for (id, settings) in &overrides.stage_settings {
+        let stage = root
+            .get_mut("stages")
+            .and_then(toml::Value::as_array_mut)
+            .and_then(|stages| {
+                stages
+                    .iter_mut()
+                    .find(|s| s.get("id").and_then(toml::Value::as_str) == Some(id))
+            })
+            .and_then(toml::Value::as_table_mut);
+        match stage {
+            Some(table) => {
+                for (key, value) in settings {
+                    if STAGE_KEYS.contains(&key.as_str()) {
+                        problems.push((
+                            "stages".to_string(),
+                            format!("an override of stage `{id}` may not change `{key}`"),
+                        ));
+                    } else {
+                        table.insert(key.clone(), value.clone());
+                    }
+                }
+            }
+            None => problems.push((
+                "stages".to_string(),
+                format!("settings override a stage `{id}` that the job does not declare"),
+            )),
+        }
+    }
+
+    let (mut used, mut unknown) = (std::collections::BTreeSet::new(), Vec::new());
+    for (key, value) in root.iter_mut() {
+        if key == "job" {
+            if let Some(job) = value.as_table_mut() {
+                for (field, item) in job.iter_mut().filter(|(f, _)| *f != "vars") {
+                    substitute(
+                        item,
+                        &format!("job.{field}"),
+                        &vars,
+                        &mut used,
+                        &mut unknown,
+                    );
+                }
+            }
+        } else {
+            substitute(value, key, &vars, &mut used, &mut unknown);
+        }
+    }
+    for (key, name) in unknown {
+        problems.push((
+            key,
+            format!(
+                "`{{{name}}}` is not a variable of this job: declare it in `[job] vars` or pass `--var {name}=VALUE`"
+            ),
+        ));
+    }
+    for name in overrides.vars.keys().filter(|n| !used.contains(*n)) {
+        problems.push((
+            "job.vars".to_string(),
+            format!("a value was given for `{{{name}}}` but the job file uses no `{{{name}}}`"),
+        ));
+    }
+    problems
 }
 
 fn unknown_field_hint(message: &str, fields: &[&str]) -> String {

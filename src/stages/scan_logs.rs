@@ -4,10 +4,14 @@
 //!
 //! The window is relative to the run date (`last = "14d"`: the run date and the 13
 //! days before it) or absolute (`from`/`to`). The files found and their content
-//! hashes, and the run date, are part of the cache key: a new log file or a new
-//! night re-runs the stage, an unchanged folder does not.
+//! hashes (or, on S3, their ETags), and the run date, are part of the cache key: a
+//! new log file or a new night re-runs the stage, an unchanged folder does not.
+//!
+//! Logs may live in a folder or in S3-compatible object storage
+//! (`logs = "s3://bucket/prefix"`); outputs and published calibrations stay on
+//! POSIX storage, since publishing relies on an atomic rename.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use polars::prelude::*;
 use schemars::JsonSchema;
@@ -17,7 +21,8 @@ use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, settings_error,
 };
-use crate::logs::{self, LogQuery, ScanReport};
+use crate::logs::s3::{S3Location, S3Settings};
+use crate::logs::{self, ContentKey, LogQuery, LogSource, ScanReport};
 use crate::table::schema;
 use crate::table::time::{date_string, parse_date};
 
@@ -39,8 +44,17 @@ pub enum BadData {
 #[serde(deny_unknown_fields, default)]
 pub struct ScanLogsSettings {
     /// Log folder (searched recursively for `*.parquet`; `robot_id=…` and
-    /// `date=YYYY-MM-DD` folders prune) or a glob, relative to the job file.
+    /// `date=YYYY-MM-DD` folders prune) or a glob, relative to the job file; or an
+    /// S3 prefix `s3://bucket/prefix` (credentials from the `AWS_*` variables).
     pub logs: String,
+    /// Endpoint, region and plain-HTTP permission of an S3-compatible store (each
+    /// defaults to its `AWS_*` variable).
+    pub s3: S3Settings,
+    /// What identifies a log file in the cache key: `etag` (S3's ETag, the BLAKE3
+    /// hash of a local file) or `content` (the BLAKE3 hash of every file's bytes,
+    /// wherever it is stored: the same key for a folder and a bucket of the same
+    /// logs, at the price of reading every object once more).
+    pub content_key: ContentKey,
     /// The robot whose rows to keep.
     pub robot_id: String,
     /// Window of whole days ending on the run date, e.g. `"14d"`. Ignored when
@@ -63,6 +77,8 @@ impl Default for ScanLogsSettings {
     fn default() -> Self {
         ScanLogsSettings {
             logs: String::new(),
+            s3: S3Settings::default(),
+            content_key: ContentKey::default(),
             robot_id: String::new(),
             last: "14d".into(),
             from: None,
@@ -113,8 +129,11 @@ impl ScanLogsSettings {
         if self.logs.is_empty() {
             problems.push(SettingsProblem::new(
                 "logs",
-                "required: a log folder or glob",
+                "required: a log folder, glob or s3:// prefix",
             ));
+        }
+        if let Some(Err(message)) = S3Location::parse(&self.logs) {
+            problems.push(SettingsProblem::new("logs", message));
         }
         if self.robot_id.is_empty() {
             problems.push(SettingsProblem::new("robot_id", "required"));
@@ -169,7 +188,7 @@ impl ScanLogsSettings {
             )));
         }
         Ok(LogQuery {
-            source: job_dir.join(&self.logs),
+            source: LogSource::parse(&self.logs, job_dir, &self.s3).map_err(StageError::Invalid)?,
             robot_id: self.robot_id.clone(),
             first_day,
             last_day,
@@ -200,17 +219,9 @@ impl Stage for ScanLogsStage {
         run_date: i64,
     ) -> Result<serde_json::Value, StageError> {
         let query = settings.query(job_dir, run_date)?;
-        let files = logs::discover(&query)
-            .map_err(|e| StageError::Failed(e.to_string()))?
-            .files;
-        let hashes = files
-            .iter()
-            .map(|file| {
-                crate::fsio::hash_file(file)
-                    .map(|hash| (relative(file, &query.source), hash))
-                    .map_err(|e| StageError::Failed(format!("{}: {e}", file.display())))
-            })
-            .collect::<Result<std::collections::BTreeMap<_, _>, _>>()?;
+        let failed = |e: logs::LogError| StageError::Failed(e.to_string());
+        let found = logs::discover(&query).map_err(failed)?;
+        let hashes = logs::content_keys(&found, settings.content_key).map_err(failed)?;
         Ok(serde_json::json!({
             "window": [date_string(query.first_day), date_string(query.last_day)],
             "files": hashes,
@@ -232,8 +243,7 @@ impl Stage for ScanLogsStage {
             date_string(query.last_day)
         );
         for (file, reason) in &scan.report.bad_files {
-            ctx.progress
-                .note(&format!("skipped {}: {reason}", file.display()));
+            ctx.progress.note(&format!("skipped {file}: {reason}"));
         }
         let measurements = scan.measurements;
         if measurements.height() == 0 {
@@ -313,10 +323,9 @@ impl Stage for ScanLogsStage {
                 .insert(format!("dropped: {reason}"), count.to_string());
         }
         for (file, reason) in &report.bad_files {
-            outputs.facts.insert(
-                format!("bad file: {}", relative(file, &query.source)),
-                reason.clone(),
-            );
+            outputs
+                .facts
+                .insert(format!("bad file: {file}"), reason.clone());
         }
         outputs.tables.insert("measurements".into(), measurements);
         outputs.tables.insert("selection".into(), selection);
@@ -328,11 +337,7 @@ impl Stage for ScanLogsStage {
 fn no_rows_message(query: &LogQuery, window: &str, report: &ScanReport) -> String {
     let mut message = format!(
         "no logged rows of robot `{}` in {window} under {} ({} file(s) found, {} pruned by partition, {} read",
-        query.robot_id,
-        query.source.display(),
-        report.files_found,
-        report.files_pruned,
-        report.files_read
+        query.robot_id, query.source, report.files_found, report.files_pruned, report.files_read
     );
     if !report.bad_files.is_empty() {
         message += &format!(", {} unreadable", report.bad_files.len());
@@ -348,13 +353,4 @@ fn no_rows_message(query: &LogQuery, window: &str, report: &ScanReport) -> Strin
         message += &format!("; the logs hold robot(s) {}", others.join(", "));
     }
     message
-}
-
-/// `file` relative to the log source folder, for stable keys and short messages.
-fn relative(file: &Path, source: &Path) -> String {
-    file.strip_prefix(source)
-        .map(PathBuf::from)
-        .unwrap_or_else(|_| file.to_path_buf())
-        .display()
-        .to_string()
 }

@@ -1527,6 +1527,93 @@ pub fn gate_decision() -> TableSchema {
     }
 }
 
+/// A fleet's night, one row per robot (`egcal fleet gather`).
+pub fn fleet_decisions() -> TableSchema {
+    use ColumnType::{Float64, Int64, Utf8};
+    let spec: [(&'static str, ColumnType, &'static str, bool, &'static str); 17] = [
+        ("run_date", Utf8, "", true, "the night, YYYY-MM-DD"),
+        ("robot_id", Utf8, "", true, "the robot"),
+        (
+            "outcome",
+            Utf8,
+            "",
+            true,
+            "kept, published, refused, failed, or missing (no record: the task never ran or was killed)",
+        ),
+        (
+            "exit_code",
+            Int64,
+            "",
+            false,
+            "`egcal run`'s exit code for this night alone; null when missing",
+        ),
+        (
+            "task_index",
+            Int64,
+            "",
+            false,
+            "array task that ran it (`fleet submit`); null for `fleet run`",
+        ),
+        ("gate_stage", Utf8, "", false, "the job's first gate stage"),
+        ("gate_decision", Utf8, "", false, "its decision"),
+        ("reasons", Utf8, "", false, "why, one sentence per line"),
+        ("holdout_rows", Int64, "", false, "hold-out rows compared"),
+        (
+            "in_service_mean_mm",
+            Float64,
+            "mm",
+            false,
+            "in-service set's mean hold-out error",
+        ),
+        (
+            "candidate_mean_mm",
+            Float64,
+            "mm",
+            false,
+            "candidate's mean hold-out error",
+        ),
+        (
+            "p_value",
+            Float64,
+            "",
+            false,
+            "the gate test's two-sided p-value",
+        ),
+        (
+            "max_position_change_mm",
+            Float64,
+            "mm",
+            false,
+            "largest predicted position change over the reference poses",
+        ),
+        (
+            "published_as",
+            Utf8,
+            "",
+            false,
+            "the installed file, when published",
+        ),
+        ("message", Utf8, "", true, "the job's summary, or its error"),
+        ("host", Utf8, "", false, "the machine that ran it"),
+        (
+            "seconds",
+            Float64,
+            "s",
+            false,
+            "wall-clock time of the night",
+        ),
+    ];
+    TableSchema {
+        kind: "fleet_decisions",
+        description: "Every robot's decision of one fleet night, gathered from the nights' records.",
+        columns: spec
+            .into_iter()
+            .map(|(name, dtype, unit, required, meaning)| col(name, dtype, unit, required, meaning))
+            .collect(),
+        unique: Some("robot_id"),
+    }
+}
+
 /// Per-parameter change between the in-service set and the candidate.
 pub fn parameter_changes() -> TableSchema {
     TableSchema {
@@ -1641,6 +1728,7 @@ pub fn all() -> Vec<TableSchema> {
         gate_decision(),
         parameter_changes(),
         daily_errors(),
+        fleet_decisions(),
     ]
 }
 

@@ -17,11 +17,48 @@ use polars::prelude::*;
 use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS, WRENCH_COLUMNS};
 use crate::table::time::date_string;
 
+pub mod s3;
+
+use s3::{S3Location, S3Settings, S3Store};
+
+/// Where the logs are: a folder or glob on this machine, or an S3 prefix.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LogSource {
+    /// A folder searched recursively for `*.parquet`, or a glob pattern.
+    Local(PathBuf),
+    /// `s3://bucket/prefix`, listed recursively below the prefix.
+    S3 {
+        location: S3Location,
+        settings: S3Settings,
+    },
+}
+
+impl LogSource {
+    /// `text` as an `s3://` address, else as a path relative to `dir`.
+    pub fn parse(text: &str, dir: &Path, settings: &S3Settings) -> Result<LogSource, String> {
+        match S3Location::parse(text) {
+            Some(location) => Ok(LogSource::S3 {
+                location: location?,
+                settings: settings.clone(),
+            }),
+            None => Ok(LogSource::Local(dir.join(text))),
+        }
+    }
+}
+
+impl std::fmt::Display for LogSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LogSource::Local(path) => write!(f, "{}", path.display()),
+            LogSource::S3 { location, .. } => write!(f, "{location}"),
+        }
+    }
+}
+
 /// Which rows a scan keeps.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LogQuery {
-    /// A folder searched recursively for `*.parquet`, or a glob pattern.
-    pub source: PathBuf,
+    pub source: LogSource,
     pub robot_id: String,
     /// First and last day (day numbers since 1970-01-01, UTC), both included.
     pub first_day: i64,
@@ -35,11 +72,11 @@ pub struct LogQuery {
 pub enum LogError {
     #[error("{source_path}: {message}")]
     Source {
-        source_path: PathBuf,
+        source_path: String,
         message: String,
     },
     #[error("{file}: {message} (set `bad_data = \"skip\"` to skip bad files)")]
-    BadFile { file: PathBuf, message: String },
+    BadFile { file: String, message: String },
     #[error(
         "{count} logged rows fail the measurements contract, first: {reason} (set `bad_data = \"skip\"` to drop bad rows)"
     )]
@@ -52,11 +89,12 @@ pub enum LogError {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ScanReport {
     pub files_found: usize,
-    /// Files whose partition folders are outside the query (never opened).
+    /// Files (local logs) or folders (S3, never listed) whose partitions are
+    /// outside the query; never opened.
     pub files_pruned: usize,
     pub files_read: usize,
-    /// Unreadable or mistyped files, with the reason.
-    pub bad_files: Vec<(PathBuf, String)>,
+    /// Unreadable or mistyped files (path or URL), with the reason.
+    pub bad_files: Vec<(String, String)>,
     /// Rows of the robot in the window before row checks.
     pub rows_in_window: usize,
     /// Dropped rows by reason (`null in x_mm`, `non-finite q3_deg`, `duplicate cw_id`).
@@ -84,34 +122,115 @@ fn float_columns() -> impl Iterator<Item = &'static str> {
         .chain(POSITION_COLUMNS)
 }
 
+/// One log file to open.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LogFile {
+    /// Local path or `s3://` URL.
+    pub address: String,
+    /// Below the log folder (or a glob's literal leading part, or the S3 prefix),
+    /// `/`-separated: partitions are read here, and cache keys use it so that the
+    /// same logs give the same key wherever they are stored.
+    pub relative: String,
+    /// The object's ETag (S3 only).
+    pub e_tag: Option<String>,
+}
+
 /// The log files a query opens, and what partition pruning left out.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Default)]
 pub struct Discovered {
     /// Files to open, sorted.
-    pub files: Vec<PathBuf>,
-    /// Files whose Hive partitions contradict the query.
+    pub files: Vec<LogFile>,
+    /// Files (local) or folders (S3) whose Hive partitions contradict the query.
     pub pruned: usize,
     /// Robot ids of the `robot_id=` folders seen, kept or not (to explain an
     /// empty result without opening other robots' files).
     pub partition_robots: BTreeSet<String>,
-    /// The folder partitions are read below: the log folder, or a glob's literal
-    /// leading part. Folders above it never prune (`/data/date=2020-01-01/logs`).
-    pub root: PathBuf,
+    /// The bucket, for S3 sources.
+    pub store: Option<S3Store>,
+}
+
+/// How the cache key names a log file's content.
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum ContentKey {
+    /// The ETag S3 lists (local files: their BLAKE3 hash): no object is read to
+    /// decide whether a night is cached.
+    #[default]
+    Etag,
+    /// The BLAKE3 hash of every file's bytes, wherever it is stored: moving logs
+    /// between a folder and a bucket keeps the cache, at the price of reading
+    /// every object once more per run.
+    Content,
+}
+
+/// File (relative to the log folder) → content identity, for the cache key.
+pub fn content_keys(
+    found: &Discovered,
+    mode: ContentKey,
+) -> Result<BTreeMap<String, String>, LogError> {
+    let failed = |file: &LogFile, message: String| LogError::Source {
+        source_path: file.address.clone(),
+        message,
+    };
+    found
+        .files
+        .iter()
+        .map(|file| {
+            let identity = match (&found.store, mode, &file.e_tag) {
+                (None, _, _) => crate::fsio::hash_file(Path::new(&file.address))
+                    .map_err(|e| failed(file, e.to_string()))?,
+                (Some(_), ContentKey::Etag, Some(tag)) => format!("etag:{}", tag.trim_matches('"')),
+                (Some(store), _, _) => {
+                    let bytes = store
+                        .read(&store_key(store, file))
+                        .map_err(|e| failed(file, e))?;
+                    blake3::hash(&bytes).to_hex().to_string()
+                }
+            };
+            Ok((file.relative.clone(), identity))
+        })
+        .collect()
+}
+
+/// The object key of a file listed from `store`.
+fn store_key(store: &S3Store, file: &LogFile) -> String {
+    let location = store.location();
+    file.address
+        .strip_prefix(&format!("s3://{}/", location.bucket))
+        .unwrap_or(&file.address)
+        .to_string()
 }
 
 /// Every `*.parquet` file of the query's source, sorted; the ones whose Hive
 /// partitions contradict the query are counted and left out.
 pub fn discover(query: &LogQuery) -> Result<Discovered, LogError> {
+    match &query.source {
+        LogSource::Local(path) => discover_local(path, query),
+        LogSource::S3 { location, settings } => discover_s3(location, settings, query),
+    }
+}
+
+fn discover_local(source: &Path, query: &LogQuery) -> Result<Discovered, LogError> {
     let source_error = |message: String| LogError::Source {
-        source_path: query.source.clone(),
+        source_path: source.display().to_string(),
         message,
     };
     let mut files = Vec::new();
-    let root = if query.source.is_dir() {
-        walk(&query.source, &mut files).map_err(|e| source_error(e.to_string()))?;
-        query.source.clone()
+    let root = if source.is_dir() {
+        walk(source, &mut files).map_err(|e| source_error(e.to_string()))?;
+        source.to_path_buf()
     } else {
-        let pattern = query.source.to_string_lossy();
+        let pattern = source.to_string_lossy();
         let paths = glob::glob(&pattern).map_err(|e| source_error(format!("bad glob: {e}")))?;
         for path in paths {
             files.push(path.map_err(|e| source_error(e.to_string()))?);
@@ -121,8 +240,7 @@ pub fn discover(query: &LogQuery) -> Result<Discovered, LogError> {
                 "no such folder (expected a log folder or a glob)".into(),
             ));
         }
-        query
-            .source
+        source
             .components()
             .take_while(|c| !c.as_os_str().to_string_lossy().contains(['*', '?', '[']))
             .collect()
@@ -131,17 +249,121 @@ pub fn discover(query: &LogQuery) -> Result<Discovered, LogError> {
     files.sort();
     let found = files.len();
     let mut partition_robots = BTreeSet::new();
-    files.retain(|path| {
-        let below = path.strip_prefix(&root).unwrap_or(path);
-        partition_robots.extend(partition_robot(below));
-        partition_matches(below, query)
-    });
+    let mut kept = Vec::new();
+    for path in files {
+        let below = path.strip_prefix(&root).unwrap_or(&path);
+        let relative = below
+            .components()
+            .map(|c| c.as_os_str().to_string_lossy())
+            .collect::<Vec<_>>()
+            .join("/");
+        partition_robots.extend(partition_robot(&relative));
+        if partition_matches(&relative, query) {
+            kept.push(LogFile {
+                address: path.display().to_string(),
+                relative,
+                e_tag: None,
+            });
+        }
+    }
     Ok(Discovered {
-        pruned: found - files.len(),
-        files,
+        pruned: found - kept.len(),
+        files: kept,
         partition_robots,
-        root,
+        store: None,
     })
+}
+
+fn discover_s3(
+    location: &S3Location,
+    settings: &S3Settings,
+    query: &LogQuery,
+) -> Result<Discovered, LogError> {
+    let source_error = |message: String| LogError::Source {
+        source_path: location.to_string(),
+        message,
+    };
+    let store = S3Store::connect(location, settings).map_err(source_error)?;
+    let listing = store
+        .list(&|segment| segment_matches(segment, query))
+        .map_err(source_error)?;
+    let partition_robots = listing
+        .folders_seen
+        .iter()
+        .filter_map(|segment| segment.strip_prefix("robot_id=").map(str::to_string))
+        .collect();
+    let files = listing
+        .objects
+        .into_iter()
+        .filter(|object| object.key.ends_with(".parquet"))
+        .map(|object| LogFile {
+            address: location.url_of(&object.key),
+            relative: location.relative(&object.key).to_string(),
+            e_tag: object.e_tag,
+        })
+        .filter(|file| partition_matches(&file.relative, query))
+        .collect();
+    Ok(Discovered {
+        files,
+        pruned: listing.folders_pruned,
+        partition_robots,
+        store: Some(store),
+    })
+}
+
+/// The robot ids of the `robot_id=` folders below a log source (a folder or an S3
+/// prefix; the folders of a glob's literal leading part), without entering them.
+pub fn partition_robot_ids(source: &LogSource) -> Result<BTreeSet<String>, LogError> {
+    let mut ids = BTreeSet::new();
+    match source {
+        LogSource::Local(path) => {
+            let root: PathBuf = path
+                .components()
+                .take_while(|c| !c.as_os_str().to_string_lossy().contains(['*', '?', '[']))
+                .collect();
+            find_robot_dirs(&root, 0, &mut ids).map_err(|e| LogError::Source {
+                source_path: root.display().to_string(),
+                message: e.to_string(),
+            })?;
+        }
+        LogSource::S3 { location, settings } => {
+            let failed = |message: String| LogError::Source {
+                source_path: location.to_string(),
+                message,
+            };
+            let store = S3Store::connect(location, settings).map_err(failed)?;
+            let listing = store
+                .list(&|segment| !segment.starts_with("robot_id=") && !segment.starts_with("date="))
+                .map_err(failed)?;
+            ids.extend(
+                listing
+                    .folders_seen
+                    .iter()
+                    .filter_map(|s| s.strip_prefix("robot_id=").map(str::to_string)),
+            );
+        }
+    }
+    Ok(ids)
+}
+
+fn find_robot_dirs(dir: &Path, depth: usize, ids: &mut BTreeSet<String>) -> std::io::Result<()> {
+    for entry in std::fs::read_dir(dir)? {
+        let entry = entry?;
+        if !entry.file_type()?.is_dir() {
+            continue;
+        }
+        let name = entry.file_name().to_string_lossy().to_string();
+        match name.strip_prefix("robot_id=") {
+            Some(id) => {
+                ids.insert(id.to_string());
+            }
+            None if depth < 6 && !name.starts_with("date=") && !name.starts_with('.') => {
+                find_robot_dirs(&entry.path(), depth + 1, ids)?;
+            }
+            None => {}
+        }
+    }
+    Ok(())
 }
 
 fn walk(dir: &Path, files: &mut Vec<PathBuf>) -> std::io::Result<()> {
@@ -156,26 +378,27 @@ fn walk(dir: &Path, files: &mut Vec<PathBuf>) -> std::io::Result<()> {
     Ok(())
 }
 
-/// The robot of a `robot_id=` folder in `path` (relative to the search root).
-fn partition_robot(path: &Path) -> Option<String> {
-    path.components().find_map(|part| {
-        let part = part.as_os_str().to_string_lossy();
-        part.strip_prefix("robot_id=").map(str::to_string)
-    })
+/// The robot of a `robot_id=` folder in `relative` (`/`-separated, below the root).
+fn partition_robot(relative: &str) -> Option<String> {
+    relative
+        .split('/')
+        .find_map(|part| part.strip_prefix("robot_id=").map(str::to_string))
 }
 
 /// False when a `robot_id=` or `date=` folder of the path (relative to the search
 /// root) excludes it.
-fn partition_matches(path: &Path, query: &LogQuery) -> bool {
-    path.components().all(|part| {
-        let part = part.as_os_str().to_string_lossy();
-        match part.split_once('=') {
-            Some(("robot_id", id)) => id == query.robot_id,
-            Some(("date", date)) => crate::table::time::parse_date(date)
-                .is_none_or(|day| (query.first_day..=query.last_day).contains(&day)),
-            _ => true,
-        }
-    })
+fn partition_matches(relative: &str, query: &LogQuery) -> bool {
+    relative.split('/').all(|part| segment_matches(part, query))
+}
+
+/// False when one path segment is a `robot_id=` or `date=` partition outside the query.
+fn segment_matches(segment: &str, query: &LogQuery) -> bool {
+    match segment.split_once('=') {
+        Some(("robot_id", id)) => id == query.robot_id,
+        Some(("date", date)) => crate::table::time::parse_date(date)
+            .is_none_or(|day| (query.first_day..=query.last_day).contains(&day)),
+        _ => true,
+    }
 }
 
 /// Scans `files` (from [`discover`]) for the query's rows.
@@ -189,17 +412,19 @@ pub fn scan(query: &LogQuery, found: &Discovered) -> Result<LogScan, LogError> {
     let from_us = query.first_day * 86_400_000_000;
     let to_us = (query.last_day + 1) * 86_400_000_000;
     let mut opened = Vec::new();
+    let cloud = found.store.as_ref().map(S3Store::cloud_options);
     for file in &found.files {
-        let below = file.strip_prefix(&found.root).unwrap_or(file);
-        match open(file, partition_robot(below)) {
+        match open(file, partition_robot(&file.relative), cloud.clone()) {
             Ok(frame) => {
                 opened.push(frame);
                 report.files_read += 1;
             }
-            Err(message) if query.skip_bad_data => report.bad_files.push((file.clone(), message)),
+            Err(message) if query.skip_bad_data => {
+                report.bad_files.push((file.address.clone(), message))
+            }
             Err(message) => {
                 return Err(LogError::BadFile {
-                    file: file.clone(),
+                    file: file.address.clone(),
                     message,
                 });
             }
@@ -249,13 +474,21 @@ pub fn scan(query: &LogQuery, found: &Discovered) -> Result<LogScan, LogError> {
 
 /// A lazy frame of one file's measurement columns (`measured_at` as µs, `robot_id`
 /// from the data or else the partition folder's). Reads only the footer.
-fn open(file: &Path, partition_robot: Option<String>) -> Result<LazyFrame, String> {
-    let path = PlRefPath::try_from_path(file).map_err(|e| e.to_string())?;
+fn open(
+    file: &LogFile,
+    partition_robot: Option<String>,
+    cloud_options: Option<cloud::CloudOptions>,
+) -> Result<LazyFrame, String> {
+    let path = match cloud_options {
+        Some(_) => PlRefPath::new(file.address.as_str()),
+        None => PlRefPath::try_from_path(Path::new(&file.address)).map_err(|e| e.to_string())?,
+    };
     let args = ScanArgsParquet {
         hive_options: HiveOptions {
             enabled: Some(false),
             ..HiveOptions::default()
         },
+        cloud_options,
         ..ScanArgsParquet::default()
     };
     let mut frame = LazyFrame::scan_parquet(path, args).map_err(|e| e.to_string())?;
@@ -404,7 +637,7 @@ mod tests {
 
     fn query(robot: &str) -> LogQuery {
         LogQuery {
-            source: PathBuf::from("logs"),
+            source: LogSource::Local(PathBuf::from("logs")),
             robot_id: robot.into(),
             first_day: crate::table::time::parse_date("2026-11-08").unwrap(),
             last_day: crate::table::time::parse_date("2026-11-21").unwrap(),
@@ -415,7 +648,7 @@ mod tests {
     #[test]
     fn partitions_outside_the_query_are_pruned() {
         let q = query("r1");
-        let keeps = |p: &str| partition_matches(Path::new(p), &q);
+        let keeps = |p: &str| partition_matches(p, &q);
         assert!(keeps("logs/robot_id=r1/date=2026-11-08/a.parquet"));
         assert!(keeps("logs/robot_id=r1/date=2026-11-21/a.parquet"));
         assert!(!keeps("logs/robot_id=r1/date=2026-11-22/a.parquet"));
@@ -436,10 +669,14 @@ mod tests {
         }
         for source in [logs.clone(), logs.join("*/*/*.parquet")] {
             let found = discover(&LogQuery {
-                source,
+                source: LogSource::Local(source),
                 ..query("r1")
             })
             .unwrap();
+            assert_eq!(
+                found.files[0].relative,
+                "robot_id=r1/date=2026-11-10/a.parquet"
+            );
             assert_eq!(found.files.len(), 1, "{found:?}");
             assert_eq!(found.pruned, 1);
             let robots: Vec<&str> = found.partition_robots.iter().map(String::as_str).collect();

@@ -1,0 +1,465 @@
+//! A fleet's nights (issue #17): four robots' synthetic logs, the shipped
+//! `jobs/nightly.toml` as the template, two nights. `fleet run` must give each
+//! robot what `egcal run nightly.toml --var robot_id=…` gives it alone; a Slurm
+//! array (`fleet submit` + `gather`) must give what `fleet run` gives; failures and
+//! missing records must reach `gather`'s exit code by name.
+//!
+//! The Slurm test needs a running single-node cluster (`SLURM_CONF`, started by
+//! `.ci/services.sh`); where there is none it says so and skips.
+
+mod common;
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use egcal::table;
+use polars::prelude::*;
+
+const NIGHTS: [&str; 2] = ["2026-11-12", "2026-11-13"];
+const ROBOTS: [&str; 4] = ["robot_a", "robot_b", "robot_c", "robot_d"];
+
+/// Logs of four robots for 16 days (2026-10-29 .. 2026-11-13), 30 rows a day;
+/// robot_a's joint 2 zero shifts on 2026-11-12, robot_c's second link grows.
+const MAKE_LOGS: &str = r#"
+[job]
+name = "make_logs"
+seed = 5
+robot = "robots/irb1600_145.toml"
+cable_robot = "cdpr/default.toml"
+
+[[stages]]
+id = "poses"
+kind = "poses"
+sampling = "grid"
+points_per_axis = 4
+centre_mm = [900.0, 0.0, 900.0]
+edge_mm = 500.0
+acceptance_half_angle_deg = 40.0
+
+[[stages]]
+id = "wrenches"
+kind = "wrenches"
+inputs = { poses = "poses" }
+per_config = 5
+"#;
+
+fn robot_logs(robot: &str, extra: &str) -> String {
+    let short = robot.trim_start_matches("robot_");
+    format!(
+        r#"
+[[stages]]
+id = "logs_{short}"
+kind = "simulate_logs"
+inputs = {{ conf_wrenches = "wrenches", truth = "truth/irb1600_paper.parquet" }}
+robot_id = "{robot}"
+first_day = "2026-10-29"
+days = 16
+rows_per_day = 30
+{extra}
+
+[[stages]]
+id = "commission_{short}"
+kind = "identify"
+inputs = {{ measurements = "logs_{short}.commissioning" }}
+models = ["kinematic", "elastogeometric"]
+"#
+    )
+}
+
+fn copy_dir(from: &Path, to: &Path, skip: &[&str]) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap().flatten() {
+        let name = entry.file_name();
+        if skip.iter().any(|s| name == *s) {
+            continue;
+        }
+        if entry.path().is_dir() {
+            copy_dir(&entry.path(), &to.join(&name), &[]);
+        } else {
+            std::fs::copy(entry.path(), to.join(&name)).unwrap();
+        }
+    }
+}
+
+/// `jobs/` with the four robots' logs made once, shared read-only.
+fn prepared() -> &'static Path {
+    static PREPARED: OnceLock<tempfile::TempDir> = OnceLock::new();
+    PREPARED
+        .get_or_init(|| {
+            let dir = tempfile::tempdir().unwrap();
+            copy_dir(
+                &common::root().join("jobs"),
+                dir.path(),
+                &["out", "calibration"],
+            );
+            let mut text = MAKE_LOGS.to_string();
+            text += &robot_logs(
+                "robot_a",
+                r#"steps = [{ parameter = "dtheta2", date = "2026-11-12", change = 0.02 }]"#,
+            );
+            text += &robot_logs("robot_b", "offsets = { dtheta3 = 0.015, da3 = 0.12 }");
+            text += &robot_logs(
+                "robot_c",
+                r#"drifts = [{ parameter = "da2", per_day = 0.004 }]"#,
+            );
+            text += &robot_logs("robot_d", "");
+            std::fs::write(dir.path().join("make_logs.toml"), text).unwrap();
+            let (code, stdout, stderr) = common::run(&["-q", "run", "make_logs.toml"], dir.path());
+            assert_eq!(code, 0, "make_logs: {stdout}{stderr}");
+            dir
+        })
+        .path()
+}
+
+/// A fresh cell: the prepared logs, each robot's commissioning calibration in
+/// service, and a fleet file over the four robots.
+fn cell() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    copy_dir(prepared(), dir.path(), &[]);
+    for robot in ROBOTS {
+        let short = robot.trim_start_matches("robot_");
+        let (code, stdout, stderr) = common::run(
+            &[
+                "publish",
+                &format!("out/make_logs/commission_{short}/parameters.parquet"),
+                "--to",
+                &format!("calibration/{robot}"),
+                "--date",
+                "2026-10-28",
+            ],
+            dir.path(),
+        );
+        assert_eq!(code, 0, "{stdout}{stderr}");
+    }
+    std::fs::write(
+        dir.path().join("cell.toml"),
+        r#"
+[fleet]
+name = "cell"
+job = "nightly.toml"
+robots_from_logs = "out/make_logs"
+
+[slurm]
+nights_per_task = 3
+"#,
+    )
+    .unwrap();
+    dir
+}
+
+/// The night's decisions without what depends on where and how it ran.
+fn decisions(dir: &Path, night: &str) -> DataFrame {
+    let path = dir.join(format!("out/cell/nights/{night}/decisions.parquet"));
+    let df = table::read_checked(&path, &table::schema::fleet_decisions()).unwrap();
+    let root = dir.display().to_string();
+    let reasons: Vec<Option<String>> = df
+        .column("reasons")
+        .unwrap()
+        .str()
+        .unwrap()
+        .iter()
+        .map(|r| r.map(|r| r.replace(&root, "<cell>")))
+        .collect();
+    df.select([
+        "robot_id",
+        "outcome",
+        "exit_code",
+        "gate_decision",
+        "holdout_rows",
+        "in_service_mean_mm",
+        "candidate_mean_mm",
+        "p_value",
+        "max_position_change_mm",
+    ])
+    .unwrap()
+    .hstack(&[Column::new("reasons".into(), reasons)])
+    .unwrap()
+}
+
+/// Content hash of each robot's calibration in service.
+fn in_service(dir: &Path) -> Vec<String> {
+    ROBOTS
+        .iter()
+        .map(|robot| {
+            let path = dir.join(format!("calibration/{robot}/current.parquet"));
+            table::content_hash(&table::read_parquet(&path).unwrap())
+        })
+        .collect()
+}
+
+fn outcomes(df: &DataFrame) -> Vec<String> {
+    df.column("outcome")
+        .unwrap()
+        .str()
+        .unwrap()
+        .iter()
+        .map(|o| o.unwrap().to_string())
+        .collect()
+}
+
+#[test]
+fn fleet_run_gives_each_robot_what_its_own_run_gives() {
+    let fleet = cell();
+    let alone = cell();
+    for night in NIGHTS {
+        let (code, stdout, stderr) = common::run(
+            &["fleet", "run", "cell.toml", "--run-date", night, "--jobs", "2"],
+            fleet.path(),
+        );
+        let gathered = decisions(fleet.path(), night);
+        let mut expected_code = 0;
+        for (i, robot) in ROBOTS.iter().enumerate() {
+            let (own, out, err) = common::run(
+                &[
+                    "-q",
+                    "run",
+                    "nightly.toml",
+                    "--run-date",
+                    night,
+                    "--var",
+                    &format!("robot_id={robot}"),
+                ],
+                alone.path(),
+            );
+            assert!([0, 10, 11].contains(&own), "{robot} {night}: {out}{err}");
+            expected_code = expected_code.max(own);
+            let row = gathered.slice(i as i64, 1);
+            assert_eq!(
+                row.column("robot_id").unwrap().str().unwrap().get(0),
+                Some(*robot)
+            );
+            assert_eq!(
+                row.column("exit_code").unwrap().i64().unwrap().get(0),
+                Some(own as i64),
+                "{robot} {night}"
+            );
+            let gate_dir = alone.path().join(format!("out/nightly_{robot}/gate"));
+            let own_decision =
+                table::read_parquet(&gate_dir.join("decision.parquet")).unwrap();
+            for column in ["in_service_mean_mm", "candidate_mean_mm", "p_value"] {
+                assert_eq!(
+                    row.column(column).unwrap().f64().unwrap().get(0),
+                    own_decision.column(column).unwrap().f64().unwrap().get(0),
+                    "{robot} {night} {column}"
+                );
+            }
+        }
+        assert_eq!(code, expected_code, "{night}: {stdout}{stderr}");
+    }
+    assert_eq!(in_service(fleet.path()), in_service(alone.path()));
+    // The collision on 2026-11-12 is caught on the 13th, when the held-out day
+    // follows it.
+    let last = decisions(fleet.path(), NIGHTS[1]);
+    assert_eq!(outcomes(&last)[0], "published", "{last}");
+    assert_eq!(outcomes(&last)[3], "kept", "{last}");
+}
+
+#[test]
+fn a_decided_night_is_not_run_again() {
+    let fleet = cell();
+    let night = NIGHTS[1];
+    let (code, _, stderr) =
+        common::run(&["fleet", "run", "cell.toml", "--run-date", night], fleet.path());
+    assert_eq!(code, 10, "{stderr}");
+    let before = in_service(fleet.path());
+    let (code, _, stderr) =
+        common::run(&["fleet", "run", "cell.toml", "--run-date", night], fleet.path());
+    assert_eq!(code, 10, "the same decisions: {stderr}");
+    assert_eq!(stderr.matches("decided earlier").count(), 4, "{stderr}");
+    assert_eq!(in_service(fleet.path()), before);
+}
+
+#[test]
+fn a_failed_or_missing_night_makes_gather_exit_3_and_names_it() {
+    let fleet = cell();
+    let night = NIGHTS[0];
+    // robot_d's calibration in service disappears: its night fails, the others run.
+    std::fs::remove_file(fleet.path().join("calibration/robot_d/current.parquet")).unwrap();
+    let (code, stdout, stderr) =
+        common::run(&["fleet", "run", "cell.toml", "--run-date", night], fleet.path());
+    assert_eq!(code, 3, "{stdout}{stderr}");
+    assert!(stdout.contains("robot_d: failed"), "{stdout}");
+    assert!(stdout.contains("3 kept") || stdout.contains("published"), "{stdout}");
+    let df = decisions(fleet.path(), night);
+    assert_eq!(outcomes(&df)[3], "failed");
+
+    // A record lost (a task killed before writing it): missing, named, exit 3.
+    let results = fleet.path().join(format!("out/cell/nights/{night}/results"));
+    std::fs::remove_file(results.join("robot_b.json")).unwrap();
+    let (code, stdout, _) =
+        common::run(&["fleet", "gather", "cell.toml", "--run-date", night], fleet.path());
+    assert_eq!(code, 3);
+    assert!(stdout.contains("robot_b: missing"), "{stdout}");
+
+    // Fixed and run again: only the failed and missing nights run.
+    std::fs::copy(
+        fleet.path().join("calibration/robot_c/current.parquet"),
+        fleet.path().join("calibration/robot_d/current.parquet"),
+    )
+    .unwrap();
+    let (code, stdout, stderr) =
+        common::run(&["fleet", "run", "cell.toml", "--run-date", night], fleet.path());
+    assert!([0, 10, 11].contains(&code), "{stdout}{stderr}");
+    assert_eq!(stderr.matches("decided earlier").count(), 2, "{stderr}");
+}
+
+#[test]
+fn tasks_find_their_robots_by_index_from_the_flag_or_the_schedulers_variable() {
+    let fleet = cell();
+    let night = NIGHTS[0];
+    let dir = fleet.path();
+    // A manifest as `fleet submit` writes it, without a scheduler.
+    let loaded = egcal::fleet::Fleet::load(&dir.join("cell.toml")).unwrap();
+    let day = egcal::table::time::parse_date(night).unwrap();
+    egcal::fleet::manifest::Manifest::new(&loaded, day, "slurm", 3)
+        .write(&loaded, day)
+        .unwrap();
+    let task = |env: &[(&str, &str)], extra: &[&str]| {
+        let mut command = common::egcal();
+        command
+            .args(["fleet", "task", "cell.toml", "--run-date", night])
+            .args(extra)
+            .current_dir(dir)
+            .env_remove("SLURM_ARRAY_TASK_ID")
+            .env_remove("JOB_COMPLETION_INDEX");
+        for (k, v) in env {
+            command.env(k, v);
+        }
+        let out = command.output().unwrap();
+        (
+            out.status.code().unwrap_or(-1),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (code, stdout, stderr) = task(&[("SLURM_ARRAY_TASK_ID", "1")], &[]);
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    assert!(stdout.contains("robot_d") && !stdout.contains("robot_a"), "{stdout}");
+    let (code, stdout, stderr) = task(&[("JOB_COMPLETION_INDEX", "0")], &[]);
+    assert_eq!(code, 0, "published and refused are results: {stdout}{stderr}");
+    assert!(stdout.contains("robot_a") && stdout.contains("robot_c"), "{stdout}");
+    let (code, _, stderr) = task(&[], &["--index", "1", "--index-offset", "1"]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("task 2 is not in the manifest"), "{stderr}");
+    let (code, _, stderr) = task(&[], &[]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("no task index"), "{stderr}");
+    let (code, _, stderr) = task(&[("SLURM_ARRAY_TASK_ID", "x")], &[]);
+    assert_eq!(code, 2);
+    assert!(stderr.contains("SLURM_ARRAY_TASK_ID"), "{stderr}");
+    let (code, stdout, _) =
+        common::run(&["fleet", "gather", "cell.toml", "--run-date", night], dir);
+    assert!([0, 10, 11].contains(&code), "{stdout}");
+    let df = decisions(dir, night);
+    let tasks: Vec<Option<i64>> = table::read_parquet(
+        &dir.join(format!("out/cell/nights/{night}/decisions.parquet")),
+    )
+    .unwrap()
+    .column("task_index")
+    .unwrap()
+    .i64()
+    .unwrap()
+    .iter()
+    .collect();
+    assert_eq!(tasks, [Some(0), Some(0), Some(0), Some(1)], "{df}");
+}
+
+#[test]
+fn bad_fleet_files_name_the_file_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("nightly.toml"), "").unwrap();
+    let cases = [
+        ("[fleet]\nname = \"c\"\njob = \"nightly.toml\"\nrobots = [\"a b\"]\n", "fleet.robots[0]"),
+        ("[fleet]\nname = \"c\"\njob = \"missing.toml\"\nrobots = [\"a\"]\n", "fleet.job"),
+        ("[fleet]\nname = \"c\"\njob = \"nightly.toml\"\nrobots = [\"a\"]\n[slurm]\ncpus = 2\n", "unknown field `cpus`"),
+        ("[fleet]\nname = \"c\"\njob = \"nightly.toml\"\nrobots_from_logs = \"nowhere\"\n", "robots_from_logs"),
+        ("[fleet\n", "invalid TOML"),
+    ];
+    for (text, expected) in cases {
+        std::fs::write(dir.path().join("f.toml"), text).unwrap();
+        let (code, _, stderr) = common::run(&["fleet", "run", "f.toml"], dir.path());
+        assert_eq!(code, 2, "{text}: {stderr}");
+        assert!(stderr.contains("f.toml") && stderr.contains(expected), "{text}: {stderr}");
+    }
+    // A template without {robot_id} would run the same night for every robot.
+    std::fs::write(
+        dir.path().join("f.toml"),
+        "[fleet]\nname = \"c\"\njob = \"plain.toml\"\nrobots = [\"a\"]\n",
+    )
+    .unwrap();
+    std::fs::copy(
+        common::root().join("jobs/paper_sim.toml"),
+        dir.path().join("plain.toml"),
+    )
+    .unwrap();
+    let (code, stdout, _) = common::run(&["fleet", "run", "f.toml"], dir.path());
+    assert_eq!(code, 3, "{stdout}");
+    assert!(stdout.contains("uses no `{robot_id}`"), "{stdout}");
+}
+
+/// The Slurm cluster of `.ci/services.sh`, if one is running.
+fn slurm_available() -> bool {
+    if std::env::var_os("SLURM_CONF").is_none() {
+        eprintln!(
+            "SKIPPED: no Slurm cluster (SLURM_CONF unset); `bash .ci/services.sh start DIR` and source DIR/env.sh to run this test"
+        );
+        return false;
+    }
+    let up = std::process::Command::new("sinfo")
+        .args(["-h", "-o", "%T"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !up {
+        eprintln!("SKIPPED: SLURM_CONF is set but `sinfo` does not answer");
+    }
+    up
+}
+
+#[test]
+fn a_slurm_array_gives_what_fleet_run_gives() {
+    if !slurm_available() {
+        return;
+    }
+    let local = cell();
+    let slurm = cell();
+    for night in NIGHTS {
+        let (local_code, stdout, stderr) =
+            common::run(&["fleet", "run", "cell.toml", "--run-date", night], local.path());
+        assert!([0, 10, 11].contains(&local_code), "{stdout}{stderr}");
+        let (code, stdout, stderr) = common::run(
+            &["fleet", "submit", "cell.toml", "--run-date", night, "--max-parallel", "2"],
+            slurm.path(),
+        );
+        assert_eq!(code, 0, "{stdout}{stderr}");
+        assert!(stdout.contains("in 2 task(s) submitted as Slurm job"), "{stdout}");
+        let manifest: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(
+                slurm
+                    .path()
+                    .join(format!("out/cell/nights/{night}/manifest.json")),
+            )
+            .unwrap(),
+        )
+        .unwrap();
+        let job_id = manifest["arrays"][0]["job_id"].as_str().unwrap().to_string();
+        egcal::fleet::slurm::wait_for(&[&job_id]).unwrap();
+        let (code, stdout, stderr) =
+            common::run(&["fleet", "gather", "cell.toml", "--run-date", night], slurm.path());
+        assert_eq!(code, local_code, "{night}: {stdout}{stderr}");
+        assert_eq!(
+            decisions(slurm.path(), night),
+            decisions(local.path(), night),
+            "{night}"
+        );
+        let logs = slurm.path().join(format!("out/cell/nights/{night}/slurm"));
+        let task_logs = std::fs::read_dir(&logs)
+            .unwrap()
+            .filter(|e| {
+                e.as_ref()
+                    .is_ok_and(|e| e.file_name().to_string_lossy().starts_with("task-"))
+            })
+            .count();
+        assert_eq!(task_logs, 2, "one log per array task");
+    }
+    assert_eq!(in_service(slurm.path()), in_service(local.path()));
+}
