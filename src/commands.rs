@@ -823,6 +823,10 @@ pub fn generated_schemas() -> Vec<(String, String)> {
     let robot =
         serde_json::to_string_pretty(&schemars::schema_for!(RobotSpec)).expect("schema serialises");
     files.push(("robot.schema.json".into(), robot + "\n"));
+    let fleet =
+        serde_json::to_string_pretty(&schemars::schema_for!(crate::fleet::file::FleetFileRaw))
+            .expect("schema serialises");
+    files.push(("fleet.schema.json".into(), fleet + "\n"));
     for schema in table::schema::all() {
         let text = serde_json::to_string_pretty(&schema).expect("schema serialises");
         files.push((format!("tables/{}.json", schema.kind), text + "\n"));

@@ -4,8 +4,9 @@
 
 mod common;
 
-/// Jobs whose inputs another job writes (checked in `tests/nightly.rs`).
-const RUN_AFTER_OTHER_JOBS: [&str; 1] = ["nightly.toml"];
+/// Jobs whose inputs another job writes (checked in `tests/nightly.rs`), and the
+/// fleet file, which is not a job (checked in `tests/fleet.rs`).
+const RUN_AFTER_OTHER_JOBS: [&str; 2] = ["nightly.toml", "fleet.toml"];
 
 #[test]
 fn shipped_jobs_check_clean() {

@@ -203,7 +203,15 @@ fn fleet_run_gives_each_robot_what_its_own_run_gives() {
     let alone = cell();
     for night in NIGHTS {
         let (code, stdout, stderr) = common::run(
-            &["fleet", "run", "cell.toml", "--run-date", night, "--jobs", "2"],
+            &[
+                "fleet",
+                "run",
+                "cell.toml",
+                "--run-date",
+                night,
+                "--jobs",
+                "2",
+            ],
             fleet.path(),
         );
         let gathered = decisions(fleet.path(), night);
@@ -234,8 +242,7 @@ fn fleet_run_gives_each_robot_what_its_own_run_gives() {
                 "{robot} {night}"
             );
             let gate_dir = alone.path().join(format!("out/nightly_{robot}/gate"));
-            let own_decision =
-                table::read_parquet(&gate_dir.join("decision.parquet")).unwrap();
+            let own_decision = table::read_parquet(&gate_dir.join("decision.parquet")).unwrap();
             for column in ["in_service_mean_mm", "candidate_mean_mm", "p_value"] {
                 assert_eq!(
                     row.column(column).unwrap().f64().unwrap().get(0),
@@ -258,12 +265,16 @@ fn fleet_run_gives_each_robot_what_its_own_run_gives() {
 fn a_decided_night_is_not_run_again() {
     let fleet = cell();
     let night = NIGHTS[1];
-    let (code, _, stderr) =
-        common::run(&["fleet", "run", "cell.toml", "--run-date", night], fleet.path());
+    let (code, _, stderr) = common::run(
+        &["fleet", "run", "cell.toml", "--run-date", night],
+        fleet.path(),
+    );
     assert_eq!(code, 10, "{stderr}");
     let before = in_service(fleet.path());
-    let (code, _, stderr) =
-        common::run(&["fleet", "run", "cell.toml", "--run-date", night], fleet.path());
+    let (code, _, stderr) = common::run(
+        &["fleet", "run", "cell.toml", "--run-date", night],
+        fleet.path(),
+    );
     assert_eq!(code, 10, "the same decisions: {stderr}");
     assert_eq!(stderr.matches("decided earlier").count(), 4, "{stderr}");
     assert_eq!(in_service(fleet.path()), before);
@@ -275,19 +286,28 @@ fn a_failed_or_missing_night_makes_gather_exit_3_and_names_it() {
     let night = NIGHTS[0];
     // robot_d's calibration in service disappears: its night fails, the others run.
     std::fs::remove_file(fleet.path().join("calibration/robot_d/current.parquet")).unwrap();
-    let (code, stdout, stderr) =
-        common::run(&["fleet", "run", "cell.toml", "--run-date", night], fleet.path());
+    let (code, stdout, stderr) = common::run(
+        &["fleet", "run", "cell.toml", "--run-date", night],
+        fleet.path(),
+    );
     assert_eq!(code, 3, "{stdout}{stderr}");
     assert!(stdout.contains("robot_d: failed"), "{stdout}");
-    assert!(stdout.contains("3 kept") || stdout.contains("published"), "{stdout}");
+    assert!(
+        stdout.contains("3 kept") || stdout.contains("published"),
+        "{stdout}"
+    );
     let df = decisions(fleet.path(), night);
     assert_eq!(outcomes(&df)[3], "failed");
 
     // A record lost (a task killed before writing it): missing, named, exit 3.
-    let results = fleet.path().join(format!("out/cell/nights/{night}/results"));
+    let results = fleet
+        .path()
+        .join(format!("out/cell/nights/{night}/results"));
     std::fs::remove_file(results.join("robot_b.json")).unwrap();
-    let (code, stdout, _) =
-        common::run(&["fleet", "gather", "cell.toml", "--run-date", night], fleet.path());
+    let (code, stdout, _) = common::run(
+        &["fleet", "gather", "cell.toml", "--run-date", night],
+        fleet.path(),
+    );
     assert_eq!(code, 3);
     assert!(stdout.contains("robot_b: missing"), "{stdout}");
 
@@ -297,8 +317,10 @@ fn a_failed_or_missing_night_makes_gather_exit_3_and_names_it() {
         fleet.path().join("calibration/robot_d/current.parquet"),
     )
     .unwrap();
-    let (code, stdout, stderr) =
-        common::run(&["fleet", "run", "cell.toml", "--run-date", night], fleet.path());
+    let (code, stdout, stderr) = common::run(
+        &["fleet", "run", "cell.toml", "--run-date", night],
+        fleet.path(),
+    );
     assert!([0, 10, 11].contains(&code), "{stdout}{stderr}");
     assert_eq!(stderr.matches("decided earlier").count(), 2, "{stderr}");
 }
@@ -334,10 +356,19 @@ fn tasks_find_their_robots_by_index_from_the_flag_or_the_schedulers_variable() {
     };
     let (code, stdout, stderr) = task(&[("SLURM_ARRAY_TASK_ID", "1")], &[]);
     assert_eq!(code, 0, "{stdout}{stderr}");
-    assert!(stdout.contains("robot_d") && !stdout.contains("robot_a"), "{stdout}");
+    assert!(
+        stdout.contains("robot_d") && !stdout.contains("robot_a"),
+        "{stdout}"
+    );
     let (code, stdout, stderr) = task(&[("JOB_COMPLETION_INDEX", "0")], &[]);
-    assert_eq!(code, 0, "published and refused are results: {stdout}{stderr}");
-    assert!(stdout.contains("robot_a") && stdout.contains("robot_c"), "{stdout}");
+    assert_eq!(
+        code, 0,
+        "published and refused are results: {stdout}{stderr}"
+    );
+    assert!(
+        stdout.contains("robot_a") && stdout.contains("robot_c"),
+        "{stdout}"
+    );
     let (code, _, stderr) = task(&[], &["--index", "1", "--index-offset", "1"]);
     assert_eq!(code, 2);
     assert!(stderr.contains("task 2 is not in the manifest"), "{stderr}");
@@ -351,16 +382,15 @@ fn tasks_find_their_robots_by_index_from_the_flag_or_the_schedulers_variable() {
         common::run(&["fleet", "gather", "cell.toml", "--run-date", night], dir);
     assert!([0, 10, 11].contains(&code), "{stdout}");
     let df = decisions(dir, night);
-    let tasks: Vec<Option<i64>> = table::read_parquet(
-        &dir.join(format!("out/cell/nights/{night}/decisions.parquet")),
-    )
-    .unwrap()
-    .column("task_index")
-    .unwrap()
-    .i64()
-    .unwrap()
-    .iter()
-    .collect();
+    let tasks: Vec<Option<i64>> =
+        table::read_parquet(&dir.join(format!("out/cell/nights/{night}/decisions.parquet")))
+            .unwrap()
+            .column("task_index")
+            .unwrap()
+            .i64()
+            .unwrap()
+            .iter()
+            .collect();
     assert_eq!(tasks, [Some(0), Some(0), Some(0), Some(1)], "{df}");
 }
 
@@ -369,17 +399,32 @@ fn bad_fleet_files_name_the_file_and_key() {
     let dir = tempfile::tempdir().unwrap();
     std::fs::write(dir.path().join("nightly.toml"), "").unwrap();
     let cases = [
-        ("[fleet]\nname = \"c\"\njob = \"nightly.toml\"\nrobots = [\"a b\"]\n", "fleet.robots[0]"),
-        ("[fleet]\nname = \"c\"\njob = \"missing.toml\"\nrobots = [\"a\"]\n", "fleet.job"),
-        ("[fleet]\nname = \"c\"\njob = \"nightly.toml\"\nrobots = [\"a\"]\n[slurm]\ncpus = 2\n", "unknown field `cpus`"),
-        ("[fleet]\nname = \"c\"\njob = \"nightly.toml\"\nrobots_from_logs = \"nowhere\"\n", "robots_from_logs"),
+        (
+            "[fleet]\nname = \"c\"\njob = \"nightly.toml\"\nrobots = [\"a b\"]\n",
+            "fleet.robots[0]",
+        ),
+        (
+            "[fleet]\nname = \"c\"\njob = \"missing.toml\"\nrobots = [\"a\"]\n",
+            "fleet.job",
+        ),
+        (
+            "[fleet]\nname = \"c\"\njob = \"nightly.toml\"\nrobots = [\"a\"]\n[slurm]\ncpus = 2\n",
+            "unknown field `cpus`",
+        ),
+        (
+            "[fleet]\nname = \"c\"\njob = \"nightly.toml\"\nrobots_from_logs = \"nowhere\"\n",
+            "robots_from_logs",
+        ),
         ("[fleet\n", "invalid TOML"),
     ];
     for (text, expected) in cases {
         std::fs::write(dir.path().join("f.toml"), text).unwrap();
         let (code, _, stderr) = common::run(&["fleet", "run", "f.toml"], dir.path());
         assert_eq!(code, 2, "{text}: {stderr}");
-        assert!(stderr.contains("f.toml") && stderr.contains(expected), "{text}: {stderr}");
+        assert!(
+            stderr.contains("f.toml") && stderr.contains(expected),
+            "{text}: {stderr}"
+        );
     }
     // A template without {robot_id} would run the same night for every robot.
     std::fs::write(
@@ -397,12 +442,69 @@ fn bad_fleet_files_name_the_file_and_key() {
     assert!(stdout.contains("uses no `{robot_id}`"), "{stdout}");
 }
 
+/// The README's fleet commands on the shipped files: jobs/fleet.toml over the logs
+/// of jobs/make_logs.toml.
+#[test]
+fn the_shipped_fleet_runs_on_the_shipped_logs() {
+    let dir = tempfile::tempdir().unwrap();
+    copy_dir(
+        &common::root().join("jobs"),
+        dir.path(),
+        &["out", "calibration"],
+    );
+    let run = |args: &[&str]| {
+        let (code, stdout, stderr) = common::run(args, dir.path());
+        (code, format!("{stdout}{stderr}"))
+    };
+    assert_eq!(run(&["-q", "run", "make_logs.toml"]).0, 0);
+    for robot in ["a", "b"] {
+        let (code, out) = run(&[
+            "publish",
+            &format!("out/make_logs/commission_{robot}/parameters.parquet"),
+            "--to",
+            &format!("calibration/robot_{robot}"),
+            "--date",
+            "2026-10-21",
+        ]);
+        assert_eq!(code, 0, "{out}");
+    }
+    let (code, out) = run(&["fleet", "run", "fleet.toml", "--run-date", "2026-11-12"]);
+    assert_eq!(code, 0, "{out}");
+    assert!(out.contains("2 robot(s): 0 published, 2 kept"), "{out}");
+    // A task of a night as a Slurm array task runs it (here without Slurm).
+    let loaded = egcal::fleet::Fleet::load(&dir.path().join("fleet.toml")).unwrap();
+    let day = egcal::table::time::parse_date("2026-11-13").unwrap();
+    egcal::fleet::manifest::Manifest::new(&loaded, day, "slurm", loaded.slurm.nights_per_task)
+        .write(&loaded, day)
+        .unwrap();
+    let (code, out) = run(&[
+        "fleet",
+        "task",
+        "fleet.toml",
+        "--run-date",
+        "2026-11-13",
+        "--index",
+        "0",
+    ]);
+    assert_eq!(code, 0, "{out}");
+    let (code, out) = run(&["fleet", "gather", "fleet.toml", "--run-date", "2026-11-13"]);
+    assert_eq!(code, 10, "robot_a's collision is caught: {out}");
+    assert!(out.contains("1 published, 1 kept"), "{out}");
+    let page = std::fs::read_to_string(
+        dir.path()
+            .join("out/fleet/nights/2026-11-13/fleet_report.html"),
+    )
+    .unwrap();
+    assert!(
+        page.contains("<tr class=\"published\"><td>robot_a"),
+        "{page}"
+    );
+}
+
 /// The Slurm cluster of `.ci/services.sh`, if one is running.
 fn slurm_available() -> bool {
     if std::env::var_os("SLURM_CONF").is_none() {
-        eprintln!(
-            "SKIPPED: no Slurm cluster (SLURM_CONF unset); `bash .ci/services.sh start DIR` and source DIR/env.sh to run this test"
-        );
+        common::skip_without_service("no Slurm cluster (SLURM_CONF unset)");
         return false;
     }
     let up = std::process::Command::new("sinfo")
@@ -410,7 +512,7 @@ fn slurm_available() -> bool {
         .output()
         .is_ok_and(|o| o.status.success());
     if !up {
-        eprintln!("SKIPPED: SLURM_CONF is set but `sinfo` does not answer");
+        common::skip_without_service("SLURM_CONF is set but `sinfo` does not answer");
     }
     up
 }
@@ -423,15 +525,28 @@ fn a_slurm_array_gives_what_fleet_run_gives() {
     let local = cell();
     let slurm = cell();
     for night in NIGHTS {
-        let (local_code, stdout, stderr) =
-            common::run(&["fleet", "run", "cell.toml", "--run-date", night], local.path());
+        let (local_code, stdout, stderr) = common::run(
+            &["fleet", "run", "cell.toml", "--run-date", night],
+            local.path(),
+        );
         assert!([0, 10, 11].contains(&local_code), "{stdout}{stderr}");
         let (code, stdout, stderr) = common::run(
-            &["fleet", "submit", "cell.toml", "--run-date", night, "--max-parallel", "2"],
+            &[
+                "fleet",
+                "submit",
+                "cell.toml",
+                "--run-date",
+                night,
+                "--max-parallel",
+                "2",
+            ],
             slurm.path(),
         );
         assert_eq!(code, 0, "{stdout}{stderr}");
-        assert!(stdout.contains("in 2 task(s) submitted as Slurm job"), "{stdout}");
+        assert!(
+            stdout.contains("in 2 task(s) submitted as Slurm job"),
+            "{stdout}"
+        );
         let manifest: serde_json::Value = serde_json::from_str(
             &std::fs::read_to_string(
                 slurm
@@ -441,10 +556,15 @@ fn a_slurm_array_gives_what_fleet_run_gives() {
             .unwrap(),
         )
         .unwrap();
-        let job_id = manifest["arrays"][0]["job_id"].as_str().unwrap().to_string();
+        let job_id = manifest["arrays"][0]["job_id"]
+            .as_str()
+            .unwrap()
+            .to_string();
         egcal::fleet::slurm::wait_for(&[&job_id]).unwrap();
-        let (code, stdout, stderr) =
-            common::run(&["fleet", "gather", "cell.toml", "--run-date", night], slurm.path());
+        let (code, stdout, stderr) = common::run(
+            &["fleet", "gather", "cell.toml", "--run-date", night],
+            slurm.path(),
+        );
         assert_eq!(code, local_code, "{night}: {stdout}{stderr}");
         assert_eq!(
             decisions(slurm.path(), night),

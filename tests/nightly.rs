@@ -253,7 +253,7 @@ fn thin_windows_other_robots_and_corrupt_logs_fail_clearly() {
     // A robot the logs do not hold: the message names the ones they do.
     let text = std::fs::read_to_string(&job)
         .unwrap()
-        .replace("robot_id = \"robot_a\"", "robot_id = \"robot_c\"");
+        .replace("robot_id = \"{robot_id}\"", "robot_id = \"robot_c\"");
     let other = dir.path().join("nightly_robot_c.toml");
     std::fs::write(&other, text).unwrap();
     let (code, _, stderr) = nightly(dir.path(), &other, "2026-11-20");

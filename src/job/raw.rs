@@ -501,6 +501,100 @@ model = "nominal"
         );
     }
 
+    const TEMPLATE: &str = r#"
+[job]
+name = "nightly_{robot_id}"
+robot = "robots/irb1600_145.toml"
+vars = { robot_id = "robot_a" }
+
+[[stages]]
+id = "gate"
+kind = "gate"
+publish_dir = "calibration/{robot_id}"
+alpha = 0.01
+inputs = { in_service = "calibration/{robot_id}/current.parquet" }
+"#;
+
+    fn vars(pairs: &[(&str, &str)]) -> JobOverrides {
+        JobOverrides::with_vars(
+            pairs
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect(),
+        )
+    }
+
+    #[test]
+    fn placeholders_take_the_files_defaults_or_the_callers_values() {
+        let job = parse(TEMPLATE, Path::new("j.toml")).unwrap();
+        assert_eq!(job.header.name, "nightly_robot_a");
+        let stage = &job.stages[0];
+        assert_eq!(
+            stage.settings["publish_dir"].as_str(),
+            Some("calibration/robot_a")
+        );
+        let job = parse_with(TEMPLATE, Path::new("j.toml"), &vars(&[("robot_id", "r7")])).unwrap();
+        assert_eq!(job.header.name, "nightly_r7");
+        assert_eq!(
+            job.stages[0].inputs["in_service"],
+            "calibration/r7/current.parquet"
+        );
+        assert_eq!(
+            job.header.vars["robot_id"], "robot_a",
+            "the file's default is kept"
+        );
+    }
+
+    #[test]
+    fn stage_settings_are_merged_and_unknown_stages_refused() {
+        let mut overrides = vars(&[]);
+        let settings: toml::Table =
+            toml::from_str("alpha = 0.05\nmin_improvement_mm = 0.1").unwrap();
+        overrides
+            .stage_settings
+            .insert("gate".into(), settings.clone());
+        let job = parse_with(TEMPLATE, Path::new("j.toml"), &overrides).unwrap();
+        assert_eq!(job.stages[0].settings["alpha"].as_float(), Some(0.05));
+        assert_eq!(
+            job.stages[0].settings["min_improvement_mm"].as_float(),
+            Some(0.1)
+        );
+        overrides.stage_settings.insert("gaet".into(), settings);
+        let message = parse_with(TEMPLATE, Path::new("j.toml"), &overrides)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains("stage `gaet` that the job does not declare"),
+            "{message}"
+        );
+    }
+
+    #[test]
+    fn unknown_and_unused_variables_are_named_with_their_line() {
+        let text = TEMPLATE.replace("alpha = 0.01", "alpha = 0.01\nmodel = \"{model}\"");
+        let message = parse(&text, Path::new("j.toml")).unwrap_err().to_string();
+        assert!(
+            message.contains("j.toml:12: stages[0].model: `{model}` is not a variable"),
+            "{message}"
+        );
+        let message = parse_with(TEMPLATE, Path::new("j.toml"), &vars(&[("cell", "c1")]))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains("the job file uses no `{cell}`"),
+            "{message}"
+        );
+        let text = TEMPLATE.replace(
+            "vars = { robot_id = \"robot_a\" }",
+            "vars = { robot_id = 3 }",
+        );
+        let message = parse(&text, Path::new("j.toml")).unwrap_err().to_string();
+        assert!(
+            message.contains("job.vars.robot_id: expected a string"),
+            "{message}"
+        );
+    }
+
     #[test]
     fn syntax_error_names_the_line() {
         let problems = parse("[job]\nname = \n", Path::new("j.toml")).unwrap_err();

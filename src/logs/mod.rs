@@ -89,12 +89,13 @@ pub enum LogError {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ScanReport {
     pub files_found: usize,
-    /// Files (local logs) or folders (S3, never listed) whose partitions are
-    /// outside the query; never opened.
+    /// Files whose partitions are outside the query; never opened.
     pub files_pruned: usize,
+    /// Partition folders outside the query that were never listed (S3).
+    pub folders_pruned: usize,
     pub files_read: usize,
-    /// Unreadable or mistyped files (path or URL), with the reason.
-    pub bad_files: Vec<(String, String)>,
+    /// Unreadable or mistyped files, with the reason.
+    pub bad_files: Vec<(LogFile, String)>,
     /// Rows of the robot in the window before row checks.
     pub rows_in_window: usize,
     /// Dropped rows by reason (`null in x_mm`, `non-finite q3_deg`, `duplicate cw_id`).
@@ -140,8 +141,10 @@ pub struct LogFile {
 pub struct Discovered {
     /// Files to open, sorted.
     pub files: Vec<LogFile>,
-    /// Files (local) or folders (S3) whose Hive partitions contradict the query.
+    /// Files whose Hive partitions contradict the query (local logs).
     pub pruned: usize,
+    /// Partition folders that contradict the query, never listed (S3).
+    pub folders_pruned: usize,
     /// Robot ids of the `robot_id=` folders seen, kept or not (to explain an
     /// empty result without opening other robots' files).
     pub partition_robots: BTreeSet<String>,
@@ -268,6 +271,7 @@ fn discover_local(source: &Path, query: &LogQuery) -> Result<Discovered, LogErro
     }
     Ok(Discovered {
         pruned: found - kept.len(),
+        folders_pruned: 0,
         files: kept,
         partition_robots,
         store: None,
@@ -292,7 +296,7 @@ fn discover_s3(
         .iter()
         .filter_map(|segment| segment.strip_prefix("robot_id=").map(str::to_string))
         .collect();
-    let files = listing
+    let files: Vec<LogFile> = listing
         .objects
         .into_iter()
         .filter(|object| object.key.ends_with(".parquet"))
@@ -305,7 +309,8 @@ fn discover_s3(
         .collect();
     Ok(Discovered {
         files,
-        pruned: listing.folders_pruned,
+        pruned: 0,
+        folders_pruned: listing.folders_pruned,
         partition_robots,
         store: Some(store),
     })
@@ -406,6 +411,7 @@ pub fn scan(query: &LogQuery, found: &Discovered) -> Result<LogScan, LogError> {
     let mut report = ScanReport {
         files_found: found.files.len() + found.pruned,
         files_pruned: found.pruned,
+        folders_pruned: found.folders_pruned,
         robots_seen: found.partition_robots.clone(),
         ..ScanReport::default()
     };
@@ -419,9 +425,7 @@ pub fn scan(query: &LogQuery, found: &Discovered) -> Result<LogScan, LogError> {
                 opened.push(frame);
                 report.files_read += 1;
             }
-            Err(message) if query.skip_bad_data => {
-                report.bad_files.push((file.address.clone(), message))
-            }
+            Err(message) if query.skip_bad_data => report.bad_files.push((file.clone(), message)),
             Err(message) => {
                 return Err(LogError::BadFile {
                     file: file.address.clone(),

@@ -163,7 +163,7 @@ impl S3Store {
             } = self
                 .runtime
                 .block_on(self.store.list_with_delimiter(folder.as_ref()))
-                .map_err(|e| format!("listing {}: {e}", self.location))?;
+                .map_err(|e| format!("cannot list: {e}"))?;
             listing
                 .objects
                 .extend(objects.into_iter().map(|meta| S3Object {

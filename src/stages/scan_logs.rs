@@ -243,7 +243,8 @@ impl Stage for ScanLogsStage {
             date_string(query.last_day)
         );
         for (file, reason) in &scan.report.bad_files {
-            ctx.progress.note(&format!("skipped {file}: {reason}"));
+            ctx.progress
+                .note(&format!("skipped {}: {reason}", file.address));
         }
         let measurements = scan.measurements;
         if measurements.height() == 0 {
@@ -301,8 +302,11 @@ impl Stage for ScanLogsStage {
             (
                 "files",
                 format!(
-                    "{} found, {} pruned by partition, {} read",
-                    report.files_found, report.files_pruned, report.files_read
+                    "{} found, {} pruned by partition, {} read{}",
+                    report.files_found,
+                    report.files_pruned,
+                    report.files_read,
+                    folders_not_listed(report)
                 ),
             ),
             ("bad_files", report.bad_files.len().to_string()),
@@ -325,7 +329,7 @@ impl Stage for ScanLogsStage {
         for (file, reason) in &report.bad_files {
             outputs
                 .facts
-                .insert(format!("bad file: {file}"), reason.clone());
+                .insert(format!("bad file: {}", file.relative), reason.clone());
         }
         outputs.tables.insert("measurements".into(), measurements);
         outputs.tables.insert("selection".into(), selection);
@@ -336,8 +340,13 @@ impl Stage for ScanLogsStage {
 /// Explains an empty scan: nothing there, or rows of other robots only.
 fn no_rows_message(query: &LogQuery, window: &str, report: &ScanReport) -> String {
     let mut message = format!(
-        "no logged rows of robot `{}` in {window} under {} ({} file(s) found, {} pruned by partition, {} read",
-        query.robot_id, query.source, report.files_found, report.files_pruned, report.files_read
+        "no logged rows of robot `{}` in {window} under {} ({} file(s) found, {} pruned by partition, {} read{}",
+        query.robot_id,
+        query.source,
+        report.files_found,
+        report.files_pruned,
+        report.files_read,
+        folders_not_listed(report)
     );
     if !report.bad_files.is_empty() {
         message += &format!(", {} unreadable", report.bad_files.len());
@@ -353,4 +362,12 @@ fn no_rows_message(query: &LogQuery, window: &str, report: &ScanReport) -> Strin
         message += &format!("; the logs hold robot(s) {}", others.join(", "));
     }
     message
+}
+
+/// `; N partition folders not listed` for an S3 scan that skipped some.
+fn folders_not_listed(report: &ScanReport) -> String {
+    match report.folders_pruned {
+        0 => String::new(),
+        n => format!("; {n} partition folder(s) outside the window not listed"),
+    }
 }

@@ -118,3 +118,16 @@ inputs = {{ conf_wrenches = "{rows}", truth = "{truth}" }}
     std::fs::write(&path, text).expect("write job");
     path
 }
+
+/// Says why a test that needs an external server skips; under CI
+/// (`EGCAL_TEST_REQUIRE_SERVICES`, set by `.ci/run`) the test fails instead, so a
+/// broken service start cannot pass as a skip.
+pub fn skip_without_service(why: &str) {
+    assert!(
+        std::env::var_os("EGCAL_TEST_REQUIRE_SERVICES").is_none(),
+        "{why}, but EGCAL_TEST_REQUIRE_SERVICES is set (CI must start it: .ci/services.sh)"
+    );
+    eprintln!(
+        "SKIPPED: {why}; `bash .ci/services.sh start DIR` and source DIR/env.sh to run this test"
+    );
+}
