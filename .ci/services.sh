@@ -164,6 +164,9 @@ SelectType=select/cons_tres
 SelectTypeParameters=CR_Core
 JobCompType=jobcomp/none
 AccountingStorageType=accounting_storage/none
+# Small on purpose: a 4-robot night with one night per task must be split into
+# two arrays, as a plant's night is split at a real cluster's limit (default 1001).
+MaxArraySize=3
 NodeName=$host NodeAddr=127.0.0.1 $hw State=UNKNOWN
 PartitionName=debug Nodes=ALL Default=YES MaxTime=INFINITE State=UP
 EOF

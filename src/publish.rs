@@ -64,6 +64,21 @@ pub fn install(dir: &Path, bytes: &[u8], day: i64) -> io::Result<Installed> {
     })
 }
 
+/// The newest file retired on `day` (`retired-<date>.parquet` or its highest
+/// `-N` twin), if any.
+pub fn newest_retired(dir: &Path, day: i64) -> Option<PathBuf> {
+    let date = date_string(day);
+    let mut newest = None;
+    let mut path = dir.join(format!("retired-{date}.parquet"));
+    let mut n = 2;
+    while path.exists() {
+        newest = Some(path);
+        path = dir.join(format!("retired-{date}-{n}.parquet"));
+        n += 1;
+    }
+    newest
+}
+
 /// `retired-<date>.parquet`, or with `-2`, `-3`, … when the day already has one.
 fn free_name(dir: &Path, day: i64) -> PathBuf {
     let date = date_string(day);

@@ -66,28 +66,13 @@ models = ["kinematic", "elastogeometric"]
     )
 }
 
-fn copy_dir(from: &Path, to: &Path, skip: &[&str]) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap().flatten() {
-        let name = entry.file_name();
-        if skip.iter().any(|s| name == *s) {
-            continue;
-        }
-        if entry.path().is_dir() {
-            copy_dir(&entry.path(), &to.join(&name), &[]);
-        } else {
-            std::fs::copy(entry.path(), to.join(&name)).unwrap();
-        }
-    }
-}
-
 /// `jobs/` with the four robots' logs made once, shared read-only.
 fn prepared() -> &'static Path {
     static PREPARED: OnceLock<tempfile::TempDir> = OnceLock::new();
     PREPARED
         .get_or_init(|| {
             let dir = tempfile::tempdir().unwrap();
-            copy_dir(
+            common::copy_dir(
                 &common::root().join("jobs"),
                 dir.path(),
                 &["out", "calibration"],
@@ -115,7 +100,7 @@ fn prepared() -> &'static Path {
 /// service, and a fleet file over the four robots.
 fn cell() -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();
-    copy_dir(prepared(), dir.path(), &[]);
+    common::copy_dir(prepared(), dir.path(), &[]);
     for robot in ROBOTS {
         let short = robot.trim_start_matches("robot_");
         let (code, stdout, stderr) = common::run(
@@ -176,6 +161,20 @@ fn decisions(dir: &Path, night: &str) -> DataFrame {
     .unwrap()
 }
 
+/// The two cells' decisions of `night` agree, column by column.
+fn assert_same_decisions(dir: &Path, expected_dir: &Path, night: &str) {
+    let (got, expected) = (decisions(dir, night), decisions(expected_dir, night));
+    for column in expected.get_column_names() {
+        let values = |df: &DataFrame| {
+            let series = df.column(column).unwrap().as_materialized_series().clone();
+            (0..series.len())
+                .map(|i| series.get(i).unwrap().to_string())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(values(&got), values(&expected), "{night}: column {column}");
+    }
+}
+
 /// Content hash of each robot's calibration in service.
 fn in_service(dir: &Path) -> Vec<String> {
     ROBOTS
@@ -184,6 +183,19 @@ fn in_service(dir: &Path) -> Vec<String> {
             let path = dir.join(format!("calibration/{robot}/current.parquet"));
             table::content_hash(&table::read_parquet(&path).unwrap())
         })
+        .collect()
+}
+
+/// The array task of each robot's night, from the gathered table.
+fn task_indexes(dir: &Path, night: &str) -> Vec<Option<i64>> {
+    let path = dir.join(format!("out/cell/nights/{night}/decisions.parquet"));
+    table::read_parquet(&path)
+        .unwrap()
+        .column("task_index")
+        .unwrap()
+        .i64()
+        .unwrap()
+        .iter()
         .collect()
 }
 
@@ -278,6 +290,43 @@ fn a_decided_night_is_not_run_again() {
     assert_eq!(code, 10, "the same decisions: {stderr}");
     assert_eq!(stderr.matches("decided earlier").count(), 4, "{stderr}");
     assert_eq!(in_service(fleet.path()), before);
+}
+
+#[test]
+fn a_fleet_run_killed_mid_night_finishes_on_the_next_run_with_the_same_decisions() {
+    let clean = cell();
+    let killed = cell();
+    let night = NIGHTS[1];
+    let (clean_code, _, stderr) = common::run(
+        &["fleet", "run", "cell.toml", "--run-date", night],
+        clean.path(),
+    );
+    assert_eq!(clean_code, 10, "{stderr}");
+    let results = killed
+        .path()
+        .join(format!("out/cell/nights/{night}/results"));
+    let mut child = common::egcal()
+        .args(["-q", "fleet", "run", "cell.toml", "--run-date", night])
+        .current_dir(killed.path())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    while std::fs::read_dir(&results).map_or(0, |d| d.count()) == 0
+        && std::time::Instant::now() < deadline
+    {
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    let recorded = std::fs::read_dir(&results).unwrap().count();
+    eprintln!("killed after {recorded} of 4 nights were recorded");
+    let (code, stdout, stderr) = common::run(
+        &["fleet", "run", "cell.toml", "--run-date", night],
+        killed.path(),
+    );
+    assert_eq!(code, clean_code, "{stdout}{stderr}");
+    assert_same_decisions(killed.path(), clean.path(), night);
+    assert_eq!(in_service(killed.path()), in_service(clean.path()));
 }
 
 #[test]
@@ -382,16 +431,11 @@ fn tasks_find_their_robots_by_index_from_the_flag_or_the_schedulers_variable() {
         common::run(&["fleet", "gather", "cell.toml", "--run-date", night], dir);
     assert!([0, 10, 11].contains(&code), "{stdout}");
     let df = decisions(dir, night);
-    let tasks: Vec<Option<i64>> =
-        table::read_parquet(&dir.join(format!("out/cell/nights/{night}/decisions.parquet")))
-            .unwrap()
-            .column("task_index")
-            .unwrap()
-            .i64()
-            .unwrap()
-            .iter()
-            .collect();
-    assert_eq!(tasks, [Some(0), Some(0), Some(0), Some(1)], "{df}");
+    assert_eq!(
+        task_indexes(dir, night),
+        [Some(0), Some(0), Some(0), Some(1)],
+        "{df}"
+    );
 }
 
 #[test]
@@ -437,9 +481,12 @@ fn bad_fleet_files_name_the_file_and_key() {
         dir.path().join("plain.toml"),
     )
     .unwrap();
-    let (code, stdout, _) = common::run(&["fleet", "run", "f.toml"], dir.path());
-    assert_eq!(code, 3, "{stdout}");
-    assert!(stdout.contains("uses no `{robot_id}`"), "{stdout}");
+    let (code, _, stderr) = common::run(&["fleet", "run", "f.toml"], dir.path());
+    assert_eq!(code, 2, "refused before any night runs: {stderr}");
+    assert!(
+        stderr.contains("fails for every robot") && stderr.contains("uses no `{robot_id}`"),
+        "{stderr}"
+    );
 }
 
 /// The README's fleet commands on the shipped files: jobs/fleet.toml over the logs
@@ -447,7 +494,7 @@ fn bad_fleet_files_name_the_file_and_key() {
 #[test]
 fn the_shipped_fleet_runs_on_the_shipped_logs() {
     let dir = tempfile::tempdir().unwrap();
-    copy_dir(
+    common::copy_dir(
         &common::root().join("jobs"),
         dir.path(),
         &["out", "calibration"],
@@ -566,11 +613,7 @@ fn a_slurm_array_gives_what_fleet_run_gives() {
             slurm.path(),
         );
         assert_eq!(code, local_code, "{night}: {stdout}{stderr}");
-        assert_eq!(
-            decisions(slurm.path(), night),
-            decisions(local.path(), night),
-            "{night}"
-        );
+        assert_same_decisions(slurm.path(), local.path(), night);
         let logs = slurm.path().join(format!("out/cell/nights/{night}/slurm"));
         let task_logs = std::fs::read_dir(&logs)
             .unwrap()
@@ -582,4 +625,46 @@ fn a_slurm_array_gives_what_fleet_run_gives() {
         assert_eq!(task_logs, 2, "one log per array task");
     }
     assert_eq!(in_service(slurm.path()), in_service(local.path()));
+}
+
+#[test]
+fn a_night_beyond_max_array_size_is_split_into_arrays_with_offsets() {
+    if !slurm_available() {
+        return;
+    }
+    let max = egcal::fleet::slurm::max_array_size().unwrap();
+    let dir = cell();
+    // One night per task: four tasks (CI's cluster has MaxArraySize = 3).
+    let text = std::fs::read_to_string(dir.path().join("cell.toml"))
+        .unwrap()
+        .replace("nights_per_task = 3", "nights_per_task = 1");
+    std::fs::write(dir.path().join("cell.toml"), text).unwrap();
+    let night = NIGHTS[1];
+    let (code, stdout, stderr) = common::run(
+        &[
+            "fleet",
+            "submit",
+            "cell.toml",
+            "--run-date",
+            night,
+            "--wait",
+        ],
+        dir.path(),
+    );
+    assert_eq!(code, 10, "gathered after waiting: {stdout}{stderr}");
+    let manifest: egcal::fleet::manifest::Manifest = serde_json::from_str(
+        &std::fs::read_to_string(
+            dir.path()
+                .join(format!("out/cell/nights/{night}/manifest.json")),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(manifest.arrays.len(), 4usize.div_ceil(max), "{manifest:?}");
+    let offsets: Vec<usize> = manifest.arrays.iter().map(|a| a.first_task).collect();
+    assert_eq!(offsets, (0..4).step_by(max).collect::<Vec<_>>());
+    assert_eq!(
+        task_indexes(dir.path(), night),
+        [Some(0), Some(1), Some(2), Some(3)]
+    );
 }

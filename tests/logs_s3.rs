@@ -36,21 +36,6 @@ fn server() -> Option<(String, String)> {
     }
 }
 
-fn copy_dir(from: &Path, to: &Path, skip: &[&str]) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap().flatten() {
-        let name = entry.file_name();
-        if skip.iter().any(|s| name == *s) {
-            continue;
-        }
-        if entry.path().is_dir() {
-            copy_dir(&entry.path(), &to.join(&name), &[]);
-        } else {
-            std::fs::copy(entry.path(), to.join(&name)).unwrap();
-        }
-    }
-}
-
 /// Puts (or replaces) one object.
 fn put(bucket: &str, key: &str, bytes: Vec<u8>) {
     let store = AmazonS3Builder::from_env()
@@ -85,7 +70,7 @@ fn prepared(bucket: &str) -> &'static (tempfile::TempDir, String) {
     static PREPARED: OnceLock<(tempfile::TempDir, String)> = OnceLock::new();
     PREPARED.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
-        copy_dir(
+        common::copy_dir(
             &common::root().join("jobs"),
             dir.path(),
             &["out", "calibration"],
@@ -188,7 +173,7 @@ fn etags_key_the_cache_and_follow_a_replaced_object() {
     // A prefix of this test's own, since it replaces an object.
     let (source, _) = prepared(&bucket);
     let dir = tempfile::tempdir().unwrap();
-    copy_dir(source.path(), dir.path(), &[]);
+    common::copy_dir(source.path(), dir.path(), &[]);
     let prefix = format!("tests/{}-etag/logs", std::process::id());
     let files = log_files(dir.path());
     for file in &files {

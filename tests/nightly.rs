@@ -22,7 +22,7 @@ fn prepared() -> &'static Path {
     PREPARED
         .get_or_init(|| {
             let dir = tempfile::tempdir().unwrap();
-            copy_dir(
+            common::copy_dir(
                 &common::root().join("jobs"),
                 dir.path(),
                 &["out", "calibration"],
@@ -34,26 +34,11 @@ fn prepared() -> &'static Path {
         .path()
 }
 
-fn copy_dir(from: &Path, to: &Path, skip: &[&str]) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap().flatten() {
-        let name = entry.file_name();
-        if skip.iter().any(|s| name == *s) {
-            continue;
-        }
-        if entry.path().is_dir() {
-            copy_dir(&entry.path(), &to.join(&name), &[]);
-        } else {
-            std::fs::copy(entry.path(), to.join(&name)).unwrap();
-        }
-    }
-}
-
 /// A fresh cell folder: the prepared jobs and logs, and `robot`'s commissioning
 /// calibration in service; plus the nightly job for `robot`.
 fn cell(robot: &str) -> (tempfile::TempDir, PathBuf) {
     let dir = tempfile::tempdir().unwrap();
-    copy_dir(prepared(), dir.path(), &[]);
+    common::copy_dir(prepared(), dir.path(), &[]);
     let suffix = robot.trim_start_matches("robot_");
     let commissioning = format!("out/make_logs/commission_{suffix}/parameters.parquet");
     let (code, stdout, stderr) = common::run(
@@ -134,11 +119,18 @@ fn the_collision_day_is_detected_and_the_next_night_publishes() {
         .join("calibration/robot_a/retired-2026-11-13.parquet");
     assert_eq!(std::fs::read(retired).unwrap(), commissioning);
 
-    // Re-running the same night compares the published set with itself.
+    // Re-running the same night (a replay, or a run killed after it published)
+    // decides again against the set the night replaced: the same decision, and
+    // nothing installed twice.
     let (code, stdout, _) = nightly(dir.path(), &job, "2026-11-13");
-    assert_eq!(code, 0, "{stdout}");
-    assert!(stdout.contains("gate: kept"), "{stdout}");
+    assert_eq!(code, PUBLISHED, "{stdout}");
+    assert_eq!(decision(dir.path(), "robot_a").2, reasons);
     assert_eq!(std::fs::read(&current).unwrap(), candidate);
+    assert!(
+        !dir.path()
+            .join("calibration/robot_a/retired-2026-11-13-2.parquet")
+            .exists()
+    );
 
     // A week later most of the window is after the collision: the night's set
     // differs from the one in service most in joint 2's zero, far beyond its

@@ -28,6 +28,7 @@ pub fn run(fleet: &Fleet, options: &LocalOptions) -> Result<Gathered, FleetError
     let jobs = options.jobs.clamp(1, fleet.robots.len().max(1));
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let stages_at_once = (cores / jobs).max(1);
+    night::check_template(fleet)?;
     Manifest::new(fleet, options.run_date, "local", 1).write(fleet, options.run_date)?;
     let next = AtomicUsize::new(0);
     let first_error: Mutex<Option<FleetError>> = Mutex::new(None);

@@ -155,6 +155,28 @@ pub fn run_night(
     Ok(record)
 }
 
+/// Refuses a template that no robot can run (a broken job file, a variable
+/// missing everywhere) before any night or array task starts: exit 2 with the
+/// job's problems for the first robot. A problem of some robots only (a missing
+/// calibration in service) is left to their nights, which record it.
+pub fn check_template(fleet: &Fleet) -> Result<(), FleetError> {
+    let mut first = None;
+    for robot in &fleet.robots {
+        match Plan::load_with(&fleet.job, &fleet.job_overrides(robot)) {
+            Ok(_) => return Ok(()),
+            Err(problems) if first.is_none() => first = Some((robot, problems)),
+            Err(_) => {}
+        }
+    }
+    match first {
+        None => Ok(()),
+        Some((robot, problems)) => Err(FleetError::Usage(format!(
+            "the job template fails for every robot of fleet `{}`; for `{robot}`:\n{problems}",
+            fleet.name
+        ))),
+    }
+}
+
 type JobRun = Result<(commands::Finished, Vec<GateRecord>), (u8, String)>;
 
 fn run_job(fleet: &Fleet, robot: &str, run_date: i64, jobs: usize) -> JobRun {

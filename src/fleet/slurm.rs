@@ -80,7 +80,7 @@ fn shell_quote(text: &str) -> String {
 /// The batch script every task runs; its one argument is the array's offset.
 fn task_script(fleet: &Fleet, run_date: i64, egcal: &Path) -> String {
     format!(
-        "#!/bin/sh\n# egcal fleet `{name}`, night {date}: one array task = the robot-nights of\n# manifest.json's task (array index + offset). Written by `egcal fleet submit`.\nexec {exe} fleet task {fleet} --run-date {date} --index-offset \"$1\"\n",
+        "#!/bin/sh\n# egcal fleet `{name}`, night {date}: one array task = the robot-nights of\n# manifest.json's task (array index + offset). Written by `egcal fleet submit`.\n# The thread pools keep to the task's cores where no cgroup enforces them.\nexport RAYON_NUM_THREADS=\"${{SLURM_CPUS_PER_TASK:-1}}\" POLARS_MAX_THREADS=\"${{SLURM_CPUS_PER_TASK:-1}}\"\nexec {exe} fleet task {fleet} --run-date {date} --index-offset \"$1\"\n",
         name = fleet.name,
         date = date_string(run_date),
         exe = shell_quote(&egcal.display().to_string()),
@@ -135,6 +135,7 @@ fn sbatch_args(
 /// Writes the manifest and submits the night as job arrays.
 pub fn submit(fleet: &Fleet, options: &SubmitOptions) -> Result<Submitted, FleetError> {
     let run_date = options.run_date;
+    night::check_template(fleet)?;
     let mut manifest = Manifest::new(fleet, run_date, "slurm", fleet.slurm.nights_per_task);
     let max_array = max_array_size()?;
     let slurm_dir = fleet.night_dir(run_date).join("slurm");
@@ -290,6 +291,34 @@ mod tests {
     #[test]
     fn quotes_paths_for_the_shell() {
         assert_eq!(shell_quote("/a b/it's"), r"'/a b/it'\''s'");
+    }
+
+    #[test]
+    fn the_task_script_runs_the_task_with_the_arrays_offset() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("n.toml"), "").unwrap();
+        let path = dir.path().join("it's fleet.toml");
+        std::fs::write(
+            &path,
+            "[fleet]\nname = \"p\"\njob = \"n.toml\"\nrobots = [\"a\"]\n[slurm]\ntime_limit = \"00:10:00\"\n",
+        )
+        .unwrap();
+        let fleet = Fleet::load(&path).unwrap();
+        let script = task_script(&fleet, 20_000, Path::new("/opt/egcal"));
+        let exec = script.lines().last().unwrap();
+        assert!(exec.starts_with("exec '/opt/egcal' fleet task '"), "{exec}");
+        assert!(exec.contains(r"it'\''s fleet.toml'"), "{exec}");
+        assert!(
+            exec.ends_with("--run-date 2024-10-04 --index-offset \"$1\""),
+            "{exec}"
+        );
+        let args = sbatch_args(&fleet, 20_000, Path::new("/s/task.sh"), 3, 2, 4);
+        assert!(args.contains(&"--array=0-1%4".to_string()), "{args:?}");
+        assert!(args.contains(&"--time=00:10:00".to_string()), "{args:?}");
+        assert_eq!(
+            args[args.len() - 2..],
+            ["/s/task.sh".to_string(), "3".to_string()]
+        );
     }
 
     #[test]

@@ -13,7 +13,7 @@
 //! The decision also sets the exit code of `egcal run` (see the README).
 
 use std::collections::{BTreeMap, HashSet};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use polars::prelude::{Column, DataType};
 use schemars::JsonSchema;
@@ -142,6 +142,29 @@ impl GateSettings {
     }
 }
 
+/// The set an interrupted run of this night replaced, when that run published the
+/// candidate and was killed before it finished: `current.parquet` holds the
+/// candidate's bytes and `retired-<run date>[-N].parquet` (the newest) the set it
+/// replaced. Deciding against that set again gives the interrupted run's decision
+/// instead of comparing the candidate with itself.
+fn interrupted_publication(
+    dir: &Path,
+    candidate: &Path,
+    run_date: i64,
+) -> Result<Option<InputTable>, StageError> {
+    let read = |path: &Path| std::fs::read(path).ok();
+    let current = dir.join(crate::publish::CURRENT);
+    match (read(&current), read(candidate)) {
+        (Some(a), Some(b)) if a == b => {}
+        _ => return Ok(None),
+    }
+    let Some(retired) = crate::publish::newest_retired(dir, run_date) else {
+        return Ok(None);
+    };
+    let df = crate::table::read_parquet(&retired)?;
+    Ok(Some(InputTable { path: retired, df }))
+}
+
 fn model_set(
     table: &InputTable,
     model: ModelName,
@@ -209,7 +232,22 @@ impl Stage for GateStage {
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let candidate_table = ctx.input("candidate")?;
         let candidate = model_set(candidate_table, model, &nominal)?;
-        let in_service = model_set(ctx.input("in_service")?, model, &nominal)?;
+        let publish_dir =
+            (!settings.publish_dir.is_empty()).then(|| ctx.job_dir.join(&settings.publish_dir));
+        let resumed = match &publish_dir {
+            Some(dir) => interrupted_publication(dir, &candidate_table.path, ctx.run_date)?,
+            None => None,
+        };
+        let in_service = match &resumed {
+            Some(retired) => {
+                ctx.progress.note(&format!(
+                    "an earlier run of this night published the candidate and was interrupted; deciding again against the set it replaced, {}",
+                    retired.path.display()
+                ));
+                model_set(retired, model, &nominal)?
+            }
+            None => model_set(ctx.input("in_service")?, model, &nominal)?,
+        };
 
         let measurements = ctx.input("measurements")?;
         let mut window = measured_rows(measurements, None)?;
@@ -273,20 +311,41 @@ impl Stage for GateStage {
 
         let mut published_as = None;
         let mut retired_as = None;
-        if decision == Decision::Published && !settings.publish_dir.is_empty() {
-            let dir = ctx.job_dir.join(&settings.publish_dir);
-            let bytes = std::fs::read(&candidate_table.path).map_err(|e| {
-                StageError::Failed(format!("reading {}: {e}", candidate_table.path.display()))
-            })?;
-            let installed = crate::publish::install(&dir, &bytes, ctx.run_date).map_err(|e| {
+        let install = |dir: &Path, path: &Path| {
+            let bytes = std::fs::read(path)
+                .map_err(|e| StageError::Failed(format!("reading {}: {e}", path.display())))?;
+            let installed = crate::publish::install(dir, &bytes, ctx.run_date).map_err(|e| {
                 StageError::Failed(format!("publishing into {}: {e}", dir.display()))
             })?;
-            if let Some(summary) = installed.swept.summary(&dir) {
+            if let Some(summary) = installed.swept.summary(dir) {
                 ctx.progress.note(&format!("{}: {summary}", dir.display()));
             }
-            reasons.push(format!("published as {}", installed.current.display()));
-            published_as = Some(installed.current.display().to_string());
-            retired_as = installed.retired.map(|p: PathBuf| p.display().to_string());
+            Ok::<_, StageError>(installed)
+        };
+        match (&publish_dir, &resumed, decision) {
+            (Some(dir), None, Decision::Published) => {
+                let installed = install(dir, &candidate_table.path)?;
+                reasons.push(format!("published as {}", installed.current.display()));
+                published_as = Some(installed.current.display().to_string());
+                retired_as = installed.retired.map(|p: PathBuf| p.display().to_string());
+            }
+            // Installed by the interrupted run: reported as that run would have.
+            (Some(dir), Some(retired), Decision::Published) => {
+                let current = dir.join(crate::publish::CURRENT);
+                reasons.push(format!("published as {}", current.display()));
+                published_as = Some(current.display().to_string());
+                retired_as = Some(retired.path.display().to_string());
+            }
+            // The inputs changed since the interrupted run: the set it replaced
+            // goes back in service, as this decision says.
+            (Some(dir), Some(retired), _) => {
+                install(dir, &retired.path)?;
+                ctx.progress.note(&format!(
+                    "put {} back in service: this run does not confirm the interrupted run's publication",
+                    retired.path.display()
+                ));
+            }
+            _ => {}
         }
 
         for reason in &reasons {

@@ -131,3 +131,20 @@ pub fn skip_without_service(why: &str) {
         "SKIPPED: {why}; `bash .ci/services.sh start DIR` and source DIR/env.sh to run this test"
     );
 }
+
+/// Copies a folder recursively, leaving out the top-level entries named in `skip`
+/// (a job folder without its `out` and `calibration`).
+pub fn copy_dir(from: &Path, to: &Path, skip: &[&str]) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap().flatten() {
+        let name = entry.file_name();
+        if skip.iter().any(|s| name == *s) {
+            continue;
+        }
+        if entry.path().is_dir() {
+            copy_dir(&entry.path(), &to.join(&name), &[]);
+        } else {
+            std::fs::copy(entry.path(), to.join(&name)).unwrap();
+        }
+    }
+}
