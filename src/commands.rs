@@ -685,13 +685,32 @@ pub fn sim_driver(
         Simulator::new(robot, values, settings, seed).map_err(CommandError::Usage)?;
     let stdin = std::io::stdin();
     let stdout = std::io::stdout();
+    let all: Vec<String> = crate::rig::protocol::METHODS
+        .iter()
+        .map(|m| m.to_string())
+        .collect();
     crate::rig::driver::serve(
         &mut simulator,
         "egcal simulator",
+        &all,
         stdin.lock(),
         stdout.lock(),
     )
     .map_err(|e| CommandError::Usage(format!("driver I/O: {e}")))?;
+    Ok(String::new())
+}
+
+/// `egcal lab-driver`: the cell file's devices served over the driver protocol
+/// on stdin/stdout until `shutdown` or end of input.
+pub fn lab_driver(cell_file: &Path) -> Result<String, CommandError> {
+    let cell =
+        crate::lab::CellFile::load(cell_file).map_err(|e| CommandError::Usage(e.to_string()))?;
+    let mut rig = crate::lab::LabRig::connect(cell, cell_file);
+    let (name, capabilities) = (rig.name(), rig.capabilities());
+    let stdin = std::io::stdin();
+    let stdout = std::io::stdout();
+    crate::rig::driver::serve(&mut rig, &name, &capabilities, stdin.lock(), stdout.lock())
+        .map_err(|e| CommandError::Usage(format!("driver I/O: {e}")))?;
     Ok(String::new())
 }
 
@@ -827,6 +846,9 @@ pub fn generated_schemas() -> Vec<(String, String)> {
         serde_json::to_string_pretty(&schemars::schema_for!(crate::fleet::file::FleetFileRaw))
             .expect("schema serialises");
     files.push(("fleet.schema.json".into(), fleet + "\n"));
+    let cell = serde_json::to_string_pretty(&schemars::schema_for!(crate::lab::CellFile))
+        .expect("schema serialises");
+    files.push(("cell.schema.json".into(), cell + "\n"));
     for schema in table::schema::all() {
         let text = serde_json::to_string_pretty(&schema).expect("schema serialises");
         files.push((format!("tables/{}.json", schema.kind), text + "\n"));

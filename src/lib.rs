@@ -13,6 +13,7 @@ pub mod gate;
 pub mod iso9283;
 pub mod job;
 pub mod journal;
+pub mod lab;
 pub mod logs;
 pub mod publish;
 pub mod report;

@@ -131,6 +131,13 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         seed: u64,
     },
+    /// The reference lab driver: the cell file's devices (ATI Net F/T, egcal UDP
+    /// cable robot) served over the driver protocol on stdin/stdout; name it as a
+    /// measure stage's driver `command`.
+    LabDriver {
+        #[arg(long)]
+        cell: PathBuf,
+    },
     /// Put a parameters table in service: DIR/current.parquet, keeping the previous
     /// one as DIR/retired-<date>.parquet (a cell's first calibration, or a rollback).
     Publish {
@@ -318,6 +325,7 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
             date.unwrap_or_else(egcal::table::time::today),
         )
         .map(Finished::from),
+        Command::LabDriver { cell } => commands::lab_driver(&cell).map(Finished::from),
         Command::ListStages => Ok(commands::list_stages().into()),
         Command::Cache {
             action: CacheAction::Gc { job },

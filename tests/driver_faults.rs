@@ -13,9 +13,11 @@ use egcal::table;
 /// commanded) except for one row, where `mode` says what goes wrong:
 /// `joints500`, `joints1e300`, `position1e300`, `wrench1e9`, `slack` (the sensor
 /// reads no force) on every attempt, `once` (a joint of 500° on the first attempt
-/// only), `exit3` or `sigkill` at its `measure`; or at start: `silent` (never
-/// answers), `garbage`, `wrong_id`, `exit_at_start`. It writes its working
-/// directory to `cwd.txt` there.
+/// only), `exit3` or `sigkill` at its `measure`; coded errors at that row:
+/// `beam_lost` (transient, at `measure`), `out_of_range` (at `apply_wrench`),
+/// `estop` (at `move_joints`); `sigma` gives every point the tracker's σ; or at
+/// start: `silent` (never answers), `garbage`, `wrong_id`, `exit_at_start`. It
+/// writes its working directory to `cwd.txt` there.
 const FAULTY_DRIVER: &str = r#"
 import json, os, signal, sys
 mode, bad_row = sys.argv[1], int(sys.argv[2])
@@ -26,6 +28,9 @@ if mode == "exit_at_start":
 attempts = 0
 def reply(rid, result):
     print(json.dumps({"id": rid, "result": result}), flush=True)
+def fail(rid, code, transient, message):
+    print(json.dumps({"id": rid, "error": {"message": message, "transient": transient, "code": code}}), flush=True)
+bad = False
 for line in sys.stdin:
     request = json.loads(line)
     method, rid = request["method"], request["id"]
@@ -44,8 +49,14 @@ for line in sys.stdin:
         bad = row == bad_row
         if bad:
             attempts += 1
+        if bad and mode == "estop":
+            fail(rid, "estop", False, "emergency stop pressed")
+            continue
     elif method == "apply_wrench":
         wrench = list(request["params"]["wrench"])
+        if bad and mode == "out_of_range":
+            fail(rid, "out_of_range", False, "wrench outside the feasible set")
+            continue
     elif method == "read_joints":
         if bad and (mode == "joints500" or (mode == "once" and attempts == 1)):
             q[0] = 500.0
@@ -63,7 +74,12 @@ for line in sys.stdin:
             sys.exit(3)
         if bad and mode == "sigkill":
             os.kill(os.getpid(), signal.SIGKILL)
+        if bad and mode == "beam_lost":
+            fail(rid, "beam_lost", True, "no reflector in the beam")
+            continue
         result = {"position_mm": [1e300 if bad and mode == "position1e300" else sum(q), 1.0, 2.0]}
+        if mode == "sigma":
+            result["sigma_mm"] = [0.01, 0.02, 0.5 if bad else 0.03]
     elif method == "shutdown":
         reply(rid, {})
         break
@@ -293,5 +309,73 @@ fn a_negative_reading_bound_is_refused_before_anything_moves() {
             && stderr.contains("max_joint_error_deg")
             && stderr.contains("expected > 0"),
         "{stderr}"
+    );
+}
+
+#[test]
+fn coded_errors_are_retried_recorded_or_stop_as_their_code_says() {
+    let failures = |dir: &Path| dir.join("out/measure/measurement_failures.parquet");
+    // beam_lost, transient: retried, then recorded with its code.
+    let dir = tempfile::tempdir().unwrap();
+    let job = faulty_job(dir.path(), "beam_lost", 4, "retries = 2");
+    let (code, stderr) = run(&job, dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(i64_column(&failures(dir.path()), "attempts"), [3]);
+    let df = table::read_parquet(&failures(dir.path())).unwrap();
+    let reason = table::schema::str_values(&df, "reason", &failures(dir.path())).unwrap();
+    assert!(
+        reason[0]
+            .as_deref()
+            .unwrap()
+            .starts_with("beam_lost: no reflector"),
+        "{reason:?}"
+    );
+    // out_of_range, not transient: recorded at once.
+    let dir = tempfile::tempdir().unwrap();
+    let job = faulty_job(dir.path(), "out_of_range", 4, "retries = 2");
+    let (code, stderr) = run(&job, dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert_eq!(i64_column(&failures(dir.path()), "attempts"), [1]);
+    // estop: the campaign stops with the rows before kept, and resumes.
+    let dir = tempfile::tempdir().unwrap();
+    let job = faulty_job(dir.path(), "estop", 4, "");
+    let (code, stderr) = run(&job, dir.path());
+    assert_eq!(code, 3, "{stderr}");
+    assert!(
+        stderr.contains("estop: emergency stop pressed")
+            && stderr.contains("the 3 rows measured so far are kept"),
+        "{stderr}"
+    );
+    let job = faulty_job(dir.path(), "none", 0, "");
+    let (code, stderr) = run(&job, dir.path());
+    assert_eq!(code, 0, "resumed: {stderr}");
+    assert_eq!(
+        i64_column(
+            &dir.path().join("out/measure/measurements.parquet"),
+            "cw_id"
+        )
+        .len(),
+        15
+    );
+}
+
+#[test]
+fn the_trackers_own_sigmas_are_stored_with_each_point() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = faulty_job(dir.path(), "sigma", 4, "");
+    let (code, stderr) = run(&job, dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    let path = dir.path().join("out/measure/measurements.parquet");
+    let df = table::read_parquet(&path).unwrap();
+    let z = table::schema::f64_values(&df, "sigma_z_mm", &path).unwrap();
+    let ids = i64_column(&path, "cw_id");
+    for (id, sigma) in ids.iter().zip(&z) {
+        assert_eq!(*sigma, if *id == 4 { 0.5 } else { 0.03 });
+    }
+    assert!(
+        table::schema::f64_values(&df, "sigma_x_mm", &path)
+            .unwrap()
+            .iter()
+            .all(|s| *s == 0.01)
     );
 }

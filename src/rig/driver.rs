@@ -28,6 +28,7 @@ pub struct ExternalDriver {
     next_id: u64,
     timeout: Duration,
     last_measured_at_us: i64,
+    last_sigma_mm: Option<[f64; 3]>,
     /// The driver's self-description from `hello`.
     pub name: String,
 }
@@ -110,6 +111,7 @@ impl ExternalDriver {
             next_id: 1,
             timeout,
             last_measured_at_us: 0,
+            last_sigma_mm: None,
             name: String::new(),
         };
         let at_start =
@@ -189,11 +191,7 @@ impl ExternalDriver {
                 )));
             }
             return match (reply.result, reply.error) {
-                (_, Some(error)) if error.transient => Err(RigError::Transient(error.message)),
-                (_, Some(error)) => Err(RigError::Transient(format!(
-                    "driver error: {}",
-                    error.message
-                ))),
+                (_, Some(error)) => Err(reply_error(error)),
                 (Some(result), None) => Ok(result),
                 (None, None) => Ok(ReplyResult::default()),
             };
@@ -243,9 +241,22 @@ impl Rig for ExternalDriver {
     fn measure(&mut self) -> Result<[f64; 3], RigError> {
         let result = self.call(Call::Measure {})?;
         self.last_measured_at_us = result.measured_at_us.unwrap_or_else(now_us);
+        self.last_sigma_mm = match result.sigma_mm {
+            Some(sigma) if sigma.iter().all(|s| s.is_finite() && *s > 0.0) => Some(sigma),
+            Some(sigma) => {
+                return Err(RigError::Fatal(format!(
+                    "driver replied to measure with sigma_mm {sigma:?}: expected three positive finite values (mm)"
+                )));
+            }
+            None => None,
+        };
         result
             .position_mm
             .ok_or_else(|| Self::missing("measure", "position_mm"))
+    }
+
+    fn measured_sigma_mm(&self) -> Option<[f64; 3]> {
+        self.last_sigma_mm
     }
 
     fn release_wrench(&mut self) -> Result<(), RigError> {
@@ -254,6 +265,17 @@ impl Rig for ExternalDriver {
 
     fn measured_at_us(&self) -> i64 {
         self.last_measured_at_us
+    }
+}
+
+/// What an error reply means for the campaign: a coded error keeps its code
+/// (which decides between retrying, failing the row and stopping, see
+/// [`RigError::disposition`]); an uncoded one (protocol version 1) is retried.
+fn reply_error(error: super::protocol::ReplyError) -> RigError {
+    match error.code {
+        Some(code) => RigError::device(code, error.transient, error.message),
+        None if error.transient => RigError::Transient(error.message),
+        None => RigError::Transient(format!("driver error: {}", error.message)),
     }
 }
 
@@ -338,10 +360,12 @@ fn now_us() -> i64 {
 }
 
 /// Serves a rig over the protocol on the given streams until `shutdown` or EOF:
-/// the server side, used by `egcal sim-driver` and by tests.
+/// the server side, used by `egcal sim-driver`, `egcal lab-driver` and by tests.
+/// `capabilities`: the methods `hello` announces.
 pub fn serve(
     rig: &mut dyn Rig,
     name: &str,
+    capabilities: &[String],
     input: impl BufRead,
     mut output: impl Write,
 ) -> std::io::Result<()> {
@@ -364,12 +388,7 @@ pub fn serve(
             Call::Hello { .. } => {
                 result.protocol = Some(PROTOCOL_VERSION);
                 result.name = Some(name.to_string());
-                result.capabilities = Some(
-                    super::protocol::METHODS
-                        .iter()
-                        .map(|m| m.to_string())
-                        .collect(),
-                );
+                result.capabilities = Some(capabilities.to_vec());
                 Ok(())
             }
             Call::MoveJoints { cw_id, q_deg } => rig.move_joints(cw_id, q_deg),
@@ -380,6 +399,7 @@ pub fn serve(
             Call::Measure {} => rig.measure().map(|p| {
                 result.position_mm = Some(p);
                 result.measured_at_us = Some(rig.measured_at_us());
+                result.sigma_mm = rig.measured_sigma_mm();
             }),
             Call::Shutdown {} => {
                 writeln!(
@@ -405,8 +425,12 @@ pub fn serve(
                 id: request.id,
                 result: None,
                 error: Some(super::protocol::ReplyError {
-                    message: e.to_string(),
+                    message: match &e {
+                        RigError::Device { message, .. } => message.clone(),
+                        other => other.to_string(),
+                    },
                     transient: e.is_transient(),
+                    code: e.code(),
                 }),
             },
         };

@@ -12,20 +12,74 @@ pub mod simulator;
 
 use std::time::Duration;
 
+use protocol::ErrorCode;
+
 /// Why a rig operation failed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RigError {
     /// Worth retrying the row (tracker lost the beam, controller busy, timeout).
     #[error("{0}")]
     Transient(String),
+    /// This row cannot be measured (a target out of range): recorded as failed
+    /// without retrying; the campaign goes on.
+    #[error("{0}")]
+    Row(String),
     /// The rig cannot go on (driver died, protocol violated, refused command).
     #[error("{0}")]
     Fatal(String),
+    /// A device's failure in the driver protocol's vocabulary; what it means for
+    /// the campaign follows from the code and `transient` ([`RigError::disposition`]).
+    #[error("{}: {message}", code.as_str())]
+    Device {
+        code: ErrorCode,
+        message: String,
+        transient: bool,
+    },
+}
+
+/// What a campaign does after a failed row.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Disposition {
+    /// Try the row again (up to the stage's `retries`).
+    Retry,
+    /// Record the row as failed and go on.
+    FailRow,
+    /// Stop the campaign; measured rows are kept and the next run resumes.
+    Stop,
 }
 
 impl RigError {
+    pub fn disposition(&self) -> Disposition {
+        match self {
+            RigError::Transient(_) => Disposition::Retry,
+            RigError::Row(_) => Disposition::FailRow,
+            RigError::Fatal(_) => Disposition::Stop,
+            RigError::Device { code, .. } if code.stops_campaign() => Disposition::Stop,
+            RigError::Device {
+                transient: true, ..
+            } => Disposition::Retry,
+            RigError::Device { .. } => Disposition::FailRow,
+        }
+    }
+
     pub fn is_transient(&self) -> bool {
-        matches!(self, RigError::Transient(_))
+        self.disposition() == Disposition::Retry
+    }
+
+    /// The protocol's code of a device error.
+    pub fn code(&self) -> Option<ErrorCode> {
+        match self {
+            RigError::Device { code, .. } => Some(*code),
+            _ => None,
+        }
+    }
+
+    pub fn device(code: ErrorCode, transient: bool, message: impl Into<String>) -> RigError {
+        RigError::Device {
+            code,
+            message: message.into(),
+            transient,
+        }
     }
 }
 
@@ -45,9 +99,38 @@ pub trait Rig {
     fn release_wrench(&mut self) -> Result<(), RigError>;
     /// Timestamp of the last tracker reading, µs since the epoch (UTC).
     fn measured_at_us(&self) -> i64;
+    /// The tracker's own 1-σ uncertainty of the last reading (mm), when it gives one.
+    fn measured_sigma_mm(&self) -> Option<[f64; 3]> {
+        None
+    }
 }
 
 /// Per-request time limit of external drivers.
 pub fn timeout_from_seconds(seconds: f64) -> Duration {
     Duration::from_secs_f64(seconds.max(0.001))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn codes_decide_between_retrying_failing_the_row_and_stopping() {
+        let d = |code, transient| RigError::device(code, transient, "m").disposition();
+        assert_eq!(d(ErrorCode::BeamLost, true), Disposition::Retry);
+        assert_eq!(d(ErrorCode::OutOfRange, false), Disposition::FailRow);
+        for code in [
+            ErrorCode::Estop,
+            ErrorCode::NotConnected,
+            ErrorCode::ExclusiveOwner,
+            ErrorCode::UnitMismatch,
+            ErrorCode::Protocol,
+        ] {
+            assert_eq!(d(code, true), Disposition::Stop, "{code:?}");
+        }
+        assert_eq!(
+            RigError::device(ErrorCode::Timeout, true, "no reply").to_string(),
+            "timeout: no reply"
+        );
+    }
 }

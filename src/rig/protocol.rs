@@ -79,6 +79,10 @@ pub struct ReplyResult {
     /// measure: time of the reading, µs since the epoch, UTC (egcal's clock when absent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub measured_at_us: Option<i64>,
+    /// measure: the tracker's own 1-σ uncertainty of the point along x, y, z
+    /// (mm, > 0), stored as `sigma_x_mm` … (spec §7) when given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma_mm: Option<[f64; 3]>,
 }
 
 /// An error reply.
@@ -89,6 +93,74 @@ pub struct ReplyError {
     /// True when retrying the row may succeed (beam lost, busy).
     #[serde(default)]
     pub transient: bool,
+    /// What went wrong, from a small vocabulary (optional: version 1 drivers
+    /// may send only `message` and `transient`, and such errors are retried).
+    /// `estop`, `not_connected`, `exclusive_owner`, `unit_mismatch` and
+    /// `protocol` stop the campaign (it resumes on the next run); with another
+    /// code the row is retried when `transient`, else recorded as failed at once.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub code: Option<ErrorCode>,
+}
+
+/// The error vocabulary of driver replies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorCode {
+    /// A device did not answer in time.
+    Timeout,
+    /// A device the method needs is not configured or not reachable.
+    NotConnected,
+    /// The device is doing something else; try again.
+    Busy,
+    /// The device is not ready yet (warming up, motors off, program stopped).
+    NotReady,
+    /// The tracker lost the beam or saw no reflector.
+    BeamLost,
+    /// Another client holds the device (mastership, a stolen stream).
+    ExclusiveOwner,
+    /// The request or a reading is outside what the device can do.
+    OutOfRange,
+    /// The reading is old (a stalled or backward sequence counter).
+    StaleData,
+    /// Samples were lost between readings.
+    SequenceGap,
+    /// The device reports other units than were configured.
+    UnitMismatch,
+    /// The device's reply broke its protocol.
+    Protocol,
+    /// The emergency stop is pressed or the controller is in a safety stop.
+    Estop,
+}
+
+impl ErrorCode {
+    /// Errors after which the campaign stops rather than failing the row.
+    pub fn stops_campaign(self) -> bool {
+        matches!(
+            self,
+            ErrorCode::Estop
+                | ErrorCode::NotConnected
+                | ErrorCode::ExclusiveOwner
+                | ErrorCode::Protocol
+                | ErrorCode::UnitMismatch
+        )
+    }
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ErrorCode::Timeout => "timeout",
+            ErrorCode::NotConnected => "not_connected",
+            ErrorCode::Busy => "busy",
+            ErrorCode::NotReady => "not_ready",
+            ErrorCode::BeamLost => "beam_lost",
+            ErrorCode::ExclusiveOwner => "exclusive_owner",
+            ErrorCode::OutOfRange => "out_of_range",
+            ErrorCode::StaleData => "stale_data",
+            ErrorCode::SequenceGap => "sequence_gap",
+            ErrorCode::UnitMismatch => "unit_mismatch",
+            ErrorCode::Protocol => "protocol",
+            ErrorCode::Estop => "estop",
+        }
+    }
 }
 
 /// Method names, as capabilities.
@@ -145,5 +217,35 @@ mod tests {
             serde_json::from_str(r#"{"id":4,"error":{"message":"beam lost","transient":true}}"#)
                 .unwrap();
         assert!(reply.error.unwrap().transient);
+    }
+
+    #[test]
+    fn coded_errors_and_sigmas_are_optional_additions_to_version_1() {
+        let coded: Reply = serde_json::from_str(
+            r#"{"id":5,"error":{"message":"no reflector","transient":true,"code":"beam_lost"}}"#,
+        )
+        .unwrap();
+        assert_eq!(coded.error.unwrap().code, Some(ErrorCode::BeamLost));
+        let measured: Reply = serde_json::from_str(
+            r#"{"id":6,"result":{"position_mm":[1,2,3],"sigma_mm":[0.01,0.01,0.02]}}"#,
+        )
+        .unwrap();
+        assert_eq!(measured.result.unwrap().sigma_mm, Some([0.01, 0.01, 0.02]));
+        let unknown =
+            serde_json::from_str::<Reply>(r#"{"id":5,"error":{"message":"x","code":"on_fire"}}"#);
+        assert!(
+            unknown.is_err(),
+            "codes outside the vocabulary are protocol errors"
+        );
+        let line = serde_json::to_string(&ReplyError {
+            message: "m".into(),
+            transient: false,
+            code: None,
+        })
+        .unwrap();
+        assert_eq!(
+            line, r#"{"message":"m","transient":false}"#,
+            "version 1 shape kept"
+        );
     }
 }

@@ -28,10 +28,10 @@ use crate::journal::Journal;
 use crate::rig::driver::ExternalDriver;
 use crate::rig::reading_checks::ReadingBounds;
 use crate::rig::simulator::{Simulator, SimulatorSettings};
-use crate::rig::{Rig, RigError, timeout_from_seconds};
+use crate::rig::{Disposition, Rig, RigError, timeout_from_seconds};
 use crate::robot::ConfWrench;
 use crate::table::parameters::ModelName;
-use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS, WRENCH_COLUMNS};
+use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS, SIGMA_COLUMNS, WRENCH_COLUMNS};
 use crate::table::{content_hash, frame};
 
 pub struct MeasureStage;
@@ -202,6 +202,9 @@ pub(crate) struct Reading {
     /// Tracker reading (mm).
     pub position_mm: [f64; 3],
     pub measured_at_us: i64,
+    /// The tracker's own 1-σ uncertainty of the point (mm), when it gives one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma_mm: Option<[f64; 3]>,
 }
 
 impl Entry {
@@ -342,31 +345,33 @@ impl Stage for MeasureStage {
                 });
                 match checked {
                     Ok(reading) => break Entry::Measured(reading),
-                    Err(RigError::Transient(reason)) if attempts <= settings.retries => {
-                        ctx.progress
-                            .note(&format!("cw_id {}: {reason}; retrying", ids[k]));
-                        let _ = rig.release_wrench();
-                    }
-                    Err(RigError::Transient(reason)) => {
-                        let _ = rig.release_wrench();
-                        break Entry::Failed {
-                            cw_id: ids[k],
-                            attempts,
-                            reason,
-                            failed_at_us: rig.measured_at_us().max(now_us()),
-                        };
-                    }
-                    Err(RigError::Fatal(reason)) => {
-                        return Err(StageError::Failed(format!(
-                            "cw_id {} (input row {k}): {reason}; the {} rows measured so far are kept in {} and the next run resumes",
-                            ids[k],
-                            latest
-                                .values()
-                                .filter(|e| matches!(e, Entry::Measured(_)))
-                                .count(),
-                            journal.path().display()
-                        )));
-                    }
+                    Err(e) => match e.disposition() {
+                        Disposition::Retry if attempts <= settings.retries => {
+                            ctx.progress
+                                .note(&format!("cw_id {}: {e}; retrying", ids[k]));
+                            let _ = rig.release_wrench();
+                        }
+                        Disposition::Retry | Disposition::FailRow => {
+                            let _ = rig.release_wrench();
+                            break Entry::Failed {
+                                cw_id: ids[k],
+                                attempts,
+                                reason: e.to_string(),
+                                failed_at_us: rig.measured_at_us().max(now_us()),
+                            };
+                        }
+                        Disposition::Stop => {
+                            return Err(StageError::Failed(format!(
+                                "cw_id {} (input row {k}): {e}; the {} rows measured so far are kept in {} and the next run resumes",
+                                ids[k],
+                                latest
+                                    .values()
+                                    .filter(|e| matches!(e, Entry::Measured(_)))
+                                    .count(),
+                                journal.path().display()
+                            )));
+                        }
+                    },
                 }
             };
             journal
@@ -473,6 +478,7 @@ pub(crate) fn measure_row(
         wrench,
         position_mm,
         measured_at_us: rig.measured_at_us(),
+        sigma_mm: rig.measured_sigma_mm(),
     })
 }
 
@@ -577,6 +583,15 @@ pub(crate) fn measurements_frame(
     }
     for (name, values) in POSITION_COLUMNS.iter().zip(p) {
         columns.push(Column::new((*name).into(), values));
+    }
+    if readings.iter().any(|(r, _)| r.sigma_mm.is_some()) {
+        for (axis, name) in SIGMA_COLUMNS.iter().enumerate() {
+            let values: Vec<Option<f64>> = readings
+                .iter()
+                .map(|(r, _)| r.sigma_mm.map(|s| s[axis]))
+                .collect();
+            columns.push(Column::new((*name).into(), values));
+        }
     }
     if with_config_id {
         columns.push(Column::new("config_id".into(), config));

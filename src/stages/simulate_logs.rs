@@ -24,8 +24,8 @@ use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, model_name_problem, settings_error,
 };
+use crate::rig::Rig;
 use crate::rig::simulator::{Simulator, SimulatorSettings};
-use crate::rig::{Rig, RigError};
 use crate::robot::{ConfWrench, ParamId, ParamValues};
 use crate::table::schema;
 use crate::table::time::{date_string, parse_date};
@@ -411,7 +411,7 @@ impl SimulateLogsStage {
                 attempts += 1;
                 match measure_row(&mut rig, cw_id, &pool[row]) {
                     Ok(reading) => break reading,
-                    Err(RigError::Transient(_)) if attempts < ATTEMPTS => {
+                    Err(e) if e.is_transient() && attempts < ATTEMPTS => {
                         rig.release_wrench()
                             .map_err(|e| StageError::Failed(e.to_string()))?;
                     }

@@ -1,0 +1,152 @@
+//! The cell's devices behind the [`Rig`] interface, served over the driver
+//! protocol by `egcal lab-driver`.
+//!
+//! Devices connect when the driver starts; one that fails to connect is tried
+//! again on the next call that needs it, and until then that call answers the
+//! connection's error (a transient one is retried by the campaign).
+
+use std::path::Path;
+
+use super::cable_robot::CableRobot;
+use super::cell::{self, CellFile};
+use super::netft::NetFt;
+use crate::rig::protocol::ErrorCode;
+use crate::rig::{Rig, RigError};
+
+/// A device slot: absent from the cell file, connected, or not (yet).
+enum Slot<D> {
+    Absent,
+    Connected(D),
+    Failed(RigError),
+}
+
+/// The cell's devices.
+pub struct LabRig {
+    cell: CellFile,
+    file: String,
+    force_sensor: Slot<NetFt>,
+    cable_robot: Slot<CableRobot>,
+    measured_at_us: i64,
+}
+
+impl LabRig {
+    /// Connects every device of the cell file.
+    pub fn connect(cell: CellFile, file: &Path) -> LabRig {
+        let mut rig = LabRig {
+            cell,
+            file: file.display().to_string(),
+            force_sensor: Slot::Absent,
+            cable_robot: Slot::Absent,
+            measured_at_us: 0,
+        };
+        rig.force_sensor = rig.connect_force_sensor();
+        rig.cable_robot = rig.connect_cable_robot();
+        rig
+    }
+
+    pub fn name(&self) -> String {
+        format!("egcal lab driver, cell {}", self.cell.cell.name)
+    }
+
+    /// The methods the configured devices implement (for `hello`).
+    pub fn capabilities(&self) -> Vec<String> {
+        let mut methods = vec!["hello", "shutdown"];
+        if self.cell.force_sensor.is_some() {
+            methods.push("read_wrench");
+        }
+        if self.cell.cable_robot.is_some() {
+            methods.extend(["apply_wrench", "release_wrench"]);
+        }
+        methods.into_iter().map(str::to_string).collect()
+    }
+
+    fn connect_force_sensor(&self) -> Slot<NetFt> {
+        match &self.cell.force_sensor {
+            None => Slot::Absent,
+            Some(cell::ForceSensor::AtiNetft(settings)) => {
+                match NetFt::connect(settings, self.cell.cell.timeout_s) {
+                    Ok(device) => Slot::Connected(device),
+                    Err(e) => Slot::Failed(e),
+                }
+            }
+        }
+    }
+
+    fn connect_cable_robot(&self) -> Slot<CableRobot> {
+        match &self.cell.cable_robot {
+            None => Slot::Absent,
+            Some(cell::CableRobot::EgcalUdp(settings)) => {
+                match CableRobot::connect(settings, self.cell.cell.timeout_s) {
+                    Ok(device) => Slot::Connected(device),
+                    Err(e) => Slot::Failed(e),
+                }
+            }
+        }
+    }
+
+    fn absent(&self, table: &str, method: &str) -> RigError {
+        RigError::device(
+            ErrorCode::NotConnected,
+            false,
+            format!(
+                "{method} needs a [{table}] device, and the cell file {} has none",
+                self.file
+            ),
+        )
+    }
+
+    fn force_sensor(&mut self) -> Result<&mut NetFt, RigError> {
+        if let Slot::Failed(_) = self.force_sensor {
+            self.force_sensor = self.connect_force_sensor();
+        }
+        let absent = self.absent("force_sensor", "read_wrench");
+        ready(&mut self.force_sensor, absent)
+    }
+
+    fn cable_robot(&mut self, method: &str) -> Result<&mut CableRobot, RigError> {
+        if let Slot::Failed(_) = self.cable_robot {
+            self.cable_robot = self.connect_cable_robot();
+        }
+        let absent = self.absent("cable_robot", method);
+        ready(&mut self.cable_robot, absent)
+    }
+}
+
+/// The connected device, or why there is none.
+fn ready<D>(slot: &mut Slot<D>, absent: RigError) -> Result<&mut D, RigError> {
+    match slot {
+        Slot::Connected(device) => Ok(device),
+        Slot::Failed(e) => Err(e.clone()),
+        Slot::Absent => Err(absent),
+    }
+}
+
+impl Rig for LabRig {
+    fn move_joints(&mut self, _cw_id: i64, _q_deg: [f64; 6]) -> Result<(), RigError> {
+        Err(self.absent("robot", "move_joints"))
+    }
+
+    fn apply_wrench(&mut self, wrench: [f64; 6]) -> Result<(), RigError> {
+        self.cable_robot("apply_wrench")?.apply(wrench)
+    }
+
+    fn read_wrench(&mut self) -> Result<[f64; 6], RigError> {
+        self.force_sensor()?.read()
+    }
+
+    fn read_joints(&mut self) -> Result<[f64; 6], RigError> {
+        Err(self.absent("robot", "read_joints"))
+    }
+
+    fn measure(&mut self) -> Result<[f64; 3], RigError> {
+        Err(self.absent("tracker", "measure"))
+    }
+
+    fn release_wrench(&mut self) -> Result<(), RigError> {
+        self.cable_robot("release_wrench")?.release()
+    }
+
+    fn measured_at_us(&self) -> i64 {
+        self.measured_at_us
+    }
+}

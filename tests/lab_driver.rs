@@ -1,0 +1,387 @@
+//! `egcal lab-driver` against emulated devices on loopback (issue #18): the ATI
+//! Net F/T (calibration over HTTP, RDT over UDP) and a cable-robot controller
+//! over egcal's UDP protocol, served by `tests/lab/cell_emulator.py` (Python,
+//! written from the vendors' protocol descriptions, independent of egcal's
+//! clients). egcal's own external-driver client talks to the lab driver, so each
+//! fault is checked as the measure stage sees it: the error's code and whether
+//! the campaign retries the row, records it as failed or stops.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+use egcal::rig::driver::ExternalDriver;
+use egcal::rig::protocol::ErrorCode;
+use egcal::rig::{Disposition, Rig, RigError};
+
+/// The emulator process, killed when dropped.
+struct Emulator {
+    child: Child,
+    ports: serde_json::Value,
+    faults: PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+impl Emulator {
+    fn start() -> Emulator {
+        let dir = tempfile::tempdir().unwrap();
+        let ready = dir.path().join("ready.json");
+        let faults = dir.path().join("faults.json");
+        std::fs::write(&faults, "{}").unwrap();
+        // Its log (a line per request and injected fault) stays beside the test's files.
+        let log = std::fs::File::create(dir.path().join("emulator.log")).unwrap();
+        let child = Command::new("python3")
+            .arg(common::root().join("tests/lab/cell_emulator.py"))
+            .arg("--ready-file")
+            .arg(&ready)
+            .arg("--faults")
+            .arg(&faults)
+            .stderr(log)
+            .spawn()
+            .expect("python3 runs the emulator");
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while !ready.exists() {
+            assert!(Instant::now() < deadline, "the emulator did not start");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let ports = serde_json::from_str(&std::fs::read_to_string(&ready).unwrap()).unwrap();
+        Emulator {
+            child,
+            ports,
+            faults,
+            _dir: dir,
+        }
+    }
+
+    fn port(&self, name: &str) -> u64 {
+        self.ports[name].as_u64().unwrap()
+    }
+
+    /// Replaces the fault file (atomically: the emulator re-reads it per request).
+    fn inject(&self, faults: serde_json::Value) {
+        let tmp = self.faults.with_extension("tmp");
+        std::fs::write(&tmp, faults.to_string()).unwrap();
+        std::fs::rename(&tmp, &self.faults).unwrap();
+    }
+
+    /// A cell file for this emulator's devices, with `extra` lines appended to
+    /// the force sensor's table.
+    fn cell(&self, dir: &Path, force_sensor_extra: &str) -> PathBuf {
+        let path = dir.join("cell.toml");
+        std::fs::write(
+            &path,
+            format!(
+                r#"[cell]
+name = "emulated"
+timeout_s = 1.0
+
+[force_sensor]
+kind = "ati_netft"
+address = "127.0.0.1"
+http_port = {http}
+rdt_port = {rdt}
+samples = 20
+{force_sensor_extra}
+
+[cable_robot]
+kind = "egcal_udp"
+address = "127.0.0.1"
+port = {cable}
+settle_timeout_s = 2.0
+poll_ms = 5
+"#,
+                http = self.port("ati_http"),
+                rdt = self.port("ati_rdt"),
+                cable = self.port("cable_robot"),
+            ),
+        )
+        .unwrap();
+        path
+    }
+}
+
+impl Drop for Emulator {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// `egcal lab-driver` on the cell file, through egcal's driver client.
+fn lab_driver(cell: &Path) -> ExternalDriver {
+    let command = vec![
+        env!("CARGO_BIN_EXE_egcal").to_string(),
+        "lab-driver".to_string(),
+        "--cell".to_string(),
+        cell.display().to_string(),
+    ];
+    ExternalDriver::start(&command, cell.parent().unwrap(), Duration::from_secs(15))
+        .expect("the lab driver starts")
+}
+
+fn code(result: Result<impl std::fmt::Debug, RigError>) -> (ErrorCode, Disposition, String) {
+    let e = result.expect_err("an error");
+    (
+        e.code().expect("a coded error"),
+        e.disposition(),
+        e.to_string(),
+    )
+}
+
+const WRENCH: [f64; 6] = [120.0, -40.0, 300.0, 5.0, -2.5, 1.25];
+
+fn close(a: [f64; 6], b: [f64; 6]) -> bool {
+    a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-3)
+}
+
+#[test]
+fn a_wrench_applied_by_the_cable_robot_is_read_back_by_the_sensor() {
+    let emulator = Emulator::start();
+    let dir = tempfile::tempdir().unwrap();
+    let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+    driver.apply_wrench(WRENCH).unwrap();
+    let read = driver.read_wrench().unwrap();
+    // Counts of 1e-6 N (cfgcpf = 1e6) with ±2 counts of noise, averaged.
+    assert!(close(read, WRENCH), "{read:?}");
+    driver.release_wrench().unwrap();
+    assert!(close(driver.read_wrench().unwrap(), [0.0; 6]));
+    // No robot or tracker in this cell file: named, and the campaign stops.
+    let (c, d, message) = code(driver.measure());
+    assert_eq!((c, d), (ErrorCode::NotConnected, Disposition::Stop));
+    assert!(
+        message.contains("[tracker]") && message.contains("cell.toml"),
+        "{message}"
+    );
+}
+
+#[test]
+fn the_bias_is_applied_on_request_and_verified() {
+    let emulator = Emulator::start();
+    let dir = tempfile::tempdir().unwrap();
+    {
+        // Load the sensor first, then start a driver that biases at start.
+        let mut loader = lab_driver(&emulator.cell(dir.path(), ""));
+        loader.apply_wrench(WRENCH).unwrap();
+    }
+    let mut driver = lab_driver(&emulator.cell(dir.path(), "bias_at_start = true"));
+    assert!(
+        close(driver.read_wrench().unwrap(), [0.0; 6]),
+        "zeroed at the load"
+    );
+}
+
+#[test]
+fn sensor_faults_are_retried_recorded_or_stop_the_campaign() {
+    let emulator = Emulator::start();
+    let dir = tempfile::tempdir().unwrap();
+    let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+    driver.apply_wrench(WRENCH).unwrap();
+    let cases = [
+        (
+            serde_json::json!({"ati": [{"kind": "no_reply", "times": 1}]}),
+            ErrorCode::Timeout,
+            Disposition::Retry,
+        ),
+        (
+            serde_json::json!({"ati": [{"kind": "stolen", "after": 5, "times": 1}]}),
+            ErrorCode::Timeout,
+            Disposition::Retry,
+        ),
+        (
+            serde_json::json!({"ati": [{"kind": "stalled_sequence", "times": 1}]}),
+            ErrorCode::StaleData,
+            Disposition::Retry,
+        ),
+        (
+            serde_json::json!({"ati": [{"kind": "backward_sequence", "times": 1}]}),
+            ErrorCode::StaleData,
+            Disposition::Retry,
+        ),
+        (
+            serde_json::json!({"ati": [{"kind": "rdt_gap", "times": 1}]}),
+            ErrorCode::SequenceGap,
+            Disposition::Retry,
+        ),
+        (
+            serde_json::json!({"ati": [{"kind": "status", "word": 0x8002_0000u32, "times": 1}]}),
+            ErrorCode::OutOfRange,
+            Disposition::FailRow,
+        ),
+        (
+            serde_json::json!({"ati": [{"kind": "status", "word": 0xa000_0000u32, "times": 1}]}),
+            ErrorCode::NotReady,
+            Disposition::Retry,
+        ),
+    ];
+    for (faults, expected_code, expected_disposition) in cases {
+        emulator.inject(faults.clone());
+        let (c, d, message) = code(driver.read_wrench());
+        assert_eq!(
+            (c, d),
+            (expected_code, expected_disposition),
+            "{faults}: {message}"
+        );
+        // One faulty request: the next reading is right again.
+        assert!(
+            close(driver.read_wrench().unwrap(), WRENCH),
+            "{faults}: recovered"
+        );
+    }
+}
+
+#[test]
+fn malformed_packets_units_and_a_changed_calibration_stop_the_campaign() {
+    let cases = [
+        (
+            serde_json::json!({"ati": [{"kind": "malformed"}]}),
+            ErrorCode::Protocol,
+            "36",
+        ),
+        (
+            serde_json::json!({"ati_http": [{"kind": "torque_unit", "code": 4, "label": "Nmm"}]}),
+            ErrorCode::UnitMismatch,
+            "N-mm",
+        ),
+        (
+            serde_json::json!({"ati_http": [{"kind": "calibration_changed", "after": 0}]}),
+            ErrorCode::UnitMismatch,
+            "calibration changed",
+        ),
+        (
+            serde_json::json!({"ati_http": [{"kind": "malformed"}]}),
+            ErrorCode::Protocol,
+            "netft",
+        ),
+    ];
+    for (faults, expected_code, words) in cases {
+        let emulator = Emulator::start();
+        let dir = tempfile::tempdir().unwrap();
+        let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+        emulator.inject(faults.clone());
+        let (c, d, message) = code(driver.read_wrench());
+        assert_eq!(
+            (c, d),
+            (expected_code, Disposition::Stop),
+            "{faults}: {message}"
+        );
+        assert!(message.contains(words), "{faults}: {message}");
+    }
+}
+
+#[test]
+fn a_box_configured_for_other_units_is_refused_when_the_driver_starts() {
+    let emulator = Emulator::start();
+    emulator.inject(
+        serde_json::json!({"ati_http": [{"kind": "torque_unit", "code": 4, "label": "Nmm"}]}),
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+    let (c, d, message) = code(driver.read_wrench());
+    assert_eq!(
+        (c, d),
+        (ErrorCode::UnitMismatch, Disposition::Stop),
+        "{message}"
+    );
+    assert!(
+        message.contains("configured for N and N-mm, the cell file declares N and N-m"),
+        "{message}"
+    );
+    // Declared as the box is configured: accepted, and converted to N·m.
+    let mut driver = lab_driver(&emulator.cell(dir.path(), "torque_unit = \"N-mm\""));
+    driver.apply_wrench(WRENCH).unwrap();
+    let read = driver.read_wrench().unwrap();
+    assert!((read[3] - WRENCH[3] / 1000.0).abs() < 1e-6, "{read:?}");
+}
+
+#[test]
+fn cable_robot_faults_are_retried_recorded_or_stop_the_campaign() {
+    let emulator = Emulator::start();
+    let dir = tempfile::tempdir().unwrap();
+    let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+    let cases = [
+        (
+            serde_json::json!({"cable_robot": [{"kind": "no_reply", "times": 1}]}),
+            ErrorCode::Timeout,
+            Disposition::Retry,
+        ),
+        (
+            serde_json::json!({"cable_robot": [{"kind": "never_holds"}]}),
+            ErrorCode::Timeout,
+            Disposition::Retry,
+        ),
+        (
+            serde_json::json!({"cable_robot": [{"kind": "infeasible", "times": 1}]}),
+            ErrorCode::OutOfRange,
+            Disposition::FailRow,
+        ),
+        (
+            serde_json::json!({"cable_robot": [{"kind": "tension_limit"}]}),
+            ErrorCode::OutOfRange,
+            Disposition::FailRow,
+        ),
+        (
+            serde_json::json!({"cable_robot": [{"kind": "malformed", "times": 1}]}),
+            ErrorCode::Protocol,
+            Disposition::Stop,
+        ),
+        (
+            serde_json::json!({"cable_robot": [{"kind": "estop"}]}),
+            ErrorCode::Estop,
+            Disposition::Stop,
+        ),
+    ];
+    for (faults, expected_code, expected_disposition) in cases {
+        emulator.inject(faults.clone());
+        let (c, d, message) = code(driver.apply_wrench(WRENCH));
+        assert_eq!(
+            (c, d),
+            (expected_code, expected_disposition),
+            "{faults}: {message}"
+        );
+        emulator.inject(serde_json::json!({}));
+        driver.release_wrench().unwrap();
+    }
+    // An infeasible set-point beyond the emulated controller's limits.
+    let (c, d, _) = code(driver.apply_wrench([5000.0, 0.0, 0.0, 0.0, 0.0, 0.0]));
+    assert_eq!((c, d), (ErrorCode::OutOfRange, Disposition::FailRow));
+}
+
+#[test]
+fn a_device_that_dies_mid_command_stops_the_campaign_cleanly() {
+    let emulator = Emulator::start();
+    let dir = tempfile::tempdir().unwrap();
+    let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+    driver.apply_wrench(WRENCH).unwrap();
+    emulator.inject(serde_json::json!({"ati": [{"kind": "die"}]}));
+    let (c, d, _) = code(driver.read_wrench());
+    // The box is gone: no records (retried by the campaign) …
+    assert_eq!((c, d), (ErrorCode::Timeout, Disposition::Retry));
+    // … and its web server with it: the retry cannot reconnect.
+    let e = driver.read_wrench().unwrap_err();
+    assert!(
+        matches!(e.disposition(), Disposition::Retry | Disposition::Stop),
+        "{e}"
+    );
+}
+
+#[test]
+fn bad_cell_files_name_the_file_and_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let cell = dir.path().join("cell.toml");
+    std::fs::write(
+        &cell,
+        "[cell]\nname = \"c\"\n[force_sensor]\nkind = \"ati_netft\"\naddress = \"127.0.0.1\"\nsamples = 0\n",
+    )
+    .unwrap();
+    let (code, _, stderr) = common::run(
+        &["lab-driver", "--cell", cell.to_str().unwrap()],
+        dir.path(),
+    );
+    assert_eq!(code, 2, "{stderr}");
+    assert!(
+        stderr.contains("cell.toml") && stderr.contains("force_sensor.samples"),
+        "{stderr}"
+    );
+}
