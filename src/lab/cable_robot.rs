@@ -122,18 +122,13 @@ impl CableRobot {
         settings: &CableUdpSettings,
         cell_timeout_s: f64,
     ) -> Result<CableRobot, RigError> {
-        let socket = UdpSocket::bind(("0.0.0.0", 0))
-            .and_then(|s| {
-                s.connect((settings.address.as_str(), settings.port))
-                    .map(|()| s)
-            })
-            .map_err(|e| {
-                device(
-                    ErrorCode::NotConnected,
-                    false,
-                    format!("cannot reach {}:{}: {e}", settings.address, settings.port),
-                )
-            })?;
+        let socket = super::udp::connect(&settings.address, settings.port).map_err(|e| {
+            device(
+                ErrorCode::NotConnected,
+                false,
+                format!("cannot reach {}:{}: {e}", settings.address, settings.port),
+            )
+        })?;
         let mut robot = CableRobot {
             settings: settings.clone(),
             timeout: Duration::from_secs_f64(settings.timeout_s.unwrap_or(cell_timeout_s)),
@@ -153,29 +148,17 @@ impl CableRobot {
         let deadline = Instant::now() + self.timeout;
         let mut buffer = [0u8; 1500];
         loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return Err(device(
-                    ErrorCode::Timeout,
-                    true,
-                    format!(
-                        "no reply to {command:?} within {:.1} s",
-                        self.timeout.as_secs_f64()
-                    ),
-                ));
-            }
-            self.socket
-                .set_read_timeout(Some(left))
-                .map_err(|e| device(ErrorCode::NotConnected, true, e.to_string()))?;
-            let n = match self.socket.recv(&mut buffer) {
-                Ok(n) => n,
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                    ) =>
-                {
-                    continue;
+            let n = match super::udp::recv_before(&self.socket, &mut buffer, deadline) {
+                Ok(Some(n)) => n,
+                Ok(None) => {
+                    return Err(device(
+                        ErrorCode::Timeout,
+                        true,
+                        format!(
+                            "no reply to {command:?} within {:.1} s",
+                            self.timeout.as_secs_f64()
+                        ),
+                    ));
                 }
                 Err(e) => {
                     return Err(device(

@@ -14,6 +14,7 @@ pub mod cell;
 pub mod http;
 pub mod netft;
 pub mod rig;
+pub mod udp;
 
 pub use cell::{CellFile, CellFileError};
 pub use rig::LabRig;

@@ -165,21 +165,16 @@ impl NetFt {
     /// RDT socket and, when asked, biases the sensor.
     pub fn connect(settings: &NetFtSettings, cell_timeout_s: f64) -> Result<NetFt, RigError> {
         let timeout = Duration::from_secs_f64(settings.timeout_s.unwrap_or(cell_timeout_s));
-        let socket = UdpSocket::bind(("0.0.0.0", 0))
-            .and_then(|s| {
-                s.connect((settings.address.as_str(), settings.rdt_port))
-                    .map(|()| s)
-            })
-            .map_err(|e| {
-                device(
-                    ErrorCode::NotConnected,
-                    false,
-                    format!(
-                        "cannot open RDT to {}:{}: {e}",
-                        settings.address, settings.rdt_port
-                    ),
-                )
-            })?;
+        let socket = super::udp::connect(&settings.address, settings.rdt_port).map_err(|e| {
+            device(
+                ErrorCode::NotConnected,
+                false,
+                format!(
+                    "cannot open RDT to {}:{}: {e}",
+                    settings.address, settings.rdt_port
+                ),
+            )
+        })?;
         let mut netft = NetFt {
             settings: settings.clone(),
             timeout,
@@ -295,30 +290,18 @@ impl NetFt {
         let mut records: Vec<Record> = Vec::with_capacity(count as usize);
         let mut buffer = [0u8; 1500];
         while records.len() < count as usize {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return Err(device(
-                    ErrorCode::Timeout,
-                    true,
-                    format!(
-                        "{} of {count} RDT records within {:.1} s (no reply, or another client took the stream)",
-                        records.len(),
-                        self.timeout.as_secs_f64()
-                    ),
-                ));
-            }
-            self.socket
-                .set_read_timeout(Some(left))
-                .map_err(|e| device(ErrorCode::NotConnected, true, e.to_string()))?;
-            let n = match self.socket.recv(&mut buffer) {
-                Ok(n) => n,
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
-                    ) =>
-                {
-                    continue;
+            let n = match super::udp::recv_before(&self.socket, &mut buffer, deadline) {
+                Ok(Some(n)) => n,
+                Ok(None) => {
+                    return Err(device(
+                        ErrorCode::Timeout,
+                        true,
+                        format!(
+                            "{} of {count} RDT records within {:.1} s (no reply, or another client took the stream)",
+                            records.len(),
+                            self.timeout.as_secs_f64()
+                        ),
+                    ));
                 }
                 Err(e) => {
                     return Err(device(
