@@ -26,6 +26,11 @@ struct Emulator {
 
 impl Emulator {
     fn start() -> Emulator {
+        Emulator::start_rws(1)
+    }
+
+    /// The emulator with its ABB controller speaking RWS `version`.
+    fn start_rws(version: u8) -> Emulator {
         let dir = tempfile::tempdir().unwrap();
         let ready = dir.path().join("ready.json");
         let faults = dir.path().join("faults.json");
@@ -38,6 +43,7 @@ impl Emulator {
             .arg(&ready)
             .arg("--faults")
             .arg(&faults)
+            .args(["--rws-version", &version.to_string()])
             .stderr(log)
             .spawn()
             .expect("python3 runs the emulator");
@@ -53,6 +59,10 @@ impl Emulator {
             faults,
             _dir: dir,
         }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(self._dir.path().join("emulator.log")).unwrap_or_default()
     }
 
     fn port(&self, name: &str) -> u64 {
@@ -77,6 +87,14 @@ impl Emulator {
 name = "emulated"
 timeout_s = 1.0
 
+[robot]
+kind = "abb_rws"
+address = "127.0.0.1"
+port = {rws}
+rws_version = {rws_version}
+move_timeout_s = 1.0
+poll_ms = 5
+
 [force_sensor]
 kind = "ati_netft"
 address = "127.0.0.1"
@@ -95,6 +113,8 @@ poll_ms = 5
                 http = self.port("ati_http"),
                 rdt = self.port("ati_rdt"),
                 cable = self.port("cable_robot"),
+                rws = self.port("rws"),
+                rws_version = self.port("rws_version"),
             ),
         )
         .unwrap();
@@ -147,7 +167,7 @@ fn a_wrench_applied_by_the_cable_robot_is_read_back_by_the_sensor() {
     assert!(close(read, WRENCH), "{read:?}");
     driver.release_wrench().unwrap();
     assert!(close(driver.read_wrench().unwrap(), [0.0; 6]));
-    // No robot or tracker in this cell file: named, and the campaign stops.
+    // No tracker in this cell file: named, and the campaign stops.
     let (c, d, message) = code(driver.measure());
     assert_eq!((c, d), (ErrorCode::NotConnected, Disposition::Stop));
     assert!(
@@ -384,4 +404,132 @@ fn bad_cell_files_name_the_file_and_key() {
         stderr.contains("cell.toml") && stderr.contains("force_sensor.samples"),
         "{stderr}"
     );
+}
+
+const Q: [f64; 6] = [10.0, -20.0, 30.0, 5.0, 40.0, -15.0];
+
+#[test]
+fn the_robot_moves_through_the_rapid_loop_over_rws_1_and_2_and_logs_out() {
+    for version in [1, 2] {
+        let emulator = Emulator::start_rws(version);
+        let dir = tempfile::tempdir().unwrap();
+        let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+        driver.move_joints(7, Q).unwrap();
+        let q = driver.read_joints().unwrap();
+        assert!(
+            q.iter().zip(Q).all(|(a, b)| (a - b).abs() < 1e-4),
+            "RWS {version}: {q:?}"
+        );
+        drop(driver); // shutdown: mastership released, logged out
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while !emulator.log().contains("/logout") {
+            assert!(
+                Instant::now() < deadline,
+                "RWS {version}: no logout\n{}",
+                emulator.log()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+#[test]
+fn controller_faults_are_retried_recorded_or_stop_the_campaign() {
+    for version in [1, 2] {
+        let emulator = Emulator::start_rws(version);
+        let dir = tempfile::tempdir().unwrap();
+        let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+        let cases = [
+            (
+                serde_json::json!({"rws": [{"kind": "no_reply", "hold_s": 3, "times": 1}]}),
+                ErrorCode::Timeout,
+                Disposition::Retry,
+            ),
+            (
+                serde_json::json!({"rws": [{"kind": "never_done"}]}),
+                ErrorCode::Timeout,
+                Disposition::Retry,
+            ),
+            (
+                serde_json::json!({"rws": [{"kind": "mastership_held", "times": 1}]}),
+                ErrorCode::ExclusiveOwner,
+                Disposition::Stop,
+            ),
+            (
+                serde_json::json!({"rws": [{"kind": "motors_off"}]}),
+                ErrorCode::NotReady,
+                Disposition::Stop,
+            ),
+            (
+                serde_json::json!({"rws": [{"kind": "guard_stop"}]}),
+                ErrorCode::Estop,
+                Disposition::Stop,
+            ),
+            (
+                serde_json::json!({"rws": [{"kind": "emergency_stop"}]}),
+                ErrorCode::Estop,
+                Disposition::Stop,
+            ),
+            (
+                serde_json::json!({"rws": [{"kind": "manual_mode"}]}),
+                ErrorCode::NotReady,
+                Disposition::Stop,
+            ),
+            (
+                serde_json::json!({"rws": [{"kind": "execution_stopped"}]}),
+                ErrorCode::NotReady,
+                Disposition::Stop,
+            ),
+        ];
+        for (faults, expected_code, expected_disposition) in cases {
+            emulator.inject(faults.clone());
+            let (c, d, message) = code(driver.move_joints(1, Q));
+            assert_eq!(
+                (c, d),
+                (expected_code, expected_disposition),
+                "RWS {version} {faults}: {message}"
+            );
+            emulator.inject(serde_json::json!({}));
+            // Cleared: the next move goes through.
+            driver.move_joints(2, Q).unwrap();
+        }
+        // A target beyond the controller's joint limits: RAPID refuses it, the row fails.
+        let (c, d, message) = code(driver.move_joints(3, [200.0, 0.0, 0.0, 0.0, 30.0, 0.0]));
+        assert_eq!(
+            (c, d),
+            (ErrorCode::OutOfRange, Disposition::FailRow),
+            "{message}"
+        );
+        assert!(message.contains("ERRNO"), "{message}");
+    }
+}
+
+#[test]
+fn an_exhausted_session_pool_is_retried_until_a_session_is_free() {
+    let emulator = Emulator::start();
+    emulator.inject(serde_json::json!({"rws": [{"kind": "pool_exhausted"}]}));
+    let dir = tempfile::tempdir().unwrap();
+    let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+    let (c, d, message) = code(driver.read_joints());
+    assert_eq!((c, d), (ErrorCode::Busy, Disposition::Retry), "{message}");
+    assert!(message.contains("503"), "{message}");
+    emulator.inject(serde_json::json!({}));
+    driver.read_joints().unwrap();
+}
+
+#[test]
+fn a_controller_that_dies_stops_the_campaign() {
+    let emulator = Emulator::start();
+    let dir = tempfile::tempdir().unwrap();
+    let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+    driver.move_joints(1, Q).unwrap();
+    emulator.inject(serde_json::json!({"rws": [{"kind": "die"}]}));
+    let e = driver.move_joints(2, Q).unwrap_err();
+    assert!(
+        matches!(e.code(), Some(ErrorCode::NotConnected | ErrorCode::Timeout)),
+        "{e}"
+    );
+    // Gone for good: reconnecting fails and the campaign stops.
+    let (c, d, _) = code(driver.move_joints(3, Q));
+    assert_eq!((c, d), (ErrorCode::NotConnected, Disposition::Stop));
 }

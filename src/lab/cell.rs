@@ -283,11 +283,22 @@ pub enum CableRobot {
     EgcalUdp(CableUdpSettings),
 }
 
+/// The robot controller.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Robot {
+    /// An ABB IRC5 or OmniCore controller over Robot Web Services, moving
+    /// through the RAPID server loop of `jobs/lab/EgcalServer.mod`.
+    AbbRws(super::rws::RwsSettings),
+}
+
 /// The whole cell file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct CellFile {
     pub cell: CellHeader,
+    #[serde(default)]
+    pub robot: Option<Robot>,
     #[serde(default)]
     pub force_sensor: Option<ForceSensor>,
     #[serde(default)]
@@ -301,6 +312,8 @@ pub struct CellFile {
 #[serde(deny_unknown_fields)]
 struct CellFileRaw {
     cell: CellHeader,
+    #[serde(default)]
+    robot: Option<toml::Table>,
     #[serde(default)]
     force_sensor: Option<toml::Table>,
     #[serde(default)]
@@ -370,6 +383,14 @@ impl CellFile {
         })?;
         let cell = CellFile {
             cell: raw.cell,
+            robot: raw
+                .robot
+                .map(|table| {
+                    device_kind(&table, "robot", &["abb_rws"])?;
+                    device_settings(table, "robot").map(Robot::AbbRws)
+                })
+                .transpose()
+                .map_err(|(key, message)| bad(&key, message))?,
             force_sensor: raw
                 .force_sensor
                 .map(|table| {
@@ -428,6 +449,36 @@ impl CellFile {
             }
         };
         positive("cell.timeout_s", self.cell.timeout_s, 3600.0)?;
+        if let Some(Robot::AbbRws(s)) = &self.robot {
+            address("robot.address", &s.address)?;
+            if !(1..=2).contains(&s.rws_version) {
+                return Err((
+                    "robot.rws_version".into(),
+                    format!(
+                        "{}: expected 1 (IRC5, RobotWare 6) or 2 (OmniCore, RobotWare 7)",
+                        s.rws_version
+                    ),
+                ));
+            }
+            if let Some(p) = s.port {
+                port("robot.port", p)?;
+            }
+            positive("robot.move_timeout_s", s.move_timeout_s, 3600.0)?;
+            within(
+                "robot.in_position_tolerance_deg",
+                s.in_position_tolerance_deg,
+                10.0,
+            )?;
+            if !(1..=10_000).contains(&s.poll_ms) {
+                return Err((
+                    "robot.poll_ms".into(),
+                    format!("{}: expected 1 to 10000", s.poll_ms),
+                ));
+            }
+            if let Some(t) = s.timeout_s {
+                positive("robot.timeout_s", t, 3600.0)?;
+            }
+        }
         if let Some(ForceSensor::AtiNetft(s)) = &self.force_sensor {
             address("force_sensor.address", &s.address)?;
             port("force_sensor.http_port", s.http_port)?;

@@ -10,6 +10,7 @@ use std::path::Path;
 use super::cable_robot::CableRobot;
 use super::cell::{self, CellFile};
 use super::netft::NetFt;
+use super::rws::Rws;
 use crate::rig::protocol::ErrorCode;
 use crate::rig::{Rig, RigError};
 
@@ -24,6 +25,7 @@ enum Slot<D> {
 pub struct LabRig {
     cell: CellFile,
     file: String,
+    robot: Slot<Rws>,
     force_sensor: Slot<NetFt>,
     cable_robot: Slot<CableRobot>,
     measured_at_us: i64,
@@ -35,10 +37,12 @@ impl LabRig {
         let mut rig = LabRig {
             cell,
             file: file.display().to_string(),
+            robot: Slot::Absent,
             force_sensor: Slot::Absent,
             cable_robot: Slot::Absent,
             measured_at_us: 0,
         };
+        rig.robot = rig.connect_robot();
         rig.force_sensor = rig.connect_force_sensor();
         rig.cable_robot = rig.connect_cable_robot();
         rig
@@ -51,6 +55,9 @@ impl LabRig {
     /// The methods the configured devices implement (for `hello`).
     pub fn capabilities(&self) -> Vec<String> {
         let mut methods = vec!["hello", "shutdown"];
+        if self.cell.robot.is_some() {
+            methods.extend(["move_joints", "read_joints"]);
+        }
         if self.cell.force_sensor.is_some() {
             methods.push("read_wrench");
         }
@@ -58,6 +65,26 @@ impl LabRig {
             methods.extend(["apply_wrench", "release_wrench"]);
         }
         methods.into_iter().map(str::to_string).collect()
+    }
+
+    fn connect_robot(&self) -> Slot<Rws> {
+        match &self.cell.robot {
+            None => Slot::Absent,
+            Some(cell::Robot::AbbRws(settings)) => {
+                match Rws::connect(settings, self.cell.cell.timeout_s) {
+                    Ok(device) => Slot::Connected(device),
+                    Err(e) => Slot::Failed(e),
+                }
+            }
+        }
+    }
+
+    fn robot(&mut self, method: &str) -> Result<&mut Rws, RigError> {
+        if let Slot::Failed(_) = self.robot {
+            self.robot = self.connect_robot();
+        }
+        let absent = self.absent("robot", method);
+        ready(&mut self.robot, absent)
     }
 
     fn connect_force_sensor(&self) -> Slot<NetFt> {
@@ -122,8 +149,8 @@ fn ready<D>(slot: &mut Slot<D>, absent: RigError) -> Result<&mut D, RigError> {
 }
 
 impl Rig for LabRig {
-    fn move_joints(&mut self, _cw_id: i64, _q_deg: [f64; 6]) -> Result<(), RigError> {
-        Err(self.absent("robot", "move_joints"))
+    fn move_joints(&mut self, cw_id: i64, q_deg: [f64; 6]) -> Result<(), RigError> {
+        self.robot("move_joints")?.move_joints(cw_id, q_deg)
     }
 
     fn apply_wrench(&mut self, wrench: [f64; 6]) -> Result<(), RigError> {
@@ -135,7 +162,7 @@ impl Rig for LabRig {
     }
 
     fn read_joints(&mut self) -> Result<[f64; 6], RigError> {
-        Err(self.absent("robot", "read_joints"))
+        self.robot("read_joints")?.read_joints()
     }
 
     fn measure(&mut self) -> Result<[f64; 3], RigError> {

@@ -55,6 +55,13 @@ impl RigError {
             RigError::Row(_) => Disposition::FailRow,
             RigError::Fatal(_) => Disposition::Stop,
             RigError::Device { code, .. } if code.stops_campaign() => Disposition::Stop,
+            // Not ready, and a retry will not help (motors off, manual mode):
+            // a person must act before any row can be measured.
+            RigError::Device {
+                code: ErrorCode::NotReady,
+                transient: false,
+                ..
+            } => Disposition::Stop,
             RigError::Device {
                 transient: true, ..
             } => Disposition::Retry,
@@ -119,6 +126,8 @@ mod tests {
         let d = |code, transient| RigError::device(code, transient, "m").disposition();
         assert_eq!(d(ErrorCode::BeamLost, true), Disposition::Retry);
         assert_eq!(d(ErrorCode::OutOfRange, false), Disposition::FailRow);
+        assert_eq!(d(ErrorCode::NotReady, true), Disposition::Retry);
+        assert_eq!(d(ErrorCode::NotReady, false), Disposition::Stop);
         for code in [
             ErrorCode::Estop,
             ErrorCode::NotConnected,

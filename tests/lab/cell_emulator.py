@@ -4,8 +4,15 @@
 It emulates, on 127.0.0.1 with ephemeral ports:
   * an ATI Net F/T: RDT over UDP (8-byte requests, 36-byte big-endian records) and
     GET /netftapi2.xml over HTTP, as in notes/i18-protocols.md section 1;
-  * egcal's cable-robot controller, as in schemas/cable-robot-udp.md (version 1).
-The force sensor reads the wrench that the cable robot currently holds.
+  * egcal's cable-robot controller, as in schemas/cable-robot-udp.md (version 1);
+  * an ABB controller's Robot Web Services, version 1.0 (HTTP, Digest) or 2.0 (HTTPS, Basic), with the
+    RAPID server loop of module EgcalServer, as in notes/i18-protocols.md section 2 (rws_emulator.py).
+The force sensor reads the wrench that the cable robot currently holds. With --sim-driver, egcal's
+simulator (sim_backend.py) is the physics behind all three: the RWS RAPID loop moves it
+(move_joints) and the jointtarget reads it (read_joints), SET_WRENCH and RELEASE call its
+apply_wrench and release_wrench, and each RDT start request reads its read_wrench once. egcal's
+campaign calls these in the order of the in-process simulator (move_joints, apply_wrench,
+read_wrench, read_joints, measure, release_wrench), so the simulator sees the same sequence.
 
 Behaviour
   Cable robot: SET_WRENCH -> RAMPING for the next 2 STATUS requests, HOLDING on the 3rd (the held
@@ -21,15 +28,30 @@ Behaviour
 
 CLI
   python3 tests/lab/cell_emulator.py --ready-file PATH [--faults FILE] [--seed N]
+      [--rws-version {1,2}] [--sim-driver JSON]
 
   When every server is bound, PATH is written atomically (PATH.tmp, then a rename) with
-  {"ati_http": port, "ati_rdt": port, "cable_robot": port, "pid": pid}. The emulator then serves
-  until SIGTERM/SIGINT (exit 0) or a `die` fault (exit 3). It logs one line per request and per
-  injected fault to stderr, each prefixed "cell_emulator:". --seed (default 0) seeds the +-2-count
-  noise added to the force readings.
+  {"ati_http": port, "ati_rdt": port, "cable_robot": port, "rws": port, "rws_version": 1 or 2,
+  "pid": pid}. The emulator then serves until SIGTERM/SIGINT (exit 0) or a `die` fault (exit 3). It
+  logs one line per request and per injected fault to stderr, each prefixed "cell_emulator:".
+  --seed (default 0) seeds the +-2-count noise added to the force readings. --rws-version (default
+  1) picks RWS 1.0 or 2.0 (user "Default User", password "robotics", at most 70 sessions, a move
+  takes 0.02 s, joint limits +-180 deg). --sim-driver takes a JSON list, the command of a driver
+  speaking schemas/driver-protocol.md, e.g. '["egcal", "sim-driver", "--robot", "r.toml"]'; it is
+  started before the servers and shut down at exit (exit 2 if it or the RWS server cannot start). With it:
+    * SET_WRENCH (once accepted as today) and RELEASE call apply_wrench / release_wrench; an error
+      whose message contains "infeasible" refuses the set-point (flag bit 2, state unchanged), any
+      other error puts the controller in FAULT until the next accepted SET_WRENCH or RELEASE. The
+      reply's wrench and tensions are still those of the set-point, as without it;
+    * an RDT start request reads read_wrench once and every record of it carries that wrench (minus
+      the bias, quantised and with the +-2-count noise as now); an error gives status 0xA0000000
+      (error summary + digital board error) and the counts of the cable robot's load;
+    * the RAPID loop's moves call move_joints(egc_cw_id, q) and, once moved, the jointtarget reads
+      read_joints.
+  Without it everything behaves as before (the joints are stored by the RWS emulator).
 
 Fault file (JSON). It is re-read before each request, so rewrite it atomically to change the faults mid-run:
-  {"ati": [FAULT, ...], "ati_http": [FAULT, ...], "cable_robot": [FAULT, ...]}
+  {"ati": [FAULT, ...], "ati_http": [FAULT, ...], "cable_robot": [FAULT, ...], "rws": [FAULT, ...]}
   FAULT = {"kind": KIND, "times": N, ...parameters}
   "times" is the number of requests the fault affects. If it is absent or null, the fault affects every request.
   A fault is used up only by requests it can affect: `status` counts RDT start requests, and
@@ -68,6 +90,20 @@ Fault file (JSON). It is re-read before each request, so rewrite it atomically t
     tension_limit          flag bit 1 in replies sent while HOLDING
     never_holds            a STATUS does not advance a ramp, so the state stays RAMPING
     infeasible             SET_WRENCH is refused as infeasible (flag bit 2) whatever its set-point
+  rws (every kind counts the requests it affects; details in rws_emulator.py):
+    no_reply, late_reply, die   as above (HTTP: no_reply holds the connection, "hold_s" default 30)
+    pool_exhausted         503 on every request that would open a session
+    mastership_held        403 "held by someone else" on a mastership request
+    motors_off, guard_stop, emergency_stop
+                           GET ctrlstate reads motoroff / guardstop / emergencystop, and a request that
+                           would start a move (or RAPID execution) finds the motors off: nothing moves
+    manual_mode            GET opmode reads MANR, and nothing moves
+    execution_stopped      GET execution reads ctrlexecstate "stopped", and nothing moves
+    never_done             the RAPID loop does not take the command: egc_done never catches up
+    joint_offset  offset_deg   the jointtarget reads the true joints + offset_deg (default 0.5) on every axis
+    radians                the jointtarget reports radians instead of degrees
+  A command that found the robot not ready is taken at the next write of egc_cmd or egc_done,
+  ctrl-state=motoron or execution start that finds it ready (a retry writes egc_cmd again).
 """
 import argparse
 import json
@@ -76,13 +112,19 @@ import os
 import random
 import signal
 import socket
+import ssl
 import struct
+import subprocess
 import sys
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from urllib.parse import parse_qs, urlsplit
 from xml.sax.saxutils import escape
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from rws_emulator import RwsEmulator  # noqa: E402
+from sim_backend import BackendError, SimBackend  # noqa: E402
 
 HOST = "127.0.0.1"
 CPF = CPT = 1_000_000  # counts per N / per N·m
@@ -245,6 +287,7 @@ class Stream:
         self.next_t = time.monotonic()
         self.status, self.stalled, self.backward, self.malformed = 0, False, False, False
         self.gap_before = self.stop_after = None
+        self.wrench = None  # the backend's reading for this request (None: the cable robot's load)
 
 
 class AtiRdt:
@@ -255,8 +298,8 @@ class AtiRdt:
     PERIOD_S = 0.001  # comrdtrate 1000 Hz
     FT_STEP = 7  # 7 kHz internal samples per 1 kHz output record
 
-    def __init__(self, load, faults, seed, stop):
-        self.load, self.faults, self.stop = load, faults, stop
+    def __init__(self, load, faults, seed, stop, backend=None):
+        self.load, self.faults, self.stop, self.backend = load, faults, stop, backend
         self.sock = udp_socket()
         self.port = self.sock.getsockname()[1]
         self.cond = threading.Condition()
@@ -289,11 +332,17 @@ class AtiRdt:
 
     def start(self, addr, count, fx):
         s = Stream(addr, count or None)
+        if self.backend is not None:
+            try:
+                s.wrench = self.backend.read_wrench()
+            except BackendError as e:
+                log(f"ati: backend read_wrench failed: {e}")
+                s.status |= 0xA0000000
         if f := fx.take("late_reply"):
             s.next_t += float(f.get("delay_s", 1.0))
         if f := fx.take("status"):
             word = f.get("word", 0x20000000)
-            s.status = (int(word, 0) if isinstance(word, str) else int(word)) & 0xFFFFFFFF
+            s.status |= (int(word, 0) if isinstance(word, str) else int(word)) & 0xFFFFFFFF
         s.stalled = fx.take("stalled_sequence") is not None
         s.backward = fx.take("backward_sequence") is not None
         if fx.take("rdt_gap"):
@@ -323,7 +372,11 @@ class AtiRdt:
         if not s.stalled:
             step = -self.FT_STEP if s.backward else self.FT_STEP
             self.ft_seq = (self.ft_seq + step) % 2**32
-        counts, saturated = to_counts(self.load.net(), self.noise)
+        if s.wrench is not None:
+            net = [w - b for w, b in zip(s.wrench, self.load.get_bias())]
+        else:
+            net = self.load.net()
+        counts, saturated = to_counts(net, self.noise)
         status = s.status | (0x80020000 if saturated else 0)
         data = self.RECORD.pack(s.rdt_seq % 2**32, self.ft_seq, status, *counts)
         return data[:30] if s.malformed else data
@@ -464,8 +517,8 @@ class CableRobot:
     MAX_FORCE_N, MAX_MOMENT_NM, PRETENSION_N = 2000.0, 300.0, 100.0
     CABLE_DIRS = [(math.cos(math.radians(a)), math.sin(math.radians(a))) for a in (45, 135, 225, 315)]
 
-    def __init__(self, load, faults, stop):
-        self.load, self.faults, self.stop = load, faults, stop
+    def __init__(self, load, faults, stop, backend=None):
+        self.load, self.faults, self.stop, self.backend = load, faults, stop, backend
         self.sock = udp_socket()
         self.port = self.sock.getsockname()[1]
         self.state, self.target, self.ramp_left = self.IDLE, [0.0] * 6, 0
@@ -524,9 +577,13 @@ class CableRobot:
             if fx.take("infeasible") or not self.feasible(wrench):
                 self.infeasible = True  # not applied; the state stays as it was
                 return
+            if not self.call_backend("apply_wrench", wrench):
+                return
             self.target, self.state, self.ramp_left = wrench, self.RAMPING, 2
             self.releasing = self.infeasible = False
         elif command == self.RELEASE:
+            if not self.call_backend("release_wrench"):
+                return
             self.target, self.state, self.ramp_left = [0.0] * 6, self.RAMPING, 1
             self.releasing, self.infeasible = True, False
         elif self.state == self.RAMPING:  # STATUS advances the ramp
@@ -540,6 +597,22 @@ class CableRobot:
             else:
                 self.state = self.HOLDING
                 self.load.set_applied(self.target)
+
+    def call_backend(self, method, *args):
+        """Forwards a command to the backend: False (and the refusal or FAULT set) when it fails."""
+        if self.backend is None:
+            return True
+        try:
+            getattr(self.backend, method)(*args)
+            return True
+        except BackendError as e:
+            if "infeasible" in str(e).lower():
+                log(f"cable_robot: backend {method} refused the set-point as infeasible: {e}")
+                self.infeasible = True
+            else:
+                log(f"cable_robot: backend {method} failed: {e}; state FAULT")
+                self.state, self.infeasible = self.FAULT, False
+            return False
 
     def feasible(self, w):
         return (all(math.isfinite(v) for v in w)
@@ -564,19 +637,48 @@ def main(argv=None):
     parser.add_argument("--ready-file", required=True, help="where to write the ports (JSON) once bound")
     parser.add_argument("--faults", help="JSON fault file, re-read before each request")
     parser.add_argument("--seed", type=int, default=0, help="seed of the +-2-count force noise")
+    parser.add_argument("--rws-version", type=int, choices=(1, 2), default=1,
+                        help="Robot Web Services 1.0 (HTTP, Digest) or 2.0 (HTTPS, Basic)")
+    parser.add_argument("--sim-driver", metavar="JSON",
+                        help='command of a driver-protocol simulator as a JSON list, e.g. ["egcal", "sim-driver", ...]')
     args = parser.parse_args(argv)
+    command = None
+    if args.sim_driver is not None:
+        try:
+            command = json.loads(args.sim_driver)
+        except ValueError as e:
+            parser.error(f"--sim-driver: not JSON ({e})")
+        if not (isinstance(command, list) and command and all(isinstance(c, str) for c in command)):
+            parser.error("--sim-driver: expected a non-empty JSON list of strings")
 
     stop = threading.Event()
+    backend = None
+    if command is not None:
+        try:
+            backend = SimBackend(command)
+        except BackendError as e:
+            log(f"cannot start the simulator {json.dumps(command)}: {e}")
+            return 2
+        log(f"simulator {json.dumps(command)} ready ({backend.name})")
     load, faults = Load(), Faults(args.faults)
-    ati_http, ati_rdt = AtiHttp(load, faults, stop), AtiRdt(load, faults, args.seed, stop)
-    robot = CableRobot(load, faults, stop)
+    ati_http, ati_rdt = AtiHttp(load, faults, stop), AtiRdt(load, faults, args.seed, stop, backend)
+    robot = CableRobot(load, faults, stop, backend)
+    try:
+        rws = RwsEmulator(args.rws_version, faults, backend, log=log)
+    except (OSError, subprocess.CalledProcessError, ssl.SSLError) as e:
+        log(f"cannot start the RWS {args.rws_version}.0 server: {e}")
+        if backend is not None:
+            backend.shutdown()
+        return 2
     threads = [threading.Thread(target=t, daemon=True)
                for t in (ati_http.serve, ati_rdt.serve, ati_rdt.stream_loop, robot.serve)]
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda signum, frame: stop.set())
     for t in threads:
         t.start()
-    ports = {"ati_http": ati_http.port, "ati_rdt": ati_rdt.port, "cable_robot": robot.port, "pid": os.getpid()}
+    rws.start()
+    ports = {"ati_http": ati_http.port, "ati_rdt": ati_rdt.port, "cable_robot": robot.port,
+             "rws": rws.port, "rws_version": args.rws_version, "pid": os.getpid()}
     write_ready(args.ready_file, ports)
     log(f"ready {json.dumps(ports)}")
     while not stop.is_set():
@@ -588,6 +690,9 @@ def main(argv=None):
         t.join(timeout=2.0)
     ati_rdt.sock.close()
     robot.sock.close()
+    rws.close()
+    if backend is not None:
+        backend.shutdown()
     log("stopped")
     return 0
 
