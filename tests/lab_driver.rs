@@ -31,6 +31,11 @@ impl Emulator {
 
     /// The emulator with its ABB controller speaking RWS `version`.
     fn start_rws(version: u8) -> Emulator {
+        Emulator::start_with(version, &[])
+    }
+
+    /// The emulator with RWS `version` and further arguments (`--sim-driver …`).
+    fn start_with(version: u8, extra: &[String]) -> Emulator {
         let dir = tempfile::tempdir().unwrap();
         let ready = dir.path().join("ready.json");
         let faults = dir.path().join("faults.json");
@@ -44,6 +49,7 @@ impl Emulator {
             .arg("--faults")
             .arg(&faults)
             .args(["--rws-version", &version.to_string()])
+            .args(extra)
             .stderr(log)
             .spawn()
             .expect("python3 runs the emulator");
@@ -532,4 +538,231 @@ fn a_controller_that_dies_stops_the_campaign() {
     // Gone for good: reconnecting fails and the campaign stops.
     let (c, d, _) = code(driver.move_joints(3, Q));
     assert_eq!((c, d), (ErrorCode::NotConnected, Disposition::Stop));
+}
+
+/// The simulator backend of the emulated devices: egcal's own `sim-driver` on
+/// the spec's truth robot, seeded as the in-process campaign below.
+fn backed_emulator(seed: u64) -> Emulator {
+    let root = common::root();
+    let backend = serde_json::json!([
+        env!("CARGO_BIN_EXE_egcal"),
+        "sim-driver",
+        "--robot",
+        root.join("jobs/robots/irb1600_145.toml"),
+        "--truth",
+        root.join("jobs/truth/irb1600_paper.parquet"),
+        "--seed",
+        seed.to_string(),
+    ]);
+    // The controller's joint limits: the robot file's.
+    let spec = egcal::robot::RobotSpec::load(&root.join("jobs/robots/irb1600_145.toml")).unwrap();
+    let limits: Vec<[f64; 2]> = spec.joints.iter().map(|j| j.limits_deg).collect();
+    Emulator::start_with(
+        2,
+        &[
+            "--sim-driver".to_string(),
+            backend.to_string(),
+            "--joint-limits".to_string(),
+            serde_json::to_string(&limits).unwrap(),
+        ],
+    )
+}
+
+/// The cell file of all four emulated devices.
+fn full_cell(emulator: &Emulator, dir: &Path) -> PathBuf {
+    let cell = emulator.cell(dir, "");
+    let mut text = std::fs::read_to_string(&cell).unwrap();
+    text += &format!(
+        "\n[tracker]\nkind = \"leica_emscon\"\naddress = \"127.0.0.1\"\nport = {}\nreflector_id = 1\nstationary_time_ms = 10\n",
+        emulator.port("tracker")
+    );
+    std::fs::write(&cell, text).unwrap();
+    cell
+}
+
+fn column(path: &Path, name: &str) -> Vec<f64> {
+    let df = egcal::table::read_parquet(path).unwrap();
+    egcal::table::schema::f64_values(&df, name, path).unwrap()
+}
+
+#[test]
+fn a_campaign_through_the_lab_driver_gives_the_simulators_rows() {
+    const SEED: u64 = 11;
+    let emulator = backed_emulator(SEED);
+    let lab = tempfile::tempdir().unwrap();
+    let cell = full_cell(&emulator, lab.path());
+    let job = common::measure_job(
+        lab.path(),
+        &format!(
+            "driver = \"external\"\ncommand = [\"{}\", \"lab-driver\", \"--cell\", \"{}\"]\ntimeout_s = 20.0\n",
+            env!("CARGO_BIN_EXE_egcal"),
+            cell.display()
+        ),
+    );
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], lab.path());
+    assert_eq!(code, 0, "{stderr}\n{}", emulator.log());
+    let simulated = tempfile::tempdir().unwrap();
+    let job = common::measure_job(
+        simulated.path(),
+        &format!("driver = \"simulator\"\nseed = {SEED}\n"),
+    );
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], simulated.path());
+    assert_eq!(code, 0, "{stderr}");
+    let lab_rows = lab.path().join("out/measure/measurements.parquet");
+    let sim_rows = simulated.path().join("out/measure/measurements.parquet");
+    let failures = lab.path().join("out/measure/measurement_failures.parquet");
+    let df = egcal::table::read_parquet(&failures).unwrap();
+    let reasons = egcal::table::schema::str_values(&df, "reason", &failures).unwrap();
+    assert!(reasons.is_empty(), "{reasons:?}");
+    assert_eq!(column(&lab_rows, "x_mm").len(), 15);
+    // Within the emulated devices' quantisation: RWS reports joints with 4
+    // decimals, the ATI box counts 1e-6 N and N·m (±2 counts of noise), and the
+    // commanded joints reach the robot as a RAPID literal with 6 decimals (5e-7°,
+    // about 2e-5 mm at the IRB 1600's reach), which the tracker then sees.
+    for (names, tolerance) in [
+        (&egcal::table::schema::JOINT_COLUMNS[..], 6e-5),
+        (&egcal::table::schema::WRENCH_COLUMNS[..], 3e-6),
+        (&egcal::table::schema::POSITION_COLUMNS[..], 1e-4),
+    ] {
+        for name in names {
+            for (a, b) in column(&lab_rows, name).iter().zip(column(&sim_rows, name)) {
+                assert!((a - b).abs() <= tolerance, "{name}: {a} vs {b}");
+            }
+        }
+    }
+    // The tracker's own standard deviations are stored with each point.
+    assert!(column(&lab_rows, "sigma_z_mm").iter().all(|s| *s > 0.0));
+}
+
+#[test]
+fn tracker_faults_are_retried_recorded_or_stop_the_campaign() {
+    let emulator = Emulator::start();
+    let dir = tempfile::tempdir().unwrap();
+    let mut driver = lab_driver(&full_cell(&emulator, dir.path()));
+    let (position, sigma) = {
+        let p = driver.measure().unwrap();
+        (p, driver.measured_sigma_mm())
+    };
+    assert!(position.iter().any(|v| *v != 0.0));
+    assert!(
+        sigma.is_some_and(|s| s.iter().all(|v| *v > 0.0)),
+        "{sigma:?}"
+    );
+    let cases = [
+        (
+            serde_json::json!({"tracker": [{"kind": "beam_lost", "times": 1}]}),
+            ErrorCode::BeamLost,
+            Disposition::Retry,
+        ),
+        (
+            serde_json::json!({"tracker": [{"kind": "beam_lost_zeros", "times": 1}]}),
+            ErrorCode::BeamLost,
+            Disposition::Retry,
+        ),
+        (
+            serde_json::json!({"tracker": [{"kind": "beam_lost_nan", "times": 1}]}),
+            ErrorCode::BeamLost,
+            Disposition::Retry,
+        ),
+        (
+            serde_json::json!({"tracker": [{"kind": "not_warmed_up", "times": 1}]}),
+            ErrorCode::NotReady,
+            Disposition::Retry,
+        ),
+    ];
+    for (faults, expected_code, expected_disposition) in cases {
+        emulator.inject(faults.clone());
+        let (c, d, message) = code(driver.measure());
+        assert_eq!(
+            (c, d),
+            (expected_code, expected_disposition),
+            "{faults}: {message}"
+        );
+        assert_eq!(driver.measure().unwrap(), position, "{faults}: recovered");
+    }
+    emulator.inject(serde_json::json!({"tracker": [{"kind": "wrong_units", "times": 1}]}));
+    let (c, d, message) = code(driver.measure());
+    assert_eq!(
+        (c, d),
+        (ErrorCode::UnitMismatch, Disposition::Stop),
+        "{message}"
+    );
+    emulator.inject(serde_json::json!({"tracker": [{"kind": "malformed", "times": 1}]}));
+    let (c, d, message) = code(driver.measure());
+    assert_eq!(
+        (c, d),
+        (ErrorCode::Protocol, Disposition::Stop),
+        "{message}"
+    );
+}
+
+/// A measure job of the fixture's 15 rows through the lab driver on `cell`.
+fn lab_job(dir: &Path, cell: &Path) -> PathBuf {
+    common::measure_job(
+        dir,
+        &format!(
+            "driver = \"external\"\ncommand = [\"{}\", \"lab-driver\", \"--cell\", \"{}\"]\ntimeout_s = 20.0\nretries = 2\n",
+            env!("CARGO_BIN_EXE_egcal"),
+            cell.display()
+        ),
+    )
+}
+
+#[test]
+fn a_campaign_retries_records_and_resumes_as_the_faults_say() {
+    let emulator = backed_emulator(5);
+    let dir = tempfile::tempdir().unwrap();
+    let cell = full_cell(&emulator, dir.path());
+    let job = lab_job(dir.path(), &cell);
+    // Joints in radians where degrees are declared, a beam break: caught, retried,
+    // recovered. An infeasible wrench: that row recorded as failed. Then an
+    // emergency stop on the cable robot: the campaign stops with the rows before kept.
+    emulator.inject(serde_json::json!({
+        "rws": [{"kind": "radians", "times": 1}],
+        "tracker": [{"kind": "beam_lost", "times": 1}],
+        "cable_robot": [{"kind": "infeasible", "times": 1}],
+    }));
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stderr.contains("retrying"), "{stderr}");
+    let failures = dir.path().join("out/measure/measurement_failures.parquet");
+    let df = egcal::table::read_parquet(&failures).unwrap();
+    let reasons = egcal::table::schema::str_values(&df, "reason", &failures).unwrap();
+    assert_eq!(reasons.len(), 1, "{reasons:?}");
+    assert!(
+        reasons[0]
+            .as_deref()
+            .unwrap()
+            .starts_with("out_of_range: cable robot"),
+        "{reasons:?}"
+    );
+    let rows = dir.path().join("out/measure/measurements.parquet");
+    assert_eq!(column(&rows, "x_mm").len(), 14);
+
+    // Again from the start, with an emergency stop a few rows in (after 20 of
+    // the cable robot's requests: a row takes about seven).
+    let dir = tempfile::tempdir().unwrap();
+    let cell = full_cell(&emulator, dir.path());
+    let job = lab_job(dir.path(), &cell);
+    emulator.inject(serde_json::json!({"cable_robot": [{"kind": "estop", "after": 20}]}));
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 3, "{stderr}");
+    assert!(
+        stderr.contains("estop: cable robot") && stderr.contains("rows measured so far are kept"),
+        "{stderr}"
+    );
+    emulator.inject(serde_json::json!({}));
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "resumed: {stderr}");
+    assert_eq!(
+        column(&dir.path().join("out/measure/measurements.parquet"), "x_mm").len(),
+        15
+    );
+}
+
+#[test]
+fn the_shipped_example_cell_file_is_valid() {
+    let cell = egcal::lab::CellFile::load(&common::root().join("jobs/lab/cell.toml")).unwrap();
+    assert!(cell.robot.is_some() && cell.tracker.is_some());
+    assert!(cell.force_sensor.is_some() && cell.cable_robot.is_some());
 }

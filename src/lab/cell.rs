@@ -292,6 +292,14 @@ pub enum Robot {
     AbbRws(super::rws::RwsSettings),
 }
 
+/// The laser tracker.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Tracker {
+    /// A Leica tracker over emScon TPI (TCP port 700).
+    LeicaEmscon(super::emscon::EmsconSettings),
+}
+
 /// The whole cell file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
@@ -299,6 +307,8 @@ pub struct CellFile {
     pub cell: CellHeader,
     #[serde(default)]
     pub robot: Option<Robot>,
+    #[serde(default)]
+    pub tracker: Option<Tracker>,
     #[serde(default)]
     pub force_sensor: Option<ForceSensor>,
     #[serde(default)]
@@ -314,6 +324,8 @@ struct CellFileRaw {
     cell: CellHeader,
     #[serde(default)]
     robot: Option<toml::Table>,
+    #[serde(default)]
+    tracker: Option<toml::Table>,
     #[serde(default)]
     force_sensor: Option<toml::Table>,
     #[serde(default)]
@@ -388,6 +400,14 @@ impl CellFile {
                 .map(|table| {
                     device_kind(&table, "robot", &["abb_rws"])?;
                     device_settings(table, "robot").map(Robot::AbbRws)
+                })
+                .transpose()
+                .map_err(|(key, message)| bad(&key, message))?,
+            tracker: raw
+                .tracker
+                .map(|table| {
+                    device_kind(&table, "tracker", &["leica_emscon"])?;
+                    device_settings(table, "tracker").map(Tracker::LeicaEmscon)
                 })
                 .transpose()
                 .map_err(|(key, message)| bad(&key, message))?,
@@ -477,6 +497,35 @@ impl CellFile {
             }
             if let Some(t) = s.timeout_s {
                 positive("robot.timeout_s", t, 3600.0)?;
+            }
+        }
+        if let Some(Tracker::LeicaEmscon(s)) = &self.tracker {
+            address("tracker.address", &s.address)?;
+            port("tracker.port", s.port)?;
+            if !(1..=600_000).contains(&s.stationary_time_ms) {
+                return Err((
+                    "tracker.stationary_time_ms".into(),
+                    format!("{}: expected 1 to 600000", s.stationary_time_ms),
+                ));
+            }
+            for (key, value, lo, hi) in [
+                ("tracker.temperature_c", s.temperature_c, -40.0, 80.0),
+                ("tracker.pressure_mbar", s.pressure_mbar, 500.0, 1200.0),
+                ("tracker.humidity_percent", s.humidity_percent, 0.0, 100.0),
+                ("tracker.min_distance_mm", s.min_distance_mm, 0.0, 100_000.0),
+            ] {
+                if !(value.is_finite() && (lo..=hi).contains(&value)) {
+                    return Err((key.to_string(), format!("{value}: expected {lo} to {hi}")));
+                }
+            }
+            positive(
+                "tracker.initialize_timeout_s",
+                s.initialize_timeout_s,
+                3600.0,
+            )?;
+            positive("tracker.measure_timeout_s", s.measure_timeout_s, 3600.0)?;
+            if let Some(t) = s.timeout_s {
+                positive("tracker.timeout_s", t, 3600.0)?;
             }
         }
         if let Some(ForceSensor::AtiNetft(s)) = &self.force_sensor {

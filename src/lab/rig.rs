@@ -9,6 +9,7 @@ use std::path::Path;
 
 use super::cable_robot::CableRobot;
 use super::cell::{self, CellFile};
+use super::emscon::Emscon;
 use super::netft::NetFt;
 use super::rws::Rws;
 use crate::rig::protocol::ErrorCode;
@@ -26,9 +27,11 @@ pub struct LabRig {
     cell: CellFile,
     file: String,
     robot: Slot<Rws>,
+    tracker: Slot<Emscon>,
     force_sensor: Slot<NetFt>,
     cable_robot: Slot<CableRobot>,
     measured_at_us: i64,
+    measured_sigma_mm: Option<[f64; 3]>,
 }
 
 impl LabRig {
@@ -38,11 +41,14 @@ impl LabRig {
             cell,
             file: file.display().to_string(),
             robot: Slot::Absent,
+            tracker: Slot::Absent,
             force_sensor: Slot::Absent,
             cable_robot: Slot::Absent,
             measured_at_us: 0,
+            measured_sigma_mm: None,
         };
         rig.robot = rig.connect_robot();
+        rig.tracker = rig.connect_tracker();
         rig.force_sensor = rig.connect_force_sensor();
         rig.cable_robot = rig.connect_cable_robot();
         rig
@@ -57,6 +63,9 @@ impl LabRig {
         let mut methods = vec!["hello", "shutdown"];
         if self.cell.robot.is_some() {
             methods.extend(["move_joints", "read_joints"]);
+        }
+        if self.cell.tracker.is_some() {
+            methods.push("measure");
         }
         if self.cell.force_sensor.is_some() {
             methods.push("read_wrench");
@@ -85,6 +94,26 @@ impl LabRig {
         }
         let absent = self.absent("robot", method);
         ready(&mut self.robot, absent)
+    }
+
+    fn connect_tracker(&self) -> Slot<Emscon> {
+        match &self.cell.tracker {
+            None => Slot::Absent,
+            Some(cell::Tracker::LeicaEmscon(settings)) => {
+                match Emscon::connect(settings, self.cell.cell.timeout_s) {
+                    Ok(device) => Slot::Connected(device),
+                    Err(e) => Slot::Failed(e),
+                }
+            }
+        }
+    }
+
+    fn tracker(&mut self) -> Result<&mut Emscon, RigError> {
+        if let Slot::Failed(_) = self.tracker {
+            self.tracker = self.connect_tracker();
+        }
+        let absent = self.absent("tracker", "measure");
+        ready(&mut self.tracker, absent)
     }
 
     fn connect_force_sensor(&self) -> Slot<NetFt> {
@@ -166,7 +195,12 @@ impl Rig for LabRig {
     }
 
     fn measure(&mut self) -> Result<[f64; 3], RigError> {
-        Err(self.absent("tracker", "measure"))
+        let (position_mm, sigma_mm) = self.tracker()?.measure()?;
+        self.measured_at_us = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_micros() as i64);
+        self.measured_sigma_mm = sigma_mm;
+        Ok(position_mm)
     }
 
     fn release_wrench(&mut self) -> Result<(), RigError> {
@@ -175,5 +209,9 @@ impl Rig for LabRig {
 
     fn measured_at_us(&self) -> i64 {
         self.measured_at_us
+    }
+
+    fn measured_sigma_mm(&self) -> Option<[f64; 3]> {
+        self.measured_sigma_mm
     }
 }

@@ -6,11 +6,14 @@ It emulates, on 127.0.0.1 with ephemeral ports:
     GET /netftapi2.xml over HTTP, as in notes/i18-protocols.md section 1;
   * egcal's cable-robot controller, as in schemas/cable-robot-udp.md (version 1);
   * an ABB controller's Robot Web Services, version 1.0 (HTTP, Digest) or 2.0 (HTTPS, Basic), with the
-    RAPID server loop of module EgcalServer, as in notes/i18-protocols.md section 2 (rws_emulator.py).
+    RAPID server loop of module EgcalServer, as in notes/i18-protocols.md section 2 (rws_emulator.py);
+  * a Leica laser tracker speaking emScon TPI over TCP (binary, little-endian), as in
+    notes/i18-protocols.md section 3 (emscon_emulator.py).
 The force sensor reads the wrench that the cable robot currently holds. With --sim-driver, egcal's
-simulator (sim_backend.py) is the physics behind all three: the RWS RAPID loop moves it
+simulator (sim_backend.py) is the physics behind all four: the RWS RAPID loop moves it
 (move_joints) and the jointtarget reads it (read_joints), SET_WRENCH and RELEASE call its
-apply_wrench and release_wrench, and each RDT start request reads its read_wrench once. egcal's
+apply_wrench and release_wrench, each RDT start request reads its read_wrench once, and each
+tracker StartMeasurement that sends a measured position calls its measure once. egcal's
 campaign calls these in the order of the in-process simulator (move_joints, apply_wrench,
 read_wrench, read_joints, measure, release_wrench), so the simulator sees the same sequence.
 
@@ -32,7 +35,7 @@ CLI
 
   When every server is bound, PATH is written atomically (PATH.tmp, then a rename) with
   {"ati_http": port, "ati_rdt": port, "cable_robot": port, "rws": port, "rws_version": 1 or 2,
-  "pid": pid}. The emulator then serves until SIGTERM/SIGINT (exit 0) or a `die` fault (exit 3). It
+  "tracker": port, "pid": pid}. The emulator then serves until SIGTERM/SIGINT (exit 0) or a `die` fault (exit 3). It
   logs one line per request and per injected fault to stderr, each prefixed "cell_emulator:".
   --seed (default 0) seeds the +-2-count noise added to the force readings. --rws-version (default
   1) picks RWS 1.0 or 2.0 (user "Default User", password "robotics", at most 70 sessions, a move
@@ -47,11 +50,15 @@ CLI
       the bias, quantised and with the +-2-count noise as now); an error gives status 0xA0000000
       (error summary + digital board error) and the counts of the cable robot's load;
     * the RAPID loop's moves call move_joints(egc_cw_id, q) and, once moved, the jointtarget reads
-      read_joints.
-  Without it everything behaves as before (the joints are stored by the RWS emulator).
+      read_joints;
+    * the tracker's StartMeasurement result is at measure()'s position_mm (std sigma_mm when given);
+      an error gives BasicCommandRT {49, 0} then ErrorResponseT {49, 10009}.
+  Without it everything behaves as before (the joints are stored by the RWS emulator, and the
+  tracker measures the fixed point (1000, 200, 800) mm).
 
 Fault file (JSON). It is re-read before each request, so rewrite it atomically to change the faults mid-run:
-  {"ati": [FAULT, ...], "ati_http": [FAULT, ...], "cable_robot": [FAULT, ...], "rws": [FAULT, ...]}
+  {"ati": [FAULT, ...], "ati_http": [FAULT, ...], "cable_robot": [FAULT, ...], "rws": [FAULT, ...],
+   "tracker": [FAULT, ...]}
   FAULT = {"kind": KIND, "times": N, ...parameters}
   "times" is the number of requests the fault affects. If it is absent or null, the fault affects every request.
   A fault is used up only by requests it can affect: `status` counts RDT start requests, and
@@ -86,7 +93,7 @@ Fault file (JSON). It is re-read before each request, so rewrite it atomically t
                            (default unchanged). These HTTP faults change only the XML: the RDT counts
                            always use 1000000 counts per N and per N·m.
   cable_robot:
-    estop                  the command is not carried out; the reply has state FAULT and flag bit 3
+    estop                  the command is not carried out; the reply has state FAULT and flag bit 3 ("after": the first N requests pass)
     tension_limit          flag bit 1 in replies sent while HOLDING
     never_holds            a STATUS does not advance a ramp, so the state stays RAMPING
     infeasible             SET_WRENCH is refused as infeasible (flag bit 2) whatever its set-point
@@ -104,6 +111,14 @@ Fault file (JSON). It is re-read before each request, so rewrite it atomically t
     radians                the jointtarget reports radians instead of degrees
   A command that found the robot not ready is taken at the next write of egc_cmd or egc_done,
   ctrl-state=motoron or execution start that finds it ready (a retry writes egc_cmd again).
+  tracker (every kind affects and counts only StartMeasurement commands; details in emscon_emulator.py):
+    no_reply, late_reply, die   as above (no_reply: neither the BasicCommandRT nor a result)
+    beam_lost              RT {49, 0}, then ErrorResponseT {49, 10009 NoStationaryResult} instead of a result
+    beam_lost_zeros        a result with status 0 and position (0, 0, 0)
+    beam_lost_nan          a result with status 0 and a NaN position
+    not_warmed_up          RT status 10012 SensorNotWarmedUp, no result
+    malformed              the result's lPacketSize says 156 but only 100 bytes are sent; the connection closes
+    wrong_units            the result's lengths in metres instead of millimetres
 """
 import argparse
 import json
@@ -123,6 +138,7 @@ from urllib.parse import parse_qs, urlsplit
 from xml.sax.saxutils import escape
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from emscon_emulator import EmsconEmulator  # noqa: E402
 from rws_emulator import RwsEmulator  # noqa: E402
 from sim_backend import BackendError, SimBackend  # noqa: E402
 
@@ -179,7 +195,7 @@ class Faults:
     """The fault file, re-read for every request, with the remaining "times" of each fault."""
 
     # Kinds whose "after" parameter counts requests: the first `after` requests pass unaffected.
-    AFTER_REQUESTS = {"calibration_changed": 1}
+    AFTER_REQUESTS = {"calibration_changed": 1, "estop": 0}
 
     def __init__(self, path):
         self.path, self.version, self.spec = path, (), {}
@@ -633,10 +649,12 @@ def write_ready(path, ports):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description="ATI Net F/T + egcal cable-robot emulator for tests")
+    parser = argparse.ArgumentParser(description="ATI Net F/T + cable-robot + ABB RWS + Leica emScon emulator for tests")
     parser.add_argument("--ready-file", required=True, help="where to write the ports (JSON) once bound")
     parser.add_argument("--faults", help="JSON fault file, re-read before each request")
     parser.add_argument("--seed", type=int, default=0, help="seed of the +-2-count force noise")
+    parser.add_argument("--joint-limits", metavar="JSON",
+                        help="the controller's joint limits, six [min, max] pairs in degrees (default +-180)")
     parser.add_argument("--rws-version", type=int, choices=(1, 2), default=1,
                         help="Robot Web Services 1.0 (HTTP, Digest) or 2.0 (HTTPS, Basic)")
     parser.add_argument("--sim-driver", metavar="JSON",
@@ -664,9 +682,18 @@ def main(argv=None):
     ati_http, ati_rdt = AtiHttp(load, faults, stop), AtiRdt(load, faults, args.seed, stop, backend)
     robot = CableRobot(load, faults, stop, backend)
     try:
-        rws = RwsEmulator(args.rws_version, faults, backend, log=log)
+        rws = RwsEmulator(args.rws_version, faults, backend, log=log,
+                          joint_limits=json.loads(args.joint_limits) if args.joint_limits else None)
     except (OSError, subprocess.CalledProcessError, ssl.SSLError) as e:
         log(f"cannot start the RWS {args.rws_version}.0 server: {e}")
+        if backend is not None:
+            backend.shutdown()
+        return 2
+    try:
+        tracker = EmsconEmulator(faults, backend, log=log)
+    except OSError as e:
+        log(f"cannot start the emScon tracker server: {e}")
+        rws.close()
         if backend is not None:
             backend.shutdown()
         return 2
@@ -677,8 +704,9 @@ def main(argv=None):
     for t in threads:
         t.start()
     rws.start()
+    tracker.start()
     ports = {"ati_http": ati_http.port, "ati_rdt": ati_rdt.port, "cable_robot": robot.port,
-             "rws": rws.port, "rws_version": args.rws_version, "pid": os.getpid()}
+             "rws": rws.port, "rws_version": args.rws_version, "tracker": tracker.port, "pid": os.getpid()}
     write_ready(args.ready_file, ports)
     log(f"ready {json.dumps(ports)}")
     while not stop.is_set():
@@ -691,6 +719,7 @@ def main(argv=None):
     ati_rdt.sock.close()
     robot.sock.close()
     rws.close()
+    tracker.close()
     if backend is not None:
         backend.shutdown()
     log("stopped")
