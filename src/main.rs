@@ -377,29 +377,7 @@ fn fleet_command(action: FleetAction, quiet: bool) -> Result<Finished, CommandEr
             if let Some(g) = submitted.gathered {
                 return Ok(gathered(g));
             }
-            let m = &submitted.manifest;
-            let arrays: Vec<String> = m
-                .arrays
-                .iter()
-                .map(|a| {
-                    format!(
-                        "{} (tasks {}..{})",
-                        a.job_id,
-                        a.first_task,
-                        a.first_task + a.tasks - 1
-                    )
-                })
-                .collect();
-            Ok(Finished::from(format!(
-                "fleet {}, night {}: {} robot-night(s) in {} task(s) submitted as Slurm job {}\nwhen they are done: egcal fleet gather {} --run-date {}",
-                fleet.name,
-                m.run_date,
-                fleet.robots.len(),
-                m.tasks.len(),
-                arrays.join(", "),
-                fleet.file.display(),
-                m.run_date
-            )))
+            Ok(Finished::from(submitted.summary(&fleet)))
         }
         FleetAction::Task {
             fleet,

@@ -64,31 +64,27 @@ pub fn install(dir: &Path, bytes: &[u8], day: i64) -> io::Result<Installed> {
     })
 }
 
+/// `retired-<date>.parquet`, `retired-<date>-2.parquet`, …: the names a day's
+/// retired files take, in the order they are taken.
+fn retired_names(dir: &Path, day: i64) -> impl Iterator<Item = PathBuf> + '_ {
+    let date = date_string(day);
+    (1..).map(move |n| match n {
+        1 => dir.join(format!("retired-{date}.parquet")),
+        n => dir.join(format!("retired-{date}-{n}.parquet")),
+    })
+}
+
 /// The newest file retired on `day` (`retired-<date>.parquet` or its highest
 /// `-N` twin), if any.
 pub fn newest_retired(dir: &Path, day: i64) -> Option<PathBuf> {
-    let date = date_string(day);
-    let mut newest = None;
-    let mut path = dir.join(format!("retired-{date}.parquet"));
-    let mut n = 2;
-    while path.exists() {
-        newest = Some(path);
-        path = dir.join(format!("retired-{date}-{n}.parquet"));
-        n += 1;
-    }
-    newest
+    retired_names(dir, day).take_while(|p| p.exists()).last()
 }
 
-/// `retired-<date>.parquet`, or with `-2`, `-3`, … when the day already has one.
+/// The first free retired name of `day`.
 fn free_name(dir: &Path, day: i64) -> PathBuf {
-    let date = date_string(day);
-    let mut path = dir.join(format!("retired-{date}.parquet"));
-    let mut n = 2;
-    while path.exists() {
-        path = dir.join(format!("retired-{date}-{n}.parquet"));
-        n += 1;
-    }
-    path
+    retired_names(dir, day)
+        .find(|p| !p.exists())
+        .expect("an unbounded sequence of names has a free one")
 }
 
 #[cfg(test)]

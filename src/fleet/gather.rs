@@ -9,9 +9,8 @@ use std::path::PathBuf;
 
 use polars::prelude::*;
 
-use super::local::first_line;
 use super::manifest::Manifest;
-use super::night::{self, NightRecord, Outcome};
+use super::night::{self, NightRecord, Outcome, first_line};
 use super::{Fleet, FleetError};
 use crate::commands::exit;
 use crate::report::escape;

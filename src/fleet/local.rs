@@ -10,7 +10,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use super::gather::{self, Gathered};
 use super::manifest::Manifest;
-use super::night::{self, NightRecord};
+use super::night::{self, night_line};
 use super::{Fleet, FleetError};
 
 /// How `fleet run` runs.
@@ -74,22 +74,4 @@ pub fn run(fleet: &Fleet, options: &LocalOptions) -> Result<Gathered, FleetError
         return Err(e);
     }
     gather::gather(fleet, options.run_date)
-}
-
-/// One line per finished night: `robot_a: published (12.3 s)`.
-pub fn night_line(robot: &str, record: Option<&NightRecord>) -> String {
-    match record {
-        None => format!("{robot}: decided earlier, not run again"),
-        Some(r) => {
-            let mut line = format!("{robot}: {} ({:.1} s)", r.outcome.as_str(), r.seconds);
-            if r.outcome == night::Outcome::Failed {
-                line += &format!(": {}", first_line(&r.message));
-            }
-            line
-        }
-    }
-}
-
-pub(crate) fn first_line(text: &str) -> &str {
-    text.lines().next().unwrap_or_default()
 }

@@ -238,3 +238,21 @@ fn host_name() -> String {
         .map(|h| h.trim().to_string())
         .unwrap_or_default()
 }
+
+/// One line per finished night: `robot_a: published (12.3 s)`.
+pub fn night_line(robot: &str, record: Option<&NightRecord>) -> String {
+    match record {
+        None => format!("{robot}: decided earlier, not run again"),
+        Some(r) => {
+            let mut line = format!("{robot}: {} ({:.1} s)", r.outcome.as_str(), r.seconds);
+            if r.outcome == Outcome::Failed {
+                line += &format!(": {}", first_line(&r.message));
+            }
+            line
+        }
+    }
+}
+
+pub(crate) fn first_line(text: &str) -> &str {
+    text.lines().next().unwrap_or_default()
+}

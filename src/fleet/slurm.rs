@@ -13,9 +13,8 @@ use std::process::Command;
 use std::time::Duration;
 
 use super::gather::{self, Gathered};
-use super::local::night_line;
 use super::manifest::{ArraySubmission, Manifest};
-use super::night::{self, Outcome};
+use super::night::{self, Outcome, night_line};
 use super::{Fleet, FleetError};
 use crate::commands::{Finished, exit};
 use crate::table::time::date_string;
@@ -36,6 +35,35 @@ pub struct Submitted {
     pub manifest: Manifest,
     /// Set when the submission was waited for.
     pub gathered: Option<Gathered>,
+}
+
+impl Submitted {
+    /// What was submitted, and how to gather it.
+    pub fn summary(&self, fleet: &Fleet) -> String {
+        let m = &self.manifest;
+        let arrays: Vec<String> = m
+            .arrays
+            .iter()
+            .map(|a| {
+                format!(
+                    "{} (tasks {}..{})",
+                    a.job_id,
+                    a.first_task,
+                    a.first_task + a.tasks - 1
+                )
+            })
+            .collect();
+        format!(
+            "fleet {}, night {}: {} robot-night(s) in {} task(s) submitted as Slurm job {}\nwhen they are done: egcal fleet gather {} --run-date {}",
+            fleet.name,
+            m.run_date,
+            fleet.robots.len(),
+            m.tasks.len(),
+            arrays.join(", "),
+            fleet.file.display(),
+            m.run_date
+        )
+    }
 }
 
 /// Runs a Slurm command; its stdout, or an error naming it and its stderr.
