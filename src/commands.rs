@@ -35,6 +35,8 @@ pub enum CommandError {
     },
     #[error(transparent)]
     Fleet(Box<crate::fleet::FleetError>),
+    #[error(transparent)]
+    Fixture(Box<crate::fixture_cases::FixtureError>),
 }
 
 /// Exit codes (documented in the README).
@@ -119,6 +121,7 @@ impl CommandError {
             | CommandError::Robot(_) => exit::BAD_INPUT,
             CommandError::Stage { source, .. } => stage_code(source),
             CommandError::Fleet(e) => e.exit_code(),
+            CommandError::Fixture(e) => e.exit_code(),
             CommandError::Run(e) => match e.as_ref() {
                 RunError::Lock(runner::lock::LockError::Held { .. }) => exit::LOCKED,
                 RunError::Lock(_) | RunError::Io { .. } => exit::INTERNAL,
@@ -482,7 +485,7 @@ pub fn predict(
     // job's sweep ever looks in the system's temporary folder. A failed sweep of
     // that shared folder must not stop a prediction, so its error is dropped.
     let tmp = std::env::temp_dir();
-    let leftovers = crate::fsio::sweep::sweep_predict_folders(&tmp)
+    let leftovers = crate::fsio::sweep::sweep_work_folders(&tmp)
         .ok()
         .and_then(|swept| swept.summary(&tmp))
         .map_or(String::new(), |s| format!("\n{s}"));
@@ -849,6 +852,10 @@ pub fn generated_schemas() -> Vec<(String, String)> {
     let cell = serde_json::to_string_pretty(&schemars::schema_for!(crate::lab::CellFile))
         .expect("schema serialises");
     files.push(("cell.schema.json".into(), cell + "\n"));
+    files.push((
+        "fixture-case.schema.json".into(),
+        crate::fixture_cases::case::schema_json(),
+    ));
     for schema in table::schema::all() {
         let text = serde_json::to_string_pretty(&schema).expect("schema serialises");
         files.push((format!("tables/{}.json", schema.kind), text + "\n"));

@@ -7,6 +7,7 @@ pub mod commands;
 pub mod compensation;
 pub mod design;
 pub mod export;
+pub mod fixture_cases;
 pub mod fleet;
 pub mod fsio;
 pub mod gate;

@@ -161,6 +161,29 @@ enum Command {
         #[command(subcommand)]
         action: FleetAction,
     },
+    /// Run fixture cases (`<folder>/<kind>/<case>/case.toml`): each case's stage on
+    /// its files, checked against what it expects. Exit 0 when all pass, 1 when a
+    /// case fails, 2 when a case file is malformed.
+    #[command(args_conflicts_with_subcommands = true)]
+    Test {
+        #[command(subcommand)]
+        action: Option<TestAction>,
+        /// Folders of cases, searched recursively (default: fixtures).
+        dirs: Vec<PathBuf>,
+        /// Only cases whose folder matches: a glob (`fixtures/identify/*`) or a
+        /// substring; repeatable.
+        #[arg(long)]
+        only: Vec<String>,
+        /// Also write a JUnit XML report here.
+        #[arg(long)]
+        junit: Option<PathBuf>,
+        /// Cases at once (default: the number of cores).
+        #[arg(long, short)]
+        jobs: Option<usize>,
+        /// A case still running after this many seconds fails.
+        #[arg(long, default_value_t = 600)]
+        timeout_s: u64,
+    },
     /// Regenerate the JSON schemas (job file, robot file, tables) into a folder.
     Schemas {
         #[arg(long, default_value = "schemas")]
@@ -211,6 +234,46 @@ enum FleetAction {
         fleet: PathBuf,
         #[arg(long, value_parser = parse_run_date)]
         run_date: Option<i64>,
+    },
+}
+
+#[derive(Subcommand)]
+enum TestAction {
+    /// Create a regression case from a stage run on these files: inputs copied,
+    /// today's output tables stored as the expected ones (marked as recorded from
+    /// egcal), checked to pass once more before the folder is written.
+    Record {
+        kind: String,
+        #[arg(long)]
+        robot: PathBuf,
+        /// Cable-robot geometry (TOML); the built-in default when absent.
+        #[arg(long)]
+        cable_robot: Option<PathBuf>,
+        /// NAME=PATH, repeatable.
+        #[arg(long = "input", value_parser = parse_input)]
+        inputs: Vec<(String, PathBuf)>,
+        /// TOML file with the stage's settings (as in a job's stage table).
+        #[arg(long)]
+        settings: Option<PathBuf>,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        /// Day relative time windows end on, YYYY-MM-DD (default: today, UTC);
+        /// pinned in the case.
+        #[arg(long, value_parser = parse_run_date)]
+        run_date: Option<i64>,
+        /// A file or folder a setting names by relative path (`logs`), copied into
+        /// the case under the same path; repeatable.
+        #[arg(long = "copy")]
+        copies: Vec<PathBuf>,
+        /// Relative tolerance of the recorded float comparisons.
+        #[arg(long, default_value_t = 1e-9)]
+        tolerance: f64,
+        /// A case still running after this many seconds fails.
+        #[arg(long, default_value_t = 600)]
+        timeout_s: u64,
+        /// The case folder to create (must not exist).
+        #[arg(long)]
+        out: PathBuf,
     },
 }
 
@@ -331,6 +394,17 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
             action: CacheAction::Gc { job },
         } => commands::cache_gc(&job).map(Finished::from),
         Command::Fleet { action } => fleet_command(action, cli.quiet),
+        Command::Test {
+            action,
+            dirs,
+            only,
+            junit,
+            jobs,
+            timeout_s,
+        } => match action {
+            Some(action) => record_command(action),
+            None => test_command(dirs, only, junit, jobs, timeout_s, cli.quiet),
+        },
         Command::Schemas { out } => commands::write_schemas(&out).map(Finished::from),
     }
 }
@@ -394,6 +468,95 @@ fn fleet_command(action: FleetAction, quiet: bool) -> Result<Finished, CommandEr
             fleet::gather::gather(&fleet, run_date.unwrap_or_else(today)).map(gathered)
         }
     })())
+}
+
+/// The running binary: each fixture case runs as its own `egcal stage`.
+fn this_egcal() -> Result<PathBuf, CommandError> {
+    std::env::current_exe()
+        .map_err(|e| CommandError::Usage(format!("cannot find the egcal binary: {e}")))
+}
+
+/// `egcal test`: a line per case as it ends (failures and summary in the result).
+fn test_command(
+    dirs: Vec<PathBuf>,
+    only: Vec<String>,
+    junit: Option<PathBuf>,
+    jobs: Option<usize>,
+    timeout_s: u64,
+    quiet: bool,
+) -> Result<Finished, CommandError> {
+    use egcal::fixture_cases::{self, Outcome};
+    let fixture = |e| CommandError::Fixture(Box::new(e));
+    let options = fixture_cases::TestOptions {
+        dirs: if dirs.is_empty() {
+            vec![PathBuf::from("fixtures")]
+        } else {
+            dirs
+        },
+        only,
+        jobs: jobs.unwrap_or_else(|| {
+            std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+        }),
+        egcal: this_egcal()?,
+        timeout: std::time::Duration::from_secs(timeout_s),
+    };
+    let print = |result: &fixture_cases::CaseResult| {
+        let status = match result.outcome {
+            Outcome::Passed if quiet => return,
+            Outcome::Passed => "ok",
+            Outcome::Failed(_) => "FAILED",
+            Outcome::Malformed(_) => "MALFORMED",
+        };
+        let recorded = if result.recorded { " (recorded)" } else { "" };
+        let _ = writeln!(
+            std::io::stdout().lock(),
+            "{status:<9} {}{recorded} ({:.2} s)",
+            result.name,
+            result.seconds
+        );
+    };
+    let summary = fixture_cases::run(&options, &print).map_err(fixture)?;
+    if let Some(path) = junit {
+        fixture_cases::write_junit(&summary, &path).map_err(fixture)?;
+    }
+    Ok(Finished {
+        message: summary.report(),
+        code: summary.exit_code(),
+    })
+}
+
+/// `egcal test record`.
+fn record_command(action: TestAction) -> Result<Finished, CommandError> {
+    let TestAction::Record {
+        kind,
+        robot,
+        cable_robot,
+        inputs,
+        settings,
+        seed,
+        run_date,
+        copies,
+        tolerance,
+        timeout_s,
+        out,
+    } = action;
+    let options = egcal::fixture_cases::RecordOptions {
+        kind,
+        robot_file: robot,
+        cable_robot_file: cable_robot,
+        inputs,
+        settings_file: settings,
+        seed,
+        run_date: run_date.unwrap_or_else(egcal::table::time::today),
+        copies,
+        tolerance,
+        out,
+        egcal: this_egcal()?,
+        timeout: std::time::Duration::from_secs(timeout_s),
+    };
+    egcal::fixture_cases::record(&options)
+        .map(Finished::from)
+        .map_err(|e| CommandError::Fixture(Box::new(e)))
 }
 
 fn main() -> ExitCode {

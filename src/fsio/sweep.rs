@@ -181,6 +181,17 @@ pub fn predict_temp_pid(name: &str) -> Option<u32> {
     parse_pid(name.strip_prefix("egcal-predict-")?)
 }
 
+/// The work folder of `egcal test` (the cases' outputs) in the system's
+/// temporary folder: `egcal-test-{pid}`.
+pub fn test_temp_name() -> String {
+    format!("egcal-test-{}", std::process::id())
+}
+
+/// The writer's pid if `name` is [`predict_temp_name`]'s or [`test_temp_name`]'s shape.
+fn work_folder_pid(name: &str) -> Option<u32> {
+    predict_temp_pid(name).or_else(|| parse_pid(name.strip_prefix("egcal-test-")?))
+}
+
 /// The pid of any temporary egcal writes inside an output or calibration folder.
 fn egcal_temp_pid(name: &str) -> Option<u32> {
     atomic_temp_pid(name).or_else(|| cache_temp_pid(name))
@@ -213,13 +224,13 @@ pub fn sweep_folder(dir: &Path) -> io::Result<Swept> {
     sweep(dir, None, egcal_temp_pid, None)
 }
 
-/// Removes `egcal predict` work folders of dead processes from the system's
-/// temporary folder `tmp`; only this user's, as the folder is shared.
-pub fn sweep_predict_folders(tmp: &Path) -> io::Result<Swept> {
+/// Removes `egcal predict` and `egcal test` work folders of dead processes from
+/// the system's temporary folder `tmp`; only this user's, as the folder is shared.
+pub fn sweep_work_folders(tmp: &Path) -> io::Result<Swept> {
     let Some(uid) = fs::metadata("/proc/self").ok().as_ref().and_then(owner) else {
         return Ok(Swept::default());
     };
-    sweep(tmp, None, predict_temp_pid, Some(uid))
+    sweep(tmp, None, work_folder_pid, Some(uid))
 }
 
 /// `recurse`: descend into sub-folders, but not these; `owner`: only files of
@@ -428,6 +439,9 @@ mod tests {
         );
         assert_eq!(predict_temp_pid("egcal-predict-"), None);
         assert_eq!(predict_temp_pid("egcal-predict-77.bak"), None);
+        assert_eq!(work_folder_pid("egcal-test-77"), Some(77));
+        assert_eq!(work_folder_pid(&test_temp_name()), Some(std::process::id()));
+        assert_eq!(work_folder_pid("egcal-test-077"), None);
     }
 
     fn stat_line(state: &str, start_ticks: u64) -> String {
@@ -567,7 +581,7 @@ mod tests {
         let other = dir.path().join(format!(".a.{dead}.0.tmp"));
         fs::create_dir_all(&predict).unwrap();
         fs::write(&other, b"x").unwrap();
-        let swept = sweep_predict_folders(dir.path()).unwrap();
+        let swept = sweep_work_folders(dir.path()).unwrap();
         assert_eq!(swept.removed, vec![(predict.clone(), dead)]);
         assert!(
             other.exists(),

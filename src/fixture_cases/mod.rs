@@ -1,0 +1,58 @@
+//! Fixture cases (issue #19): a stage kind run on a case's files and checked
+//! against what the case expects, the format of `fixtures/<kind>/<case>/case.toml`.
+//! `egcal test` runs a lab's own cases with this module, and so does egcal's
+//! own test suite (`tests/fixtures.rs`), so the two cannot drift apart.
+//!
+//! * `case.rs`: the case file, parsed strictly and checked (line and key of a
+//!   problem), and its JSON Schema;
+//! * `run.rs`: finding cases, running each as an `egcal stage` process in
+//!   parallel, judging its exit code, error text, tables, files and output;
+//! * `compare.rs`: expected against actual tables, cell by cell;
+//! * `junit.rs`: the JUnit XML report;
+//! * `record.rs`: `egcal test record`, a regression case from today's output.
+
+pub mod case;
+pub mod compare;
+pub mod junit;
+pub mod record;
+pub mod run;
+
+use std::path::Path;
+
+pub use record::{RecordOptions, record};
+pub use run::{CaseResult, Outcome, Summary, TestOptions, run};
+
+/// Why `egcal test` or `egcal test record` could not do its work (a failing or
+/// malformed case is a result, not an error).
+#[derive(Debug, thiserror::Error)]
+pub enum FixtureError {
+    /// Arguments, folders or files given on the command line.
+    #[error("{0}")]
+    Usage(String),
+    /// The recording could not produce a case that passes.
+    #[error("{0}")]
+    Record(String),
+    #[error("writing {file}: {message}")]
+    Write { file: String, message: String },
+}
+
+impl FixtureError {
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            FixtureError::Usage(_) => crate::commands::exit::BAD_INPUT,
+            FixtureError::Record(_) => crate::commands::exit::STAGE_FAILED,
+            FixtureError::Write { .. } => crate::commands::exit::INTERNAL,
+        }
+    }
+}
+
+/// Writes the JUnit XML report atomically.
+pub fn write_junit(summary: &Summary, path: &Path) -> Result<(), FixtureError> {
+    let timestamp = crate::table::time::now_rfc3339();
+    crate::fsio::write_bytes_atomic(path, junit::to_xml(summary, &timestamp).as_bytes()).map_err(
+        |e| FixtureError::Write {
+            file: path.display().to_string(),
+            message: e.to_string(),
+        },
+    )
+}

@@ -1,0 +1,349 @@
+//! `egcal test record`: freezes today's output of a stage on a lab's own files
+//! as a fixture case. The case is built in a hidden temporary folder beside its
+//! destination (inputs copied, the stage run from the copies, its tables stored
+//! as `expected/`), then run once more as `egcal test` would run it, and only
+//! then renamed into place: a killed recording leaves no half case, and a case
+//! that would not pass (a setting naming a file that was not copied, a stage
+//! whose output changes from run to run) is never written.
+
+use std::path::{Component, Path, PathBuf};
+use std::time::Duration;
+
+use super::FixtureError;
+use super::case::{self, CaseFile, Expect, Recorded};
+use super::run::{self, Outcome, TestOptions};
+
+/// What to record.
+#[derive(Debug, Clone)]
+pub struct RecordOptions {
+    pub kind: String,
+    pub robot_file: PathBuf,
+    pub cable_robot_file: Option<PathBuf>,
+    /// (input name, file).
+    pub inputs: Vec<(String, PathBuf)>,
+    pub settings_file: Option<PathBuf>,
+    pub seed: u64,
+    /// Day relative windows end on (days since 1970-01-01); pinned in the case.
+    pub run_date: i64,
+    /// Files or folders the settings name by relative path, copied into the
+    /// case under the same relative path.
+    pub copies: Vec<PathBuf>,
+    /// Relative tolerance of the float comparisons.
+    pub tolerance: f64,
+    /// The case folder to create.
+    pub out: PathBuf,
+    /// The egcal binary that runs the stage.
+    pub egcal: PathBuf,
+    pub timeout: Duration,
+}
+
+/// Records the case; returns what was written.
+pub fn record(options: &RecordOptions) -> Result<String, FixtureError> {
+    let usage = FixtureError::Usage;
+    if crate::stages::lookup(&options.kind).is_none() {
+        let kinds: Vec<&str> = crate::stages::registry()
+            .iter()
+            .map(|s| s.info().kind)
+            .collect();
+        return Err(usage(format!(
+            "`{}` is not a stage kind{}",
+            options.kind,
+            crate::suggest::did_you_mean(&options.kind, kinds.iter().copied())
+        )));
+    }
+    if !(options.tolerance.is_finite() && options.tolerance >= 0.0) {
+        return Err(usage(format!(
+            "--tolerance {}: expected a relative tolerance ≥ 0",
+            options.tolerance
+        )));
+    }
+    let out = std::path::absolute(&options.out)
+        .map_err(|e| usage(format!("{}: {e}", options.out.display())))?;
+    if out.exists() {
+        return Err(usage(format!(
+            "{} already exists: a recorded case is never overwritten; remove it or choose another folder",
+            out.display()
+        )));
+    }
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .ok_or_else(|| usage(format!("{}: not a folder name", out.display())))?;
+    let parent = out.parent().unwrap_or(Path::new("/")).to_path_buf();
+    std::fs::create_dir_all(&parent)
+        .map_err(|e| usage(format!("cannot create {}: {e}", parent.display())))?;
+    let _ = crate::fsio::sweep::sweep_folder(&parent);
+    let staging = Staging::create(
+        parent.join(format!(".{name}.{}.0.tmp", std::process::id())),
+    )?;
+    let case_file = stage_files(options, &staging.path)?;
+
+    let test = TestOptions {
+        dirs: Vec::new(),
+        only: Vec::new(),
+        jobs: 1,
+        egcal: options.egcal.clone(),
+        timeout: options.timeout,
+    };
+    let work = run::WorkFolder::create()?;
+    // First run: its tables become the expectation.
+    let provisional = case::Case {
+        dir: staging.path.clone(),
+        kind: options.kind.clone(),
+        robot_file: staging.path.join(&case_file.robot),
+        cable_robot_file: case_file
+            .cable_robot
+            .as_ref()
+            .map(|f| staging.path.join(f)),
+        seed: options.seed,
+        run_date: case_file.run_date.clone(),
+        recorded: true,
+        inputs: case_file
+            .inputs
+            .iter()
+            .map(|(n, f)| (n.clone(), staging.path.join(f)))
+            .collect(),
+        settings: case_file.settings.clone(),
+        expect: Expect::default(),
+        expected_tables: Vec::new(),
+    };
+    let first = work.path.join("first");
+    let ran = run::run_stage(&provisional, &test, &first).map_err(FixtureError::Record)?;
+    let code = ran.code.unwrap_or(-1);
+    if ![0, 10, 11].contains(&code) {
+        return Err(FixtureError::Record(format!(
+            "the stage failed (exit {code}) on the case's copies of its files in {}; \
+             nothing was recorded{}:\n{}",
+            staging.path.display(),
+            if options.copies.is_empty() {
+                " (if a setting names a file or folder, add it with --copy)"
+            } else {
+                ""
+            },
+            ran.stderr.trim_end()
+        )));
+    }
+    let tables = store_expected(&first.join("out"), &staging.path.join("expected"))?;
+    let case_file = CaseFile {
+        expect: Expect {
+            tolerance: Some(options.tolerance),
+            exit: (code != 0).then_some(code as u8),
+            ..Expect::default()
+        },
+        ..case_file
+    };
+    let text = format!(
+        "# Recorded by `egcal test record` (egcal {}, {}): the expected tables are egcal's\n\
+         # own output of that day, a regression case rather than an independent check.\n{}",
+        env!("CARGO_PKG_VERSION"),
+        crate::table::time::date_string(crate::table::time::today()),
+        toml::to_string(&case_file).map_err(|e| FixtureError::Record(e.to_string()))?
+    );
+    crate::fsio::write_bytes_atomic(&staging.path.join("case.toml"), text.as_bytes())
+        .map_err(|e| FixtureError::Record(format!("writing case.toml: {e}")))?;
+
+    // Second run, exactly as `egcal test` runs the case.
+    let checked = case::load(&staging.path).map_err(|e| FixtureError::Record(e.to_string()))?;
+    let second = work.path.join("second");
+    let again = run::run_stage(&checked, &test, &second).map_err(FixtureError::Record)?;
+    if let Outcome::Failed(why) = run::judge(&checked, &again, &second.join("out")) {
+        return Err(FixtureError::Record(format!(
+            "the recorded case does not pass on a second run, so it was not written \
+             (does the stage's output change from run to run?):\n{why}"
+        )));
+    }
+    staging.persist(&out)?;
+    Ok(format!(
+        "recorded a `{}` case in {}: {} expected table(s) ({}){}; run it with `egcal test {}`",
+        options.kind,
+        out.display(),
+        tables.len(),
+        tables.join(", "),
+        if code != 0 {
+            format!(", exit {code}")
+        } else {
+            String::new()
+        },
+        options.out.display()
+    ))
+}
+
+/// Copies the robot, cable robot, inputs and `--copy` paths into `dir`; returns
+/// the case file without its expectation.
+fn stage_files(options: &RecordOptions, dir: &Path) -> Result<CaseFile, FixtureError> {
+    let usage = FixtureError::Usage;
+    let robot = copy_named(&options.robot_file, dir, None, "--robot")?;
+    let cable_robot = match &options.cable_robot_file {
+        Some(file) => Some(copy_named(file, dir, Some("cable_robot"), "--cable-robot")?),
+        None => None,
+    };
+    let mut inputs = std::collections::BTreeMap::new();
+    for (name, file) in &options.inputs {
+        let plain = !name.is_empty()
+            && name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+        if !plain {
+            return Err(usage(format!(
+                "--input {name}=…: an input name is letters, digits, `_` and `-`"
+            )));
+        }
+        if inputs.contains_key(name) {
+            return Err(usage(format!("--input {name}=… is given twice")));
+        }
+        let copied = copy_named(file, dir, Some(name), &format!("--input {name}"))?;
+        inputs.insert(name.clone(), copied);
+    }
+    let settings = match &options.settings_file {
+        None => toml::Table::new(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| usage(format!("cannot read settings {}: {e}", path.display())))?;
+            toml::from_str(&text).map_err(|e| {
+                usage(format!(
+                    "{}: {}",
+                    path.display(),
+                    crate::toml_error::describe(&e, &text)
+                ))
+            })?
+        }
+    };
+    for path in &options.copies {
+        let relative = path.is_relative()
+            && path
+                .components()
+                .all(|c| matches!(c, Component::Normal(_) | Component::CurDir));
+        if !relative {
+            return Err(usage(format!(
+                "--copy {}: give a path relative to the current folder without `..`, \
+                 as the settings name it",
+                path.display()
+            )));
+        }
+        copy_tree(path, &dir.join(path))
+            .map_err(|e| usage(format!("--copy {}: {e}", path.display())))?;
+    }
+    Ok(CaseFile {
+        kind: Some(options.kind.clone()),
+        robot,
+        cable_robot,
+        seed: options.seed,
+        run_date: Some(crate::table::time::date_string(options.run_date)),
+        recorded: Some(Recorded {
+            egcal_version: env!("CARGO_PKG_VERSION").to_string(),
+            date: crate::table::time::date_string(crate::table::time::today()),
+        }),
+        inputs,
+        settings,
+        expect: Expect::default(),
+    })
+}
+
+/// Copies `file` into `dir` as `stem.<its extension>` (or its own name); returns
+/// the new name.
+fn copy_named(
+    file: &Path,
+    dir: &Path,
+    stem: Option<&str>,
+    option: &str,
+) -> Result<String, FixtureError> {
+    if !file.is_file() {
+        return Err(FixtureError::Usage(format!(
+            "{option} {}: no such file",
+            file.display()
+        )));
+    }
+    let name = match (stem, file.extension()) {
+        (Some(stem), Some(ext)) => format!("{stem}.{}", ext.to_string_lossy()),
+        (Some(stem), None) => stem.to_string(),
+        (None, _) => file
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "robot.toml".into()),
+    };
+    std::fs::copy(file, dir.join(&name))
+        .map_err(|e| FixtureError::Usage(format!("{option} {}: {e}", file.display())))?;
+    Ok(name)
+}
+
+fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
+    if let Some(parent) = to.parent() {
+        std::fs::create_dir_all(parent)?;
+    }
+    if from.is_dir() {
+        std::fs::create_dir_all(to)?;
+        for entry in std::fs::read_dir(from)? {
+            let entry = entry?;
+            copy_tree(&entry.path(), &to.join(entry.file_name()))?;
+        }
+        Ok(())
+    } else {
+        std::fs::copy(from, to).map(|_| ())
+    }
+}
+
+/// Moves the stage's output tables into `expected/`; their names and rows.
+fn store_expected(out: &Path, expected: &Path) -> Result<Vec<String>, FixtureError> {
+    let fail = |e: std::io::Error| FixtureError::Record(format!("{}: {e}", out.display()));
+    let mut tables: Vec<PathBuf> = std::fs::read_dir(out)
+        .map_err(fail)?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.is_file() && p.extension().is_some_and(|e| e == "parquet"))
+        .collect();
+    tables.sort();
+    if tables.is_empty() {
+        return Err(FixtureError::Record(
+            "the stage wrote no table, so there is nothing to record; write `[expect] file` \
+             and `contains` by hand for a stage whose output is a page or a program"
+                .into(),
+        ));
+    }
+    std::fs::create_dir_all(expected).map_err(fail)?;
+    let mut described = Vec::new();
+    for table in tables {
+        let file_name = table.file_name().unwrap_or_default().to_owned();
+        let rows = crate::table::read_parquet(&table)
+            .map(|df| df.height())
+            .map_err(|e| FixtureError::Record(e.to_string()))?;
+        std::fs::copy(&table, expected.join(&file_name)).map_err(fail)?;
+        described.push(format!("{} {rows} rows", file_name.to_string_lossy()));
+    }
+    Ok(described)
+}
+
+/// The case being built; removed unless [`Staging::persist`] renamed it.
+struct Staging {
+    path: PathBuf,
+    persisted: bool,
+}
+
+impl Staging {
+    fn create(path: PathBuf) -> Result<Staging, FixtureError> {
+        std::fs::create_dir(&path)
+            .map_err(|e| FixtureError::Usage(format!("cannot create {}: {e}", path.display())))?;
+        Ok(Staging {
+            path,
+            persisted: false,
+        })
+    }
+
+    fn persist(mut self, to: &Path) -> Result<(), FixtureError> {
+        std::fs::rename(&self.path, to).map_err(|e| {
+            FixtureError::Record(format!("cannot move the case to {}: {e}", to.display()))
+        })?;
+        self.persisted = true;
+        if let Some(parent) = to.parent() {
+            let _ = crate::fsio::sync_dir(parent);
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Staging {
+    fn drop(&mut self) {
+        if !self.persisted {
+            let _ = std::fs::remove_dir_all(&self.path);
+        }
+    }
+}
