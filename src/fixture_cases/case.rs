@@ -207,7 +207,10 @@ fn check(
         } else {
             Err(bad(
                 key,
-                format!("`{name}`: no such file in the case folder {}", dir.display()),
+                format!(
+                    "`{name}`: no such file in the case folder {}",
+                    dir.display()
+                ),
             ))
         }
     };
@@ -245,7 +248,10 @@ fn check(
     }
     if let Some(error) = &expect.error {
         if error.all().is_empty() || error.all().iter().any(String::is_empty) {
-            return Err(bad("expect.error", "needs non-empty text to look for".into()));
+            return Err(bad(
+                "expect.error",
+                "needs non-empty text to look for".into(),
+            ));
         }
         if expect.exit == Some(0) {
             return Err(bad(
@@ -254,8 +260,9 @@ fn check(
             ));
         }
     }
-    if expect.file.is_some() != !expect.contains.is_empty() {
-        let key = if expect.file.is_some() {
+    let (has_file, has_contains) = (expect.file.is_some(), !expect.contains.is_empty());
+    if has_file != has_contains {
+        let key = if has_file {
             "expect.file"
         } else {
             "expect.contains"
@@ -291,12 +298,8 @@ fn check(
 /// The `<table>.parquet` files of `expected/`; anything else there is a mistake
 /// (a table saved under another name is a comparison silently not made).
 fn expected_tables_in(dir: &Path) -> Result<Vec<PathBuf>, String> {
-    let entries = std::fs::read_dir(dir).map_err(|e| {
-        format!(
-            "needs the expected tables in {}: {e}",
-            dir.display()
-        )
-    })?;
+    let entries = std::fs::read_dir(dir)
+        .map_err(|e| format!("needs the expected tables in {}: {e}", dir.display()))?;
     let mut tables = Vec::new();
     for entry in entries {
         let entry = entry.map_err(|e| format!("{}: {e}", dir.display()))?;

@@ -78,7 +78,9 @@ fn float_differences(want: &Column, got: &Column, tolerance: f64) -> Result<Cell
     for (row, (x, y)) in a.iter().zip(b.iter()).enumerate() {
         let agree = match (x, y) {
             (Some(x), Some(y)) => {
-                x == y || (x.is_nan() && y.is_nan()) || (x - y).abs() <= tolerance * x.abs().max(1.0)
+                x == y
+                    || (x.is_nan() && y.is_nan())
+                    || (x - y).abs() <= tolerance * x.abs().max(1.0)
             }
             (None, None) => true,
             _ => false,
@@ -208,7 +210,10 @@ mod tests {
             differences("t", &want, &got, 0.0),
             vec!["table `t`: no column `name`"]
         );
-        assert!(differences("t", &want, &parameters(&[1.0, 2.0]), 0.0)[0].contains("2 rows, expected 1"));
+        assert!(
+            differences("t", &want, &parameters(&[1.0, 2.0]), 0.0)[0]
+                .contains("2 rows, expected 1")
+        );
         let ints = df!("model" => ["kinematic"], "name" => ["p0"], "value" => [1i64]).unwrap();
         assert!(differences("t", &want, &ints, 0.0)[0].contains("type i64, expected f64"));
         let renamed = df!("model" => ["registered"], "name" => ["p0"], "value" => [1.0]).unwrap();

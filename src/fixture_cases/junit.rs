@@ -124,7 +124,10 @@ mod tests {
         let summary = Summary {
             results: vec![
                 result("f/identify/ok", Outcome::Passed),
-                result("f/identify/bad", Outcome::Failed("x < y & \"z\"\nmore".into())),
+                result(
+                    "f/identify/bad",
+                    Outcome::Failed("x < y & \"z\"\nmore".into()),
+                ),
                 result(
                     "f/identify/typo",
                     Outcome::Malformed(Malformed {
@@ -138,10 +141,19 @@ mod tests {
             seconds: 1.5,
         };
         let xml = to_xml(&summary, "2026-12-02T10:00:00");
-        assert!(xml.contains("tests=\"3\" failures=\"1\" errors=\"1\""), "{xml}");
-        assert!(xml.contains("<failure message=\"x &lt; y &amp; &quot;z&quot;\" type=\"mismatch\">"), "{xml}");
+        assert!(
+            xml.contains("tests=\"3\" failures=\"1\" errors=\"1\""),
+            "{xml}"
+        );
+        assert!(
+            xml.contains("<failure message=\"x &lt; y &amp; &quot;z&quot;\" type=\"mismatch\">"),
+            "{xml}"
+        );
         assert!(xml.contains("line 3, key `expect.tolerence`"), "{xml}");
-        assert!(xml.contains("<system-out>a\u{FFFD}[1m &lt;b&gt;</system-out>"), "{xml}");
+        assert!(
+            xml.contains("<system-out>a\u{FFFD}[1m &lt;b&gt;</system-out>"),
+            "{xml}"
+        );
         assert!(!xml.contains('\u{1b}'));
     }
 }

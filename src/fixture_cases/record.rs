@@ -73,9 +73,7 @@ pub fn record(options: &RecordOptions) -> Result<String, FixtureError> {
     std::fs::create_dir_all(&parent)
         .map_err(|e| usage(format!("cannot create {}: {e}", parent.display())))?;
     let _ = crate::fsio::sweep::sweep_folder(&parent);
-    let staging = Staging::create(
-        parent.join(format!(".{name}.{}.0.tmp", std::process::id())),
-    )?;
+    let staging = Staging::create(parent.join(format!(".{name}.{}.0.tmp", std::process::id())))?;
     let case_file = stage_files(options, &staging.path)?;
 
     let test = TestOptions {
@@ -91,10 +89,7 @@ pub fn record(options: &RecordOptions) -> Result<String, FixtureError> {
         dir: staging.path.clone(),
         kind: options.kind.clone(),
         robot_file: staging.path.join(&case_file.robot),
-        cable_robot_file: case_file
-            .cable_robot
-            .as_ref()
-            .map(|f| staging.path.join(f)),
+        cable_robot_file: case_file.cable_robot.as_ref().map(|f| staging.path.join(f)),
         seed: options.seed,
         run_date: case_file.run_date.clone(),
         recorded: true,

@@ -114,7 +114,7 @@ impl Summary {
         if self.malformed() > 0 {
             text.push_str(&format!(", {} malformed", self.malformed()));
         }
-        text.push_str(&format!(" in {:.1} s", self.seconds));
+        text.push_str(&format!(" in {:.2} s", self.seconds));
         text
     }
 }
@@ -244,7 +244,11 @@ fn run_one(dir: &Path, options: &TestOptions, work: &Path) -> CaseResult {
         }
     };
     let (outcome, stdout, stderr) = match run_stage(&case, options, work) {
-        Ok(ran) => (judge(&case, &ran, &work.join("out")), ran.stdout, ran.stderr),
+        Ok(ran) => (
+            judge(&case, &ran, &work.join("out")),
+            ran.stdout,
+            ran.stderr,
+        ),
         Err(why) => (Outcome::Failed(why), String::new(), String::new()),
     };
     let _ = std::fs::remove_dir_all(work);
@@ -470,9 +474,8 @@ impl WorkFolder {
         let tmp = std::env::temp_dir();
         let _ = crate::fsio::sweep::sweep_work_folders(&tmp);
         let path = tmp.join(crate::fsio::sweep::test_temp_name());
-        std::fs::create_dir_all(&path).map_err(|e| {
-            FixtureError::Usage(format!("cannot create {}: {e}", path.display()))
-        })?;
+        std::fs::create_dir_all(&path)
+            .map_err(|e| FixtureError::Usage(format!("cannot create {}: {e}", path.display())))?;
         Ok(WorkFolder { path })
     }
 }
