@@ -181,7 +181,7 @@ enum Command {
         #[arg(long, short)]
         jobs: Option<usize>,
         /// A case still running after this many seconds fails.
-        #[arg(long, default_value_t = 600)]
+        #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..))]
         timeout_s: u64,
     },
     /// Regenerate the JSON schemas (job file, robot file, tables) into a folder.
@@ -269,7 +269,7 @@ enum TestAction {
         #[arg(long, default_value_t = 1e-9)]
         tolerance: f64,
         /// A case still running after this many seconds fails.
-        #[arg(long, default_value_t = 600)]
+        #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..))]
         timeout_s: u64,
         /// The case folder to create (must not exist).
         #[arg(long)]
