@@ -517,3 +517,82 @@ fn a_scan_logs_case_records_with_its_log_folder_copied() {
         assert!(differences.is_empty(), "{differences:?}");
     }
 }
+
+#[test]
+fn a_killed_recording_leaves_no_case_and_its_leftovers_are_removed_next_time() {
+    use std::os::unix::process::CommandExt;
+    let tmp = tempfile::tempdir().unwrap();
+    // A measure stage whose driver never answers: the recording is killed while
+    // its stage runs, with the case half built.
+    std::fs::write(
+        tmp.path().join("hang.toml"),
+        "driver = \"external\"\ncommand = [\"sleep\", \"30\"]\ntimeout_s = 20.0\n",
+    )
+    .unwrap();
+    let fixture = common::root().join("fixtures/measure/noiseless_simulator");
+    let mut recording = common::egcal()
+        .args([
+            "test",
+            "record",
+            "measure",
+            "--robot",
+            common::root()
+                .join("jobs/robots/irb1600_145.toml")
+                .to_str()
+                .unwrap(),
+            "--input",
+            &format!(
+                "conf_wrenches={}",
+                fixture.join("conf_wrenches.parquet").display()
+            ),
+            "--settings",
+            "hang.toml",
+            "--out",
+            "cases/hung",
+        ])
+        .current_dir(tmp.path())
+        .process_group(0)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let pid = recording.id();
+    let staging = tmp.path().join(format!("cases/.hung.{pid}.0.tmp"));
+    let work = std::env::temp_dir().join(format!("egcal-test-{pid}"));
+    let started = std::time::Instant::now();
+    while !(staging.join("conf_wrenches.parquet").is_file() && work.join("first").is_dir()) {
+        assert!(
+            started.elapsed().as_secs() < 60,
+            "the recording never started its stage"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    // SIGKILL to the recording and its stage (and the stage's driver).
+    let killed = std::process::Command::new("kill")
+        .args(["-s", "KILL", "--", &format!("-{pid}")])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    recording.wait().unwrap();
+    assert!(
+        staging.is_dir(),
+        "the half-built case is where the kill left it"
+    );
+    assert!(!tmp.path().join("cases/hung").exists(), "no case appeared");
+
+    // The next recording in that folder removes the leftovers, and works.
+    let (code, stdout, stderr) = record_predict(tmp.path(), "cases/predict_truth");
+    assert_eq!(code, 0, "{stdout}\n{stderr}");
+    assert!(
+        !staging.exists(),
+        "the killed recording's staging folder is removed"
+    );
+    assert!(
+        !work.exists(),
+        "the killed recording's work folder is removed"
+    );
+    let (code, stdout, _) = egcal_test(&["cases"], tmp.path());
+    assert_eq!(code, 0, "{stdout}");
+    assert!(stdout.contains("1 passed"), "{stdout}");
+}
