@@ -528,14 +528,8 @@ fn run_on_files(
         seed,
         run_date,
     } = *stage;
-    let stage_kind = stages::lookup(kind).ok_or_else(|| {
-        let known: Vec<&str> = stages::registry().iter().map(|k| k.info().kind).collect();
-        CommandError::Usage(format!(
-            "unknown stage kind `{kind}`{}; known kinds: {}",
-            crate::suggest::did_you_mean(kind, known.iter().copied()),
-            known.join(", ")
-        ))
-    })?;
+    let stage_kind = stages::lookup(kind)
+        .ok_or_else(|| CommandError::Usage(stages::unknown_kind_message(kind)))?;
     let info = stage_kind.info();
     let settings_problems = |problems: Vec<stages::SettingsProblem>| {
         CommandError::Usage(

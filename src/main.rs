@@ -515,9 +515,13 @@ fn test_command(
             result.seconds
         );
     };
+    if let Some(path) = &junit {
+        fixture_cases::check_report_path(path).map_err(fixture)?;
+    }
     let summary = fixture_cases::run(&options, &print).map_err(fixture)?;
-    if let Some(path) = junit {
-        fixture_cases::write_junit(&summary, &path).map_err(fixture)?;
+    if let Some(path) = &junit {
+        fixture_cases::write_junit(&summary, path)
+            .map_err(|e| CommandError::Usage(format!("{}\n{e}", summary.report().trim_start())))?;
     }
     Ok(Finished {
         message: summary.report(),

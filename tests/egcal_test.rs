@@ -275,6 +275,10 @@ fn a_malformed_case_file_exits_2_naming_line_and_key() {
         stdout.contains("invalid TOML") && stdout.contains("line 1"),
         "{stdout}"
     );
+    let (code, stdout, stderr) = egcal_test(&["cases", "--junit", "cases"], tmp.path());
+    assert_eq!(code, 2);
+    assert!(stdout.is_empty(), "nothing ran: {stdout}");
+    assert!(stderr.contains("--junit cases: is a folder"), "{stderr}");
     let (code, _, stderr) = egcal_test(&["nowhere"], tmp.path());
     assert_eq!(code, 2);
     assert!(
@@ -298,6 +302,16 @@ fn only_selects_cases_and_selecting_none_is_an_error() {
     let (code, stdout, _) = egcal_test(&["--only", "halves", "--only", "alternate"], &root);
     assert_eq!(code, 0);
     assert!(stdout.contains("2 passed"), "{stdout}");
+    // A glob below the searched folder, and a case run from inside its folder.
+    let (code, stdout, _) = egcal_test(&["fixtures", "--only", "split/*"], &root);
+    assert_eq!(code, 0);
+    assert!(
+        stdout.contains(&format!("{split_cases} passed")),
+        "{stdout}"
+    );
+    let (code, stdout, _) = egcal_test(&["."], &root.join("fixtures/split/halves_third"));
+    assert_eq!(code, 0, "{stdout}");
+    assert!(stdout.contains("1 passed"), "{stdout}");
     let (code, _, stderr) = egcal_test(&["--only", "no_such_case"], &root);
     assert_eq!(code, 2);
     assert!(stderr.contains("matches --only no_such_case"), "{stderr}");
@@ -311,7 +325,7 @@ fn a_stage_that_hangs_fails_after_the_timeout() {
     let file = case.join("case.toml");
     let text = std::fs::read_to_string(&file).unwrap().replace(
         "[settings]\n",
-        "[settings]\ndriver = \"external\"\ncommand = [\"sleep\", \"60\"]\n",
+        "[settings]\ndriver = \"external\"\ncommand = [\"sleep\", \"61.25\"]\n",
     );
     std::fs::write(&file, text).unwrap();
     let (code, stdout, _) = egcal_test(&["measure", "--timeout-s", "2"], tmp.path());
@@ -320,6 +334,13 @@ fn a_stage_that_hangs_fails_after_the_timeout() {
         stdout.contains("still running after 2 s (--timeout-s): killed"),
         "{stdout}"
     );
+    // The stage's driver went with it (the stage's process group was killed).
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    let left = std::process::Command::new("pgrep")
+        .args(["-f", "sleep 61.25"])
+        .output()
+        .unwrap();
+    assert!(left.stdout.is_empty(), "driver left running: {:?}", left);
 }
 
 /// Records a `predict` case from the shipped fixture's files into `out`.

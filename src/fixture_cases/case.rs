@@ -139,8 +139,8 @@ pub struct Case {
     pub inputs: Vec<(String, PathBuf)>,
     pub settings: toml::Table,
     pub expect: Expect,
-    /// `expected/<table>.parquet` files, sorted, when `tolerance` is set.
-    pub expected_tables: Vec<PathBuf>,
+    /// (table name, `expected/<table>.parquet`), sorted, when `tolerance` is set.
+    pub expected_tables: Vec<(String, polars::prelude::DataFrame)>,
 }
 
 /// Reads and checks `dir/case.toml`.
@@ -178,28 +178,30 @@ fn check(
 ) -> Result<Case, Malformed> {
     let kind = match &raw.kind {
         Some(kind) => kind.clone(),
-        None => dir
-            .parent()
+        // Absolute, so `egcal test .` inside a case finds its parent's name.
+        None => std::path::absolute(dir)
+            .ok()
+            .as_deref()
+            .and_then(Path::parent)
             .and_then(Path::file_name)
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default(),
     };
-    if crate::stages::lookup(&kind).is_none() {
-        let kinds: Vec<&str> = crate::stages::registry()
-            .iter()
-            .map(|s| s.info().kind)
-            .collect();
-        let hint = crate::suggest::did_you_mean(&kind, kinds.iter().copied());
-        let message = if raw.kind.is_some() {
-            format!("`{kind}` is not a stage kind{hint}")
-        } else {
-            format!(
-                "no `kind`, and the case folder's parent `{kind}` is not a stage kind{hint}; \
-                 set `kind` or put the case under fixtures/<kind>/"
-            )
-        };
-        return Err(bad("kind", message));
-    }
+    let Some(stage) = crate::stages::lookup(&kind) else {
+        let message = crate::stages::unknown_kind_message(&kind);
+        return Err(bad(
+            "kind",
+            if raw.kind.is_some() {
+                message
+            } else {
+                format!(
+                    "no `kind`, and the case folder's parent: {message}; \
+                     set `kind` or put the case under <folder>/<kind>/<case>/"
+                )
+            },
+        ));
+    };
+    let info = stage.info();
     let existing = |key: &str, name: &str| -> Result<PathBuf, Malformed> {
         let path = dir.join(name);
         if path.is_file() {
@@ -226,9 +228,35 @@ fn check(
     }
     let mut inputs = Vec::new();
     for (name, file) in &raw.inputs {
-        inputs.push((name.clone(), existing(&format!("inputs.{name}"), file)?));
+        let key = format!("inputs.{name}");
+        if !info.inputs.iter().any(|slot| slot.name == name) {
+            let names = info.inputs.iter().map(|slot| slot.name);
+            return Err(bad(
+                &key,
+                format!(
+                    "`{kind}` has no input `{name}`{}",
+                    crate::suggest::did_you_mean(name, names)
+                ),
+            ));
+        }
+        inputs.push((name.clone(), existing(&key, file)?));
     }
     let expect = raw.expect;
+    // A misspelt setting in a case that must succeed is the case's mistake; in
+    // an error case it may be the error under test.
+    if expect.error.is_none()
+        && let Err(problems) = stage.canonical_settings(&raw.settings)
+        && let Some(first) = problems.first()
+    {
+        let more = match problems.len() {
+            1 => String::new(),
+            n => format!(" (and {} more)", n - 1),
+        };
+        return Err(bad(
+            &format!("settings.{}", first.key),
+            format!("{}{more}", first.message),
+        ));
+    }
     let compares = expect.tolerance.is_some() || expect.file.is_some();
     if expect.error.is_some() && compares {
         return Err(bad(
@@ -270,6 +298,7 @@ fn check(
         return Err(bad(key, "`file` and `contains` go together".into()));
     }
     let mut expected_tables = Vec::new();
+    let expected_dir = dir.join("expected");
     if let Some(tolerance) = expect.tolerance {
         if !(tolerance.is_finite() && tolerance >= 0.0) {
             return Err(bad(
@@ -277,8 +306,16 @@ fn check(
                 format!("{tolerance} is not a relative tolerance ≥ 0"),
             ));
         }
-        expected_tables = expected_tables_in(&dir.join("expected"))
+        expected_tables = expected_tables_in(&expected_dir)
             .map_err(|message| bad("expect.tolerance", message))?;
+    } else if expected_dir.exists() {
+        return Err(bad(
+            "expect",
+            format!(
+                "{} exists but nothing compares it: add `tolerance`",
+                expected_dir.display()
+            ),
+        ));
     }
     Ok(Case {
         dir: dir.to_path_buf(),
@@ -295,9 +332,9 @@ fn check(
     })
 }
 
-/// The `<table>.parquet` files of `expected/`; anything else there is a mistake
-/// (a table saved under another name is a comparison silently not made).
-fn expected_tables_in(dir: &Path) -> Result<Vec<PathBuf>, String> {
+/// The `<table>.parquet` tables of `expected/`, read; anything else there is a
+/// mistake (a table saved under another name is a comparison silently not made).
+fn expected_tables_in(dir: &Path) -> Result<Vec<(String, polars::prelude::DataFrame)>, String> {
     let entries = std::fs::read_dir(dir)
         .map_err(|e| format!("needs the expected tables in {}: {e}", dir.display()))?;
     let mut tables = Vec::new();
@@ -314,12 +351,13 @@ fn expected_tables_in(dir: &Path) -> Result<Vec<PathBuf>, String> {
                 dir.display()
             ));
         }
-        tables.push(path);
+        let table = crate::table::read_parquet(&path).map_err(|e| e.to_string())?;
+        tables.push((name.trim_end_matches(".parquet").to_string(), table));
     }
     if tables.is_empty() {
         return Err(format!("{} holds no <table>.parquet file", dir.display()));
     }
-    tables.sort();
+    tables.sort_by(|a, b| a.0.cmp(&b.0));
     Ok(tables)
 }
 
@@ -339,7 +377,9 @@ mod tests {
         std::fs::create_dir_all(dir.join("expected")).unwrap();
         std::fs::write(dir.join("robot.toml"), "").unwrap();
         std::fs::write(dir.join("m.parquet"), "").unwrap();
-        std::fs::write(dir.join("expected/parameters.parquet"), "").unwrap();
+        let mut table = polars::prelude::df!("value" => [1.0]).unwrap();
+        crate::table::write_parquet(&mut table, &dir.join("expected/parameters.parquet"), None)
+            .unwrap();
         std::fs::write(dir.join("case.toml"), text).unwrap();
         (root, dir)
     }
@@ -410,5 +450,27 @@ mod tests {
         std::fs::write(dir.join("expected/notes.txt"), "").unwrap();
         let e = load(&dir).unwrap_err();
         assert!(e.message.contains("notes.txt"), "{e}");
+    }
+
+    #[test]
+    fn unknown_inputs_settings_and_unreadable_tables_are_the_cases_mistakes() {
+        let (_root, dir) = case_dir(&GOOD.replace("measurements =", "measurments ="));
+        let e = load(&dir).unwrap_err();
+        assert_eq!(e.key, "inputs.measurments", "{e}");
+        assert!(e.message.contains("did you mean `measurements`"), "{e}");
+        let (_root, dir) = case_dir(&GOOD.replace("models =", "modles ="));
+        let e = load(&dir).unwrap_err();
+        assert_eq!(
+            (e.key.as_str(), e.line),
+            ("settings.modles", Some(5)),
+            "{e}"
+        );
+        let (_root, dir) = case_dir(GOOD);
+        std::fs::write(dir.join("expected/parameters.parquet"), "not parquet").unwrap();
+        let e = load(&dir).unwrap_err();
+        assert!(e.message.contains("parameters.parquet"), "{e}");
+        let (_root, dir) = case_dir(&GOOD.replace("tolerance = 1e-6", "error = \"x\""));
+        let e = load(&dir).unwrap_err();
+        assert_eq!(e.key, "expect", "{e}");
     }
 }

@@ -77,11 +77,12 @@ fn float_differences(want: &Column, got: &Column, tolerance: f64) -> Result<Cell
     let mut cells = Vec::new();
     for (row, (x, y)) in a.iter().zip(b.iter()).enumerate() {
         let agree = match (x, y) {
-            (Some(x), Some(y)) => {
-                x == y
-                    || (x.is_nan() && y.is_nan())
-                    || (x - y).abs() <= tolerance * x.abs().max(1.0)
+            // Infinities and NaN agree only with themselves: a tolerance scaled
+            // by an infinite expected value would accept anything.
+            (Some(x), Some(y)) if !(x.is_finite() && y.is_finite()) => {
+                x == y || (x.is_nan() && y.is_nan())
             }
+            (Some(x), Some(y)) => (x - y).abs() <= tolerance * x.abs().max(1.0),
             (None, None) => true,
             _ => false,
         };
@@ -105,11 +106,11 @@ fn show_float(value: Option<f64>) -> String {
 }
 
 fn exact_differences(want: &Column, got: &Column) -> Result<Cells, String> {
-    let a = want.to_physical_repr();
-    let b = got.to_physical_repr();
-    if a.dtype() != b.dtype() {
+    if !same_type(want.dtype(), got.dtype()) {
         return Err(format!("type {}, expected {}", got.dtype(), want.dtype()));
     }
+    let a = want.to_physical_repr();
+    let b = got.to_physical_repr();
     let (a, b) = (a.as_materialized_series(), b.as_materialized_series());
     let mut cells = Vec::new();
     for row in 0..a.len() {
@@ -122,6 +123,15 @@ fn exact_differences(want: &Column, got: &Column) -> Result<Cells, String> {
         }
     }
     Ok(cells)
+}
+
+/// Equal types, but a timestamp's time-zone tag aside (the values are UTC µs
+/// either way).
+fn same_type(a: &DataType, b: &DataType) -> bool {
+    match (a, b) {
+        (DataType::Datetime(unit_a, _), DataType::Datetime(unit_b, _)) => unit_a == unit_b,
+        _ => a == b,
+    }
 }
 
 fn show(value: &AnyValue) -> String {
@@ -185,6 +195,33 @@ mod tests {
         let want = parameters(&[1.0, 1000.0, f64::NAN]);
         let got = parameters(&[1.0 + 5e-7, 1000.0 + 4e-4, f64::NAN]);
         assert!(differences("parameters", &want, &got, 1e-6).is_empty());
+    }
+
+    #[test]
+    fn infinities_agree_only_with_themselves() {
+        for (want, got) in [
+            (f64::INFINITY, 1.0),
+            (f64::INFINITY, f64::NEG_INFINITY),
+            (1.0, f64::INFINITY),
+            (1.0, f64::NAN),
+        ] {
+            let found = differences("t", &parameters(&[want]), &parameters(&[got]), 1e-6);
+            assert_eq!(found.len(), 1, "{want} against {got}");
+        }
+        let inf = parameters(&[f64::INFINITY]);
+        assert!(differences("t", &inf, &inf, 1e-6).is_empty());
+    }
+
+    #[test]
+    fn a_timestamp_is_not_an_integer() {
+        let want = df!("t" => [1i64]).unwrap();
+        let got = want
+            .clone()
+            .lazy()
+            .with_column(col("t").cast(DataType::Datetime(TimeUnit::Microseconds, None)))
+            .collect()
+            .unwrap();
+        assert!(differences("t", &want, &got, 0.0)[0].contains("type datetime"));
     }
 
     #[test]

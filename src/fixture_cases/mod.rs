@@ -46,6 +46,25 @@ impl FixtureError {
     }
 }
 
+/// Refuses a `--junit` path that cannot be written before any case runs, so a
+/// typo does not cost the run's results.
+pub fn check_report_path(path: &Path) -> Result<(), FixtureError> {
+    let bad =
+        |message: String| FixtureError::Usage(format!("--junit {}: {message}", path.display()));
+    if path.is_dir() {
+        return Err(bad("is a folder; name a file".into()));
+    }
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).map_err(|e| bad(format!("cannot create its folder: {e}")))?;
+    let probe = dir.join(crate::fsio::sweep::staging_folder_name("junit-probe"));
+    std::fs::create_dir(&probe).map_err(|e| bad(format!("its folder is not writable: {e}")))?;
+    let _ = std::fs::remove_dir(&probe);
+    Ok(())
+}
+
 /// Writes the JUnit XML report atomically.
 pub fn write_junit(summary: &Summary, path: &Path) -> Result<(), FixtureError> {
     let timestamp = crate::table::time::now_rfc3339();

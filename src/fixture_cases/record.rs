@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use super::FixtureError;
 use super::case::{self, CaseFile, Expect, Recorded};
-use super::run::{self, Outcome, TestOptions};
+use super::run::{self, Outcome};
 
 /// What to record.
 #[derive(Debug, Clone)]
@@ -41,15 +41,7 @@ pub struct RecordOptions {
 pub fn record(options: &RecordOptions) -> Result<String, FixtureError> {
     let usage = FixtureError::Usage;
     if crate::stages::lookup(&options.kind).is_none() {
-        let kinds: Vec<&str> = crate::stages::registry()
-            .iter()
-            .map(|s| s.info().kind)
-            .collect();
-        return Err(usage(format!(
-            "`{}` is not a stage kind{}",
-            options.kind,
-            crate::suggest::did_you_mean(&options.kind, kinds.iter().copied())
-        )));
+        return Err(usage(crate::stages::unknown_kind_message(&options.kind)));
     }
     if !(options.tolerance.is_finite() && options.tolerance >= 0.0) {
         return Err(usage(format!(
@@ -73,16 +65,9 @@ pub fn record(options: &RecordOptions) -> Result<String, FixtureError> {
     std::fs::create_dir_all(&parent)
         .map_err(|e| usage(format!("cannot create {}: {e}", parent.display())))?;
     let _ = crate::fsio::sweep::sweep_folder(&parent);
-    let staging = Staging::create(parent.join(format!(".{name}.{}.0.tmp", std::process::id())))?;
+    let staging = Staging::create(parent.join(crate::fsio::sweep::staging_folder_name(&name)))?;
     let case_file = stage_files(options, &staging.path)?;
 
-    let test = TestOptions {
-        dirs: Vec::new(),
-        only: Vec::new(),
-        jobs: 1,
-        egcal: options.egcal.clone(),
-        timeout: options.timeout,
-    };
     let work = run::WorkFolder::create()?;
     // First run: its tables become the expectation.
     let provisional = case::Case {
@@ -103,8 +88,11 @@ pub fn record(options: &RecordOptions) -> Result<String, FixtureError> {
         expected_tables: Vec::new(),
     };
     let first = work.path.join("first");
-    let ran = run::run_stage(&provisional, &test, &first).map_err(FixtureError::Record)?;
-    let code = ran.code.unwrap_or(-1);
+    let ran = run::run_stage(&provisional, &options.egcal, options.timeout, &first);
+    let code = ran
+        .code
+        .clone()
+        .map_err(|why| FixtureError::Record(format!("{why}\n{}", ran.stderr.trim_end())))?;
     if ![0, 10, 11].contains(&code) {
         return Err(FixtureError::Record(format!(
             "the stage failed (exit {code}) on the case's copies of its files in {}; \
@@ -140,7 +128,7 @@ pub fn record(options: &RecordOptions) -> Result<String, FixtureError> {
     // Second run, exactly as `egcal test` runs the case.
     let checked = case::load(&staging.path).map_err(|e| FixtureError::Record(e.to_string()))?;
     let second = work.path.join("second");
-    let again = run::run_stage(&checked, &test, &second).map_err(FixtureError::Record)?;
+    let again = run::run_stage(&checked, &options.egcal, options.timeout, &second);
     if let Outcome::Failed(why) = run::judge(&checked, &again, &second.join("out")) {
         return Err(FixtureError::Record(format!(
             "the recorded case does not pass on a second run, so it was not written \
@@ -215,6 +203,20 @@ fn stage_files(options: &RecordOptions, dir: &Path) -> Result<CaseFile, FixtureE
                 path.display()
             )));
         }
+        let top = path
+            .components()
+            .find_map(|c| match c {
+                Component::Normal(name) => Some(name.to_string_lossy().into_owned()),
+                _ => None,
+            })
+            .unwrap_or_default();
+        if top.is_empty() || dir.join(&top).exists() || RESERVED.contains(&top.as_str()) {
+            return Err(usage(format!(
+                "--copy {}: the case already uses the name `{top}` (robot, inputs, \
+                 case.toml, expected/); copy another folder",
+                path.display()
+            )));
+        }
         copy_tree(path, &dir.join(path))
             .map_err(|e| usage(format!("--copy {}: {e}", path.display())))?;
     }
@@ -256,9 +258,26 @@ fn copy_named(
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "robot.toml".into()),
     };
-    std::fs::copy(file, dir.join(&name))
+    if dir.join(&name).exists() || RESERVED.contains(&name.as_str()) {
+        return Err(FixtureError::Usage(format!(
+            "{option} {}: its copy would be named `{name}`, which the case already uses; \
+             rename the file",
+            file.display()
+        )));
+    }
+    copy_durably(file, &dir.join(&name))
         .map_err(|e| FixtureError::Usage(format!("{option} {}: {e}", file.display())))?;
     Ok(name)
+}
+
+/// Names the case file and its expectation take in a case folder.
+const RESERVED: [&str; 2] = ["case.toml", "expected"];
+
+/// Copies a file and flushes it to disk, so the case renamed into place later
+/// holds its data even after a power cut.
+fn copy_durably(from: &Path, to: &Path) -> std::io::Result<()> {
+    std::fs::copy(from, to)?;
+    std::fs::File::open(to)?.sync_all()
 }
 
 fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
@@ -271,13 +290,13 @@ fn copy_tree(from: &Path, to: &Path) -> std::io::Result<()> {
             let entry = entry?;
             copy_tree(&entry.path(), &to.join(entry.file_name()))?;
         }
-        Ok(())
+        crate::fsio::sync_dir(to)
     } else {
-        std::fs::copy(from, to).map(|_| ())
+        copy_durably(from, to)
     }
 }
 
-/// Moves the stage's output tables into `expected/`; their names and rows.
+/// Copies the stage's output tables into `expected/`; their names and rows.
 fn store_expected(out: &Path, expected: &Path) -> Result<Vec<String>, FixtureError> {
     let fail = |e: std::io::Error| FixtureError::Record(format!("{}: {e}", out.display()));
     let mut tables: Vec<PathBuf> = std::fs::read_dir(out)
@@ -301,7 +320,7 @@ fn store_expected(out: &Path, expected: &Path) -> Result<Vec<String>, FixtureErr
         let rows = crate::table::read_parquet(&table)
             .map(|df| df.height())
             .map_err(|e| FixtureError::Record(e.to_string()))?;
-        std::fs::copy(&table, expected.join(&file_name)).map_err(fail)?;
+        copy_durably(&table, &expected.join(&file_name)).map_err(fail)?;
         described.push(format!("{} {rows} rows", file_name.to_string_lossy()));
     }
     Ok(described)
@@ -324,6 +343,18 @@ impl Staging {
     }
 
     fn persist(mut self, to: &Path) -> Result<(), FixtureError> {
+        // Checked again: the folder may have appeared while the stage ran (a
+        // rename would replace an empty one).
+        if to.exists() {
+            return Err(FixtureError::Usage(format!(
+                "{} appeared while the case was recorded; it is left as it is",
+                to.display()
+            )));
+        }
+        for dir in [self.path.join("expected"), self.path.clone()] {
+            crate::fsio::sync_dir(&dir)
+                .map_err(|e| FixtureError::Record(format!("{}: {e}", dir.display())))?;
+        }
         std::fs::rename(&self.path, to).map_err(|e| {
             FixtureError::Record(format!("cannot move the case to {}: {e}", to.display()))
         })?;

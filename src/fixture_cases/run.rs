@@ -4,6 +4,7 @@
 //! error text, facts) and a case that crashes or hangs fails alone.
 
 use std::fs::File;
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::Mutex;
@@ -119,10 +120,21 @@ impl Summary {
     }
 }
 
+/// A case folder found under a searched folder.
+#[derive(Debug, Clone, PartialEq, Eq, PartialOrd, Ord)]
+pub struct Found {
+    /// As found: the searched folder joined with the path below it.
+    pub dir: PathBuf,
+    /// The path below the searched folder (`identify/noiseless_truth`); the
+    /// folder's own name when the searched folder is the case.
+    pub relative: String,
+}
+
 /// The case folders under `dirs` (folders holding `case.toml`; not searched
-/// below a case), each with its display name, sorted.
-pub fn discover(dirs: &[PathBuf]) -> Result<Vec<PathBuf>, FixtureError> {
+/// below a case; symbolic links followed once), sorted.
+pub fn discover(dirs: &[PathBuf]) -> Result<Vec<Found>, FixtureError> {
     let mut found = Vec::new();
+    let mut visited = std::collections::HashSet::new();
     for dir in dirs {
         if !dir.is_dir() {
             return Err(FixtureError::Usage(format!(
@@ -130,39 +142,65 @@ pub fn discover(dirs: &[PathBuf]) -> Result<Vec<PathBuf>, FixtureError> {
                 dir.display()
             )));
         }
-        walk(dir, &mut found)?;
+        walk(dir, dir, &mut visited, &mut found)?;
     }
     found.sort();
-    found.dedup();
+    found.dedup_by(|a, b| a.dir == b.dir);
     Ok(found)
 }
 
-fn walk(dir: &Path, found: &mut Vec<PathBuf>) -> Result<(), FixtureError> {
-    if dir.join("case.toml").is_file() {
-        found.push(dir.to_path_buf());
+fn walk(
+    root: &Path,
+    dir: &Path,
+    visited: &mut std::collections::HashSet<PathBuf>,
+    found: &mut Vec<Found>,
+) -> Result<(), FixtureError> {
+    let cannot =
+        |e: std::io::Error| FixtureError::Usage(format!("{}: cannot list: {e}", dir.display()));
+    // A link back up the tree is entered once.
+    if !visited.insert(std::fs::canonicalize(dir).map_err(cannot)?) {
         return Ok(());
     }
-    let entries = std::fs::read_dir(dir)
-        .map_err(|e| FixtureError::Usage(format!("{}: cannot list: {e}", dir.display())))?;
-    let mut subdirs: Vec<PathBuf> = entries
-        .flatten()
-        .filter(|e| e.file_type().is_ok_and(|t| t.is_dir()))
-        .filter(|e| !e.file_name().to_string_lossy().starts_with('.'))
-        .map(|e| e.path())
-        .collect();
+    if dir.join("case.toml").is_file() {
+        let relative = match dir.strip_prefix(root) {
+            Ok(below) if !below.as_os_str().is_empty() => below.display().to_string(),
+            _ => dir.file_name().map_or_else(
+                || dir.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            ),
+        };
+        found.push(Found {
+            dir: dir.to_path_buf(),
+            relative,
+        });
+        return Ok(());
+    }
+    let mut subdirs = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(cannot)? {
+        let path = entry.map_err(cannot)?.path();
+        let hidden = path
+            .file_name()
+            .is_some_and(|n| n.to_string_lossy().starts_with('.'));
+        if path.is_dir() && !hidden {
+            subdirs.push(path);
+        }
+    }
     subdirs.sort();
     for sub in subdirs {
-        walk(&sub, found)?;
+        walk(root, &sub, visited, found)?;
     }
     Ok(())
 }
 
-/// Whether a case's name matches `--only`: a glob when it has `*`, `?` or `[`,
-/// else a substring.
-fn selected(name: &str, only: &[glob::Pattern], plain: &[&str]) -> bool {
+/// Whether a case matches `--only`: a glob when it has `*`, `?` or `[`, else a
+/// substring, against the case folder as found or its path below the searched
+/// folder.
+fn selected(case: &Found, only: &[glob::Pattern], plain: &[&str]) -> bool {
+    let names = [case.dir.display().to_string(), case.relative.clone()];
     (only.is_empty() && plain.is_empty())
-        || only.iter().any(|p| p.matches(name))
-        || plain.iter().any(|p| name.contains(p))
+        || names.iter().any(|name| {
+            only.iter().any(|p| p.matches(name)) || plain.iter().any(|p| name.contains(p))
+        })
 }
 
 /// Runs the cases; `on_result` sees each result as it ends (from worker threads).
@@ -184,7 +222,8 @@ pub fn run(
     }
     let cases: Vec<PathBuf> = discover(&options.dirs)?
         .into_iter()
-        .filter(|dir| selected(&dir.display().to_string(), &globs, &plain))
+        .filter(|case| selected(case, &globs, &plain))
+        .map(|case| case.dir)
         .collect();
     if cases.is_empty() {
         return Err(FixtureError::Usage(format!(
@@ -243,14 +282,8 @@ fn run_one(dir: &Path, options: &TestOptions, work: &Path) -> CaseResult {
             };
         }
     };
-    let (outcome, stdout, stderr) = match run_stage(&case, options, work) {
-        Ok(ran) => (
-            judge(&case, &ran, &work.join("out")),
-            ran.stdout,
-            ran.stderr,
-        ),
-        Err(why) => (Outcome::Failed(why), String::new(), String::new()),
-    };
+    let ran = run_stage(&case, &options.egcal, options.timeout, work);
+    let outcome = judge(&case, &ran, &work.join("out"));
     let _ = std::fs::remove_dir_all(work);
     CaseResult {
         name,
@@ -258,27 +291,45 @@ fn run_one(dir: &Path, options: &TestOptions, work: &Path) -> CaseResult {
         recorded: case.recorded,
         outcome,
         seconds: started.elapsed().as_secs_f64(),
-        stdout,
-        stderr,
+        stdout: ran.stdout,
+        stderr: ran.stderr,
     }
 }
 
 /// What the stage process did.
 pub(super) struct Ran {
-    pub code: Option<i32>,
+    /// Exit code; `Err` when the stage could not be started, was killed or
+    /// timed out.
+    pub code: Result<i32, String>,
     pub stdout: String,
     pub stderr: String,
 }
 
-/// Runs the case's stage into `work/out`; `Err` when it could not be started,
-/// was killed or timed out.
-pub(super) fn run_stage(case: &Case, options: &TestOptions, work: &Path) -> Result<Ran, String> {
+/// Runs the case's stage into `work/out`.
+pub(super) fn run_stage(case: &Case, egcal: &Path, timeout: Duration, work: &Path) -> Ran {
+    let mut ran = Ran {
+        code: Err(String::new()),
+        stdout: String::new(),
+        stderr: String::new(),
+    };
+    ran.code = start_and_wait(case, egcal, timeout, work, &mut ran);
+    ran
+}
+
+/// Starts the stage, waits for it, and reads its output into `ran`.
+fn start_and_wait(
+    case: &Case,
+    egcal: &Path,
+    timeout: Duration,
+    work: &Path,
+    ran: &mut Ran,
+) -> Result<i32, String> {
     let out = work.join("out");
     std::fs::create_dir_all(&out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
     let settings = work.join("settings.toml");
     let text = toml::to_string(&case.settings).map_err(|e| format!("settings: {e}"))?;
     std::fs::write(&settings, text).map_err(|e| format!("{}: {e}", settings.display()))?;
-    let mut command = Command::new(&options.egcal);
+    let mut command = Command::new(egcal);
     command
         .arg("stage")
         .arg(&case.kind)
@@ -304,47 +355,58 @@ pub(super) fn run_stage(case: &Case, options: &TestOptions, work: &Path) -> Resu
     let stdout_file = work.join("stdout");
     let stderr_file = work.join("stderr");
     let open = |path: &Path| File::create(path).map_err(|e| format!("{}: {e}", path.display()));
+    // Its own process group, so a timeout also stops what the stage started
+    // (a lab driver).
     let child = command
         .current_dir(&case.dir)
         .env("NO_COLOR", "1")
         .stdin(Stdio::null())
         .stdout(open(&stdout_file)?)
         .stderr(open(&stderr_file)?)
+        .process_group(0)
         .spawn()
-        .map_err(|e| format!("cannot start {}: {e}", options.egcal.display()))?;
-    let status = wait(child, options.timeout)?;
+        .map_err(|e| format!("cannot start {}: {e}", egcal.display()))?;
+    let status = wait(child, timeout);
     let read = |path: &Path| {
         std::fs::read(path)
             .map(|b| String::from_utf8_lossy(&b).into_owned())
             .unwrap_or_default()
     };
-    let ran = Ran {
-        code: status.code(),
-        stdout: read(&stdout_file),
-        stderr: read(&stderr_file),
-    };
-    if ran.code.is_none() {
-        return Err(format!(
-            "the stage was killed ({status})\n{}",
-            ran.stderr.trim_end()
-        ));
+    ran.stdout = read(&stdout_file);
+    ran.stderr = read(&stderr_file);
+    let status = status?;
+    status
+        .code()
+        .ok_or_else(|| format!("the stage was killed ({status})"))
+}
+
+/// SIGKILL to the child's process group (std has no call for a group; `kill`
+/// is part of every Linux base system), the child alone if that fails.
+fn kill_group(child: &mut Child) {
+    let group = format!("-{}", child.id());
+    let killed = Command::new("kill")
+        .args(["-s", "KILL", "--", &group])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !killed {
+        let _ = child.kill();
     }
-    Ok(ran)
 }
 
 fn absolute(path: &Path) -> PathBuf {
     std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
 }
 
-/// Waits for the stage, killing it after `timeout`.
+/// Waits for the stage, killing its process group after `timeout`.
 fn wait(mut child: Child, timeout: Duration) -> Result<ExitStatus, String> {
     let started = Instant::now();
     loop {
         match child.try_wait() {
             Ok(Some(status)) => return Ok(status),
             Ok(None) if started.elapsed() >= timeout => {
-                let _ = child.kill();
-                let _ = child.wait();
+                kill_group(&mut child);
                 return Err(format!(
                     "still running after {} s (--timeout-s): killed",
                     timeout.as_secs()
@@ -364,14 +426,27 @@ pub(super) fn judge(case: &Case, ran: &Ran, out: &Path) -> Outcome {
     }
 }
 
+/// Rust's exit code of a panic: a bug, never the error a case expects.
+const PANIC_EXIT: i32 = 101;
+
 fn check_expectations(case: &Case, ran: &Ran, out: &Path) -> Result<(), String> {
     let expect = &case.expect;
-    let code = ran.code.unwrap_or(-1);
     let stderr = ran.stderr.trim_end();
+    let code = *ran
+        .code
+        .as_ref()
+        .map_err(|why| format!("{why}\n{stderr}").trim_end().to_string())?;
+    if code == PANIC_EXIT || ran.stderr.contains("panicked at") {
+        return Err(format!("the stage panicked (exit {code}):\n{stderr}"));
+    }
     if let Some(error) = &expect.error {
-        if code == 0 {
+        let decided = [
+            i32::from(crate::commands::exit::GATE_PUBLISHED),
+            i32::from(crate::commands::exit::GATE_REFUSED),
+        ];
+        if code == 0 || (expect.exit.is_none() && decided.contains(&code)) {
             return Err(format!(
-                "expected an error containing {:?}, but the stage succeeded:\n{}",
+                "expected an error containing {:?}, but the stage succeeded (exit {code}):\n{}",
                 error.all(),
                 ran.stdout.trim_end()
             ));
@@ -393,12 +468,7 @@ fn check_expectations(case: &Case, ran: &Ran, out: &Path) -> Result<(), String> 
     }
     let mut problems = Vec::new();
     if let Some(tolerance) = expect.tolerance {
-        for expected in &case.expected_tables {
-            let name = expected
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            let want = crate::table::read_parquet(expected).map_err(|e| e.to_string())?;
+        for (name, want) in &case.expected_tables {
             let actual = out.join(format!("{name}.parquet"));
             if !actual.is_file() {
                 problems.push(format!(
@@ -407,8 +477,10 @@ fn check_expectations(case: &Case, ran: &Ran, out: &Path) -> Result<(), String> 
                 ));
                 continue;
             }
-            let got = crate::table::read_parquet(&actual).map_err(|e| e.to_string())?;
-            problems.extend(compare::differences(&name, &want, &got, tolerance));
+            match crate::table::read_parquet(&actual) {
+                Ok(got) => problems.extend(compare::differences(name, want, &got, tolerance)),
+                Err(e) => problems.push(format!("table `{name}`: {e}")),
+            }
         }
     }
     if let Some(file) = &expect.file {
@@ -490,13 +562,34 @@ impl Drop for WorkFolder {
 mod tests {
     use super::*;
 
+    fn found(dir: &str, relative: &str) -> Found {
+        Found {
+            dir: dir.into(),
+            relative: relative.into(),
+        }
+    }
+
     #[test]
-    fn only_takes_globs_and_substrings() {
-        let globs = [glob::Pattern::new("fixtures/identify/*").unwrap()];
-        assert!(selected("fixtures/identify/a", &globs, &[]));
-        assert!(!selected("fixtures/gate/a", &globs, &[]));
-        assert!(selected("fixtures/gate/bad_alpha", &[], &["bad_"]));
-        assert!(selected("anything", &[], &[]));
+    fn only_takes_globs_and_substrings_of_either_name() {
+        let globs = [glob::Pattern::new("identify/*").unwrap()];
+        assert!(selected(
+            &found("cases/cell7/identify/a", "identify/a"),
+            &globs,
+            &[]
+        ));
+        assert!(!selected(&found("cases/gate/a", "gate/a"), &globs, &[]));
+        let full = [glob::Pattern::new("./fixtures/identify/*").unwrap()];
+        assert!(selected(
+            &found("./fixtures/identify/a", "identify/a"),
+            &full,
+            &[]
+        ));
+        assert!(selected(
+            &found("f/gate/bad_alpha", "gate/bad_alpha"),
+            &[],
+            &["bad_"]
+        ));
+        assert!(selected(&found("anything", "anything"), &[], &[]));
     }
 
     #[test]
@@ -509,11 +602,16 @@ mod tests {
             std::fs::write(root.path().join(case).join("case.toml"), "").unwrap();
         }
         let found = discover(&[root.path().to_path_buf()]).unwrap();
-        let names: Vec<_> = found
-            .iter()
-            .map(|p| p.strip_prefix(root.path()).unwrap().display().to_string())
-            .collect();
+        let names: Vec<_> = found.iter().map(|f| f.relative.as_str()).collect();
         assert_eq!(names, ["a/one", "b/two"]);
+        // A link to a folder is followed, a link back up the tree once.
+        std::os::unix::fs::symlink(root.path().join("b"), root.path().join("c")).unwrap();
+        std::os::unix::fs::symlink(root.path(), root.path().join("b/up")).unwrap();
+        let found = discover(&[root.path().to_path_buf()]).unwrap();
+        let names: Vec<_> = found.iter().map(|f| f.relative.as_str()).collect();
+        assert_eq!(names, ["a/one", "b/two"]);
+        let linked = discover(&[root.path().join("c")]).unwrap();
+        assert_eq!(linked[0].relative, "two");
         assert!(discover(&[root.path().join("nope")]).is_err());
     }
 }

@@ -152,6 +152,12 @@ pub fn atomic_temp_pid(name: &str) -> Option<u32> {
     parse_pid(pid)
 }
 
+/// The hidden folder a case is recorded in before its rename to `name`
+/// (`egcal test record`): the shape [`atomic_temp_pid`] recognises.
+pub fn staging_folder_name(name: &str) -> String {
+    format!(".{name}.{}.0.tmp", std::process::id())
+}
+
 /// The name of a cache entry under construction (`runner::cache`):
 /// `.{key}.{pid}.tmp`. Defined here, beside its parser.
 pub fn cache_temp_name(key: &str) -> String {
@@ -440,6 +446,10 @@ mod tests {
         assert_eq!(predict_temp_pid("egcal-predict-"), None);
         assert_eq!(predict_temp_pid("egcal-predict-77.bak"), None);
         assert_eq!(work_folder_pid("egcal-test-77"), Some(77));
+        assert_eq!(
+            atomic_temp_pid(&staging_folder_name("case")),
+            Some(std::process::id())
+        );
         assert_eq!(work_folder_pid(&test_temp_name()), Some(std::process::id()));
         assert_eq!(work_folder_pid("egcal-test-077"), None);
     }

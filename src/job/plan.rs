@@ -162,15 +162,9 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
         }
         let kind = stages::lookup(&stage.kind);
         if kind.is_none() {
-            let known: Vec<&str> = stages::registry().iter().map(|k| k.info().kind).collect();
             problems.push(at(
                 &format!("{}.kind", stage.key),
-                format!(
-                    "unknown stage kind `{}`{}; known kinds: {}",
-                    stage.kind,
-                    crate::suggest::did_you_mean(&stage.kind, known.iter().copied()),
-                    known.join(", ")
-                ),
+                stages::unknown_kind_message(&stage.kind),
             ));
         }
         kinds.push(kind);

@@ -410,6 +410,16 @@ pub fn lookup(kind: &str) -> Option<&'static dyn StageKind> {
     registry().into_iter().find(|s| s.info().kind == kind)
 }
 
+/// "unknown stage kind `x` (did you mean `y`?); known kinds: …"
+pub fn unknown_kind_message(kind: &str) -> String {
+    let known: Vec<&str> = registry().iter().map(|k| k.info().kind).collect();
+    format!(
+        "unknown stage kind `{kind}`{}; known kinds: {}",
+        crate::suggest::did_you_mean(kind, known.iter().copied()),
+        known.join(", ")
+    )
+}
+
 /// The values of one model of a bound parameters table (`setting` names the
 /// setting that chose the model, for messages), or the robot's nominal values
 /// when the input is not bound.
