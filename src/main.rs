@@ -80,25 +80,10 @@ enum Command {
     },
     /// Run one stage kind on files (fixture tests, debugging).
     Stage {
-        kind: String,
-        #[arg(long)]
-        robot: PathBuf,
-        /// Cable-robot geometry (TOML); the built-in default when absent.
-        #[arg(long)]
-        cable_robot: Option<PathBuf>,
-        /// NAME=PATH, repeatable.
-        #[arg(long = "input", value_parser = parse_input)]
-        inputs: Vec<(String, PathBuf)>,
-        /// TOML file with the stage's settings (as in a job's stage table).
-        #[arg(long)]
-        settings: Option<PathBuf>,
+        #[command(flatten)]
+        stage: StageFiles,
         #[arg(long)]
         out: PathBuf,
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// Day relative time windows end on, YYYY-MM-DD (default: today, UTC).
-        #[arg(long, value_parser = parse_run_date)]
-        run_date: Option<i64>,
     },
     /// Predict positions, load torques and deflections for conf-wrench rows.
     Predict {
@@ -237,30 +222,37 @@ enum FleetAction {
     },
 }
 
+/// A stage kind and the files it runs on: `egcal stage`'s and `egcal test
+/// record`'s arguments.
+#[derive(clap::Args)]
+struct StageFiles {
+    kind: String,
+    #[arg(long)]
+    robot: PathBuf,
+    /// Cable-robot geometry (TOML); the built-in default when absent.
+    #[arg(long)]
+    cable_robot: Option<PathBuf>,
+    /// NAME=PATH, repeatable.
+    #[arg(long = "input", value_parser = parse_input)]
+    inputs: Vec<(String, PathBuf)>,
+    /// TOML file with the stage's settings (as in a job's stage table).
+    #[arg(long)]
+    settings: Option<PathBuf>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Day relative time windows end on, YYYY-MM-DD (default: today, UTC).
+    #[arg(long, value_parser = parse_run_date)]
+    run_date: Option<i64>,
+}
+
 #[derive(Subcommand)]
 enum TestAction {
     /// Create a regression case from a stage run on these files: inputs copied,
     /// today's output tables stored as the expected ones (marked as recorded from
     /// egcal), checked to pass once more before the folder is written.
     Record {
-        kind: String,
-        #[arg(long)]
-        robot: PathBuf,
-        /// Cable-robot geometry (TOML); the built-in default when absent.
-        #[arg(long)]
-        cable_robot: Option<PathBuf>,
-        /// NAME=PATH, repeatable.
-        #[arg(long = "input", value_parser = parse_input)]
-        inputs: Vec<(String, PathBuf)>,
-        /// TOML file with the stage's settings (as in a job's stage table).
-        #[arg(long)]
-        settings: Option<PathBuf>,
-        #[arg(long, default_value_t = 0)]
-        seed: u64,
-        /// Day relative time windows end on, YYYY-MM-DD (default: today, UTC);
-        /// pinned in the case.
-        #[arg(long, value_parser = parse_run_date)]
-        run_date: Option<i64>,
+        #[command(flatten)]
+        stage: StageFiles,
         /// A file or folder a setting names by relative path (`logs`), copied into
         /// the case under the same path; repeatable.
         #[arg(long = "copy")]
@@ -335,25 +327,16 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
         Command::Dag { job, dot } => commands::dag(&job, dot).map(Finished::from),
         Command::Check { job, vars } => commands::check(&job, &overrides(vars)).map(Finished::from),
         Command::Show { table, rows } => commands::show(&table, rows).map(Finished::from),
-        Command::Stage {
-            kind,
-            robot,
-            cable_robot,
-            inputs,
-            settings,
-            out,
-            seed,
-            run_date,
-        } => commands::stage(
+        Command::Stage { stage, out } => commands::stage(
             &commands::FileStage {
-                kind: &kind,
-                robot_file: &robot,
-                cable_robot_file: cable_robot.as_deref(),
-                inputs: &inputs,
-                seed,
-                run_date: run_date.unwrap_or_else(egcal::table::time::today),
+                kind: &stage.kind,
+                robot_file: &stage.robot,
+                cable_robot_file: stage.cable_robot.as_deref(),
+                inputs: &stage.inputs,
+                seed: stage.seed,
+                run_date: stage.run_date.unwrap_or_else(egcal::table::time::today),
             },
-            settings.as_deref(),
+            stage.settings.as_deref(),
             &out,
         ),
         Command::Predict {
@@ -532,26 +515,20 @@ fn test_command(
 /// `egcal test record`.
 fn record_command(action: TestAction) -> Result<Finished, CommandError> {
     let TestAction::Record {
-        kind,
-        robot,
-        cable_robot,
-        inputs,
-        settings,
-        seed,
-        run_date,
+        stage,
         copies,
         tolerance,
         timeout_s,
         out,
     } = action;
     let options = egcal::fixture_cases::RecordOptions {
-        kind,
-        robot_file: robot,
-        cable_robot_file: cable_robot,
-        inputs,
-        settings_file: settings,
-        seed,
-        run_date: run_date.unwrap_or_else(egcal::table::time::today),
+        kind: stage.kind,
+        robot_file: stage.robot,
+        cable_robot_file: stage.cable_robot,
+        inputs: stage.inputs,
+        settings_file: stage.settings,
+        seed: stage.seed,
+        run_date: stage.run_date.unwrap_or_else(egcal::table::time::today),
         copies,
         tolerance,
         out,

@@ -343,39 +343,60 @@ fn a_stage_that_hangs_fails_after_the_timeout() {
     assert!(left.stdout.is_empty(), "driver left running: {:?}", left);
 }
 
+/// `test record KIND` arguments: the inputs named from a shipped fixture
+/// folder's `<name>.parquet`, a settings file and the case folder to create.
+fn record_args(
+    kind: &str,
+    robot: &str,
+    fixture: &str,
+    inputs: &[&str],
+    settings: &str,
+    out: &str,
+) -> Vec<String> {
+    let fixture = common::root().join("fixtures").join(fixture);
+    let mut args: Vec<String> = [
+        "test",
+        "record",
+        kind,
+        "--robot",
+        robot,
+        "--settings",
+        settings,
+        "--out",
+        out,
+    ]
+    .map(String::from)
+    .to_vec();
+    for name in inputs {
+        args.push("--input".into());
+        args.push(format!(
+            "{name}={}",
+            fixture.join(format!("{name}.parquet")).display()
+        ));
+    }
+    args
+}
+
+fn shipped_robot() -> String {
+    common::root()
+        .join("jobs/robots/irb1600_145.toml")
+        .display()
+        .to_string()
+}
+
 /// Records a `predict` case from the shipped fixture's files into `out`.
 fn record_predict(dir: &Path, out: &str) -> (i32, String, String) {
-    let fixture = common::root().join("fixtures/predict/truth_loaded");
     std::fs::write(dir.join("settings.toml"), "model = \"elastogeometric\"\n").unwrap();
-    std::fs::copy(
-        common::root().join("jobs/robots/irb1600_145.toml"),
-        dir.join("robot.toml"),
-    )
-    .unwrap();
-    common::run(
-        &[
-            "test",
-            "record",
-            "predict",
-            "--robot",
-            "robot.toml",
-            "--input",
-            &format!(
-                "conf_wrenches={}",
-                fixture.join("conf_wrenches.parquet").display()
-            ),
-            "--input",
-            &format!(
-                "parameters={}",
-                fixture.join("parameters.parquet").display()
-            ),
-            "--settings",
-            "settings.toml",
-            "--out",
-            out,
-        ],
-        dir,
-    )
+    std::fs::copy(shipped_robot(), dir.join("robot.toml")).unwrap();
+    let args = record_args(
+        "predict",
+        "robot.toml",
+        "predict/truth_loaded",
+        &["conf_wrenches", "parameters"],
+        "settings.toml",
+        out,
+    );
+    common::run(&args.iter().map(String::as_str).collect::<Vec<_>>(), dir)
 }
 
 #[test]
@@ -449,27 +470,16 @@ fn recording_a_failing_stage_writes_nothing_and_sweeps_a_killed_recording() {
     std::fs::create_dir_all(leftover.join("expected")).unwrap();
 
     std::fs::write(tmp.path().join("bad.toml"), "model = \"no_such_model\"\n").unwrap();
-    let fixture = common::root().join("fixtures/predict/nominal");
+    let args = record_args(
+        "predict",
+        &shipped_robot(),
+        "predict/nominal",
+        &["conf_wrenches"],
+        "bad.toml",
+        "cases/bad",
+    );
     let (code, _, stderr) = common::run(
-        &[
-            "test",
-            "record",
-            "predict",
-            "--robot",
-            common::root()
-                .join("jobs/robots/irb1600_145.toml")
-                .to_str()
-                .unwrap(),
-            "--input",
-            &format!(
-                "conf_wrenches={}",
-                fixture.join("conf_wrenches.parquet").display()
-            ),
-            "--settings",
-            "bad.toml",
-            "--out",
-            "cases/bad",
-        ],
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
         tmp.path(),
     );
     assert_eq!(code, 3, "{stderr}");
@@ -550,27 +560,15 @@ fn a_killed_recording_leaves_no_case_and_its_leftovers_are_removed_next_time() {
         "driver = \"external\"\ncommand = [\"sleep\", \"30\"]\ntimeout_s = 20.0\n",
     )
     .unwrap();
-    let fixture = common::root().join("fixtures/measure/noiseless_simulator");
     let mut recording = common::egcal()
-        .args([
-            "test",
-            "record",
+        .args(record_args(
             "measure",
-            "--robot",
-            common::root()
-                .join("jobs/robots/irb1600_145.toml")
-                .to_str()
-                .unwrap(),
-            "--input",
-            &format!(
-                "conf_wrenches={}",
-                fixture.join("conf_wrenches.parquet").display()
-            ),
-            "--settings",
+            &shipped_robot(),
+            "measure/noiseless_simulator",
+            &["conf_wrenches"],
             "hang.toml",
-            "--out",
             "cases/hung",
-        ])
+        ))
         .current_dir(tmp.path())
         .process_group(0)
         .stdout(std::process::Stdio::null())
