@@ -260,6 +260,10 @@ enum TestAction {
         /// Relative tolerance of the recorded float comparisons.
         #[arg(long, default_value_t = 1e-9)]
         tolerance: f64,
+        /// The stage fails on these files: record its error message and exit code
+        /// as the expectation (a known bad file) instead of output tables.
+        #[arg(long)]
+        expect_error: bool,
         /// A case still running after this many seconds fails.
         #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..))]
         timeout_s: u64,
@@ -518,6 +522,7 @@ fn record_command(action: TestAction) -> Result<Finished, CommandError> {
         stage,
         copies,
         tolerance,
+        expect_error,
         timeout_s,
         out,
     } = action;
@@ -532,6 +537,7 @@ fn record_command(action: TestAction) -> Result<Finished, CommandError> {
         copies,
         tolerance,
         out,
+        expect_error,
         egcal: this_egcal()?,
         timeout: std::time::Duration::from_secs(timeout_s),
     };

@@ -615,3 +615,76 @@ fn a_killed_recording_leaves_no_case_and_its_leftovers_are_removed_next_time() {
     assert_eq!(code, 0, "{stdout}");
     assert!(stdout.contains("1 passed"), "{stdout}");
 }
+
+#[test]
+fn a_known_bad_file_records_its_error_and_fails_once_it_is_accepted() {
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::write(tmp.path().join("s.toml"), "model = \"elastogeometric\"\n").unwrap();
+    let bad = record_args(
+        "predict",
+        &shipped_robot(),
+        "predict/bad_nan",
+        &["conf_wrenches"],
+        "s.toml",
+        "cases/nan_row",
+    );
+    let run = |args: &[String]| {
+        common::run(
+            &args.iter().map(String::as_str).collect::<Vec<_>>(),
+            tmp.path(),
+        )
+    };
+    // Without --expect-error a failing stage is refused, with the hint.
+    let (code, _, stderr) = run(&bad);
+    assert_eq!(code, 3, "{stderr}");
+    assert!(stderr.contains("add --expect-error"), "{stderr}");
+
+    let mut args = bad.clone();
+    args.push("--expect-error".into());
+    let (code, stdout, stderr) = run(&args);
+    assert_eq!(code, 0, "{stdout}\n{stderr}");
+    assert!(stdout.contains("its error, exit 2"), "{stdout}");
+    let case = tmp.path().join("cases/nan_row");
+    let text = std::fs::read_to_string(case.join("case.toml")).unwrap();
+    assert!(
+        text.contains("conf_wrenches.parquet: column `q3_deg` is NaN at row 4"),
+        "{text}"
+    );
+    assert!(
+        !text.contains(".tmp/"),
+        "no temporary path is expected: {text}"
+    );
+    assert!(!case.join("expected").exists());
+    let (code, stdout, _) = egcal_test(&["cases"], tmp.path());
+    assert_eq!(code, 0, "{stdout}");
+
+    // The file is repaired (or egcal starts accepting it): the case fails.
+    std::fs::copy(
+        common::root().join("fixtures/predict/nominal/conf_wrenches.parquet"),
+        case.join("conf_wrenches.parquet"),
+    )
+    .unwrap();
+    let (code, stdout, _) = egcal_test(&["cases"], tmp.path());
+    assert_eq!(code, 1, "{stdout}");
+    assert!(
+        stdout.contains("but the stage succeeded (exit 0)"),
+        "{stdout}"
+    );
+
+    // --expect-error on a stage that succeeds is refused.
+    let mut good = record_args(
+        "predict",
+        &shipped_robot(),
+        "predict/nominal",
+        &["conf_wrenches"],
+        "s.toml",
+        "cases/good",
+    );
+    good.push("--expect-error".into());
+    let (code, _, stderr) = run(&good);
+    assert_eq!(code, 3);
+    assert!(
+        stderr.contains("--expect-error records a stage that fails"),
+        "{stderr}"
+    );
+}

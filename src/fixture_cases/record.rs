@@ -10,7 +10,7 @@ use std::path::{Component, Path, PathBuf};
 use std::time::Duration;
 
 use super::FixtureError;
-use super::case::{self, CaseFile, Expect, Recorded};
+use super::case::{self, CaseFile, Expect, Recorded, Strings};
 use super::run::{self, Outcome};
 
 /// What to record.
@@ -32,6 +32,9 @@ pub struct RecordOptions {
     pub tolerance: f64,
     /// The case folder to create.
     pub out: PathBuf,
+    /// Record the stage's error as the expectation (a known bad file) instead
+    /// of its tables.
+    pub expect_error: bool,
     /// The egcal binary that runs the stage.
     pub egcal: PathBuf,
     pub timeout: Duration,
@@ -93,31 +96,71 @@ pub fn record(options: &RecordOptions) -> Result<String, FixtureError> {
         .code
         .clone()
         .map_err(|why| FixtureError::Record(format!("{why}\n{}", ran.stderr.trim_end())))?;
-    if ![0, 10, 11].contains(&code) {
-        return Err(FixtureError::Record(format!(
-            "the stage failed (exit {code}) on the case's copies of its files in {}; \
-             nothing was recorded{}:\n{}",
-            staging.path.display(),
-            if options.copies.is_empty() {
-                " (if a setting names a file or folder, add it with --copy)"
-            } else {
-                ""
-            },
-            ran.stderr.trim_end()
-        )));
-    }
-    let tables = store_expected(&first.join("out"), &staging.path.join("expected"))?;
-    let case_file = CaseFile {
-        expect: Expect {
+    let decided = [0, 10, 11].contains(&code);
+    let (expect, recorded) = if options.expect_error {
+        if decided {
+            return Err(FixtureError::Record(format!(
+                "the stage succeeded (exit {code}); --expect-error records a stage that fails"
+            )));
+        }
+        if code == 101 || ran.stderr.contains("panicked at") {
+            return Err(FixtureError::Record(format!(
+                "the stage panicked, which is a bug to report rather than an error to expect:\n{}",
+                ran.stderr.trim_end()
+            )));
+        }
+        let texts = error_texts(&ran.stderr, &[&staging.path, &first]);
+        if texts.is_empty() {
+            return Err(FixtureError::Record(format!(
+                "the stage failed (exit {code}) without an error message to expect"
+            )));
+        }
+        let expect = Expect {
+            error: Some(Strings::Many(texts)),
+            exit: Some(code as u8),
+            ..Expect::default()
+        };
+        (expect, format!("its error, exit {code}"))
+    } else {
+        if !decided {
+            return Err(FixtureError::Record(format!(
+                "the stage failed (exit {code}) on the case's copies of its files in {}; \
+                 nothing was recorded{} (to keep this error as the expected one, add \
+                 --expect-error):\n{}",
+                staging.path.display(),
+                if options.copies.is_empty() {
+                    "; if a setting names a file or folder, add it with --copy"
+                } else {
+                    ""
+                },
+                ran.stderr.trim_end()
+            )));
+        }
+        let tables = store_expected(&first.join("out"), &staging.path.join("expected"))?;
+        let expect = Expect {
             tolerance: Some(options.tolerance),
             exit: (code != 0).then_some(code as u8),
             ..Expect::default()
-        },
+        };
+        let exit = if code != 0 {
+            format!(", exit {code}")
+        } else {
+            String::new()
+        };
+        let described = format!(
+            "{} expected table(s) ({}){exit}",
+            tables.len(),
+            tables.join(", ")
+        );
+        (expect, described)
+    };
+    let case_file = CaseFile {
+        expect,
         ..case_file
     };
     let text = format!(
-        "# Recorded by `egcal test record` (egcal {}, {}): the expected tables are egcal's\n\
-         # own output of that day, a regression case rather than an independent check.\n{}",
+        "# Recorded by `egcal test record` (egcal {}, {}): the expectation is egcal's own\n\
+         # output of that day, a regression case rather than an independent check.\n{}",
         env!("CARGO_PKG_VERSION"),
         crate::table::time::date_string(crate::table::time::today()),
         toml::to_string(&case_file).map_err(|e| FixtureError::Record(e.to_string()))?
@@ -137,18 +180,32 @@ pub fn record(options: &RecordOptions) -> Result<String, FixtureError> {
     }
     staging.persist(&out)?;
     Ok(format!(
-        "recorded a `{}` case in {}: {} expected table(s) ({}){}; run it with `egcal test {}`",
+        "recorded a `{}` case in {}: {recorded}; run it with `egcal test {}`",
         options.kind,
         out.display(),
-        tables.len(),
-        tables.join(", "),
-        if code != 0 {
-            format!(", exit {code}")
-        } else {
-            String::new()
-        },
         options.out.display()
     ))
+}
+
+/// The path-free pieces of a stage's error: every line of its stderr cut at
+/// the case's temporary folders, which the next run of the case will not share
+/// (the inputs' copies are named again from the case's final folder).
+fn error_texts(stderr: &str, temporary: &[&Path]) -> Vec<String> {
+    let mut pieces = vec![stderr.trim().to_string()];
+    for dir in temporary {
+        let prefix = format!("{}/", dir.display());
+        pieces = pieces
+            .iter()
+            .flat_map(|p| p.split(&prefix).map(str::to_string).collect::<Vec<_>>())
+            .collect();
+    }
+    let mut texts: Vec<String> = Vec::new();
+    for piece in pieces.iter().flat_map(|p| p.lines()).map(str::trim) {
+        if !piece.is_empty() && !texts.iter().any(|t| t == piece) {
+            texts.push(piece.to_string());
+        }
+    }
+    texts
 }
 
 /// Copies the robot, cable robot, inputs and `--copy` paths into `dir`; returns
@@ -351,10 +408,15 @@ impl Staging {
                 to.display()
             )));
         }
-        for dir in [self.path.join("expected"), self.path.clone()] {
-            crate::fsio::sync_dir(&dir)
-                .map_err(|e| FixtureError::Record(format!("{}: {e}", dir.display())))?;
+        let sync = |dir: &Path| {
+            crate::fsio::sync_dir(dir)
+                .map_err(|e| FixtureError::Record(format!("{}: {e}", dir.display())))
+        };
+        let expected = self.path.join("expected");
+        if expected.exists() {
+            sync(&expected)?; // not in an error case
         }
+        sync(&self.path)?;
         std::fs::rename(&self.path, to).map_err(|e| {
             FixtureError::Record(format!("cannot move the case to {}: {e}", to.display()))
         })?;
@@ -371,5 +433,32 @@ impl Drop for Staging {
         if !self.persisted {
             let _ = std::fs::remove_dir_all(&self.path);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn error_texts_leave_out_the_temporary_folders() {
+        let stderr = "error: stage `predict` failed: /t/.c.1.0.tmp/conf_wrenches.parquet: \
+                      column `q3_deg` is NaN at row 4\nsee /w/egcal-test-1/first/settings.toml\n";
+        let texts = error_texts(
+            stderr,
+            &[
+                Path::new("/t/.c.1.0.tmp"),
+                Path::new("/w/egcal-test-1/first"),
+            ],
+        );
+        assert_eq!(
+            texts,
+            [
+                "error: stage `predict` failed:",
+                "conf_wrenches.parquet: column `q3_deg` is NaN at row 4",
+                "see",
+                "settings.toml"
+            ]
+        );
     }
 }
