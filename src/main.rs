@@ -155,8 +155,8 @@ enum Command {
         action: Option<TestAction>,
         /// Folders of cases, searched recursively (default: fixtures).
         dirs: Vec<PathBuf>,
-        /// Only cases whose folder matches: a glob (`fixtures/identify/*`) or a
-        /// substring; repeatable.
+        /// Only cases whose folder (as found, or below the searched folder)
+        /// matches: a glob (`identify/*`) or a substring; repeatable.
         #[arg(long)]
         only: Vec<String>,
         /// Also write a JUnit XML report here.
@@ -226,7 +226,9 @@ enum FleetAction {
 /// record`'s arguments.
 #[derive(clap::Args)]
 struct StageFiles {
+    /// Stage kind (`egcal list-stages`).
     kind: String,
+    /// Robot file (TOML).
     #[arg(long)]
     robot: PathBuf,
     /// Cable-robot geometry (TOML); the built-in default when absent.
@@ -238,6 +240,7 @@ struct StageFiles {
     /// TOML file with the stage's settings (as in a job's stage table).
     #[arg(long)]
     settings: Option<PathBuf>,
+    /// The job seed the stage's randomness derives from.
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Day relative time windows end on, YYYY-MM-DD (default: today, UTC).
@@ -248,8 +251,9 @@ struct StageFiles {
 #[derive(Subcommand)]
 enum TestAction {
     /// Create a regression case from a stage run on these files: inputs copied,
-    /// today's output tables stored as the expected ones (marked as recorded from
-    /// egcal), checked to pass once more before the folder is written.
+    /// today's output tables (or, with --expect-error, its error) stored as the
+    /// expectation, marked as recorded from egcal, checked to pass once more
+    /// before the folder is written.
     Record {
         #[command(flatten)]
         stage: StageFiles,
