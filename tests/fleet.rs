@@ -9,7 +9,7 @@
 
 mod common;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use egcal::table;
@@ -68,15 +68,11 @@ models = ["kinematic", "elastogeometric"]
 
 /// `jobs/` with the four robots' logs made once, shared read-only.
 fn prepared() -> &'static Path {
-    static PREPARED: OnceLock<tempfile::TempDir> = OnceLock::new();
+    static PREPARED: OnceLock<PathBuf> = OnceLock::new();
     PREPARED
         .get_or_init(|| {
-            let dir = tempfile::tempdir().unwrap();
-            common::copy_dir(
-                &common::root().join("jobs"),
-                dir.path(),
-                &["out", "calibration"],
-            );
+            let dir = common::shared_dir("fleet_prepared");
+            common::copy_dir(&common::root().join("jobs"), &dir, &["out", "calibration"]);
             let mut text = MAKE_LOGS.to_string();
             text += &robot_logs(
                 "robot_a",
@@ -88,12 +84,12 @@ fn prepared() -> &'static Path {
                 r#"drifts = [{ parameter = "da2", per_day = 0.004 }]"#,
             );
             text += &robot_logs("robot_d", "");
-            std::fs::write(dir.path().join("make_logs.toml"), text).unwrap();
-            let (code, stdout, stderr) = common::run(&["-q", "run", "make_logs.toml"], dir.path());
+            std::fs::write(dir.join("make_logs.toml"), text).unwrap();
+            let (code, stdout, stderr) = common::run(&["-q", "run", "make_logs.toml"], &dir);
             assert_eq!(code, 0, "make_logs: {stdout}{stderr}");
             dir
         })
-        .path()
+        .as_path()
 }
 
 /// A fresh cell: the prepared logs, each robot's commissioning calibration in

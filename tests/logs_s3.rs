@@ -66,16 +66,12 @@ fn log_files(dir: &Path) -> Vec<PathBuf> {
 
 /// `jobs/` with make_logs run, and its logs uploaded below a prefix of its own:
 /// (folder, prefix).
-fn prepared(bucket: &str) -> &'static (tempfile::TempDir, String) {
-    static PREPARED: OnceLock<(tempfile::TempDir, String)> = OnceLock::new();
+fn prepared(bucket: &str) -> &'static (PathBuf, String) {
+    static PREPARED: OnceLock<(PathBuf, String)> = OnceLock::new();
     PREPARED.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        common::copy_dir(
-            &common::root().join("jobs"),
-            dir.path(),
-            &["out", "calibration"],
-        );
-        let (code, stdout, stderr) = common::run(&["-q", "run", "make_logs.toml"], dir.path());
+        let dir = common::shared_dir("logs_s3_prepared");
+        common::copy_dir(&common::root().join("jobs"), &dir, &["out", "calibration"]);
+        let (code, stdout, stderr) = common::run(&["-q", "run", "make_logs.toml"], &dir);
         assert_eq!(code, 0, "make_logs: {stdout}{stderr}");
         let prefix = format!(
             "tests/{}-{}/logs",
@@ -85,8 +81,8 @@ fn prepared(bucket: &str) -> &'static (tempfile::TempDir, String) {
                 .unwrap()
                 .as_nanos()
         );
-        for file in log_files(dir.path()) {
-            let bytes = std::fs::read(dir.path().join("out/make_logs").join(&file)).unwrap();
+        for file in log_files(&dir) {
+            let bytes = std::fs::read(dir.join("out/make_logs").join(&file)).unwrap();
             put(bucket, &format!("{prefix}/{}", file.display()), bytes);
         }
         (dir, prefix)
@@ -138,7 +134,7 @@ fn s3_gives_the_same_measurements_and_content_key_as_files() {
         return;
     };
     let (dir, prefix) = prepared(&bucket);
-    let dir = dir.path();
+    let dir = dir.as_path();
     let url = format!("s3://{bucket}/{prefix}");
     let content = "content_key = \"content\"";
     for (name, logs) in [("on_disk", LOCAL_LOGS), ("on_s3", url.as_str())] {
@@ -173,7 +169,7 @@ fn etags_key_the_cache_and_follow_a_replaced_object() {
     // A prefix of this test's own, since it replaces an object.
     let (source, _) = prepared(&bucket);
     let dir = tempfile::tempdir().unwrap();
-    common::copy_dir(source.path(), dir.path(), &[]);
+    common::copy_dir(source.as_path(), dir.path(), &[]);
     let prefix = format!("tests/{}-etag/logs", std::process::id());
     let files = log_files(dir.path());
     for file in &files {
@@ -224,7 +220,7 @@ fn a_fleet_finds_its_robots_in_the_bucket() {
         return;
     };
     let (dir, prefix) = prepared(&bucket);
-    let fleet = dir.path().join("s3_fleet.toml");
+    let fleet = dir.as_path().join("s3_fleet.toml");
     std::fs::write(
         &fleet,
         format!(
@@ -242,7 +238,7 @@ fn wrong_credentials_or_bucket_fail_with_the_address() {
         return;
     };
     let (source, prefix) = prepared(&bucket);
-    let dir = source.path();
+    let dir = source.as_path();
     let url = format!("s3://{bucket}/{prefix}");
     let job = scan_job(dir, "bad_key", &url, "");
     let out = common::egcal()

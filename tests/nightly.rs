@@ -18,20 +18,16 @@ const REFUSED: i32 = 11;
 
 /// A copy of `jobs/` with make_logs run once, shared read-only by the tests.
 fn prepared() -> &'static Path {
-    static PREPARED: OnceLock<tempfile::TempDir> = OnceLock::new();
+    static PREPARED: OnceLock<PathBuf> = OnceLock::new();
     PREPARED
         .get_or_init(|| {
-            let dir = tempfile::tempdir().unwrap();
-            common::copy_dir(
-                &common::root().join("jobs"),
-                dir.path(),
-                &["out", "calibration"],
-            );
-            let (code, stdout, stderr) = common::run(&["-q", "run", "make_logs.toml"], dir.path());
+            let dir = common::shared_dir("nightly_prepared");
+            common::copy_dir(&common::root().join("jobs"), &dir, &["out", "calibration"]);
+            let (code, stdout, stderr) = common::run(&["-q", "run", "make_logs.toml"], &dir);
             assert_eq!(code, 0, "make_logs: {stdout}{stderr}");
             dir
         })
-        .path()
+        .as_path()
 }
 
 /// A fresh cell folder: the prepared jobs and logs, and `robot`'s commissioning

@@ -21,6 +21,19 @@ pub fn egcal() -> Command {
     command
 }
 
+/// A fresh folder for data a test binary prepares once and shares between its
+/// tests: `target/tmp/<name>`, emptied on first use. A static `TempDir` would
+/// never be dropped and would leave its folder in the system's /tmp after each
+/// run; this one is replaced by the next run instead.
+pub fn shared_dir(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(name);
+    if dir.exists() {
+        std::fs::remove_dir_all(&dir).expect("remove the previous run's shared folder");
+    }
+    std::fs::create_dir_all(&dir).expect("create the shared folder");
+    dir
+}
+
 /// Runs egcal with arguments; returns (exit code, stdout, stderr).
 pub fn run(args: &[&str], dir: &Path) -> (i32, String, String) {
     let Output {
