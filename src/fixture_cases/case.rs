@@ -154,14 +154,11 @@ pub fn load(dir: &Path) -> Result<Case, Malformed> {
     };
     let text =
         std::fs::read_to_string(&file).map_err(|e| bad(None, "", format!("cannot read: {e}")))?;
+    let lines = line_index(&text).unwrap_or_default();
     let raw: CaseFile = crate::toml_error::from_str_strict(&text).map_err(|e| match e {
         StrictError::Syntax(message) => bad(None, "", format!("invalid TOML: {message}")),
-        StrictError::Invalid { key, message } => {
-            let line = line_index(&text).and_then(|index| index.line_of(&key));
-            bad(line, &key, message)
-        }
+        StrictError::Invalid { key, message } => bad(lines.line_of(&key), &key, message),
     })?;
-    let lines = line_index(&text).unwrap_or_default();
     let bad_key = |key: &str, message: String| bad(lines.line_of(key), key, message);
     check(dir, raw, &bad_key)
 }

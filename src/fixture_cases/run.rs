@@ -307,22 +307,24 @@ pub(super) struct Ran {
 
 /// Runs the case's stage into `work/out`.
 pub(super) fn run_stage(case: &Case, egcal: &Path, timeout: Duration, work: &Path) -> Ran {
-    let mut ran = Ran {
-        code: Err(String::new()),
-        stdout: String::new(),
-        stderr: String::new(),
-    };
-    ran.code = start_and_wait(case, egcal, timeout, work, &mut ran);
-    ran
+    let (mut stdout, mut stderr) = (String::new(), String::new());
+    let code = start_and_wait(case, egcal, timeout, work, &mut stdout, &mut stderr);
+    Ran {
+        code,
+        stdout,
+        stderr,
+    }
 }
 
-/// Starts the stage, waits for it, and reads its output into `ran`.
+/// Starts the stage, waits for it, and reads its output (also that of a stage
+/// killed at the timeout).
 fn start_and_wait(
     case: &Case,
     egcal: &Path,
     timeout: Duration,
     work: &Path,
-    ran: &mut Ran,
+    stdout: &mut String,
+    stderr: &mut String,
 ) -> Result<i32, String> {
     let out = work.join("out");
     std::fs::create_dir_all(&out).map_err(|e| format!("cannot create {}: {e}", out.display()))?;
@@ -372,8 +374,8 @@ fn start_and_wait(
             .map(|b| String::from_utf8_lossy(&b).into_owned())
             .unwrap_or_default()
     };
-    ran.stdout = read(&stdout_file);
-    ran.stderr = read(&stderr_file);
+    *stdout = read(&stdout_file);
+    *stderr = read(&stderr_file);
     let status = status?;
     status
         .code()
