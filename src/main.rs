@@ -35,9 +35,15 @@ enum Command {
         /// Recompute this stage and everything downstream.
         #[arg(long)]
         from: Option<String>,
-        /// Recompute every stage.
+        /// Recompute every stage. A measuring stage resumes from its journal,
+        /// so its rows come back as recorded; see --remeasure.
         #[arg(long)]
         force: bool,
+        /// Measure this stage afresh: its journal is set aside (kept under
+        /// OUT/.egcal/set_aside/STAGE/TIME/) and it re-runs with everything
+        /// downstream. Repeatable.
+        #[arg(long, value_name = "STAGE")]
+        remeasure: Vec<String>,
         /// Stages run at once (default: the number of cores).
         #[arg(long, short)]
         jobs: Option<usize>,
@@ -308,6 +314,7 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
             only,
             from,
             force,
+            remeasure,
             jobs,
             run_date,
             vars,
@@ -323,6 +330,7 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
                     force,
                     jobs,
                     run_date,
+                    remeasure,
                 },
                 cli.quiet,
             )

@@ -8,18 +8,21 @@
 pub mod accuracy_map;
 mod dense;
 pub mod fit;
+pub mod held;
 pub mod rank;
 pub mod registration;
 pub mod robust;
 pub mod row_checks;
 pub mod stream;
 pub mod uncertainty;
+pub mod unit_checks;
 
 use nalgebra::Vector3;
 
 use crate::robot::{Frame, JOINTS, ParamId, ParamValues, Robot};
 use crate::table::parameters::{ModelName, ParamStatus, ParameterSet};
 use fit::{FitError, FitOptions, Iteration, Loss, Observations, Stop};
+use held::{Hold, HoldOptions};
 use rank::RankAnalysis;
 use robust::RobustOptions;
 
@@ -37,6 +40,9 @@ pub struct CalibrationOptions {
     pub fixed: Vec<(ParamId, f64)>,
     /// Targets in the rows (1 for a one-target cell).
     pub targets: usize,
+    /// Bounds beyond which an identifiable parameter is held at its start value
+    /// (spec §8 `held`); `None`: every identifiable parameter is fitted.
+    pub hold: Option<HoldOptions>,
 }
 
 impl CalibrationOptions {
@@ -50,6 +56,7 @@ impl CalibrationOptions {
             robust: Some(RobustOptions::default()),
             fixed: Vec::new(),
             targets: 1,
+            hold: Some(HoldOptions::default()),
         }
     }
 }
@@ -72,6 +79,9 @@ pub struct ModelResult {
     pub diagnostics: Option<Diagnostics>,
     /// What the robust fit did; `None` without it or where nothing is fitted.
     pub robust: Option<RobustSummary>,
+    /// Identifiable parameters held at their start value because the data do
+    /// not determine them ([`held`]), in the order they were chosen.
+    pub held: Vec<Hold>,
 }
 
 /// What the robust fit found (see [`robust`]).
@@ -158,6 +168,7 @@ pub fn calibrate(
             residuals_mm,
             diagnostics: None,
             robust: None,
+            held: Vec::new(),
         });
     }
     let mut start = *start;
@@ -171,7 +182,7 @@ pub fn calibrate(
             }
         }
     }
-    let (rank, mut fit) = fit::fit_identifiable(
+    let (rank, least_squares) = fit::fit_identifiable(
         robot,
         &start,
         data,
@@ -179,15 +190,39 @@ pub fn calibrate(
         options.rank_tolerance,
         &options.fit,
     )?;
-    let robust = match options.robust {
-        Some(robust) => {
-            let (refit, summary) =
-                robust_refit(robot, data, fit, &rank.independent, &robust, options)?;
-            fit = refit;
-            Some(summary)
+    let mut free = rank.independent.clone();
+    let mut held: Vec<Hold> = Vec::new();
+    let mut trace: Vec<Iteration> = Vec::new();
+    let mut least_squares = least_squares;
+    // Each round holds at least one parameter, so this ends within `m` rounds;
+    // without holds it is the one fit it always was.
+    let (fit, robust) = loop {
+        let (fit, robust) = match options.robust {
+            Some(robust) => {
+                let (refit, summary) =
+                    robust_refit(robot, data, least_squares, &free, &robust, options)?;
+                (refit, Some(summary))
+            }
+            None => (least_squares, None),
+        };
+        let new_holds = options.hold.as_ref().map_or_else(Vec::new, |bounds| {
+            held::parameters_to_hold(&fit.free, &fit.covariance, bounds, |id| {
+                id.name().to_string()
+            })
+        });
+        if new_holds.is_empty() {
+            break (fit, robust);
         }
-        None => None,
+        trace.extend(fit.trace.iter().copied());
+        free.retain(|id| !new_holds.iter().any(|h| h.id == *id));
+        held.extend(new_holds);
+        // From the start again: the held values are the start's, and the
+        // others should not inherit what the loose ones did to them.
+        least_squares = fit::fit(robot, &start, data, &free, &options.fit)?;
     };
+    let mut fit = fit;
+    trace.extend(fit.trace.iter().copied());
+    fit.trace = trace;
     let diagnostics = Diagnostics {
         stop: fit.stop,
         condition_number: fit.condition_number,
@@ -198,11 +233,39 @@ pub fn calibrate(
     };
     let mut set = ParameterSet::fixed(model, fit.values);
     set.std_errors = fit.std_errors;
-    for id in &rank.independent {
+    for id in &free {
         set.status[id.index()] = ParamStatus::Identified;
     }
-    for (id, _) in &rank.dependent {
+    for (id, combined) in &rank.dependent {
         set.status[id.index()] = ParamStatus::Dependent;
+        set.reasons[id.index()] = Some(if combined.is_empty() {
+            "no effect on these rows".to_string()
+        } else {
+            format!(
+                "dependent on {} (rank analysis)",
+                combined
+                    .iter()
+                    .map(|p| p.name())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        });
+    }
+    for hold in &held {
+        set.status[hold.id.index()] = ParamStatus::Held;
+        set.reasons[hold.id.index()] = Some(hold.reason.clone());
+    }
+    for (id, _) in &options.fixed {
+        set.reasons[id.index()] = Some("fixed by the job".to_string());
+    }
+    for id in ParamId::all_with_targets(targets) {
+        if set.status[id.index()] == ParamStatus::Fixed && set.reasons[id.index()].is_none() {
+            set.reasons[id.index()] = Some(if allowed(&id) {
+                format!("not part of the {model} model")
+            } else {
+                "not among the job's candidates".to_string()
+            });
+        }
     }
     Ok(ModelResult {
         set,
@@ -213,6 +276,7 @@ pub fn calibrate(
         weights: fit.weights,
         diagnostics: Some(diagnostics),
         robust,
+        held,
     })
 }
 

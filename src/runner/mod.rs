@@ -11,7 +11,9 @@
 //! Layout of an output folder:
 //! `<stage>/<table>.parquet` (published results), `.egcal/cache/` (entries),
 //! `.egcal/state/<stage>.json` (what the last run keyed on, for `status`),
-//! `.egcal/work/<stage>/` (journals of resumable stages), `.egcal/lock`.
+//! `.egcal/work/<stage>/` (journals of resumable stages),
+//! `.egcal/set_aside/<stage>/<UTC time>/` (journals `--remeasure` moved away),
+//! `.egcal/lock`.
 //!
 //! A run, and `cache gc`, first removes the temporaries that killed runs left in
 //! the output folder and in the calibration folders gate stages publish into
@@ -50,6 +52,11 @@ pub struct RunOptions {
     pub jobs: usize,
     /// Overrides the plan's run date (a replay of an earlier night).
     pub run_date: Option<i64>,
+    /// Stages whose journals are set aside (kept under
+    /// `.egcal/set_aside/<stage>/<time>/`, never deleted) so they start afresh,
+    /// and which re-run with everything downstream: `--force` alone resumes a
+    /// measuring stage from its journal and so replays the old readings.
+    pub remeasure: Vec<String>,
 }
 
 /// The parts of a cache key, kept so `status` can say what changed.
@@ -167,6 +174,35 @@ impl Layout {
     }
 }
 
+/// Moves a stage's work folder (its measurement journal) to
+/// `.egcal/set_aside/<stage>/<UTC time>/`, so the stage starts afresh and the
+/// old readings stay on disk. `None` when the stage has no work folder.
+fn set_aside_work(layout: &Layout, stage: &str) -> Result<Option<PathBuf>, RunError> {
+    let work = layout.work.join(stage);
+    if !work.exists() {
+        return Ok(None);
+    }
+    // RFC 3339 without the characters some file systems refuse; a second
+    // set-aside within the same second gets a suffix.
+    let stamp = crate::table::time::now_rfc3339().replace([':', '-'], "");
+    let parent = layout.meta().join("set_aside").join(stage);
+    let io = |context: String| move |source| RunError::Io { context, source };
+    std::fs::create_dir_all(&parent).map_err(io(format!("creating {}", parent.display())))?;
+    let mut target = parent.join(&stamp);
+    let mut n = 1;
+    while target.exists() {
+        n += 1;
+        target = parent.join(format!("{stamp}_{n}"));
+    }
+    std::fs::rename(&work, &target).map_err(io(format!(
+        "moving {} to {}",
+        work.display(),
+        target.display()
+    )))?;
+    fsio::sync_dir(&parent).map_err(io(format!("syncing {}", parent.display())))?;
+    Ok(Some(target))
+}
+
 /// The seed a stage draws from: the job seed mixed with the stage id.
 pub fn stage_seed(job_seed: u64, stage_id: &str) -> u64 {
     let mut hasher = blake3::Hasher::new();
@@ -206,6 +242,18 @@ pub fn run(
         }
         None => vec![true; plan.stages.len()],
     };
+    let mut remeasured = Vec::new();
+    for id in &options.remeasure {
+        let index = index_of(id)?;
+        if let Some(moved) = set_aside_work(&layout, id)? {
+            reporter.line(&format!(
+                "{id}: earlier journal set aside in {} (kept); measuring afresh",
+                moved.display()
+            ));
+        }
+        remeasured.extend(plan.descendants(index));
+        remeasured.push(index);
+    }
     let forced: Vec<bool> = if options.force {
         vec![true; plan.stages.len()]
     } else if let Some(id) = &options.from {
@@ -218,6 +266,11 @@ pub fn run(
     } else {
         vec![false; plan.stages.len()]
     };
+    let forced: Vec<bool> = forced
+        .iter()
+        .enumerate()
+        .map(|(i, f)| *f || remeasured.contains(&i))
+        .collect();
 
     // Upstream stages that are not selected must come from the cache.
     let mut done: Vec<Option<Done>> = vec![None; plan.stages.len()];

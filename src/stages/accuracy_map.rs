@@ -17,7 +17,8 @@ use super::{
     model_set,
 };
 use crate::calibration::accuracy_map::{self, GridSpec, MapPoint, PointStatus};
-use crate::robot::Wrench;
+use crate::robot::params::ParamKind;
+use crate::robot::{ConfWrench, ParamId, ParamValues, Wrench, batch_predict};
 use crate::table::frame;
 use crate::table::parameters::ModelName;
 use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS};
@@ -42,6 +43,9 @@ pub struct AccuracyMapSettings {
     /// on every side, so that extrapolation shows.
     #[schemars(range(min = 0.0, max = 5000.0))]
     pub margin_mm: f64,
+    /// Which target's tool the grid is for, with a several-target calibration
+    /// (spec §7: one tool translation per SMR); empty for a one-target one.
+    pub target: String,
 }
 
 impl Default for AccuracyMapSettings {
@@ -51,6 +55,7 @@ impl Default for AccuracyMapSettings {
             points_per_axis: 15,
             slices: 3,
             margin_mm: 200.0,
+            target: String::new(),
         }
     }
 }
@@ -60,7 +65,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Predicted 95 % position uncertainty (J·Σ·Jᵀ) over a grid around the calibration rows, for the report's accuracy map",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "parameters",
@@ -143,18 +148,21 @@ impl Stage for AccuracyMapStage {
             ))
         })?;
         let measurements = ctx.input("measurements")?;
-        let (ids, rows) = conf_wrench_rows(measurements)?;
+        let (ids, mut rows) = conf_wrench_rows(measurements)?;
+        super::aim_rows(measurements, &set, &mut rows)?;
+        let (mapped_values, mapped_free) = tool_of_target(&set, &covariance.free, &settings.target)?;
         let keep = ctx
             .inputs
             .get("selection")
             .map(|s| ids_with_role(s, "calibration"))
             .transpose()?;
-        let (calibration_ids, calibration_q): (Vec<i64>, Vec<_>) = ids
+        let (calibration_ids, calibration_rows): (Vec<i64>, Vec<_>) = ids
             .iter()
             .zip(&rows)
             .filter(|(id, _)| keep.as_ref().is_none_or(|k| k.contains(id)))
-            .map(|(id, row)| (*id, row.q_deg))
+            .map(|(id, row)| (*id, *row))
             .unzip();
+        let calibration_q: Vec<_> = calibration_rows.iter().map(|r| r.q_deg).collect();
         if calibration_q.is_empty() {
             return Err(StageError::Invalid(format!(
                 "{}: no calibration rows (the selection marks none, or the table is empty)",
@@ -168,8 +176,8 @@ impl Stage for AccuracyMapStage {
         };
         let map = accuracy_map::accuracy_map(
             ctx.robot,
-            &set.values,
-            &covariance.free,
+            &mapped_values,
+            &mapped_free,
             &covariance.matrix,
             &calibration_q,
             &spec,
@@ -178,13 +186,18 @@ impl Stage for AccuracyMapStage {
         outputs
             .tables
             .insert("accuracy_map".into(), map_frame(&map));
-        let positions: Vec<_> = calibration_q
+        // Each calibration row's own SMR, unloaded.
+        let unloaded: Vec<ConfWrench> = calibration_rows
             .iter()
-            .map(|q| {
-                ctx.robot
-                    .tool_in_world(&set.values, q, &Wrench::zero())
-                    .origin_mm
+            .map(|r| {
+                let mut row = ConfWrench::new(r.q_deg, Wrench::zero());
+                row.target = r.target;
+                row
             })
+            .collect();
+        let positions: Vec<_> = batch_predict(ctx.robot, &set.values, &unloaded)
+            .into_iter()
+            .map(|p| p.position_mm)
             .collect();
         let mut columns = vec![Column::new("cw_id".into(), calibration_ids)];
         for (axis, name) in POSITION_COLUMNS.iter().enumerate() {
@@ -212,6 +225,57 @@ impl Stage for AccuracyMapStage {
         }
         Ok(outputs)
     }
+}
+
+/// The values and identified parameters with `target`'s tool translation in
+/// target 0's place, so the grid (built for target 0's tool) maps that
+/// target's tool; its covariance entries move with it. An error names the
+/// targets when a several-target set is not told which, or an unknown one.
+fn tool_of_target(
+    set: &crate::table::parameters::ParameterSet,
+    free: &[ParamId],
+    target: &str,
+) -> Result<(ParamValues, Vec<ParamId>), StageError> {
+    if set.targets.len() <= 1 {
+        if !target.is_empty() && set.targets.first().is_none_or(|only| only != target) {
+            return Err(StageError::Invalid(format!(
+                "setting `target`: `{target}` is not a target of the {} parameters (they have one tool{})",
+                set.model,
+                set.targets.first().map(|t| format!(", target `{t}`")).unwrap_or_default()
+            )));
+        }
+        return Ok((set.values, free.to_vec()));
+    }
+    let Some(chosen) = set.targets.iter().position(|t| t == target) else {
+        return Err(StageError::Invalid(format!(
+            "setting `target`: the {} parameters have one tool per target ({}); name the one to map{}",
+            set.model,
+            set.targets.join(", "),
+            if target.is_empty() {
+                String::new()
+            } else {
+                format!(" (`{target}` is not one of them)")
+            }
+        )));
+    };
+    let swap = |id: ParamId| match id.kind() {
+        ParamKind::ToolTranslation { target, axis } if target == chosen => {
+            ParamId::target_translation(0, axis)
+        }
+        ParamKind::ToolTranslation { target: 0, axis } => ParamId::target_translation(chosen, axis),
+        _ => id,
+    };
+    let mut values = set.values;
+    for axis in 0..3 {
+        let (a, b) = (
+            ParamId::target_translation(0, axis),
+            ParamId::target_translation(chosen, axis),
+        );
+        let (va, vb) = (set.values.get(a), set.values.get(b));
+        values.set(a, vb);
+        values.set(b, va);
+    }
+    Ok((values, free.iter().map(|id| swap(*id)).collect()))
 }
 
 /// The median `u95` of the reachable points inside (or outside) the box.

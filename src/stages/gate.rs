@@ -76,7 +76,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: Some("in_service"),
     summary: "Compare the night's calibration with the one in service; publish it only when it is better or the old one drifted",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -184,13 +184,36 @@ fn model_set(
         })
 }
 
-/// Error norms of `values` on the rows (mm).
-fn error_norms(ctx: &StageContext, values: &ParamValues, rows: &MeasuredRows) -> Vec<f64> {
-    batch_predict(ctx.robot, values, &rows.rows)
+/// Error norms of `set` on the rows (mm), each row with its own target's tool.
+fn error_norms(
+    ctx: &StageContext,
+    set: &ParameterSet,
+    rows: &MeasuredRows,
+    file: &Path,
+) -> Result<Vec<f64>, StageError> {
+    let aimed = aimed_rows(set, &rows.rows, rows.target_ids.as_deref(), file)?;
+    Ok(batch_predict(ctx.robot, &set.values, &aimed)
         .iter()
         .zip(&rows.positions)
         .map(|(p, m)| (p.position_mm - m).norm())
-        .collect()
+        .collect())
+}
+
+/// `rows` with each one's target index in `set` (spec §8).
+fn aimed_rows(
+    set: &ParameterSet,
+    rows: &[ConfWrench],
+    target_ids: Option<&[Option<String>]>,
+    file: &Path,
+) -> Result<Vec<ConfWrench>, StageError> {
+    let targets = set
+        .target_indices(target_ids, rows.len())
+        .map_err(|m| StageError::Invalid(format!("{}: {m}", file.display())))?;
+    let mut aimed = rows.to_vec();
+    for (row, target) in aimed.iter_mut().zip(targets) {
+        row.target = target;
+    }
+    Ok(aimed)
 }
 
 /// UTC day of each row from `measured_at`, when the table has it.
@@ -265,19 +288,31 @@ impl Stage for GateStage {
                 settings.min_holdout_rows.max(2)
             )));
         }
+        let file = measurements.path.as_path();
         let comparison = Holdout::compare(
-            &error_norms(ctx, &in_service.values, &holdout),
-            &error_norms(ctx, &candidate.values, &holdout),
+            &error_norms(ctx, &in_service, &holdout, file)?,
+            &error_norms(ctx, &candidate, &holdout, file)?,
         )
         .map_err(|e| StageError::Failed(format!("hold-out comparison: {e}")))?;
 
-        let reference: Vec<ConfWrench> = match ctx.inputs.get("reference") {
-            Some(table) => super::commanded_rows(ctx, table)?.1,
-            None => window.rows.clone(),
+        // The reference rows aimed by each set with its own targets' tools.
+        let (in_service_reference, candidate_reference) = match ctx.inputs.get("reference") {
+            Some(table) => {
+                let rows = super::commanded_rows(ctx, table)?.1;
+                let mut a = rows.clone();
+                super::aim_rows(table, &in_service, &mut a)?;
+                let mut b = rows;
+                super::aim_rows(table, &candidate, &mut b)?;
+                (a, b)
+            }
+            None => (
+                aimed_rows(&in_service, &window.rows, window.target_ids.as_deref(), file)?,
+                aimed_rows(&candidate, &window.rows, window.target_ids.as_deref(), file)?,
+            ),
         };
-        let changes: Vec<f64> = batch_predict(ctx.robot, &in_service.values, &reference)
+        let changes: Vec<f64> = batch_predict(ctx.robot, &in_service.values, &in_service_reference)
             .iter()
-            .zip(batch_predict(ctx.robot, &candidate.values, &reference))
+            .zip(batch_predict(ctx.robot, &candidate.values, &candidate_reference))
             .map(|(a, b)| (a.position_mm - b.position_mm).norm())
             .collect();
         let max_change = changes.iter().copied().fold(0.0, f64::max);
@@ -288,8 +323,8 @@ impl Stage for GateStage {
             row_days(measurements)?,
             &window,
             &holdout_ids,
-            &error_norms(ctx, &in_service.values, &window),
-            &error_norms(ctx, &candidate.values, &window),
+            &error_norms(ctx, &in_service, &window, file)?,
+            &error_norms(ctx, &candidate, &window, file)?,
         );
         let drift = daily.change_point(&rules);
         if let Some(point) = &drift {

@@ -22,9 +22,10 @@ use super::{
     StageOutputs, TableSlot, conf_wrench_rows, model_name_problem, settings_error,
 };
 use crate::calibration::fit::{Algorithm, FitError, FitOptions, Loss, Observations};
+use crate::calibration::held::HoldOptions;
 use crate::calibration::robust::RobustOptions;
 use crate::calibration::{
-    CalibrationOptions, ModelResult, calibrate, registered_start, row_checks, stream,
+    CalibrationOptions, ModelResult, calibrate, registered_start, row_checks, stream, unit_checks,
 };
 use crate::robot::{ConfWrench, MAX_TARGETS, ParamId, ParamValues};
 use crate::table::frame;
@@ -133,6 +134,37 @@ pub struct IdentifySettings {
     pub fixed: std::collections::BTreeMap<String, FixedValue>,
     /// The model of the `start` input the `reregistered` model takes its robot from.
     pub start_model: String,
+    /// Hold (status `held`, spec §8) a length whose standard error exceeds this (mm).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub max_std_error_mm: f64,
+    /// Hold an angle whose standard error exceeds this (deg).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub max_std_error_deg: f64,
+    /// Hold a compliance whose standard error exceeds this (deg/(N·m)).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub max_std_error_compliance: f64,
+    /// Hold a parameter whose variance inflation factor 1/(1 − R²) (R: its
+    /// estimate's multiple correlation with the others) exceeds this; 1e4 is
+    /// |R| ≈ 0.99995. Near-dependence the exact rank analysis lets through.
+    #[schemars(range(min = 10.0))]
+    pub max_variance_inflation: f64,
+    /// Fail when an identified length error (da, dd) is farther than this from
+    /// nominal (mm): a robot 10 mm off its data sheet is a wrong robot file or
+    /// a unit mistake, not a calibration.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub plausible_length_mm: f64,
+    /// Fail when an identified angle error (dtheta, dalpha, tool rotation) is
+    /// farther than this from nominal (deg).
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub plausible_angle_deg: f64,
+    /// Fail when the closed-form registration of the start leaves an RMS residual
+    /// beyond this (mm): no robot is that far from its model, a unit or a robot
+    /// file is wrong.
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub max_registration_rms_mm: f64,
+    /// Accept a fit that stops at `max_iterations` (a warning in the log, the
+    /// facts and the report's first screen) instead of failing the stage.
+    pub accept_not_converged: bool,
 }
 
 impl Default for IdentifySettings {
@@ -156,6 +188,14 @@ impl Default for IdentifySettings {
             bad_rows: BadRowsSetting::Drop,
             fixed: Default::default(),
             start_model: ModelName::Elastogeometric.as_str().into(),
+            max_std_error_mm: HoldOptions::default().max_std_error_mm,
+            max_std_error_deg: HoldOptions::default().max_std_error_deg,
+            max_std_error_compliance: HoldOptions::default().max_std_error_compliance,
+            max_variance_inflation: HoldOptions::default().max_variance_inflation,
+            plausible_length_mm: 10.0,
+            plausible_angle_deg: 2.0,
+            max_registration_rms_mm: 25.0,
+            accept_not_converged: false,
         }
     }
 }
@@ -178,6 +218,16 @@ impl IdentifySettings {
             stop_step_mm: self.stop_step_mm,
             stop_relative_cost: self.stop_relative_cost,
             chunk_rows: stream::CHUNK_ROWS,
+        }
+    }
+
+    /// The bounds of the held parameters (spec §8).
+    pub fn hold_options(&self) -> HoldOptions {
+        HoldOptions {
+            max_std_error_mm: self.max_std_error_mm,
+            max_std_error_deg: self.max_std_error_deg,
+            max_std_error_compliance: self.max_std_error_compliance,
+            max_variance_inflation: self.max_variance_inflation,
         }
     }
 
@@ -236,7 +286,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 5,
+    code_version: 6,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -612,6 +662,7 @@ impl Stage for IdentifyStage {
             robust,
             fixed,
             targets: targets.len().max(1),
+            hold: Some(settings.hold_options()),
         };
         let scales: Option<Vec<Vector3<f64>>> = data
             .sigma_mm
@@ -622,6 +673,17 @@ impl Stage for IdentifyStage {
             measured_mm: &data.positions,
             row_scale: scales.as_deref(),
         };
+        if let Some(suspicion) =
+            unit_checks::suspect_units(ctx.robot, &data.rows, &data.positions)
+        {
+            return Err(StageError::Invalid(format!(
+                "{}: {} (columns {} and {}); fix the unit where the table was made (import_measurements: `length_unit`, `joint_unit`)",
+                measurements.path.display(),
+                suspicion.describe(),
+                schema::POSITION_COLUMNS.join(", "),
+                crate::table::schema::JOINT_COLUMNS.join(", "),
+            )));
+        }
         let registered = register(
             ctx,
             "robot file",
@@ -633,6 +695,19 @@ impl Stage for IdentifyStage {
         let reregistered = start_set
             .as_ref()
             .map(|start| register(ctx, "start", start, &observations, &options, &mut outputs));
+        for (what, registration) in [("robot file", Some(&registered)), ("start", reregistered.as_ref())] {
+            if let Some((_, Some(rms_mm))) = registration
+                && *rms_mm > settings.max_registration_rms_mm
+            {
+                return Err(StageError::Invalid(format!(
+                    "{}: the {what}'s robot registered onto the measured positions leaves an RMS residual of {rms_mm:.1} mm (setting `max_registration_rms_mm` = {}): no robot is that far from its model, so a unit (`length_unit`, `joint_unit` of the import), the joint zero or sign, or the robot file does not match the rows",
+                    measurements.path.display(),
+                    settings.max_registration_rms_mm
+                )));
+            }
+        }
+        let registered = registered.0;
+        let reregistered = reregistered.map(|r| r.0);
         let ids = &data.ids;
         let mut sets = Vec::new();
         let mut trace = TraceColumns::default();
@@ -659,10 +734,50 @@ impl Stage for IdentifyStage {
                 result.set.targets = targets.clone();
             }
             if !result.converged {
-                ctx.progress.note(&format!(
-                    "{model}: not converged after {} iterations",
-                    settings.max_iterations
-                ));
+                let steps = result.trace.len();
+                if !settings.accept_not_converged {
+                    return Err(StageError::Failed(format!(
+                        "{}: {model}: the fit did not converge after {steps} steps (setting `max_iterations` = {}); try a larger `max_iterations`, fix or hold the parameters named in the correlations below (`fixed`), or set `accept_not_converged = true` to use it anyway (a warning in the report){}",
+                        measurements.path.display(),
+                        settings.max_iterations,
+                        result
+                            .diagnostics
+                            .as_ref()
+                            .map(|d| format!(
+                                "; strongest correlations: {}",
+                                d.correlations
+                                    .iter()
+                                    .map(|(a, b, rho)| format!("{a}/{b} {rho:+.4}"))
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
+                            ))
+                            .unwrap_or_default()
+                    )));
+                }
+                let warning = format!(
+                    "{model}: not converged after {steps} steps, accepted (`accept_not_converged = true`)"
+                );
+                ctx.progress.note(&format!("warning: {warning}"));
+                outputs
+                    .facts
+                    .insert(format!("{model}_not_converged_accepted"), warning);
+            }
+            if !result.held.is_empty() {
+                let held = result
+                    .held
+                    .iter()
+                    .map(|h| format!("{}: {}", h.id, h.reason))
+                    .collect::<Vec<_>>()
+                    .join("; ");
+                ctx.progress
+                    .note(&format!("{model}: held at nominal: {held}"));
+                outputs.facts.insert(format!("{model}_held"), held);
+            }
+            if let Some(problem) = implausible_parameter(&result.set, &nominal, settings) {
+                return Err(StageError::Failed(format!(
+                    "{}: {model}: {problem}",
+                    measurements.path.display()
+                )));
             }
             for (key, value) in model_facts(model, &result, ids, settings) {
                 ctx.progress.note(&format!("{model}: {key} = {value}"));
@@ -742,8 +857,9 @@ impl Stage for IdentifyStage {
 }
 
 /// The start of the fitted models: `values` with the frames registered in closed
-/// form onto the measurements (spec §7); `values` themselves, with a note, where
-/// the rows cannot determine the frames.
+/// form onto the measurements (spec §7) and the registration's RMS residual
+/// (mm); `values` themselves, with a note, where the rows cannot determine the
+/// frames.
 fn register(
     ctx: &StageContext,
     what: &str,
@@ -751,7 +867,7 @@ fn register(
     data: &Observations<'_>,
     options: &CalibrationOptions,
     outputs: &mut StageOutputs,
-) -> ParamValues {
+) -> (ParamValues, Option<f64>) {
     let key = if what == "start" {
         "registration_start"
     } else {
@@ -765,15 +881,56 @@ fn register(
             );
             ctx.progress.note(&fact);
             outputs.facts.insert(key.into(), fact);
-            start
+            (start, Some(found.rms_mm))
         }
         Err(e) => {
             let fact = format!("frames of the {what} kept as given: {e}");
             ctx.progress.note(&fact);
             outputs.facts.insert(key.into(), fact);
-            *values
+            (*values, None)
         }
     }
+}
+
+/// The first identified parameter no robot could have, if any: a length error
+/// (da, dd) or an angle error (dtheta, dalpha, tool rotation) beyond the
+/// plausibility bounds, or a compliance significantly below zero. Frames are
+/// not bounded: a tracker stands anywhere.
+fn implausible_parameter(
+    set: &crate::table::parameters::ParameterSet,
+    nominal: &ParamValues,
+    settings: &IdentifySettings,
+) -> Option<String> {
+    use crate::robot::params::ParamKind;
+    use crate::table::parameters::ParamStatus;
+    set.ids()
+        .filter(|id| set.status[id.index()] == ParamStatus::Identified)
+        .find_map(|id| {
+            let value = set.values.get(id);
+            let deviation = value - nominal.get(id);
+            let std_error = set.std_errors[id.index()].unwrap_or(0.0);
+            let beyond = |bound: f64, key: &str, unit: &str| {
+                (deviation.abs() > bound).then(|| {
+                    format!(
+                        "`{}` = {value:.4} {unit} is {deviation:+.4} {unit} from nominal (± {std_error:.4}), beyond the plausible {bound} {unit} (setting `{key}`): a unit, the joint zero or sign, or the robot file is wrong; raise `{key}` only if the robot truly differs that much from its file",
+                        set.name_of(id)
+                    )
+                })
+            };
+            match id.kind() {
+                ParamKind::A(_) | ParamKind::D(_) => {
+                    beyond(settings.plausible_length_mm, "plausible_length_mm", "mm")
+                }
+                ParamKind::Theta(_) | ParamKind::Alpha(_) | ParamKind::ToolRotation(_) => {
+                    beyond(settings.plausible_angle_deg, "plausible_angle_deg", "deg")
+                }
+                ParamKind::Compliance(_) if value < -3.0 * std_error && value < 0.0 => Some(format!(
+                    "`{}` = {value:.3e} deg/(N·m) ± {std_error:.1e}: a negative compliance (the joint would bend against its load); the load columns' sign or frame, or the robot file's masses, are wrong",
+                    set.name_of(id)
+                )),
+                _ => None,
+            }
+        })
 }
 
 /// Checks every row against the robot file's joint limits and for absurd values

@@ -277,7 +277,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "A tracker export (CSV or Parquet) as the measurements table, units converted",
-    code_version: 1,
+    code_version: 2,
     inputs: &[],
     outputs: &[TableSlot {
         name: "measurements",
@@ -543,6 +543,7 @@ impl Stage for ImportMeasurementsStage {
         settings: &ImportMeasurementsSettings,
     ) -> Result<StageOutputs, StageError> {
         let imported = import(settings, ctx.job_dir)?;
+        check_units(ctx, settings, &imported.measurements)?;
         let mut outputs = StageOutputs::default();
         outputs
             .tables
@@ -610,6 +611,76 @@ pub fn import(
         measurements,
         facts,
     })
+}
+
+/// Refuses an import whose rows show a unit mistake
+/// ([`crate::calibration::unit_checks`]), naming the file, the source columns
+/// and the setting to change: a wrong unit would otherwise calibrate "perfectly"
+/// onto an arm 1000× too small.
+fn check_units(
+    ctx: &StageContext,
+    settings: &ImportMeasurementsSettings,
+    measurements: &DataFrame,
+) -> Result<(), StageError> {
+    let table = super::InputTable {
+        path: ctx.job_dir.join(&settings.path),
+        df: measurements.clone(),
+    };
+    let (_, rows) = super::conf_wrench_rows(&table)?;
+    let xyz = schema::POSITION_COLUMNS
+        .iter()
+        .map(|c| schema::f64_values(measurements, c, &table.path))
+        .collect::<Result<Vec<_>, _>>()?;
+    let positions: Vec<nalgebra::Vector3<f64>> = (0..rows.len())
+        .map(|k| nalgebra::Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]))
+        .collect();
+    let Some(suspicion) = crate::calibration::unit_checks::suspect_units(ctx.robot, &rows, &positions)
+    else {
+        return Ok(());
+    };
+    let sources = |names: &[&str]| {
+        names
+            .iter()
+            .map(|n| settings.columns.get(n).unwrap_or(n).to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let (columns, setting, unit) = match suspicion {
+        crate::calibration::unit_checks::UnitSuspicion::JointsInRadians { .. } => (
+            sources(&schema::JOINT_COLUMNS),
+            "joint_unit",
+            match settings.joint_unit {
+                JointUnit::Deg => "deg",
+                JointUnit::Rad => "rad",
+            },
+        ),
+        crate::calibration::unit_checks::UnitSuspicion::Length { .. } => (
+            sources(&schema::POSITION_COLUMNS),
+            "length_unit",
+            match settings.length_unit {
+                LengthUnit::Mm => "mm",
+                LengthUnit::M => "m",
+            },
+        ),
+    };
+    Err(StageError::Invalid(format!(
+        "{}: columns {columns}: {} (setting `{setting}` = \"{unit}\" now){}",
+        table.path.display(),
+        suspicion.describe(),
+        match &suspicion {
+            crate::calibration::unit_checks::UnitSuspicion::JointsInRadians { .. } => {
+                "; set `joint_unit = \"rad\"`".to_string()
+            }
+            crate::calibration::unit_checks::UnitSuspicion::Length { likely_unit, .. }
+                if *likely_unit == "metres" =>
+            {
+                "; set `length_unit = \"m\"`".to_string()
+            }
+            crate::calibration::unit_checks::UnitSuspicion::Length { likely_unit, .. } => {
+                format!("; convert the export from {likely_unit} to millimetres or metres")
+            }
+        }
+    )))
 }
 
 fn cannot_read(file: &Path, e: std::io::Error) -> StageError {

@@ -465,6 +465,40 @@ pub fn model_set(
         })
 }
 
+/// Each row's target (SMR, tool) of `set` from the table's optional utf8
+/// `target_id` column (spec §8: every stage that evaluates the model uses the
+/// row's own tool): an error names the file and a target the set does not
+/// know, or a several-target set without the column.
+pub fn row_targets(
+    input: &InputTable,
+    set: &crate::table::parameters::ParameterSet,
+    rows: usize,
+) -> Result<Vec<usize>, StageError> {
+    let ids = match input.df.column("target_id") {
+        Ok(_) => Some(crate::table::schema::str_values(
+            &input.df,
+            "target_id",
+            &input.path,
+        )?),
+        Err(_) => None,
+    };
+    set.target_indices(ids.as_deref(), rows)
+        .map_err(|m| StageError::Invalid(format!("{}: {m}", input.path.display())))
+}
+
+/// Sets each row's target from [`row_targets`].
+pub fn aim_rows(
+    input: &InputTable,
+    set: &crate::table::parameters::ParameterSet,
+    rows: &mut [crate::robot::ConfWrench],
+) -> Result<(), StageError> {
+    let targets = row_targets(input, set, rows.len())?;
+    for (row, target) in rows.iter_mut().zip(targets) {
+        row.target = target;
+    }
+    Ok(())
+}
+
 /// The optional input of the stages that write the §7 predicted-position
 /// uncertainty (`predict`, `validate`, `compensate`).
 pub const COVARIANCE_INPUT: TableSlot = TableSlot {

@@ -45,7 +45,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Forward model: SMR position, load torques and deflections for conf-wrench rows",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "conf_wrenches",
@@ -97,7 +97,10 @@ impl Stage for PredictStage {
             .as_ref()
             .map_or_else(|| ParamValues::nominal(ctx.robot.spec()), |set| set.values);
         let input = ctx.input("conf_wrenches")?;
-        let (ids, rows) = commanded_rows(ctx, input)?;
+        let (ids, mut rows) = commanded_rows(ctx, input)?;
+        if let Some(set) = &set {
+            super::aim_rows(input, set, &mut rows)?;
+        }
         let predictions = batch_predict(ctx.robot, &values, &rows);
         let mut columns = vec![Column::new("cw_id".into(), ids)];
         for (axis, name) in POSITION_COLUMNS.iter().enumerate() {

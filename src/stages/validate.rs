@@ -132,7 +132,7 @@ impl Stage for ValidateStage {
         let radius_squared = chi_squared_3_quantile(COVERAGE_PROBABILITY);
         for set in &sets {
             // Each row's SMR: the set's translation of the row's target (spec §7).
-            let targets = set.target_indices(target_ids.as_deref()).map_err(|m| {
+            let targets = set.target_indices(target_ids.as_deref(), rows.len()).map_err(|m| {
                 StageError::Invalid(format!("{}: {m}", measurements.path.display()))
             })?;
             let mut rows = rows.clone();

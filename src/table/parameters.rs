@@ -80,6 +80,10 @@ pub enum ParamStatus {
     Dependent,
     /// Not part of this model (e.g. compliances in a kinematic calibration).
     Fixed,
+    /// Identifiable in exact arithmetic but not determined by the data (standard
+    /// error beyond its kind's bound, or near-dependent on others, spec §8);
+    /// held at its nominal value by egcal rather than by the user.
+    Held,
 }
 
 impl ParamStatus {
@@ -88,6 +92,7 @@ impl ParamStatus {
             ParamStatus::Identified => "identified",
             ParamStatus::Dependent => "dependent",
             ParamStatus::Fixed => "fixed",
+            ParamStatus::Held => "held",
         }
     }
 
@@ -96,6 +101,7 @@ impl ParamStatus {
             ParamStatus::Identified,
             ParamStatus::Dependent,
             ParamStatus::Fixed,
+            ParamStatus::Held,
         ]
         .into_iter()
         .find(|v| v.as_str() == s)
@@ -109,6 +115,8 @@ pub struct ParameterSet {
     pub values: ParamValues,
     pub std_errors: [Option<f64>; PARAM_COUNT],
     pub status: [ParamStatus; PARAM_COUNT],
+    /// Why a parameter is `held`, `fixed` or `dependent` (spec §8), where known.
+    pub reasons: [Option<String>; PARAM_COUNT],
     /// Target ids, sorted, when the set has several targets; empty (or one) for
     /// a one-target set, whose translation is `x_t, y_t, z_t`.
     pub targets: Vec<String>,
@@ -122,6 +130,7 @@ impl ParameterSet {
             values,
             std_errors: [None; PARAM_COUNT],
             status: [ParamStatus::Fixed; PARAM_COUNT],
+            reasons: std::array::from_fn(|_| None),
             targets: Vec::new(),
         }
     }
@@ -141,16 +150,40 @@ impl ParameterSet {
         }
     }
 
-    /// The target index of each row's target id: 0 for every row of a one-target
-    /// set; an error naming the id a several-target set does not have.
+    /// The target index of each of `rows` rows from their target ids (`None`:
+    /// the table has no `target_id` column): 0 for every row of a one-target
+    /// set. An error names a row's id the set does not have, or says that a
+    /// several-target set needs the column: aiming every row with one target's
+    /// tool would put the others' predictions centimetres off (spec §8).
     pub fn target_indices(
         &self,
         row_targets: Option<&[Option<String>]>,
+        rows: usize,
     ) -> Result<Vec<usize>, String> {
         let Some(row_targets) = row_targets else {
-            return Ok(Vec::new());
+            if self.targets.len() > 1 {
+                return Err(format!(
+                    "the {} parameters have one tool per target ({}) but the table has no `target_id` column saying which target each row measured",
+                    self.model,
+                    self.targets.join(", ")
+                ));
+            }
+            return Ok(vec![0; rows]);
         };
         if self.targets.len() <= 1 {
+            // A one-target set names its target only when it was fitted with one.
+            if let Some(only) = self.targets.first()
+                && let Some((row, id)) = row_targets
+                    .iter()
+                    .enumerate()
+                    .find(|(_, id)| id.as_deref().is_some_and(|id| id != only))
+            {
+                return Err(format!(
+                    "row {row}: target `{}` has no tool translation in the {} set (it has {only})",
+                    id.as_deref().unwrap_or_default(),
+                    self.model
+                ));
+            }
             return Ok(vec![0; row_targets.len()]);
         }
         row_targets
@@ -187,6 +220,7 @@ pub fn to_frame(nominal: &ParamValues, sets: &[ParameterSet]) -> DataFrame {
     let mut value = Vec::new();
     let mut std_error = Vec::new();
     let mut status = Vec::new();
+    let mut reason = Vec::new();
     for set in sets {
         for id in set.ids() {
             model.push(set.model.as_str());
@@ -196,6 +230,7 @@ pub fn to_frame(nominal: &ParamValues, sets: &[ParameterSet]) -> DataFrame {
             value.push(set.values.get(id));
             std_error.push(set.std_errors[id.index()]);
             status.push(set.status[id.index()].as_str());
+            reason.push(set.reasons[id.index()].clone());
         }
     }
     super::frame(vec![
@@ -206,6 +241,7 @@ pub fn to_frame(nominal: &ParamValues, sets: &[ParameterSet]) -> DataFrame {
         Column::new("value".into(), value),
         Column::new("std_error".into(), std_error),
         Column::new("status".into(), status),
+        Column::new("reason".into(), reason),
     ])
 }
 
@@ -229,6 +265,11 @@ pub fn from_frame(
             .map_err(|e| schema::io_error(file, e))?
             .iter()
             .collect(),
+        Err(_) => vec![None; df.height()],
+    };
+    // Written before spec §8 or by hand: no reasons.
+    let reasons: Vec<Option<String>> = match df.column("reason") {
+        Ok(_) => str_values(df, "reason", file)?,
         Err(_) => vec![None; df.height()],
     };
     let bad = |row: usize, column: &str, message: String| TableError::BadValue {
@@ -303,7 +344,7 @@ pub fn from_frame(
             bad(
                 row,
                 "status",
-                format!("expected identified, dependent or fixed, found `{status_str}`"),
+                format!("expected identified, dependent, fixed or held, found `{status_str}`"),
             )
         })?;
         if !seen.insert((model, id)) {
@@ -327,6 +368,7 @@ pub fn from_frame(
         let set = &mut sets[index];
         set.values.set(id, values[row]);
         set.status[id.index()] = status;
+        set.reasons[id.index()] = reasons[row].clone().filter(|r| !r.is_empty());
         set.std_errors[id.index()] = std_errors[row].filter(|v| v.is_finite());
     }
     Ok(sets)
@@ -522,6 +564,8 @@ mod tests {
         eg.status[5] = ParamStatus::Identified;
         eg.std_errors[5] = Some(0.001);
         eg.status[12] = ParamStatus::Dependent;
+        eg.status[16] = ParamStatus::Held;
+        eg.reasons[16] = Some("std error 10.6 deg > 0.05".into());
         let sets = vec![ParameterSet::fixed(ModelName::Nominal, nominal), eg];
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("parameters.parquet");
@@ -557,12 +601,17 @@ mod tests {
         let back = from_frame(&df, Path::new("p.parquet"), &nominal).unwrap();
         assert_eq!(back, vec![set.clone()]);
         let rows = [Some("nest_c".to_string()), Some("nest_a".to_string())];
-        assert_eq!(set.target_indices(Some(&rows)).unwrap(), vec![2, 0]);
+        assert_eq!(set.target_indices(Some(&rows), 2).unwrap(), vec![2, 0]);
         let unknown = [Some("nest_z".to_string())];
-        let err = set.target_indices(Some(&unknown)).unwrap_err();
+        let err = set.target_indices(Some(&unknown), 1).unwrap_err();
         assert!(
             err.contains("`nest_z`") && err.contains("nest_a, nest_b, nest_c"),
             "{err}"
+        );
+        let missing = set.target_indices(None, 3).unwrap_err();
+        assert!(
+            missing.contains("no `target_id` column") && missing.contains("nest_a, nest_b, nest_c"),
+            "{missing}"
         );
     }
 

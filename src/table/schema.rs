@@ -41,6 +41,7 @@ impl ColumnType {
             ColumnType::TimestampUs => matches!(dtype, DataType::Datetime(_, _)),
             // pandas and pyarrow write an all-null column as type null (spec §7).
             ColumnType::Float64 => matches!(dtype, DataType::Float64 | DataType::Null),
+            ColumnType::Utf8 => matches!(dtype, DataType::String | DataType::Null),
             other => &other.polars() == dtype,
         }
     }
@@ -406,7 +407,14 @@ pub fn parameters() -> TableSchema {
                 ColumnType::Utf8,
                 "",
                 true,
-                "identified, dependent or fixed",
+                "identified, dependent, fixed or held (spec §8: not determined by the data, kept at nominal by egcal)",
+            ),
+            col(
+                "reason",
+                ColumnType::Utf8,
+                "",
+                false,
+                "why a parameter is held, fixed or dependent (e.g. `near-dependent on da6 (corr +1.000)`); a table without it reads as all-null",
             ),
         ],
         unique: None,
@@ -1753,6 +1761,10 @@ pub fn str_values(
     file: &Path,
 ) -> Result<Vec<Option<String>>, TableError> {
     let column = df.column(name).map_err(|e| io_error(file, e))?;
+    // An all-null column written by pandas or pyarrow has type null.
+    if column.dtype() == &DataType::Null {
+        return Ok(vec![None; column.len()]);
+    }
     let values = column.str().map_err(|e| io_error(file, e))?;
     Ok(values.iter().map(|v| v.map(str::to_string)).collect())
 }
