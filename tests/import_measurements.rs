@@ -235,3 +235,54 @@ z_mm = "z"
         "{stderr}"
     );
 }
+
+/// The README's import example, run as written (issue #26: followed
+/// literally, it once gave a fit that had not converged, with exit 0): every
+/// model converges, dtheta5 and dalpha6 are held with their reason, and the
+/// validation error is the README's.
+#[test]
+fn the_readme_import_example_calibrates_as_it_says() {
+    if series_c().is_none() {
+        return;
+    }
+    let root = common::root();
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let section = &readme[readme.find("## Tracker exports").unwrap()..];
+    let start = section.find("```toml\n").unwrap() + "```toml\n".len();
+    let block = &section[start..start + section[start..].find("```").unwrap()];
+    let jobs = root.join("jobs");
+    let text = block
+        .replace("\"robots/", &format!("\"{}/robots/", jobs.display()))
+        .replace(
+            "\"../../shared/",
+            &format!("\"{}/../../shared/", jobs.display()),
+        );
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("example.toml");
+    std::fs::write(&job, text).unwrap();
+    let (code, stdout, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stdout}\n{stderr}");
+    let out = dir.path().join("out/ur10_c_example");
+    let parameters = out.join("identify/parameters.parquet");
+    let df = egcal::table::read_parquet(&parameters).unwrap();
+    let text = |c: &str| egcal::table::schema::str_values(&df, c, &parameters).unwrap();
+    let held: Vec<String> = text("name")
+        .into_iter()
+        .zip(text("status"))
+        .zip(text("model"))
+        .filter(|((_, s), m)| {
+            s.as_deref() == Some("held") && m.as_deref() == Some("elastogeometric")
+        })
+        .map(|((n, _), _)| n.unwrap_or_default())
+        .collect();
+    assert_eq!(held, vec!["dtheta5", "dalpha6"]);
+    let stats = out.join("validate/stats.parquet");
+    let df = egcal::table::read_parquet(&stats).unwrap();
+    let models = egcal::table::schema::str_values(&df, "model", &stats).unwrap();
+    let means = egcal::table::schema::f64_values(&df, "mean_mm", &stats).unwrap();
+    let row = models
+        .iter()
+        .position(|m| m.as_deref() == Some("elastogeometric"))
+        .unwrap();
+    assert!((means[row] - 0.427).abs() < 0.0005, "{}", means[row]);
+}

@@ -94,7 +94,9 @@ pub fn parameters_to_hold(
     let mut holds = Vec::new();
     // Each round holds one parameter; at most every bounded one.
     while kept.len() > 1 {
-        let std: Vec<f64> = (0..kept.len()).map(|i| sigma[(i, i)].max(0.0).sqrt()).collect();
+        let std: Vec<f64> = (0..kept.len())
+            .map(|i| sigma[(i, i)].max(0.0).sqrt())
+            .collect();
         // Standard error against the kind's bound: which member of a collinear
         // group is the less determined (frames, unbounded, never go).
         let excess = |i: usize| {
@@ -106,16 +108,18 @@ pub fn parameters_to_hold(
         let near_dependent = (0..kept.len())
             .filter(|i| excess(*i).is_some())
             .filter(|i| inflation[*i] > options.max_variance_inflation)
-            .max_by(|a, b| excess(*a).unwrap_or(0.0).total_cmp(&excess(*b).unwrap_or(0.0)));
+            .max_by(|a, b| {
+                excess(*a)
+                    .unwrap_or(0.0)
+                    .total_cmp(&excess(*b).unwrap_or(0.0))
+            });
         let chosen = match near_dependent {
             Some(i) => {
-                let partner = (0..kept.len())
-                    .filter(|j| *j != i)
-                    .max_by(|a, b| {
-                        correlation(&sigma, i, *a)
-                            .abs()
-                            .total_cmp(&correlation(&sigma, i, *b).abs())
-                    });
+                let partner = (0..kept.len()).filter(|j| *j != i).max_by(|a, b| {
+                    correlation(&sigma, i, *a)
+                        .abs()
+                        .total_cmp(&correlation(&sigma, i, *b).abs())
+                });
                 let reason = match partner {
                     Some(j) => format!(
                         "near-dependent on {} (corr {:+.3}, variance inflation {:.1e} > {:.0e})",
@@ -130,10 +134,17 @@ pub fn parameters_to_hold(
             }
             None => (0..kept.len())
                 .filter(|i| excess(*i).is_some_and(|e| e > 1.0))
-                .max_by(|a, b| excess(*a).unwrap_or(0.0).total_cmp(&excess(*b).unwrap_or(0.0)))
+                .max_by(|a, b| {
+                    excess(*a)
+                        .unwrap_or(0.0)
+                        .total_cmp(&excess(*b).unwrap_or(0.0))
+                })
                 .map(|i| {
                     let (bound, unit) = options.bound(free[kept[i]]).unwrap_or((0.0, ""));
-                    (i, format!("std error {} {unit} > {bound}", significant(std[i])))
+                    (
+                        i,
+                        format!("std error {} {unit} > {bound}", significant(std[i])),
+                    )
                 }),
         };
         let Some((i, reason)) = chosen else {
@@ -154,7 +165,9 @@ fn variance_inflation(sigma: &DMatrix<f64>) -> Vec<f64> {
     let n = sigma.nrows();
     // Correlation form first: the units of the parameters differ by orders of
     // magnitude, the correlation matrix's entries do not.
-    let scale: Vec<f64> = (0..n).map(|i| 1.0 / sigma[(i, i)].max(0.0).sqrt()).collect();
+    let scale: Vec<f64> = (0..n)
+        .map(|i| 1.0 / sigma[(i, i)].max(0.0).sqrt())
+        .collect();
     let corr = DMatrix::from_fn(n, n, |i, j| sigma[(i, j)] * scale[i] * scale[j]);
     match corr.clone().cholesky() {
         Some(cholesky) => {
@@ -239,7 +252,9 @@ mod tests {
         assert_eq!(holds.len(), 1, "{holds:?}");
         assert_eq!(holds[0].id, id("dtheta5"));
         assert!(
-            holds[0].reason.starts_with("near-dependent on da6 (corr +1.000"),
+            holds[0]
+                .reason
+                .starts_with("near-dependent on da6 (corr +1.000"),
             "{}",
             holds[0].reason
         );
@@ -260,7 +275,9 @@ mod tests {
     fn frames_are_never_held() {
         let free = [id("x_w"), id("y_t")];
         let c = covariance(&[50.0, 40.0], &[(0, 1, 0.999999)]);
-        assert!(parameters_to_hold(&free, &c, &HoldOptions::default(), |p| p.name().into()).is_empty());
+        assert!(
+            parameters_to_hold(&free, &c, &HoldOptions::default(), |p| p.name().into()).is_empty()
+        );
     }
 
     /// The conditioning is the exact covariance of the reduced linear problem:

@@ -129,7 +129,12 @@ pub fn suspect_units(
 fn spread(points: &[Vector3<f64>]) -> f64 {
     let n = points.len() as f64;
     let centre = points.iter().sum::<Vector3<f64>>() / n;
-    (points.iter().map(|p| (p - centre).norm_squared()).sum::<f64>() / n).sqrt()
+    (points
+        .iter()
+        .map(|p| (p - centre).norm_squared())
+        .sum::<f64>()
+        / n)
+        .sqrt()
 }
 
 #[cfg(test)]
@@ -174,7 +179,11 @@ mod tests {
     #[test]
     fn metres_and_inches_are_named() {
         let robot = irb1600();
-        for (scale, unit) in [(1e-3, "metres"), (1.0 / 25.4, "inches"), (0.1, "centimetres")] {
+        for (scale, unit) in [
+            (1e-3, "metres"),
+            (1.0 / 25.4, "inches"),
+            (0.1, "centimetres"),
+        ] {
             match suspect_units(&robot, &rows(), &measured(scale)) {
                 Some(UnitSuspicion::Length {
                     likely_unit, ratio, ..
@@ -202,6 +211,11 @@ mod tests {
             matches!(found, Some(UnitSuspicion::JointsInRadians { .. })),
             "{found:?}"
         );
-        assert!(found.unwrap().describe().contains("radians read as degrees"));
+        assert!(
+            found
+                .unwrap()
+                .describe()
+                .contains("radians read as degrees")
+        );
     }
 }

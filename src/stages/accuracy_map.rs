@@ -150,7 +150,8 @@ impl Stage for AccuracyMapStage {
         let measurements = ctx.input("measurements")?;
         let (ids, mut rows) = conf_wrench_rows(measurements)?;
         super::aim_rows(measurements, &set, &mut rows)?;
-        let (mapped_values, mapped_free) = tool_of_target(&set, &covariance.free, &settings.target)?;
+        let (mapped_values, mapped_free) =
+            tool_of_target(&set, &covariance.free, &settings.target)?;
         let keep = ctx
             .inputs
             .get("selection")
@@ -241,7 +242,10 @@ fn tool_of_target(
             return Err(StageError::Invalid(format!(
                 "setting `target`: `{target}` is not a target of the {} parameters (they have one tool{})",
                 set.model,
-                set.targets.first().map(|t| format!(", target `{t}`")).unwrap_or_default()
+                set.targets
+                    .first()
+                    .map(|t| format!(", target `{t}`"))
+                    .unwrap_or_default()
             )));
         }
         return Ok((set.values, free.to_vec()));

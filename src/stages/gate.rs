@@ -306,13 +306,22 @@ impl Stage for GateStage {
                 (a, b)
             }
             None => (
-                aimed_rows(&in_service, &window.rows, window.target_ids.as_deref(), file)?,
+                aimed_rows(
+                    &in_service,
+                    &window.rows,
+                    window.target_ids.as_deref(),
+                    file,
+                )?,
                 aimed_rows(&candidate, &window.rows, window.target_ids.as_deref(), file)?,
             ),
         };
         let changes: Vec<f64> = batch_predict(ctx.robot, &in_service.values, &in_service_reference)
             .iter()
-            .zip(batch_predict(ctx.robot, &candidate.values, &candidate_reference))
+            .zip(batch_predict(
+                ctx.robot,
+                &candidate.values,
+                &candidate_reference,
+            ))
             .map(|(a, b)| (a.position_mm - b.position_mm).norm())
             .collect();
         let max_change = changes.iter().copied().fold(0.0, f64::max);

@@ -673,8 +673,7 @@ impl Stage for IdentifyStage {
             measured_mm: &data.positions,
             row_scale: scales.as_deref(),
         };
-        if let Some(suspicion) =
-            unit_checks::suspect_units(ctx.robot, &data.rows, &data.positions)
+        if let Some(suspicion) = unit_checks::suspect_units(ctx.robot, &data.rows, &data.positions)
         {
             return Err(StageError::Invalid(format!(
                 "{}: {} (columns {} and {}); fix the unit where the table was made (import_measurements: `length_unit`, `joint_unit`)",
@@ -695,7 +694,10 @@ impl Stage for IdentifyStage {
         let reregistered = start_set
             .as_ref()
             .map(|start| register(ctx, "start", start, &observations, &options, &mut outputs));
-        for (what, registration) in [("robot file", Some(&registered)), ("start", reregistered.as_ref())] {
+        for (what, registration) in [
+            ("robot file", Some(&registered)),
+            ("start", reregistered.as_ref()),
+        ] {
             if let Some((_, Some(rms_mm))) = registration
                 && *rms_mm > settings.max_registration_rms_mm
             {
@@ -713,6 +715,10 @@ impl Stage for IdentifyStage {
         let mut trace = TraceColumns::default();
         let mut covariance = CovarianceColumns::default();
         let mut residuals: Option<DataFrame> = None;
+        // A model that did not converge or came out implausible fails the
+        // stage, after every model was tried: a later model's bad input (too
+        // few rows) is the better message, and all failures show at once.
+        let mut failures: Vec<String> = Vec::new();
         for model in models {
             ctx.progress
                 .note(&format!("identifying {model} on {} rows", data.rows.len()));
@@ -736,7 +742,7 @@ impl Stage for IdentifyStage {
             if !result.converged {
                 let steps = result.trace.len();
                 if !settings.accept_not_converged {
-                    return Err(StageError::Failed(format!(
+                    failures.push(format!(
                         "{}: {model}: the fit did not converge after {steps} steps (setting `max_iterations` = {}); try a larger `max_iterations`, fix or hold the parameters named in the correlations below (`fixed`), or set `accept_not_converged = true` to use it anyway (a warning in the report){}",
                         measurements.path.display(),
                         settings.max_iterations,
@@ -752,7 +758,8 @@ impl Stage for IdentifyStage {
                                     .join(", ")
                             ))
                             .unwrap_or_default()
-                    )));
+                    ));
+                    continue;
                 }
                 let warning = format!(
                     "{model}: not converged after {steps} steps, accepted (`accept_not_converged = true`)"
@@ -774,10 +781,11 @@ impl Stage for IdentifyStage {
                 outputs.facts.insert(format!("{model}_held"), held);
             }
             if let Some(problem) = implausible_parameter(&result.set, &nominal, settings) {
-                return Err(StageError::Failed(format!(
+                failures.push(format!(
                     "{}: {model}: {problem}",
                     measurements.path.display()
-                )));
+                ));
+                continue;
             }
             for (key, value) in model_facts(model, &result, ids, settings) {
                 ctx.progress.note(&format!("{model}: {key} = {value}"));
@@ -830,6 +838,9 @@ impl Stage for IdentifyStage {
                 None => residuals = Some(part),
             }
             sets.push(result.set);
+        }
+        if !failures.is_empty() {
+            return Err(StageError::Failed(failures.join("\n")));
         }
         outputs
             .tables

@@ -634,7 +634,8 @@ fn check_units(
     let positions: Vec<nalgebra::Vector3<f64>> = (0..rows.len())
         .map(|k| nalgebra::Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]))
         .collect();
-    let Some(suspicion) = crate::calibration::unit_checks::suspect_units(ctx.robot, &rows, &positions)
+    let Some(suspicion) =
+        crate::calibration::unit_checks::suspect_units(ctx.robot, &rows, &positions)
     else {
         return Ok(());
     };

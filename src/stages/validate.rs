@@ -132,9 +132,11 @@ impl Stage for ValidateStage {
         let radius_squared = chi_squared_3_quantile(COVERAGE_PROBABILITY);
         for set in &sets {
             // Each row's SMR: the set's translation of the row's target (spec §7).
-            let targets = set.target_indices(target_ids.as_deref(), rows.len()).map_err(|m| {
-                StageError::Invalid(format!("{}: {m}", measurements.path.display()))
-            })?;
+            let targets = set
+                .target_indices(target_ids.as_deref(), rows.len())
+                .map_err(|m| {
+                    StageError::Invalid(format!("{}: {m}", measurements.path.display()))
+                })?;
             let mut rows = rows.clone();
             for (row, target) in rows.iter_mut().zip(&targets) {
                 row.target = *target;
