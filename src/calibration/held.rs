@@ -280,6 +280,72 @@ mod tests {
         );
     }
 
+    /// `fixtures/tools/held_check.py`: numpy's VIF (Σ_ii·(Σ⁻¹)_ii) and the
+    /// covariance of a refit without the held column, for a design with a
+    /// near-collinear pair (dtheta5, da6) as on the UR10.
+    #[test]
+    fn variance_inflation_and_conditioning_match_numpy() {
+        let covariance = [
+            0.033093296514034955,
+            0.037395108892815186,
+            -0.057628956467341334,
+            0.006687449977359499,
+            0.03739510889236428,
+            4201.936286920559,
+            -4198.495970572332,
+            2.0076312003249166,
+            -0.05762895646712745,
+            -4198.495970572333,
+            4195.11497598412,
+            -2.026642254651629,
+            0.00668744997735936,
+            2.007631200325337,
+            -2.0266422546520486,
+            0.03710186571610459,
+        ];
+        let numpy_vif = [
+            1.2823652399152576,
+            115815.86890965099,
+            115870.22929470359,
+            1.2985653000671018,
+        ];
+        let numpy_conditioned = [
+            0.03309296371646888,
+            -0.020264464651196846,
+            0.006669583074525646,
+            -0.020264464651196846,
+            0.05650501654929075,
+            -0.020654793300381426,
+            0.006669583074525646,
+            -0.020654793300381426,
+            0.03614264530882117,
+        ];
+        let sigma = DMatrix::from_row_slice(4, 4, &covariance);
+        for (got, want) in variance_inflation(&sigma).iter().zip(numpy_vif) {
+            assert!((got / want - 1.0).abs() < 1e-6, "{got} vs {want}");
+        }
+        let conditioned = condition_on(&sigma, 1);
+        for (got, want) in conditioned.transpose().iter().zip(numpy_conditioned) {
+            assert!(
+                (got - want).abs() < 1e-9 * want.abs().max(1e-3),
+                "{got} vs {want}"
+            );
+        }
+        let free = [id("x_w"), id("dtheta5"), id("da6"), id("da2")];
+        let holds = parameters_to_hold(&free, &covariance, &HoldOptions::default(), |p| {
+            p.name().into()
+        });
+        assert_eq!(holds.len(), 1, "{holds:?}");
+        assert_eq!(holds[0].id, id("dtheta5"));
+        assert!(
+            holds[0]
+                .reason
+                .starts_with("near-dependent on da6 (corr -1.000"),
+            "{}",
+            holds[0].reason
+        );
+    }
+
     /// The conditioning is the exact covariance of the reduced linear problem:
     /// hand-computed for a 2×2 case.
     #[test]
