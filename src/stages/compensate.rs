@@ -116,14 +116,20 @@ pub struct CompensateSettings {
     pub tool: Option<String>,
     /// An `ok` command farther than this from the nearest calibration row
     /// (`envelope_distance`: the largest per-joint difference, deg) is
-    /// `outside_envelope`. The default, 30°, is twice the distance within
-    /// which 99 % of the UR10's held-out rows lie from its calibration rows
-    /// (series C, every other row), and a third of the distance of the
-    /// configurations where the simulated loop showed 4× the validation error.
+    /// `outside_envelope`. The default, 40°, passes every held-out row of the
+    /// sparse simulated campaign (50 calibration rows; at most 31.4° from
+    /// them) and its compensated targets (at most 30.4°), and flags the
+    /// configurations where compensation was found wanting: the simulated
+    /// loop's first targets (90° and more away, 4× the validation error) and
+    /// the UR10 targets at q2 ≈ −43° calibrated on q2 ≤ −90° (47° and more).
     #[schemars(range(min = 0.0, max = 360.0))]
     pub max_envelope_distance_deg: f64,
     /// An `ok` command whose predicted 95 % position uncertainty (`u95_mm`,
-    /// with a `covariance`) is larger than this (mm) is `outside_envelope`.
+    /// with a `covariance`) is larger than this (mm) is `outside_envelope`:
+    /// set it to what the work needs. The default, 0.5 mm, is twice the largest
+    /// u95 on the UR10's own calibration rows (0.24 mm; the simulated cell's
+    /// are below 0.1 mm); the UR10's series B configurations, 30°–120° from
+    /// them, reach 0.68 mm.
     #[schemars(range(min = 0.0, max = 1000.0))]
     pub max_u95_mm: f64,
     /// When more than this share of the targets is `unreachable`, the stage
@@ -144,7 +150,7 @@ impl Default for CompensateSettings {
             frame: WORLD_FRAME.to_string(),
             frames: BTreeMap::new(),
             tool: None,
-            max_envelope_distance_deg: 30.0,
+            max_envelope_distance_deg: 40.0,
             max_u95_mm: 0.5,
             max_unreachable_fraction: 0.5,
         }
