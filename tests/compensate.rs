@@ -1038,3 +1038,30 @@ fz_n = "Kraft"
         assert!(max_joint_difference_deg(a, b) < 1e-9, "{a:?} {b:?}");
     }
 }
+
+/// `egcal frame` prints the base origin in the tracker frame: R·(x_w, y_w,
+/// z_w) of the spec's eq. (3), here built by hand, not (x_w, y_w, z_w).
+#[test]
+fn egcal_frame_prints_the_base_origin_in_the_tracker_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let robot_file = common::root().join(IRB).display().to_string();
+    let params = truth_table().display().to_string();
+    let args = ["frame", "--robot", &robot_file, "--params", &params];
+    let (code, stdout, stderr) = common::run(&args, dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    let origin = world_from_base_by_hand(&truth(&robot())).origin_mm;
+    let expected = format!(
+        "base origin in the tracker frame (Trans·Rot): x = {:.4} mm, y = {:.4} mm, z = {:.4} mm",
+        origin.x, origin.y, origin.z
+    );
+    assert!(stdout.contains(&expected), "{expected}\n{stdout}");
+    assert!(stdout.contains("x_w = 1327.5830 mm"), "{stdout}");
+    // And back: the origin and angles give the [world] numbers.
+    let numbers = [origin.x, origin.y, origin.z, -180.312, 0.494, -0.596].map(|v| v.to_string());
+    let mut args = vec!["frame", "--origin-in-tracker"];
+    args.extend(numbers.iter().map(String::as_str));
+    let (code, stdout, stderr) = common::run(&args, dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("x_mm = 1327.583000"), "{stdout}");
+    assert!(stdout.contains("z_mm = -1475.556000"), "{stdout}");
+}

@@ -434,6 +434,9 @@ inputs = {{ targets = "{targets}", parameters = "identify.parameters", covarianc
             m[(*j, *i)] = cov[c][k];
         }
         let largest = m.symmetric_eigenvalues().max();
-        assert!((u * u - 7.814_727_903 * largest).abs() < 1e-9 * (1.0 + u * u), "{k}");
+        assert!(
+            (u * u - 7.814_727_903 * largest).abs() < 1e-9 * (1.0 + u * u),
+            "{k}"
+        );
     }
 }

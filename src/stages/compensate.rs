@@ -318,7 +318,6 @@ impl Stage for CompensateStage {
         };
         let commands = compensation::compensate(ctx.robot, &values, &targets, &options);
         refuse_mostly_unreachable(
-            ctx.robot,
             settings,
             &input.path,
             &rows,
@@ -709,10 +708,9 @@ fn tool_names(
 /// Refuses a table most of whose targets came back `unreachable` (more than
 /// `max_unreachable_fraction`): a table written in another frame (or unit)
 /// than the one assumed, which would otherwise end as a table of failures with
-/// exit 0. Names the frame(s) assumed, where the targets lie from the robot
-/// base against the arm's reach, and the other frame to try.
+/// exit 0. Names the frame(s) assumed, how far from the robot base the
+/// targets lie read so, and the other frame to try.
 fn refuse_mostly_unreachable(
-    robot: &Robot,
     settings: &CompensateSettings,
     file: &std::path::Path,
     rows: &TargetRows,
@@ -744,25 +742,13 @@ fn refuse_mostly_unreachable(
         .collect();
     from_base_mm.sort_by(f64::total_cmp);
     let median_mm = from_base_mm[from_base_mm.len() / 2];
-    let reach_mm: f64 = robot
-        .spec()
-        .joints
-        .iter()
-        .map(|j| j.a_mm.abs() + j.d_mm.abs())
-        .sum::<f64>()
-        + Vector3::new(
-            robot.spec().tool.x_mm,
-            robot.spec().tool.y_mm,
-            robot.spec().tool.z_mm,
-        )
-        .norm();
     let other = if assumed.contains(&WORLD_FRAME) {
         "the robot's base frame (`frame = \"base\"`, or a `frame` column)"
     } else {
         "the tracker frame (`frame = \"world\"`, or a `frame` column)"
     };
     Err(StageError::Invalid(format!(
-        "{}: {} of {n} targets are unreachable, assuming frame {} (more than max_unreachable_fraction = {}); they lie a median {} mm from the robot base, which reaches about {} mm. Were they written in another frame? Try {other}, or check the units (mm, deg)",
+        "{}: {} of {n} targets are unreachable, assuming frame {} (more than max_unreachable_fraction = {}); read so, they lie a median {median_mm:.0} mm from the robot base. Were they written in another frame? Try {other}, or check the units (mm, deg)",
         file.display(),
         unreachable.len(),
         assumed
@@ -771,8 +757,6 @@ fn refuse_mostly_unreachable(
             .collect::<Vec<_>>()
             .join(", "),
         settings.max_unreachable_fraction,
-        compact(median_mm),
-        compact(reach_mm),
     )))
 }
 
