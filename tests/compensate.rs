@@ -763,9 +763,9 @@ fn several_targets_each_row_aims_its_own_tool() {
     let nests = ["nest_a", "nest_b", "nest_c"];
     let offsets = [[0.0, 0.0, 0.0], [40.0, -10.0, 5.0], [-20.0, 35.0, 30.0]];
     for (k, offset) in offsets.iter().enumerate() {
-        for axis in 0..3 {
+        for (axis, delta_mm) in offset.iter().enumerate() {
             let x_t = values.get(ParamId::target_translation(0, axis));
-            values.set(ParamId::target_translation(k, axis), x_t + offset[axis]);
+            values.set(ParamId::target_translation(k, axis), x_t + delta_mm);
         }
     }
     let mut set = ParameterSet::fixed(ModelName::Elastogeometric, values);
