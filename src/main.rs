@@ -180,6 +180,25 @@ enum Command {
         #[arg(long, default_value = "schemas")]
         out: PathBuf,
     },
+    /// A world (tracker ← base) and tool frame in both conventions: egcal's
+    /// Rot·Trans numbers (x_w … gamma_w) and the base origin in the tracker frame
+    /// with its XYZ angles (Trans·Rot).
+    Frame {
+        /// Robot file: its [world] and [tool].
+        #[arg(long, required_unless_present = "origin_in_tracker")]
+        robot: Option<PathBuf>,
+        /// Parameters table: the frames of one of its models instead of the
+        /// robot file's (needs --robot).
+        #[arg(long, requires = "robot")]
+        params: Option<PathBuf>,
+        /// Model of the parameters table.
+        #[arg(long, default_value = "elastogeometric")]
+        model: String,
+        /// The other way: the base origin in the tracker frame (mm) and the XYZ
+        /// angles (deg) → the x_w … gamma_w a robot file's [world] takes.
+        #[arg(long, num_args = 6, allow_negative_numbers = true, value_names = ["X_MM", "Y_MM", "Z_MM", "RX_DEG", "RY_DEG", "RZ_DEG"], conflicts_with_all = ["robot", "params"])]
+        origin_in_tracker: Option<Vec<f64>>,
+    },
 }
 
 #[derive(Subcommand)]
@@ -405,6 +424,18 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
             None => test_command(dirs, only, junit, jobs, timeout_s, cli.quiet),
         },
         Command::Schemas { out } => commands::write_schemas(&out).map(Finished::from),
+        Command::Frame {
+            robot,
+            params,
+            model,
+            origin_in_tracker,
+        } => commands::frame(
+            robot.as_deref(),
+            params.as_deref(),
+            &model,
+            origin_in_tracker.as_deref(),
+        )
+        .map(Finished::from),
     }
 }
 

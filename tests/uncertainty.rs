@@ -419,4 +419,24 @@ inputs = {{ targets = "{targets}", parameters = "identify.parameters", covarianc
             );
         }
     }
+    // compensate's u95_mm is the 95 % radius of those columns' largest
+    // eigenvalue, sqrt(χ²₃(0.95)·λmax), computed here from the columns.
+    let df = read("compensate", "commands");
+    let cov: Vec<Vec<f64>> = schema::POSITION_COVARIANCE_COLUMNS
+        .iter()
+        .map(|(column, _, _)| schema::f64_values(&df, column, file).unwrap())
+        .collect();
+    let u95 = schema::f64_values(&df, "u95_mm", file).unwrap();
+    for (k, u) in u95.iter().enumerate() {
+        let mut m = Matrix3::zeros();
+        for (c, (_, i, j)) in schema::POSITION_COVARIANCE_COLUMNS.iter().enumerate() {
+            m[(*i, *j)] = cov[c][k];
+            m[(*j, *i)] = cov[c][k];
+        }
+        let largest = m.symmetric_eigenvalues().max();
+        assert!(
+            (u * u - 7.814_727_903 * largest).abs() < 1e-9 * (1.0 + u * u),
+            "{k}"
+        );
+    }
 }

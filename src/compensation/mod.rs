@@ -11,7 +11,10 @@
 //! parameter set's world and tool frames and geometry errors, and the compliance
 //! deflection under the load torques of gravity (links and the robot file's
 //! payload) plus the target's wrench. So a command is right for the load the
-//! robot carries at that target, not only for its geometry.
+//! robot carries at that target, not only for its geometry. Each target names
+//! the set's tool it aims ([`Target::tool`]: an SMR nest of a several-target
+//! set, spec §7, §8); everything for that row (candidates, solve, residual,
+//! elastic part) uses that tool's translation ([`ParamValues::aimed_at`]).
 //!
 //! Per target, in three passes (the first and last in parallel):
 //!
@@ -53,18 +56,21 @@
 //! vector whose step lowered the error (the seed if none did), finite because the
 //! seed is.
 
+pub mod envelope;
+
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
 use crate::robot::frame::{Frame, rot_x, rot_y, rot_z};
 use crate::robot::ik::{self, IkError, IkSolution, NumericOptions};
 use crate::robot::jacobian::deflected_tool_and_joints;
-use crate::robot::{JOINTS, ParamValues, Robot, Wrench};
+use crate::robot::{JOINTS, ParamId, ParamValues, Robot, Wrench};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
-/// One target row: where the tool must be, in the world (tracker) frame, and
-/// the wrench on the robot there.
+/// One target row: where the tool must be, in the world (tracker) frame, the
+/// wrench on the robot there, and which of the parameter set's tools (SMR
+/// nests, spec §7) must be there.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Target {
     pub tool_in_world: Frame,
@@ -72,6 +78,9 @@ pub struct Target {
     pub wrench: Wrench,
     /// A configuration near the wanted one (deg), used as the seed.
     pub hint_deg: Option<[f64; JOINTS]>,
+    /// The set's target (0-based, [`crate::robot::ParamId::target_translation`])
+    /// whose tool translation is aimed: 0 for a one-target set.
+    pub tool: usize,
 }
 
 impl Target {
@@ -83,15 +92,28 @@ impl Target {
         wrench: Wrench,
         hint_deg: Option<[f64; JOINTS]>,
     ) -> Self {
-        let [rx, ry, rz] = orientation_deg.map(|a| a * DEG);
         Target {
-            tool_in_world: Frame {
-                rotation: rot_x(rx) * rot_y(ry) * rot_z(rz),
-                origin_mm: Vector3::from(position_mm),
-            },
+            tool_in_world: pose_frame(position_mm, orientation_deg),
             wrench,
             hint_deg,
+            tool: 0,
         }
+    }
+
+    /// The same target for the set's tool `tool` (0-based).
+    pub fn with_tool(self, tool: usize) -> Self {
+        Target { tool, ..self }
+    }
+}
+
+/// The frame of a pose written as the `targets` columns: origin `position_mm`,
+/// rotation Rot(x, rx)·Rot(y, ry)·Rot(z, rz) of `orientation_deg` (parent ←
+/// child: the origin first, then the XYZ angles about the moved axes).
+pub fn pose_frame(position_mm: [f64; 3], orientation_deg: [f64; 3]) -> Frame {
+    let [rx, ry, rz] = orientation_deg.map(|a| a * DEG);
+    Frame {
+        rotation: rot_x(rx) * rot_y(ry) * rot_z(rz),
+        origin_mm: Vector3::from(position_mm),
     }
 }
 
@@ -103,15 +125,20 @@ pub enum Status {
     JointLimit,
     Singular,
     NotConverged,
+    /// Converged and within the limits, but farther from the calibration rows
+    /// than allowed, or with a predicted 95 % uncertainty larger than allowed
+    /// ([`envelope::judged`]): a command the calibration does not vouch for.
+    OutsideEnvelope,
 }
 
 impl Status {
-    pub const ALL: [Status; 5] = [
+    pub const ALL: [Status; 6] = [
         Status::Ok,
         Status::Unreachable,
         Status::JointLimit,
         Status::Singular,
         Status::NotConverged,
+        Status::OutsideEnvelope,
     ];
 
     /// The `status` value of the `commands` table.
@@ -122,6 +149,7 @@ impl Status {
             Status::JointLimit => "joint_limit",
             Status::Singular => "singular",
             Status::NotConverged => "not_converged",
+            Status::OutsideEnvelope => "outside_envelope",
         }
     }
 }
@@ -168,9 +196,20 @@ pub struct Options {
 
 /// The nominal model as the controller sees it, placed in the world by the
 /// chosen set's world frame: robot file's geometry and tool, zero compliance.
-fn controller_model(robot: &Robot, calibrated: &ParamValues) -> ParamValues {
+///
+/// A controller knows one tool, the robot file's. For a further target of a
+/// several-target set (`tool` > 0) that tool is moved by the set's calibrated
+/// offset between the target's translation and target 0's, so that the distance
+/// between two SMR nests is not counted as a correction; `tool` 0 (every
+/// one-target set) is the file's tool as it is.
+fn controller_model(robot: &Robot, calibrated: &ParamValues, tool: usize) -> ParamValues {
     let mut values = ParamValues::nominal(robot.spec());
     values.0[..6].copy_from_slice(&calibrated.0[..6]);
+    for axis in 0..3 {
+        let offset = calibrated.get(ParamId::target_translation(tool, axis))
+            - calibrated.get(ParamId::target_translation(0, axis));
+        values.0[ParamId::target_translation(0, axis).index()] += offset;
+    }
     values
 }
 
@@ -181,8 +220,9 @@ enum Candidates {
     None,
 }
 
-fn candidates(robot: &Robot, calibrated: &ParamValues, target: &Target) -> Candidates {
-    let flange = ik::flange_target_in_base(robot, calibrated, &target.tool_in_world);
+/// `aimed` is the set aimed at the target's tool ([`ParamValues::aimed_at`]).
+fn candidates(robot: &Robot, aimed: &ParamValues, target: &Target) -> Candidates {
+    let flange = ik::flange_target_in_base(robot, aimed, &target.tool_in_world);
     match ik::solve(robot, &flange) {
         Ok(solutions) => Candidates::Found(solutions),
         Err(IkError::Singular(_)) => Candidates::Singular,
@@ -245,29 +285,39 @@ pub fn compensate(
     targets: &[Target],
     options: &Options,
 ) -> Vec<Command> {
+    // Per tool used: the set aimed at it, its prepared calibrated model and the
+    // controller's (at most MAX_TARGETS of each, prepared once).
+    let tools = targets.iter().map(|t| t.tool + 1).max().unwrap_or(0);
+    let aimed: Vec<ParamValues> = (0..tools).map(|k| calibrated.aimed_at(k)).collect();
+    let controller: Vec<ParamValues> = (0..tools)
+        .map(|k| controller_model(robot, calibrated, k))
+        .collect();
+    let calibrated_prepared: Vec<_> = aimed.iter().map(|v| robot.prepare(v)).collect();
+    let controller_prepared: Vec<_> = controller.iter().map(|v| robot.prepare(v)).collect();
+    // The corrected Cartesian target is for the controller's one tool, the
+    // robot file's, whichever SMR the row aims.
+    let file_tool = robot.prepare(&controller_model(robot, calibrated, 0));
     let found: Vec<Candidates> = targets
         .par_iter()
-        .map(|t| candidates(robot, calibrated, t))
+        .map(|t| candidates(robot, &aimed[t.tool], t))
         .collect();
     let seeds = seeds(robot, targets, &found);
-    let controller = controller_model(robot, calibrated);
-    let controller_prepared = robot.prepare(&controller);
-    let calibrated_prepared = robot.prepare(calibrated);
     targets
         .par_iter()
         .zip(&found)
         .zip(&seeds)
         .map(|((target, found), seed)| {
+            let values = &aimed[target.tool];
             let iterate = ik::solve_loaded_iterate(
                 robot,
-                calibrated,
+                values,
                 &target.wrench,
                 &target.tool_in_world,
                 seed,
                 &options.solver,
             );
             let q = iterate.q_deg;
-            let (tool, joints) = deflected_tool_and_joints(robot, calibrated, &q, &target.wrench);
+            let (tool, joints) = deflected_tool_and_joints(robot, values, &q, &target.wrench);
             let sigma_min_mm_per_rad = ik::scaled_geometric_jacobian(&tool, &joints)
                 .singular_values()
                 .min();
@@ -287,18 +337,21 @@ pub fn compensate(
                     Candidates::Found(_) => Status::NotConverged,
                 }
             };
-            let unloaded = calibrated_prepared.chain(&q, &[0.0; JOINTS]).tool;
-            let elastic_mm = (calibrated_prepared
+            let calibrated = &calibrated_prepared[target.tool];
+            let unloaded = calibrated.chain(&q, &[0.0; JOINTS]).tool;
+            let elastic_mm = (calibrated
                 .world_from_base
                 .transform_point(&unloaded.origin_mm)
                 - tool.origin_mm)
                 .norm();
-            let tool_in_base_cmd = controller_prepared.chain(&q, &[0.0; JOINTS]).tool;
-            let correction_mm = (controller_prepared
+            let controller = &controller_prepared[target.tool];
+            let controller_tool = controller.chain(&q, &[0.0; JOINTS]).tool;
+            let correction_mm = (controller
                 .world_from_base
-                .transform_point(&tool_in_base_cmd.origin_mm)
+                .transform_point(&controller_tool.origin_mm)
                 - target.tool_in_world.origin_mm)
                 .norm();
+            let tool_in_base_cmd = file_tool.chain(&q, &[0.0; JOINTS]).tool;
             Command {
                 q_deg: q,
                 status,
@@ -398,6 +451,7 @@ mod tests {
             tool_in_world: robot.tool_in_world(&truth, &q, &wrench),
             wrench,
             hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0]),
+            tool: 0,
         };
         let options = Options {
             solver: NumericOptions {

@@ -215,6 +215,20 @@ impl ParamValues {
         self.0[id.index()] = value;
     }
 
+    /// These values with `target`'s tool translation in target 0's slots
+    /// (`x_t, y_t, z_t`), so that everything that evaluates target 0 (inverse
+    /// kinematics, [`crate::robot::Robot::tool_in_world`], the chains) evaluates
+    /// that target's tool. The targets share the tool rotation (spec §7), so
+    /// the translation is all that differs. Target 0 gives the values unchanged.
+    pub fn aimed_at(&self, target: usize) -> ParamValues {
+        let mut values = *self;
+        for axis in 0..3 {
+            values.0[ParamId::target_translation(0, axis).index()] =
+                self.0[ParamId::target_translation(target, axis).index()];
+        }
+        values
+    }
+
     /// Nominal values with some replaced by a TOML file of `name = value` lines
     /// (e.g. a simulator's truth); `path` is only used in error messages.
     pub fn with_overrides(

@@ -32,7 +32,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Position errors the robot achieved at its targets, with and without compensation",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "targets",
@@ -83,7 +83,9 @@ impl Stage for AccuracyStage {
     }
 
     fn run(&self, ctx: &StageContext, _: &AccuracySettings) -> Result<StageOutputs, StageError> {
-        let targets = target_points(ctx.input("targets")?)?;
+        let targets = ctx.input("targets")?;
+        super::compensate::world_frame_rows_only(targets, "accuracy")?;
+        let targets = target_points(targets)?;
         let mut runs = vec![("achieved", ctx.input("achieved")?)];
         if let Some(baseline) = ctx.inputs.get("baseline") {
             runs.push(("baseline", baseline));

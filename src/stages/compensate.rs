@@ -1,40 +1,84 @@
 //! `compensate`: the joint command per target that puts the calibrated, loaded
 //! robot's tool on it, and the corrected Cartesian target for a controller that
-//! keeps its nominal model (`../shared/spec/model.md` §7; the maths is
-//! [`crate::compensation`]). This file only reads and checks the `targets`
-//! rows and writes `commands` and `conf_wrenches`.
+//! keeps its nominal model (`../shared/spec/model.md` §7, §8; the maths is
+//! [`crate::compensation`]). This file reads and checks the `targets` rows,
+//! brings them into the world frame, chooses each row's tool, judges each
+//! command against the calibration's envelope, and writes `commands` and
+//! `conf_wrenches`.
 //!
 //! `conf_wrenches` holds the `ok` commands as conf-wrench rows (cw_id =
 //! target_id, q = the command, the target's wrench), so a `measure` stage can run
 //! them on a rig or the simulator and the achieved positions can be compared
 //! with the targets.
 //!
-//! With the optional `covariance` input, `commands` also carries the predicted
-//! position's uncertainty at each command (spec §7, J·Σ·Jᵀ at the command and
-//! the target's wrench): how well the calibration knows where the command puts
-//! the tool. Null for a model without a covariance; absent without the input.
+//! **Frames** (spec §8). A row's pose is in the frame its `frame` column names,
+//! else in the setting `frame` (default `world`): `world` is the tracker frame
+//! the calibration's world parameters place the robot in; `base` the robot's
+//! base frame; any other name a user frame (work object) of the setting
+//! `frames`, given as `[x_mm, y_mm, z_mm, rx_deg, ry_deg, rz_deg]` in the base
+//! frame, read like a target's pose (origin, then base←user =
+//! Rot(x, rx)·Rot(y, ry)·Rot(z, rz)). Base and user-frame poses reach the world
+//! through the chosen set's world frame (the robot file's for nominal), the
+//! frame the commands are solved in. A table most of whose targets come back
+//! `unreachable` (more than `max_unreachable_fraction`) was almost surely
+//! written in another frame (or unit): the stage refuses it, naming the frame
+//! it assumed, instead of writing a table of failures with exit 0.
+//!
+//! **Tools** (spec §8). A row aims the parameters' target named by its
+//! `tool_id` column, else by the setting `tool`. A several-target set needs one
+//! of them on every row; a name the set does not know is refused, naming the
+//! ones it has. A one-target set (and the nominal model) has one tool, which
+//! every row aims whatever it names. The chosen name is written to `commands`
+//! (`tool_id`), so an exported program can declare the same tool.
+//!
+//! **Envelope** (spec §8). With the optional input `envelope` (the
+//! configurations the calibration was identified on, e.g. identify's
+//! `measurements`, restricted to a `selection`'s calibration rows when one is
+//! bound), each command's `envelope_distance` is its joint-space distance to
+//! the nearest of them ([`crate::compensation::envelope`]: largest per-joint
+//! difference, wrapped, over joints 1–6). With the optional `covariance`,
+//! `u95_mm` is the radius of the predicted position's 95 % uncertainty at the
+//! command, `sqrt(χ²₃(0.95)·λmax(J·Σ·Jᵀ))` (the longest semi-axis of the 95 %
+//! ellipsoid, as `accuracy_map` reports it), and `commands` also carries
+//! `cov_xx_mm2 … cov_zz_mm2` (spec §7). An `ok` command beyond
+//! `max_envelope_distance_deg` or `max_u95_mm` becomes `outside_envelope`,
+//! which an exported program treats like every other status but `ok`
+//! (`on_failed`). A calibrated model compensated without `envelope` (or
+//! without `covariance`) is not checked: the column is null and the stage says
+//! so in a warning (its log and the `warning` fact kept with the table).
 
+use std::collections::BTreeMap;
+
+use nalgebra::Vector3;
 use polars::prelude::{Column, DataFrame, DataType};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+use super::identify::ids_with_role;
 use super::{
-    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
-    TableSlot, bound_covariance, covariance_binding_problem, covariance_columns,
+    InputTable, SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo,
+    StageOutputs, TableSlot, bound_covariance, covariance_binding_problem, covariance_columns,
     model_name_problem, model_set, row_covariances,
 };
+use crate::calibration::accuracy_map::u95_mm;
 use crate::calibration::row_checks::{MAX_POSITION_MM, compact, joints_problem, wrench_problem};
-use crate::compensation::{self, Command, Options, Status, Target};
+use crate::compensation::envelope::{self, EnvelopeLimits, JointEnvelope};
+use crate::compensation::{self, Command, Options, Status, Target, pose_frame};
 use crate::robot::ik::NumericOptions;
-use crate::robot::{ConfWrench, JOINTS, ParamValues, Robot, Wrench};
+use crate::robot::{ConfWrench, Frame, JOINTS, ParamValues, Robot, Wrench};
 use crate::table::frame;
-use crate::table::parameters::ModelName;
+use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
     self, COMMAND_POSITION_COLUMNS, COMMAND_QUATERNION_COLUMNS, JOINT_COLUMNS, ORIENTATION_COLUMNS,
-    POSITION_COLUMNS, WRENCH_COLUMNS, f64_values, i64_values, io_error,
+    POSITION_COLUMNS, WRENCH_COLUMNS, f64_values, i64_values, io_error, str_values,
 };
 
 pub struct CompensateStage;
+
+/// The tracker frame: what `frame` means by default.
+pub const WORLD_FRAME: &str = "world";
+/// The robot's base frame.
+pub const BASE_FRAME: &str = "base";
 
 /// Settings of `compensate`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -59,6 +103,40 @@ pub struct CompensateSettings {
     /// straight wrist, so the default flags |q5| below about 0.5°. 0 reports no singularity of a converged command.
     #[schemars(range(min = 0.0, max = 10_000.0))]
     pub singular_sigma_min_mm_per_rad: f64,
+    /// Frame of the targets whose `frame` column is null or absent: `world`
+    /// (the tracker frame), `base` (the robot's base frame) or a name of `frames`.
+    pub frame: String,
+    /// User frames (work objects): name → `[x_mm, y_mm, z_mm, rx_deg, ry_deg,
+    /// rz_deg]`, the frame's origin and orientation in the robot's base frame
+    /// (base←user = Rot(x, rx)·Rot(y, ry)·Rot(z, rz)), as a target's pose is written.
+    pub frames: BTreeMap<String, [f64; 6]>,
+    /// The parameters' target (SMR nest, tool) of the rows whose `tool_id` is
+    /// null or absent; needed with a several-target set unless every row names one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tool: Option<String>,
+    /// An `ok` command farther than this from the nearest calibration row
+    /// (`envelope_distance`: the largest per-joint difference, deg) is
+    /// `outside_envelope`. The default, 40°, passes every held-out row of the
+    /// sparse simulated campaign (50 calibration rows; at most 31.4° from
+    /// them) and its compensated targets (at most 30.4°), and flags the
+    /// configurations where compensation was found wanting: the simulated
+    /// loop's first targets (90° and more away, 4× the validation error) and
+    /// the UR10 targets at q2 ≈ −43° calibrated on q2 ≤ −90° (47° and more).
+    #[schemars(range(min = 0.0, max = 360.0))]
+    pub max_envelope_distance_deg: f64,
+    /// An `ok` command whose predicted 95 % position uncertainty (`u95_mm`,
+    /// with a `covariance`) is larger than this (mm) is `outside_envelope`:
+    /// set it to what the work needs. The default, 0.5 mm, is twice the largest
+    /// u95 on the UR10's own calibration rows (0.24 mm; the simulated cell's
+    /// are below 0.1 mm); the UR10's series B configurations, 30°–120° from
+    /// them, reach 0.68 mm.
+    #[schemars(range(min = 0.0, max = 1000.0))]
+    pub max_u95_mm: f64,
+    /// When more than this share of the targets is `unreachable`, the stage
+    /// refuses the table, naming the frame it assumed (a table written in
+    /// another frame or unit); 1 never refuses.
+    #[schemars(range(min = 0.0, max = 1.0))]
+    pub max_unreachable_fraction: f64,
 }
 
 impl Default for CompensateSettings {
@@ -69,6 +147,12 @@ impl Default for CompensateSettings {
             orientation_tolerance_rad: 1e-6,
             max_iterations: 100,
             singular_sigma_min_mm_per_rad: 3.5,
+            frame: WORLD_FRAME.to_string(),
+            frames: BTreeMap::new(),
+            tool: None,
+            max_envelope_distance_deg: 40.0,
+            max_u95_mm: 0.5,
+            max_unreachable_fraction: 0.5,
         }
     }
 }
@@ -78,13 +162,13 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Load-aware compensation: joint commands that put the calibrated, loaded tool on each target, and corrected Cartesian targets for the nominal controller",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "targets",
             schema: schema::targets,
             required: true,
-            meaning: "target_id, tool pose in the world frame, optional wrench and branch hint",
+            meaning: "target_id, tool pose (world, base or a user frame), optional wrench, branch hint, frame and tool_id",
         },
         TableSlot {
             name: "parameters",
@@ -93,13 +177,25 @@ static INFO: StageInfo = StageInfo {
             meaning: "parameter sets; nominal when absent",
         },
         super::COVARIANCE_INPUT,
+        TableSlot {
+            name: "envelope",
+            schema: schema::envelope,
+            required: false,
+            meaning: "the configurations the calibration was identified on (e.g. identify's measurements): envelope_distance, and outside_envelope beyond max_envelope_distance_deg",
+        },
+        TableSlot {
+            name: "selection",
+            schema: schema::selection,
+            required: false,
+            meaning: "rows of `envelope` with role = calibration are the calibration rows; all rows when absent",
+        },
     ],
     outputs: &[
         TableSlot {
             name: "commands",
             schema: schema::commands,
             required: true,
-            meaning: "one row per target, in target order: command, status, residual, correction, corrected Cartesian target",
+            meaning: "one row per target, in target order: command, status, residual, correction, corrected Cartesian target, tool_id, envelope_distance, u95_mm",
         },
         TableSlot {
             name: "conf_wrenches",
@@ -109,6 +205,52 @@ static INFO: StageInfo = StageInfo {
         },
     ],
 };
+
+impl CompensateSettings {
+    /// Problems of `frame` and `frames` (names, values).
+    fn frame_problems(&self) -> Vec<SettingsProblem> {
+        let mut problems = Vec::new();
+        for (name, pose) in &self.frames {
+            if name == WORLD_FRAME || name == BASE_FRAME || name.trim().is_empty() {
+                problems.push(SettingsProblem::new(
+                    &format!("frames.{name}"),
+                    format!(
+                        "`{name}` cannot name a user frame (`world` and `base` are built in; a name must not be empty)"
+                    ),
+                ));
+            }
+            let distance = Vector3::new(pose[0], pose[1], pose[2]).norm();
+            if !pose.iter().all(|v| v.is_finite()) || distance > MAX_POSITION_MM {
+                problems.push(SettingsProblem::new(
+                    &format!("frames.{name}"),
+                    format!(
+                        "expected [x_mm, y_mm, z_mm, rx_deg, ry_deg, rz_deg] with the origin within {MAX_POSITION_MM} mm of the base, found {pose:?}"
+                    ),
+                ));
+            }
+        }
+        if let Some(problem) = self.unknown_frame(&self.frame) {
+            problems.push(SettingsProblem::new("frame", problem));
+        }
+        problems
+    }
+
+    /// Why `name` is no frame of these settings, or `None` when it is one.
+    fn unknown_frame(&self, name: &str) -> Option<String> {
+        if name == WORLD_FRAME || name == BASE_FRAME || self.frames.contains_key(name) {
+            return None;
+        }
+        let known: Vec<&str> = [WORLD_FRAME, BASE_FRAME]
+            .into_iter()
+            .chain(self.frames.keys().map(String::as_str))
+            .collect();
+        Some(format!(
+            "unknown frame `{name}`{}; the frames are {} (user frames are declared in the setting `frames`)",
+            crate::suggest::did_you_mean(name, known.iter().copied()),
+            known.join(", ")
+        ))
+    }
+}
 
 impl Stage for CompensateStage {
     type Settings = CompensateSettings;
@@ -122,10 +264,25 @@ impl Stage for CompensateStage {
         settings: &CompensateSettings,
         ctx: &SettingsContext,
     ) -> Vec<SettingsProblem> {
-        model_name_problem("model", &settings.model)
+        let mut problems: Vec<SettingsProblem> = model_name_problem("model", &settings.model)
             .into_iter()
             .chain(covariance_binding_problem(ctx))
-            .collect()
+            .chain(settings.frame_problems())
+            .collect();
+        if ctx.bound_inputs.contains(&"selection") && !ctx.bound_inputs.contains(&"envelope") {
+            problems.push(SettingsProblem::new(
+                "inputs.selection",
+                "input `selection` chooses rows of the input `envelope`, which is not bound",
+            ));
+        }
+        if settings
+            .tool
+            .as_deref()
+            .is_some_and(|t| t.trim().is_empty())
+        {
+            problems.push(SettingsProblem::new("tool", "must not be empty"));
+        }
+        problems
     }
 
     fn run(
@@ -138,7 +295,18 @@ impl Stage for CompensateStage {
             .as_ref()
             .map_or_else(|| ParamValues::nominal(ctx.robot.spec()), |set| set.values);
         let input = ctx.input("targets")?;
-        let (ids, targets) = target_rows(ctx.robot, &input.df, &input.path)?;
+        let rows = target_rows(ctx.robot, settings, &input.df, &input.path)?;
+        let tools = tool_indices(set.as_ref(), settings, &rows, &input.path)?;
+        let world_from_base = ctx.robot.world_from_base(&values);
+        let targets: Vec<Target> = (0..rows.ids.len())
+            .map(|k| Target {
+                tool_in_world: world_from(settings, &world_from_base, &rows.frames[k])
+                    .compose(&rows.poses[k]),
+                wrench: rows.wrenches[k],
+                hint_deg: rows.hints[k],
+                tool: tools[k],
+            })
+            .collect();
         let options = Options {
             solver: NumericOptions {
                 max_iterations: settings.max_iterations,
@@ -149,40 +317,172 @@ impl Stage for CompensateStage {
             singular_sigma_min_mm_per_rad: settings.singular_sigma_min_mm_per_rad,
         };
         let commands = compensation::compensate(ctx.robot, &values, &targets, &options);
-        let mut commands_table = commands_frame(&ids, &commands);
+        refuse_mostly_unreachable(
+            settings,
+            &input.path,
+            &rows,
+            &targets,
+            &commands,
+            &world_from_base,
+        )?;
+
+        let mut warnings = Vec::new();
+        let calibrated = set.as_ref().filter(|s| s.model != ModelName::Nominal);
+        // The predicted uncertainty at each command, for the row's tool.
+        let mut covariances = None;
         if let Some(set) = &set
             && let Some(covariance) = bound_covariance(ctx, set)?
         {
-            // Compensation aims the set's first target (one-target tool).
-            let rows: Vec<ConfWrench> = targets
+            let conf_wrenches: Vec<ConfWrench> = targets
                 .iter()
                 .zip(&commands)
-                .map(|(target, command)| ConfWrench::new(command.q_deg, target.wrench))
+                .map(|(target, command)| ConfWrench {
+                    target: target.tool,
+                    ..ConfWrench::new(command.q_deg, target.wrench)
+                })
                 .collect();
-            let covariances = row_covariances(ctx, set, covariance.as_ref(), &rows);
-            for column in covariance_columns(&covariances) {
-                commands_table
-                    .with_column(column)
-                    .map_err(|e| StageError::Failed(format!("commands: {e}")))?;
+            covariances = Some(row_covariances(
+                ctx,
+                set,
+                covariance.as_ref(),
+                &conf_wrenches,
+            ));
+        } else if calibrated.is_some() {
+            warnings.push(
+                "u95_mm not checked: no `covariance` input (bind identify's covariance so that commands whose predicted 95 % uncertainty exceeds max_u95_mm are outside_envelope)".to_string(),
+            );
+        }
+        let u95: Vec<Option<f64>> = match &covariances {
+            Some(c) => c.iter().map(|c| c.as_ref().map(u95_mm)).collect(),
+            None => vec![None; commands.len()],
+        };
+        let envelope = envelope_rows(ctx)?;
+        let distances: Vec<Option<f64>> = match &envelope {
+            Some(envelope) => {
+                use rayon::prelude::*;
+                commands
+                    .par_iter()
+                    .map(|c| Some(envelope.distance_deg(&c.q_deg)))
+                    .collect()
             }
+            None => {
+                if calibrated.is_some() {
+                    warnings.push(
+                        "envelope not checked: no `envelope` input (bind the measurements identify was given, and its selection, so that commands far from the calibration rows are outside_envelope)".to_string(),
+                    );
+                }
+                vec![None; commands.len()]
+            }
+        };
+        let limits = EnvelopeLimits {
+            max_distance_deg: settings.max_envelope_distance_deg,
+            max_u95_mm: settings.max_u95_mm,
+        };
+        let commands: Vec<Command> = commands
+            .into_iter()
+            .zip(distances.iter().zip(&u95))
+            .map(|(command, (distance, u95))| Command {
+                status: envelope::judged(command.status, *distance, *u95, &limits),
+                ..command
+            })
+            .collect();
+
+        let tool_names = tool_names(set.as_ref(), settings, &rows, &tools);
+        let mut commands_table = commands_frame(&rows.ids, &commands);
+        let extra = [
+            Column::new("tool_id".into(), tool_names),
+            Column::new("envelope_distance".into(), distances),
+            Column::new("u95_mm".into(), u95),
+        ];
+        let covariance_columns = covariances
+            .as_deref()
+            .map(covariance_columns)
+            .unwrap_or_default();
+        for column in extra.into_iter().chain(covariance_columns) {
+            commands_table
+                .with_column(column)
+                .map_err(|e| StageError::Failed(format!("commands: {e}")))?;
         }
         let mut outputs = StageOutputs::default();
         outputs.tables.insert("commands".into(), commands_table);
         outputs.tables.insert(
             "conf_wrenches".into(),
-            conf_wrenches_frame(&ids, &targets, &commands),
+            conf_wrenches_frame(&rows.ids, &targets, &commands),
         );
         outputs
             .facts
-            .insert("targets".into(), ids.len().to_string());
+            .insert("targets".into(), rows.ids.len().to_string());
         for status in Status::ALL {
             let count = commands.iter().filter(|c| c.status == status).count();
             outputs
                 .facts
                 .insert(status.as_str().into(), count.to_string());
         }
+        if let Some(envelope) = &envelope {
+            outputs
+                .facts
+                .insert("envelope_rows".into(), envelope.len().to_string());
+        }
+        for warning in &warnings {
+            ctx.progress.note(&format!("warning: {warning}"));
+        }
+        if !warnings.is_empty() {
+            outputs.facts.insert("warning".into(), warnings.join("; "));
+        }
         Ok(outputs)
     }
+}
+
+/// world ← frame of a row's frame name (already checked to be known).
+fn world_from(settings: &CompensateSettings, world_from_base: &Frame, name: &str) -> Frame {
+    match name {
+        WORLD_FRAME => Frame::identity(),
+        BASE_FRAME => *world_from_base,
+        user => settings.frames.get(user).map_or(Frame::identity(), |p| {
+            world_from_base.compose(&pose_frame([p[0], p[1], p[2]], [p[3], p[4], p[5]]))
+        }),
+    }
+}
+
+/// The calibration rows of the `envelope` input (a `selection`'s calibration
+/// rows when one is bound); `None` when it is not bound. No rows is refused:
+/// an envelope of nothing would make every command `outside_envelope` for a
+/// reason the user cannot see.
+fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError> {
+    let Some(table) = ctx.inputs.get("envelope") else {
+        return Ok(None);
+    };
+    let keep = ctx
+        .inputs
+        .get("selection")
+        .map(|s| ids_with_role(s, "calibration"))
+        .transpose()?;
+    let (ids, rows) = conf_wrench_rows_of(table)?;
+    let configurations: Vec<[f64; JOINTS]> = ids
+        .iter()
+        .zip(&rows)
+        .filter(|(id, _)| keep.as_ref().is_none_or(|k| k.contains(id)))
+        .map(|(_, q)| *q)
+        .collect();
+    JointEnvelope::new(configurations).map(Some).ok_or_else(|| {
+        StageError::Invalid(format!(
+            "{}: no calibration rows for the envelope (the table is empty, or the selection marks none of its cw_id as calibration)",
+            table.path.display()
+        ))
+    })
+}
+
+/// cw_id and joint columns of an `envelope` table (any other columns play no part).
+fn conf_wrench_rows_of(table: &InputTable) -> Result<(Vec<i64>, Vec<[f64; JOINTS]>), StageError> {
+    let ids = i64_values(&table.df, "cw_id", &table.path)?;
+    let joints = JOINT_COLUMNS
+        .iter()
+        .map(|c| f64_values(&table.df, c, &table.path))
+        .collect::<Result<Vec<_>, _>>()?;
+    let rows = (0..ids.len())
+        .map(|k| std::array::from_fn(|i| joints[i][k]))
+        .collect();
+    Ok((ids, rows))
 }
 
 /// Values of an optional f64 column: `None` where absent or null (a column
@@ -203,17 +503,46 @@ fn optional_f64(
     }
 }
 
+/// The checked `targets` rows, each pose still in its own frame.
+struct TargetRows {
+    ids: Vec<i64>,
+    /// frame ← tool of each row, in the frame `frames` names.
+    poses: Vec<Frame>,
+    /// Each row's frame name (its `frame` value, else the setting), known.
+    frames: Vec<String>,
+    /// Each row's `tool_id` value (null or absent: `None`).
+    tool_ids: Vec<Option<String>>,
+    wrenches: Vec<Wrench>,
+    hints: Vec<Option<[f64; JOINTS]>>,
+}
+
+/// Values of an optional utf8 column: `None` where absent or null (a column
+/// pandas wrote all-null has type null).
+fn optional_str(
+    df: &DataFrame,
+    name: &str,
+    file: &std::path::Path,
+) -> Result<Vec<Option<String>>, StageError> {
+    match df.column(name) {
+        Err(_) => Ok(vec![None; df.height()]),
+        Ok(column) if column.dtype() == &DataType::Null => Ok(vec![None; df.height()]),
+        Ok(_) => Ok(str_values(df, name, file)?),
+    }
+}
+
 /// The checked `targets` rows. A missing wrench value is 0; a branch hint is used
 /// only when all six q columns are given on the row. Refused, naming the row: a
-/// position farther than [`MAX_POSITION_MM`] from the tracker, a wrench beyond
-/// `row_checks`' bounds, a partial hint, a hint outside the robot file's joint
-/// limits (a seed there asks for a branch the robot cannot take, and says the
-/// row was typed for another robot or in radians).
+/// frame the settings do not know, a position farther than [`MAX_POSITION_MM`]
+/// from its frame's origin, a wrench beyond `row_checks`' bounds, a partial
+/// hint, a hint outside the robot file's joint limits (a seed there asks for a
+/// branch the robot cannot take, and says the row was typed for another robot
+/// or in radians), an empty `tool_id`.
 fn target_rows(
     robot: &Robot,
+    settings: &CompensateSettings,
     df: &DataFrame,
     file: &std::path::Path,
-) -> Result<(Vec<i64>, Vec<Target>), StageError> {
+) -> Result<TargetRows, StageError> {
     let ids = i64_values(df, "target_id", file)?;
     let required = |names: &[&str]| {
         names
@@ -231,6 +560,8 @@ fn target_rows(
     };
     let wrench = optional(&WRENCH_COLUMNS)?;
     let hint = optional(&JOINT_COLUMNS)?;
+    let frame_column = optional_str(df, "frame", file)?;
+    let tool_ids = optional_str(df, "tool_id", file)?;
     let bad = |row: usize, message: String| {
         StageError::Invalid(format!(
             "{}: row {row} (target_id {}): {message}",
@@ -238,8 +569,22 @@ fn target_rows(
             ids[row]
         ))
     };
-    let mut targets = Vec::with_capacity(ids.len());
+    let mut rows = TargetRows {
+        ids: ids.clone(),
+        poses: Vec::with_capacity(ids.len()),
+        frames: Vec::with_capacity(ids.len()),
+        tool_ids: Vec::with_capacity(ids.len()),
+        wrenches: Vec::with_capacity(ids.len()),
+        hints: Vec::with_capacity(ids.len()),
+    };
     for row in 0..ids.len() {
+        let frame_name = frame_column[row]
+            .as_deref()
+            .map(str::trim)
+            .unwrap_or(&settings.frame);
+        if let Some(problem) = settings.unknown_frame(frame_name) {
+            return Err(bad(row, format!("column `frame`: {problem}")));
+        }
         let position_mm: [f64; 3] = std::array::from_fn(|i| position[i][row]);
         let distance = nalgebra::Vector3::from(position_mm).norm();
         // A NaN too, should one get past the schema check.
@@ -247,7 +592,7 @@ fn target_rows(
             return Err(bad(
                 row,
                 format!(
-                    "the target is {} mm from the tracker (more than {MAX_POSITION_MM} mm)",
+                    "the target is {} mm from the origin of its frame `{frame_name}` (more than {MAX_POSITION_MM} mm)",
                     compact(distance)
                 ),
             ));
@@ -276,14 +621,143 @@ fn target_rows(
                 ));
             }
         };
-        targets.push(Target::from_columns(
+        let tool_id = tool_ids[row].as_deref().map(str::trim);
+        if tool_id == Some("") {
+            return Err(bad(
+                row,
+                "column `tool_id` is empty; give a target id of the parameters, or null for the setting `tool`".into(),
+            ));
+        }
+        rows.poses.push(pose_frame(
             position_mm,
             std::array::from_fn(|i| orientation[i][row]),
-            wrench,
-            hint_deg,
         ));
+        rows.frames.push(frame_name.to_string());
+        rows.tool_ids.push(tool_id.map(str::to_string));
+        rows.wrenches.push(wrench);
+        rows.hints.push(hint_deg);
     }
-    Ok((ids, targets))
+    Ok(rows)
+}
+
+/// The parameters' target index each row aims (see the module doc): the
+/// row's `tool_id`, else the setting `tool`. Every row aims tool 0 of a
+/// one-target set or the nominal model.
+fn tool_indices(
+    set: Option<&ParameterSet>,
+    settings: &CompensateSettings,
+    rows: &TargetRows,
+    file: &std::path::Path,
+) -> Result<Vec<usize>, StageError> {
+    let Some(set) = set.filter(|s| s.targets.len() > 1) else {
+        return Ok(vec![0; rows.ids.len()]);
+    };
+    let known = || set.targets.join(", ");
+    rows.tool_ids
+        .iter()
+        .enumerate()
+        .map(|(row, id)| {
+            let (name, source) = match (id, &settings.tool) {
+                (Some(id), _) => (id.as_str(), "column `tool_id`"),
+                (None, Some(tool)) => (tool.as_str(), "setting `tool`"),
+                (None, None) => {
+                    return Err(StageError::Invalid(format!(
+                        "{}: row {row} (target_id {}): the {} set has several targets ({}): say which one this row aims, in a `tool_id` column or the setting `tool`",
+                        file.display(),
+                        rows.ids[row],
+                        set.model,
+                        known()
+                    )));
+                }
+            };
+            set.targets.iter().position(|t| t == name).ok_or_else(|| {
+                StageError::Invalid(format!(
+                    "{}: row {row} (target_id {}): {source}: target `{name}` is not one of the {} set's targets ({}){}",
+                    file.display(),
+                    rows.ids[row],
+                    set.model,
+                    known(),
+                    crate::suggest::did_you_mean(name, set.targets.iter().map(String::as_str))
+                ))
+            })
+        })
+        .collect()
+}
+
+/// The `tool_id` written to `commands`: the set's target id of a several-target
+/// set, else what the row (or the setting `tool`) named, else null.
+fn tool_names(
+    set: Option<&ParameterSet>,
+    settings: &CompensateSettings,
+    rows: &TargetRows,
+    tools: &[usize],
+) -> Vec<Option<String>> {
+    match set.filter(|s| s.targets.len() > 1) {
+        Some(set) => tools
+            .iter()
+            .map(|k| Some(set.targets[*k].clone()))
+            .collect(),
+        None => rows
+            .tool_ids
+            .iter()
+            .map(|id| id.clone().or_else(|| settings.tool.clone()))
+            .collect(),
+    }
+}
+
+/// Refuses a table most of whose targets came back `unreachable` (more than
+/// `max_unreachable_fraction`): a table written in another frame (or unit)
+/// than the one assumed, which would otherwise end as a table of failures with
+/// exit 0. Names the frame(s) assumed, how far from the robot base the
+/// targets lie read so, and the other frame to try.
+fn refuse_mostly_unreachable(
+    settings: &CompensateSettings,
+    file: &std::path::Path,
+    rows: &TargetRows,
+    targets: &[Target],
+    commands: &[Command],
+    world_from_base: &Frame,
+) -> Result<(), StageError> {
+    let unreachable: Vec<usize> = (0..commands.len())
+        .filter(|&k| commands[k].status == Status::Unreachable)
+        .collect();
+    let n = commands.len();
+    if n == 0 || unreachable.len() as f64 <= settings.max_unreachable_fraction * n as f64 {
+        return Ok(());
+    }
+    let mut assumed: Vec<&str> = unreachable
+        .iter()
+        .map(|&k| rows.frames[k].as_str())
+        .collect();
+    assumed.sort_unstable();
+    assumed.dedup();
+    let base_from_world = world_from_base.inverse();
+    let mut from_base_mm: Vec<f64> = unreachable
+        .iter()
+        .map(|&k| {
+            base_from_world
+                .transform_point(&targets[k].tool_in_world.origin_mm)
+                .norm()
+        })
+        .collect();
+    from_base_mm.sort_by(f64::total_cmp);
+    let median_mm = from_base_mm[from_base_mm.len() / 2];
+    let other = if assumed.contains(&WORLD_FRAME) {
+        "the robot's base frame (`frame = \"base\"`, or a `frame` column)"
+    } else {
+        "the tracker frame (`frame = \"world\"`, or a `frame` column)"
+    };
+    Err(StageError::Invalid(format!(
+        "{}: {} of {n} targets are unreachable, assuming frame {} (more than max_unreachable_fraction = {}); read so, they lie a median {median_mm:.0} mm from the robot base. Were they written in another frame? Try {other}, or check the units (mm, deg)",
+        file.display(),
+        unreachable.len(),
+        assumed
+            .iter()
+            .map(|f| format!("`{f}`"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        settings.max_unreachable_fraction,
+    )))
 }
 
 fn commands_frame(ids: &[i64], commands: &[Command]) -> DataFrame {
@@ -338,4 +812,24 @@ fn conf_wrenches_frame(ids: &[i64], targets: &[Target], commands: &[Command]) ->
         ));
     }
     frame(columns)
+}
+
+/// Refuses a `targets` table with a row whose `frame` is not `world`: stages
+/// that compare targets with tracker measurements (`accuracy`, `iso9283`) read
+/// the pose columns as tracker coordinates, and a base-frame row compared so
+/// would give a wrong error with exit 0.
+pub fn world_frame_rows_only(table: &InputTable, stage: &str) -> Result<(), StageError> {
+    let frames = optional_str(&table.df, "frame", &table.path)?;
+    match frames
+        .iter()
+        .enumerate()
+        .find(|(_, f)| f.as_deref().is_some_and(|f| f.trim() != WORLD_FRAME))
+    {
+        None => Ok(()),
+        Some((row, frame)) => Err(StageError::Invalid(format!(
+            "{}: row {row}: column `frame` is `{}`; {stage} compares targets with tracker measurements and takes world-frame (tracker) targets only (the `commands` of a compensate stage hold where each target went)",
+            table.path.display(),
+            frame.as_deref().unwrap_or_default()
+        ))),
+    }
 }

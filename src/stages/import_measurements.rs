@@ -23,124 +23,25 @@
 //! key ([`Stage::external_key`], as `scan_logs` keys its log files), so an edited
 //! export re-runs the stage and an unchanged one does not.
 
-use std::borrow::Cow;
 use std::collections::{BTreeMap, HashMap};
-use std::io::Cursor;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
-use polars::prelude::{
-    Column, CsvEncoding, CsvReadOptions, DataFrame, DataType, ParquetReader, PlSmallStr, Schema,
-    SerReader, TimeUnit, TimeZone,
-};
+use polars::prelude::{Column, DataFrame, DataType, TimeUnit, TimeZone};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+use super::import_source::{
+    CsvLayout, FileSettings, Kind, Mapped, Source, cannot_read, read_source,
+};
+pub use super::import_source::{ForceUnit, JointUnit, LengthUnit, MomentUnit, SourceFormat};
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, settings_error,
 };
 use crate::table::schema;
-use crate::table::time::parse_rfc3339_us;
 
 pub struct ImportMeasurementsStage;
-
-/// The export's file format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
-#[serde(rename_all = "snake_case")]
-pub enum SourceFormat {
-    /// Delimited text (see `separator`, `decimal_comma`, `skip_rows`, `has_header`).
-    Csv,
-    /// A Parquet file; numeric columns of any numeric type.
-    Parquet,
-}
-
-/// Unit of the joint columns in the source.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
-pub enum JointUnit {
-    #[default]
-    #[serde(rename = "deg")]
-    Deg,
-    #[serde(rename = "rad")]
-    Rad,
-}
-
-/// Unit of the position and sigma columns in the source.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
-pub enum LengthUnit {
-    #[default]
-    #[serde(rename = "mm")]
-    Mm,
-    #[serde(rename = "m")]
-    M,
-}
-
-/// Unit of the force columns in the source (newtons only).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
-pub enum ForceUnit {
-    #[default]
-    #[serde(rename = "N")]
-    Newton,
-}
-
-/// Unit of the moment columns in the source: `N·m` (also `N*m`, `Nm`) or `N·mm`
-/// (also `N*mm`, `Nmm`). The ASCII spellings mean the same and are stored as the
-/// `·` form, so they share a cache key.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(try_from = "String", into = "String")]
-pub enum MomentUnit {
-    #[default]
-    NewtonMetre,
-    NewtonMillimetre,
-}
-
-const MOMENT_SPELLINGS: [(&str, MomentUnit); 6] = [
-    ("N·m", MomentUnit::NewtonMetre),
-    ("N*m", MomentUnit::NewtonMetre),
-    ("Nm", MomentUnit::NewtonMetre),
-    ("N·mm", MomentUnit::NewtonMillimetre),
-    ("N*mm", MomentUnit::NewtonMillimetre),
-    ("Nmm", MomentUnit::NewtonMillimetre),
-];
-
-impl TryFrom<String> for MomentUnit {
-    type Error = String;
-    fn try_from(text: String) -> Result<Self, String> {
-        MOMENT_SPELLINGS
-            .iter()
-            .find(|(spelling, _)| *spelling == text)
-            .map(|(_, unit)| *unit)
-            .ok_or_else(|| {
-                format!("`{text}` is not a moment unit; expected N·m (or N*m, Nm) or N·mm (or N*mm, Nmm)")
-            })
-    }
-}
-
-impl From<MomentUnit> for String {
-    fn from(unit: MomentUnit) -> String {
-        match unit {
-            MomentUnit::NewtonMetre => "N·m",
-            MomentUnit::NewtonMillimetre => "N·mm",
-        }
-        .to_string()
-    }
-}
-
-impl JsonSchema for MomentUnit {
-    fn schema_name() -> Cow<'static, str> {
-        "MomentUnit".into()
-    }
-
-    fn json_schema(_: &mut schemars::SchemaGenerator) -> schemars::Schema {
-        let spellings: Vec<&str> = MOMENT_SPELLINGS.iter().map(|(s, _)| *s).collect();
-        schemars::json_schema!({
-            "type": "string",
-            "enum": spellings,
-            "description": "Unit of the moment columns in the source: N·m (also N*m, Nm) or N·mm (also N*mm, Nmm)."
-        })
-    }
-}
 
 /// Which source column holds each contract column. Required: `q1_deg … q6_deg`,
 /// `x_mm`, `y_mm`, `z_mm`. The names are the contract's; the units of the source
@@ -287,19 +188,6 @@ static INFO: StageInfo = StageInfo {
     }],
 };
 
-/// What a contract column holds, which decides its parsing and unit conversion.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Kind {
-    Joint,
-    Force,
-    Moment,
-    Position,
-    Sigma,
-    Integer,
-    Text,
-    Time,
-}
-
 /// Every contract column a source column can be mapped to, in output order.
 const CONTRACT: [(&str, Kind); 23] = [
     ("cw_id", Kind::Integer),
@@ -363,20 +251,12 @@ impl ColumnMap {
     }
 }
 
-/// A contract column and the source column it comes from.
-#[derive(Debug, Clone)]
-struct Mapped {
-    contract: &'static str,
-    kind: Kind,
-    source: String,
-}
-
 /// Settings checked as a whole: every problem is reported at once.
 #[derive(Debug)]
 struct Checked {
     file: PathBuf,
     format: SourceFormat,
-    separator: u8,
+    layout: CsvLayout,
     mapped: Vec<Mapped>,
 }
 
@@ -385,52 +265,15 @@ impl ImportMeasurementsSettings {
     /// (by key). Reads nothing: the file is only named.
     fn check(&self, job_dir: &Path) -> Result<Checked, Vec<SettingsProblem>> {
         let mut problems = Vec::new();
-        if self.path.trim().is_empty() {
-            problems.push(SettingsProblem::new(
-                "path",
-                "required: the export file, relative to the job file's folder",
-            ));
+        let (file, format, layout) = FileSettings {
+            path: &self.path,
+            format: self.format,
+            separator: &self.separator,
+            decimal_comma: self.decimal_comma,
+            skip_rows: self.skip_rows,
+            has_header: self.has_header,
         }
-        let file = job_dir.join(&self.path);
-        let format = self.format.unwrap_or_else(|| format_of(&file));
-        let separator = match self.separator.as_bytes() {
-            [b] if b.is_ascii() && !matches!(b, b'"' | b'\n' | b'\r') => *b,
-            _ => {
-                problems.push(SettingsProblem::new(
-                    "separator",
-                    format!(
-                        "`{}` is not one ASCII character (other than a quote or a line break)",
-                        self.separator.escape_debug()
-                    ),
-                ));
-                b','
-            }
-        };
-        if self.decimal_comma && separator == b',' {
-            problems.push(SettingsProblem::new(
-                "decimal_comma",
-                "needs a separator other than \",\" (e.g. `separator = \";\"`)",
-            ));
-        }
-        if format == SourceFormat::Parquet {
-            let defaults = ImportMeasurementsSettings::default();
-            for (key, set) in [
-                ("separator", self.separator != defaults.separator),
-                ("decimal_comma", self.decimal_comma),
-                ("skip_rows", self.skip_rows != 0),
-                ("has_header", !self.has_header),
-            ] {
-                if set {
-                    problems.push(SettingsProblem::new(
-                        key,
-                        format!(
-                            "applies to CSV files only, and {} is read as Parquet",
-                            file.display()
-                        ),
-                    ));
-                }
-            }
-        }
+        .check(job_dir, &mut problems);
         for key in REQUIRED {
             if self.columns.get(key).is_none() {
                 problems.push(SettingsProblem::new(
@@ -504,7 +347,7 @@ impl ImportMeasurementsSettings {
         Ok(Checked {
             file,
             format,
-            separator,
+            layout,
             mapped,
         })
     }
@@ -568,10 +411,14 @@ pub fn import(
 ) -> Result<Imported, StageError> {
     let checked = settings.check(job_dir).map_err(|p| settings_error(&p))?;
     let bytes = std::fs::read(&checked.file).map_err(|e| cannot_read(&checked.file, e))?;
-    let source = match checked.format {
-        SourceFormat::Csv => Source::csv(&checked, settings, &bytes)?,
-        SourceFormat::Parquet => Source::parquet(&checked.file, &bytes)?,
-    };
+    let source = read_source(
+        &checked.file,
+        checked.format,
+        &checked.layout,
+        &checked.mapped,
+        &bytes,
+        "measurements hold complete rows only",
+    )?;
     source.check_columns(&checked.mapped)?;
     let rows = match settings.row_range {
         None => 0..source.height(),
@@ -684,366 +531,6 @@ fn check_units(
     )))
 }
 
-fn cannot_read(file: &Path, e: std::io::Error) -> StageError {
-    StageError::Invalid(format!(
-        "setting `path`: cannot read {}: {e}",
-        file.display()
-    ))
-}
-
-/// The source table: typed mapped columns, and for a CSV every cell as text.
-struct Source<'a> {
-    file: &'a Path,
-    /// Mapped numeric columns as f64 / i64 (CSV: unparsable cells null), others as read.
-    typed: DataFrame,
-    /// CSV: every column as text, for the names and for messages.
-    text: Option<DataFrame>,
-    /// CSV: the 1-based file line of data row 0; Parquet: none (rows are named).
-    first_line: Option<usize>,
-    decimal_comma: bool,
-    separator: u8,
-}
-
-impl<'a> Source<'a> {
-    fn csv(
-        checked: &'a Checked,
-        settings: &ImportMeasurementsSettings,
-        bytes: &[u8],
-    ) -> Result<Self, StageError> {
-        let file = checked.file.as_path();
-        // A UTF-8 byte-order mark would become part of the first column's name.
-        let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
-        let options = |typed: Option<Schema>| {
-            let projection: Option<Arc<[PlSmallStr]>> = typed
-                .as_ref()
-                .map(|s| s.iter_names().cloned().collect::<Vec<_>>().into());
-            CsvReadOptions::default()
-                .with_has_header(settings.has_header)
-                .with_skip_lines(settings.skip_rows)
-                .with_infer_schema_length(Some(0))
-                .with_schema_overwrite(typed.map(Arc::new))
-                .with_columns(projection)
-                .with_ignore_errors(true)
-                .map_parse_options(|p| {
-                    p.with_separator(checked.separator)
-                        .with_decimal_comma(settings.decimal_comma)
-                        .with_encoding(CsvEncoding::LossyUtf8)
-                })
-        };
-        let unreadable = |e: polars::error::PolarsError| {
-            StageError::Invalid(format!(
-                "{}: not a readable CSV file with separator {:?} (are `separator`, `skip_rows` and `has_header` right?): {e}",
-                file.display(),
-                checked.separator as char
-            ))
-        };
-        let text = options(None)
-            .into_reader_with_file_handle(Cursor::new(bytes))
-            .finish()
-            .map_err(unreadable)?;
-        let present: Vec<&str> = text.get_column_names().iter().map(|s| s.as_str()).collect();
-        let typed_schema: Schema = checked
-            .mapped
-            .iter()
-            .filter(|m| present.contains(&m.source.as_str()))
-            .map(|m| {
-                let dtype = match m.kind {
-                    Kind::Integer => DataType::Int64,
-                    Kind::Text | Kind::Time => DataType::String,
-                    _ => DataType::Float64,
-                };
-                (PlSmallStr::from(m.source.as_str()), dtype)
-            })
-            .collect();
-        let typed = if typed_schema.is_empty() {
-            DataFrame::empty()
-        } else {
-            let typed = options(Some(typed_schema))
-                .into_reader_with_file_handle(Cursor::new(bytes))
-                .finish()
-                .map_err(unreadable)?;
-            if typed.height() != text.height() {
-                return Err(StageError::Failed(format!(
-                    "{}: read {} rows as numbers but {} as text",
-                    file.display(),
-                    typed.height(),
-                    text.height()
-                )));
-            }
-            typed
-        };
-        Ok(Source {
-            file,
-            typed,
-            text: Some(text),
-            first_line: Some(settings.skip_rows + usize::from(settings.has_header) + 1),
-            decimal_comma: settings.decimal_comma,
-            separator: checked.separator,
-        })
-    }
-
-    fn parquet(file: &'a Path, bytes: &[u8]) -> Result<Self, StageError> {
-        let typed = ParquetReader::new(Cursor::new(bytes))
-            .finish()
-            .map_err(|e| {
-                StageError::Invalid(format!(
-                    "{}: not a readable Parquet file: {e}",
-                    file.display()
-                ))
-            })?;
-        Ok(Source {
-            file,
-            typed,
-            text: None,
-            first_line: None,
-            decimal_comma: false,
-            separator: b',',
-        })
-    }
-
-    fn height(&self) -> usize {
-        self.text.as_ref().unwrap_or(&self.typed).height()
-    }
-
-    fn names(&self) -> Vec<&str> {
-        self.text
-            .as_ref()
-            .unwrap_or(&self.typed)
-            .get_column_names()
-            .iter()
-            .map(|s| s.as_str())
-            .collect()
-    }
-
-    /// Every mapped source column present, else one line per missing column.
-    fn check_columns(&self, mapped: &[Mapped]) -> Result<(), StageError> {
-        let names = self.names();
-        // Suggest only columns no other setting uses: `measurement_std_x` is not
-        // `measurement_x`, which already holds the positions.
-        let unmapped: Vec<&str> = names
-            .iter()
-            .copied()
-            .filter(|n| !mapped.iter().any(|m| m.source == *n))
-            .collect();
-        let mut problems: Vec<String> = mapped
-            .iter()
-            .filter(|m| !names.contains(&m.source.as_str()))
-            .map(|m| {
-                format!(
-                    "{}: setting `columns.{}` names source column `{}`, which the file does not have{}",
-                    self.file.display(),
-                    m.contract,
-                    m.source,
-                    suggestion(&m.source, &unmapped)
-                )
-            })
-            .collect();
-        if problems.is_empty() {
-            return Ok(());
-        }
-        if let [only] = names.as_slice()
-            && let Some(other) = [';', ',', '\t', '|']
-                .into_iter()
-                .find(|c| *c != self.separator as char && only.contains(*c))
-        {
-            problems.push(format!(
-                "{}: the file reads as one column `{only}`: is `separator` right? (its header holds {other:?})",
-                self.file.display()
-            ));
-        }
-        Err(StageError::Invalid(problems.join("\n")))
-    }
-
-    /// "line 7" (CSV, 1-based file line) or "row 5" (Parquet, 0-based data row).
-    fn at(&self, row: usize) -> String {
-        match self.first_line {
-            Some(first) => format!("line {}", first + row),
-            None => format!("row {row}"),
-        }
-    }
-
-    /// The cell as written in the file (CSV), or its value as text (Parquet).
-    fn raw(&self, source: &str, row: usize) -> Option<String> {
-        let frame = self.text.as_ref().unwrap_or(&self.typed);
-        let column = frame.column(source).ok()?;
-        match column.dtype() {
-            DataType::String => column.str().ok()?.get(row).map(str::to_string),
-            _ => column.get(row).ok().map(|v| v.to_string()),
-        }
-    }
-
-    fn problem(&self, row: usize, m: &Mapped, message: impl std::fmt::Display) -> StageError {
-        StageError::Invalid(format!(
-            "{}: {}, column `{}` (setting `columns.{}`): {message}",
-            self.file.display(),
-            self.at(row),
-            m.source,
-            m.contract
-        ))
-    }
-
-    /// Why a cell read as null: it is empty, or its text (quoted, with a hint when
-    /// it looks like a decimal comma) is not `expected`.
-    fn unreadable_cell(&self, m: &Mapped, row: usize, expected: &str) -> StageError {
-        match self.raw(&m.source, row).filter(|t| !t.trim().is_empty()) {
-            None => self.problem(
-                row,
-                m,
-                format!("empty cell, expected {expected} (measurements hold complete rows only)"),
-            ),
-            Some(text) => {
-                let hint = if !self.decimal_comma
-                    && text.contains(',')
-                    && text.replace(',', ".").trim().parse::<f64>().is_ok()
-                {
-                    " (the file seems to use a decimal comma: set `decimal_comma = true`)"
-                } else {
-                    ""
-                };
-                self.problem(row, m, format!("`{text}` is not {expected}{hint}"))
-            }
-        }
-    }
-
-    fn floats(&self, m: &Mapped, rows: Range<usize>) -> Result<Vec<f64>, StageError> {
-        let column = self.column(m)?;
-        if !column.dtype().is_primitive_numeric() {
-            return Err(self.wrong_type(m, column.dtype(), "a number"));
-        }
-        let cast = column
-            .cast(&DataType::Float64)
-            .map_err(|e| self.problem(rows.start, m, e))?;
-        let values = cast.f64().map_err(|e| self.problem(rows.start, m, e))?;
-        rows.map(|row| match values.get(row) {
-            Some(v) if v.is_finite() => Ok(v),
-            Some(v) => {
-                let text = self.raw(&m.source, row).unwrap_or_else(|| v.to_string());
-                Err(self.problem(row, m, format!("`{text}` is not a finite number")))
-            }
-            None => Err(self.unreadable_cell(m, row, "a number")),
-        })
-        .collect()
-    }
-
-    fn integers(&self, m: &Mapped, rows: Range<usize>) -> Result<Vec<i64>, StageError> {
-        let column = self.column(m)?;
-        if !column.dtype().is_integer() {
-            return Err(self.wrong_type(m, column.dtype(), "whole numbers"));
-        }
-        let cast = column
-            .cast(&DataType::Int64)
-            .map_err(|e| self.problem(rows.start, m, e))?;
-        let values = cast.i64().map_err(|e| self.problem(rows.start, m, e))?;
-        rows.map(|row| {
-            values
-                .get(row)
-                .ok_or_else(|| self.unreadable_cell(m, row, "a whole number"))
-        })
-        .collect()
-    }
-
-    fn texts(&self, m: &Mapped, rows: Range<usize>) -> Result<Vec<String>, StageError> {
-        let column = self.column(m)?;
-        let cast = column
-            .cast(&DataType::String)
-            .map_err(|_| self.wrong_type(m, column.dtype(), "text or numbers"))?;
-        let values = cast.str().map_err(|e| self.problem(rows.start, m, e))?;
-        rows.map(|row| match values.get(row).map(str::trim) {
-            Some(text) if !text.is_empty() => Ok(text.to_string()),
-            _ => Err(self.problem(
-                row,
-                m,
-                format!(
-                    "empty cell, expected a `{}` (measurements hold complete rows only)",
-                    m.contract
-                ),
-            )),
-        })
-        .collect()
-    }
-
-    fn times_us(&self, m: &Mapped, rows: Range<usize>) -> Result<Vec<i64>, StageError> {
-        let column = self.column(m)?;
-        let expected = "a UTC time like 2026-03-02T10:00:00Z";
-        match column.dtype() {
-            DataType::Datetime(..) => {
-                let cast = column
-                    .cast(&DataType::Datetime(
-                        TimeUnit::Microseconds,
-                        Some(TimeZone::UTC),
-                    ))
-                    .and_then(|c| c.cast(&DataType::Int64))
-                    .map_err(|e| self.problem(rows.start, m, e))?;
-                let values = cast.i64().map_err(|e| self.problem(rows.start, m, e))?;
-                rows.map(|row| {
-                    values.get(row).ok_or_else(|| {
-                        self.problem(row, m, format!("empty cell, expected {expected}"))
-                    })
-                })
-                .collect()
-            }
-            DataType::String => {
-                let values = column.str().map_err(|e| self.problem(rows.start, m, e))?;
-                rows.map(|row| match values.get(row).map(str::trim) {
-                    Some(text) if !text.is_empty() => parse_rfc3339_us(text)
-                        .ok_or_else(|| self.problem(row, m, format!("`{text}` is not {expected}"))),
-                    _ => Err(self.problem(row, m, format!("empty cell, expected {expected}"))),
-                })
-                .collect()
-            }
-            other => Err(self.wrong_type(m, other, "timestamps or RFC 3339 text")),
-        }
-    }
-
-    fn column(&self, m: &Mapped) -> Result<&Column, StageError> {
-        self.typed.column(&m.source).map_err(|e| {
-            StageError::Failed(format!(
-                "{}: column `{}`: {e}",
-                self.file.display(),
-                m.source
-            ))
-        })
-    }
-
-    fn wrong_type(&self, m: &Mapped, found: &DataType, expected: &str) -> StageError {
-        StageError::Invalid(format!(
-            "{}: column `{}` (setting `columns.{}`) has type {found}, expected {expected}",
-            self.file.display(),
-            m.source,
-            m.contract
-        ))
-    }
-}
-
-/// Parquet for a `.parquet` or `.pq` file, else CSV.
-fn format_of(file: &Path) -> SourceFormat {
-    match file.extension().and_then(|e| e.to_str()) {
-        Some(e) if e.eq_ignore_ascii_case("parquet") || e.eq_ignore_ascii_case("pq") => {
-            SourceFormat::Parquet
-        }
-        _ => SourceFormat::Csv,
-    }
-}
-
-/// " (did you mean `x`?)" by edit distance, else the one source column whose name
-/// contains the wanted one (ignoring case): `shoulder_pan` → `shoulder_pan_joint`.
-fn suggestion(wanted: &str, names: &[&str]) -> String {
-    let close = crate::suggest::did_you_mean(wanted, names.iter().copied());
-    if !close.is_empty() {
-        return close;
-    }
-    let lower = wanted.to_lowercase();
-    match names
-        .iter()
-        .filter(|n| n.to_lowercase().contains(&lower))
-        .collect::<Vec<_>>()
-        .as_slice()
-    {
-        [one] => format!(" (did you mean `{one}`?)"),
-        _ => String::new(),
-    }
-}
-
 /// The factor from the source unit of `kind` to the contract's unit.
 fn factor(kind: Kind, settings: &ImportMeasurementsSettings) -> f64 {
     match kind {
@@ -1059,7 +546,7 @@ fn factor(kind: Kind, settings: &ImportMeasurementsSettings) -> f64 {
             MomentUnit::NewtonMetre => 1.0,
             MomentUnit::NewtonMillimetre => 1e-3,
         },
-        Kind::Force | Kind::Integer | Kind::Text | Kind::Time => 1.0,
+        Kind::Force | Kind::Integer | Kind::Text | Kind::Time | Kind::Angle => 1.0,
     }
 }
 

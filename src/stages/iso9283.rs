@@ -53,7 +53,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "ISO 9283 pose accuracy AP and repeatability RP per point, distance accuracy AD and repeatability RD per pair (positions only)",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "iso_measurements",
@@ -145,7 +145,11 @@ impl Stage for Iso9283Stage {
     ) -> Result<StageOutputs, StageError> {
         let rows = match ctx.inputs.get("iso_measurements") {
             Some(table) => iso_rows(table)?,
-            None => joined_rows(ctx.input("targets")?, ctx.input("measurements")?)?,
+            None => {
+                let targets = ctx.input("targets")?;
+                super::compensate::world_frame_rows_only(targets, "iso9283")?;
+                joined_rows(targets, ctx.input("measurements")?)?
+            }
         };
         let by_point = rows.by_point()?;
 

@@ -15,6 +15,8 @@ pub mod gate;
 pub mod identifiability;
 pub mod identify;
 pub mod import_measurements;
+mod import_source;
+pub mod import_targets;
 pub mod iso9283;
 pub mod iso_cube;
 pub mod measure;
@@ -390,6 +392,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &simulate_logs::SimulateLogsStage,
         &scan_logs::ScanLogsStage,
         &import_measurements::ImportMeasurementsStage,
+        &import_targets::ImportTargetsStage,
         &split::SplitStage,
         &identify::IdentifyStage,
         &validate::ValidateStage,

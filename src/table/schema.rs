@@ -1125,9 +1125,23 @@ pub fn targets() -> TableSchema {
             "a configuration near the wanted one (branch hint)",
         ));
     }
+    columns.push(col(
+        "frame",
+        ColumnType::Utf8,
+        "",
+        false,
+        "frame of the row's pose (spec §8): world (the tracker frame), base (the robot's base frame) or a user frame the compensate stage's `frames` setting declares; null or absent: the stage's `frame` setting (default world)",
+    ));
+    columns.push(col(
+        "tool_id",
+        ColumnType::Utf8,
+        "",
+        false,
+        "which target (SMR nest, tool) of the parameters' set must be on the pose (spec §8); null or absent: the stage's `tool` setting; needed with a several-target set",
+    ));
     TableSchema {
         kind: "targets",
-        description: "Where the tool must be (spec §7): what a `compensate` stage reads.",
+        description: "Where the tool must be (spec §7, §8): what a `compensate` stage reads. Stages that compare with tracker measurements (accuracy, iso9283) take world-frame rows only.",
         columns,
         unique: Some("target_id"),
     }
@@ -1156,7 +1170,7 @@ pub fn commands() -> TableSchema {
         ColumnType::Utf8,
         "",
         true,
-        "ok, or why not: unreachable, joint_limit, singular, not_converged",
+        "ok, or why not: unreachable, joint_limit, singular, not_converged, outside_envelope (spec §8: farther from the calibration rows, or more uncertain, than the stage allows)",
     ));
     columns.push(col(
         "residual_mm",
@@ -1197,12 +1211,56 @@ pub fn commands() -> TableSchema {
             "orientation of the corrected Cartesian target, unit quaternion (w, x, y, z), base←tool",
         ));
     }
+    columns.push(col(
+        "tool_id",
+        ColumnType::Utf8,
+        "",
+        false,
+        "the parameters' target (SMR nest, tool) the command puts on the target; null for a one-target set given no tool id",
+    ));
+    columns.push(col(
+        "envelope_distance",
+        ColumnType::Float64,
+        "deg",
+        false,
+        "joint-space distance of the command to the nearest calibration row: the largest per-joint difference (wrapped to ±180°) over joints 1–6 (spec §8); null without envelope rows",
+    ));
+    columns.push(col(
+        "u95_mm",
+        ColumnType::Float64,
+        "mm",
+        false,
+        "radius of the predicted position's 95 % uncertainty, sqrt(χ²₃(0.95)·λmax(J·Σ·Jᵀ)) (spec §8); null without a covariance",
+    ));
     position_covariance_columns(&mut columns);
     TableSchema {
         kind: "commands",
         description: "Joint commands per target and the corrected Cartesian targets (spec §7): what `compensate` writes.",
         columns,
         unique: Some("target_id"),
+    }
+}
+
+/// `envelope` of a `compensate` stage: the calibration rows' configurations
+/// (any table with `cw_id` and the six joint columns, e.g. the measurements
+/// `identify` was given).
+pub fn envelope() -> TableSchema {
+    let mut columns = vec![col(
+        "cw_id",
+        ColumnType::Int64,
+        "",
+        true,
+        "row id (a selection's calibration rows are chosen by it)",
+    )];
+    joint_columns(
+        &mut columns,
+        "a configuration the calibration was identified on",
+    );
+    TableSchema {
+        kind: "envelope",
+        description: "The configurations a calibration was identified on (spec §8): `compensate` measures each command's joint-space distance to the nearest of them.",
+        columns,
+        unique: Some("cw_id"),
     }
 }
 
@@ -1713,6 +1771,7 @@ pub fn all() -> Vec<TableSchema> {
         predictions(),
         targets(),
         commands(),
+        envelope(),
         iso_targets(),
         iso_measurements(),
         iso9283(),

@@ -1,0 +1,158 @@
+//! The calibration's envelope in joint space: how far a command's configuration
+//! lies from the configurations the calibration was identified on (issue 26,
+//! spec §8 `envelope_distance`).
+//!
+//! A calibration is a fit: the offsets it identifies absorb what the model
+//! cannot express (a transmission error, an unmodelled elasticity) as it looks
+//! in the configurations that were measured, not elsewhere. The simulated loop
+//! of `jobs/compensate_sim.toml` achieved 4× its validation error on targets at
+//! q2 ≈ 14°, q3 ≈ −14° from a campaign at q2 ≈ 104°, q3 ≈ −170°. So a command is
+//! trusted only near a calibration row.
+//!
+//! **Metric.** The distance of a configuration `q` to the calibration rows `r`
+//! is `min over rows of max over joints 1–6 of |wrap(q_j − r_j)|` (degrees): the
+//! Chebyshev (largest per-joint) distance to the nearest row. A distance of 20°
+//! says: some calibration row has every joint within 20° of this command, and
+//! none has them all closer. Chosen over a Euclidean norm because a calibration
+//! engineer reasons per joint ("q2 was never above −90°"), because joints of
+//! different reach count alike without a weighting to argue about, and because
+//! one far joint is not diluted by five near ones. Each difference is wrapped
+//! into [−180°, 180°]: the model (geometry and gravity) repeats every turn of a
+//! joint, so a row at q6 = −350° measured the same arm as q6 = 10°.
+//!
+//! Cost: `O(rows × 6)` per configuration with an early exit per row, in the
+//! caller's parallel loop; 10⁴ rows × 10³ targets is well under a second.
+
+use super::Status;
+use crate::robot::JOINTS;
+
+/// How far from the calibration a command may lie and still be `ok`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EnvelopeLimits {
+    /// Largest [`JointEnvelope::distance_deg`] of an `ok` command (deg).
+    pub max_distance_deg: f64,
+    /// Largest predicted 95 % position uncertainty of an `ok` command (mm).
+    pub max_u95_mm: f64,
+}
+
+/// The status of a command after the envelope check: an `ok` command beyond
+/// either limit is `outside_envelope`; every other status stays (it says
+/// something worse). A value not computed (`None`: no envelope rows, no
+/// covariance) checks nothing; the stage says so.
+pub fn judged(
+    status: Status,
+    distance_deg: Option<f64>,
+    u95_mm: Option<f64>,
+    limits: &EnvelopeLimits,
+) -> Status {
+    let beyond = distance_deg.is_some_and(|d| d > limits.max_distance_deg)
+        || u95_mm.is_some_and(|u| u > limits.max_u95_mm);
+    if status == Status::Ok && beyond {
+        Status::OutsideEnvelope
+    } else {
+        status
+    }
+}
+
+/// The joint configurations (deg) of the calibration rows.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JointEnvelope {
+    rows_deg: Vec<[f64; JOINTS]>,
+}
+
+impl JointEnvelope {
+    /// `None` without rows: an envelope of nothing checks nothing.
+    pub fn new(rows_deg: Vec<[f64; JOINTS]>) -> Option<Self> {
+        (!rows_deg.is_empty()).then_some(JointEnvelope { rows_deg })
+    }
+
+    pub fn len(&self) -> usize {
+        self.rows_deg.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rows_deg.is_empty()
+    }
+
+    /// The module doc's distance (deg) of `q_deg` to the nearest row.
+    pub fn distance_deg(&self, q_deg: &[f64; JOINTS]) -> f64 {
+        let mut best = f64::INFINITY;
+        for row in &self.rows_deg {
+            let mut largest = 0.0_f64;
+            for (q, r) in q_deg.iter().zip(row) {
+                largest = largest.max(wrapped_difference_deg(*q, *r).abs());
+                if largest >= best {
+                    break;
+                }
+            }
+            best = best.min(largest);
+        }
+        best
+    }
+}
+
+/// `a − b` wrapped into [−180°, 180°].
+pub fn wrapped_difference_deg(a: f64, b: f64) -> f64 {
+    (a - b + 180.0).rem_euclid(360.0) - 180.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_distance_is_the_largest_joint_difference_to_the_nearest_row() {
+        let envelope = JointEnvelope::new(vec![
+            [0.0, -120.0, 90.0, 0.0, 45.0, 0.0],
+            [30.0, -100.0, 60.0, 10.0, 45.0, 0.0],
+        ])
+        .expect("rows");
+        // Row 0: largest difference 40 (q2); row 1: 30 (q1), 20 (q2): 30.
+        assert_eq!(
+            envelope.distance_deg(&[0.0, -80.0, 80.0, 0.0, 45.0, 0.0]),
+            30.0
+        );
+        // On a row.
+        assert_eq!(
+            envelope.distance_deg(&[30.0, -100.0, 60.0, 10.0, 45.0, 0.0]),
+            0.0
+        );
+    }
+
+    #[test]
+    fn differences_wrap_a_full_turn() {
+        assert_eq!(wrapped_difference_deg(10.0, -350.0), 0.0);
+        assert_eq!(wrapped_difference_deg(170.0, -170.0), -20.0);
+        assert_eq!(wrapped_difference_deg(-170.0, 170.0), 20.0);
+        let envelope = JointEnvelope::new(vec![[0.0, 0.0, 0.0, 0.0, 0.0, -350.0]]).expect("rows");
+        assert_eq!(envelope.distance_deg(&[0.0, 0.0, 0.0, 0.0, 0.0, 15.0]), 5.0);
+    }
+
+    #[test]
+    fn only_an_ok_command_beyond_a_limit_is_outside_the_envelope() {
+        let limits = EnvelopeLimits {
+            max_distance_deg: 30.0,
+            max_u95_mm: 0.5,
+        };
+        let judge = |status, d, u| judged(status, d, u, &limits);
+        assert_eq!(judge(Status::Ok, Some(30.0), Some(0.5)), Status::Ok);
+        assert_eq!(
+            judge(Status::Ok, Some(30.1), Some(0.1)),
+            Status::OutsideEnvelope
+        );
+        assert_eq!(
+            judge(Status::Ok, Some(1.0), Some(0.6)),
+            Status::OutsideEnvelope
+        );
+        assert_eq!(judge(Status::Ok, None, None), Status::Ok);
+        assert_eq!(
+            judge(Status::JointLimit, Some(90.0), None),
+            Status::JointLimit
+        );
+    }
+
+    #[test]
+    fn no_rows_is_no_envelope() {
+        assert!(JointEnvelope::new(Vec::new()).is_none());
+    }
+}
