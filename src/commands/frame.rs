@@ -16,8 +16,12 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::robot::Frame;
+use std::path::Path;
+
+use super::CommandError;
 use crate::robot::frame::{rot_x, rot_y, rot_z};
+use crate::robot::{Frame, RobotSpec};
+use crate::table::{self, TableError};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
@@ -89,6 +93,77 @@ pub fn describe(
 pub const WORLD_NAMES: [&str; 6] = ["x_w", "y_w", "z_w", "alpha_w", "beta_w", "gamma_w"];
 /// Names of the tool frame's parameters.
 pub const TOOL_NAMES: [&str; 6] = ["x_t", "y_t", "z_t", "alpha_t", "beta_t", "gamma_t"];
+
+/// `egcal frame`: the world and tool frames of a robot file (or of one model
+/// of a parameters table) in both conventions ([`frame`]); or, given the base
+/// origin in the tracker frame and its angles, the `[world]` numbers.
+pub fn frame_command(
+    robot_file: Option<&Path>,
+    params: Option<&Path>,
+    model: &str,
+    origin_in_tracker: Option<&[f64]>,
+) -> Result<String, CommandError> {
+    if let Some(numbers) = origin_in_tracker {
+        let numbers: SixNumbers = numbers.try_into().map_err(|_| {
+            CommandError::Usage(format!(
+                "--origin-in-tracker takes 6 numbers (x_mm y_mm z_mm rx_deg ry_deg rz_deg), found {}",
+                numbers.len()
+            ))
+        })?;
+        if numbers.iter().any(|v| !v.is_finite()) {
+            return Err(CommandError::Usage(format!(
+                "--origin-in-tracker: expected finite numbers, found {numbers:?}"
+            )));
+        }
+        let [x, y, z, a, b, c] = rot_trans_of(numbers);
+        return Ok(format!(
+            "[world] for a base whose origin is at ({}, {}, {}) mm in the tracker frame, rotated Rot(x, {a}°)·Rot(y, {b}°)·Rot(z, {c}°):\n\n[world]\nx_mm = {x:.6}\ny_mm = {y:.6}\nz_mm = {z:.6}\nalpha_deg = {a}\nbeta_deg = {b}\ngamma_deg = {c}\n",
+            numbers[0], numbers[1], numbers[2]
+        ));
+    }
+    let robot_file = robot_file
+        .ok_or_else(|| CommandError::Usage("give --robot, or --origin-in-tracker".into()))?;
+    let spec = RobotSpec::load(robot_file)?;
+    let nominal = crate::robot::ParamValues::nominal(&spec);
+    let (values, source) = match params {
+        None => (nominal, format!("robot file {}", robot_file.display())),
+        Some(path) => {
+            let wanted: table::parameters::ModelName =
+                model.parse().map_err(CommandError::Usage)?;
+            let df = table::read_parquet(path)?;
+            let set = table::parameters::from_frame(&df, path, &nominal)?
+                .into_iter()
+                .find(|s| s.model == wanted)
+                .ok_or_else(|| {
+                    CommandError::Table(Box::new(TableError::BadValue {
+                        file: path.to_path_buf(),
+                        column: "model".into(),
+                        row: 0,
+                        message: format!("no rows for model `{wanted}`"),
+                    }))
+                })?;
+            (set.values, format!("model {wanted} of {}", path.display()))
+        }
+    };
+    let six = |start: usize| -> SixNumbers { std::array::from_fn(|k| values.0[start + k]) };
+    Ok(format!(
+        "{}\n{}",
+        describe(
+            &format!("world frame (tracker ← base), {source}:"),
+            "tracker",
+            "base",
+            WORLD_NAMES,
+            six(0),
+        ),
+        describe(
+            "tool frame (flange ← tool; with several targets, the first target's translation):",
+            "flange",
+            "tool",
+            TOOL_NAMES,
+            six(6),
+        )
+    ))
+}
 
 #[cfg(test)]
 mod tests {
