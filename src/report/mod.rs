@@ -1416,8 +1416,8 @@ fn convergence_section(
         return;
     };
     out.push_str(
-        "<p>Residual RMS per coordinate before each step of the fit (Levenberg–Marquardt, or the paper's Gauss–Newton \
-         iteration), per identified model (log scale).</p>\n",
+        "<p>Residual RMS per coordinate before each step of the fit (Levenberg–Marquardt by default, or undamped \
+         Gauss–Newton), per identified model (log scale).</p>\n",
     );
     let traced: Vec<&String> = models
         .iter()
