@@ -173,8 +173,8 @@ impl Figures {
 pub enum Outcome {
     Pass,
     Fail,
-    /// The job set no `tolerance_mm`.
-    NoTolerance,
+    /// The job set no `tolerance_mm`, or the model has no validation rows.
+    NoVerdict,
 }
 
 /// A parameter held at nominal by the identification (status `held`).
@@ -245,8 +245,8 @@ pub fn verdict(data: &ReportData) -> Verdict {
     let figures = data.errors.get(&model).and_then(|v| Figures::of(v));
     let outcome = match (settings.tolerance_mm, figures) {
         (Some(tolerance), Some(f)) if f.judged(settings.criterion) <= tolerance => Outcome::Pass,
-        (Some(_), _) => Outcome::Fail,
-        (None, _) => Outcome::NoTolerance,
+        (Some(_), Some(_)) => Outcome::Fail,
+        _ => Outcome::NoVerdict,
     };
     Verdict {
         warnings: warnings(data, &model),
@@ -310,7 +310,7 @@ pub fn render(out: &mut String, v: &Verdict) {
     let (class, word) = match v.outcome {
         Outcome::Pass => ("pass", "PASS"),
         Outcome::Fail => ("fail", "FAIL"),
-        Outcome::NoTolerance => ("none", "NO VERDICT"),
+        Outcome::NoVerdict => ("none", "NO VERDICT"),
     };
     let chosen = if v.model_from_setting {
         "the report's setting <code>model</code>"
