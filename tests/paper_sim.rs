@@ -80,6 +80,26 @@ fn paper_campaign_reproduces_the_qualitative_result() {
         .unwrap();
     assert!(p[paired] < 1e-6, "paired t-test p = {}", p[paired]);
 
+    // The report: the verdict first (the elasto-geometric max within the job's
+    // 1 mm), then Table III beside this run's statistics, since this job
+    // reproduces the paper.
+    let html = std::fs::read_to_string(out.join("report/report.html")).unwrap();
+    assert!(
+        html.find("<section id=\"verdict\">") < html.find("<nav>"),
+        "the verdict comes first"
+    );
+    assert!(html.contains(
+        "<span class=\"badge\">PASS</span> Model in service: <strong>elastogeometric</strong>"
+    ));
+    assert!(html.contains(&format!(
+        "Its max validation error, {eg:.3} mm, is within the tolerance of 1.000 mm."
+    )));
+    assert!(html.contains("Position errors on the validation rows (Table III)"));
+    assert!(html.contains(
+        "<td class=\"paper\">Elasto-geometrical calibration</td><td class=\"num paper\">0.264</td>"
+    ));
+    assert!(html.contains("world-frame error of the truth"));
+
     // A second run does no work.
     let (code, stdout, _) = common::run(&["run", "--quiet", job.to_str().unwrap()], dir.path());
     assert_eq!(code, 0);

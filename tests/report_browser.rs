@@ -71,6 +71,8 @@ id = "report"
 kind = "report"
 title = "Small <campaign> report"
 histogram_bins = 12
+tolerance_mm = 1.0
+compare_with_paper = true
 
 [stages.inputs]
 stats = "validate.stats"
@@ -167,13 +169,26 @@ fn report_renders_in_a_headless_browser() {
     let page = dir.path().join("out/report/report.html");
     let html = std::fs::read_to_string(&page).expect("report.html is published");
 
-    // The page itself: escaped title, Table III beside this run, every section, the charts.
+    // The page itself: escaped title, the verdict first, Table III beside this
+    // run, every section, the charts.
     assert!(html.contains("<title>Small &lt;campaign&gt; report</title>"));
+    assert!(
+        html.find("<section id=\"verdict\">") < html.find("<nav>"),
+        "the verdict comes before the table of contents"
+    );
+    assert!(
+        html.contains(
+            "<span class=\"badge\">PASS</span> Model in service: <strong>elastogeometric</strong>"
+        ),
+        "the elasto-geometric model within 1 mm"
+    );
+    assert!(html.contains("<h3 id=\"warnings\">Warnings ("));
     assert!(
         html.contains("Elasto-geometrical calibration")
             && html.contains("no counterpart in the paper")
     );
     for id in [
+        "verdict",
         "errors",
         "histograms",
         "poses",
@@ -235,6 +250,10 @@ fn report_renders_in_a_headless_browser() {
         &dom_file,
     );
     let dom = std::fs::read_to_string(&dom_file).unwrap();
+    assert!(
+        dom.contains("<div class=\"verdict pass\">") && dom.contains("<table class=\"figures\">"),
+        "the verdict in the DOM"
+    );
     assert!(
         dom.contains("<table class=\"stats\">"),
         "stats table in the DOM"

@@ -67,7 +67,6 @@ fn the_ur10_job_calibrates_series_c_and_carries_it_to_b_and_d() {
             "series {series}: nominal {nominal}, kinematic {kinematic}, elasto-geometric {elastogeometric}"
         );
     }
-    assert!(out.join("report_c/report.html").is_file());
 
     // Issue #26, 2: before, dtheta5 = -13.5° ± 10.6, dalpha6 = 17.2° ± 12.7 and
     // dd5 = -55.6 ± 43.6 mm were put in service as `identified`. Now the
@@ -114,6 +113,40 @@ fn the_ur10_job_calibrates_series_c_and_carries_it_to_b_and_d() {
         elastogeometric < 0.427 * 1.02,
         "elasto-geometric {elastogeometric}"
     );
+
+    // The report answers "is my calibration good?" first, and does not compare
+    // a UR10 with the IRB 1600 of the paper.
+    let html = std::fs::read_to_string(out.join("report_c/report.html")).unwrap();
+    let verdict = html
+        .find("<section id=\"verdict\">")
+        .expect("a verdict section");
+    assert!(
+        verdict < html.find("<nav>").unwrap(),
+        "the verdict comes first"
+    );
+    assert!(html.contains("Model in service: <strong>elastogeometric</strong>"));
+    // 1 mm on the largest of 1,387 validation errors (README: max 1.49 mm).
+    assert!(
+        html.contains("<span class=\"badge\">FAIL</span>"),
+        "the verdict against 1 mm"
+    );
+    assert!(
+        html.contains("<td class=\"num\">1387</td>"),
+        "validation rows"
+    );
+    assert!(
+        html.contains("held at nominal"),
+        "held parameters are warnings"
+    );
+    // The page after its style sheet, without the setting's name in the provenance.
+    let body = html[html.find("</style>").unwrap()..].replace("compare_with_paper = false", "");
+    for paper in ["paper", "Table III", "IRB", "Fig. 7", "world-frame"] {
+        assert!(
+            !body.to_lowercase().contains(&paper.to_lowercase()),
+            "the UR10 report mentions `{paper}`"
+        );
+    }
+    assert!(html.contains("<li><strong>registered</strong>: the nominal robot with the world frame and the tool translation fitted"));
 }
 
 /// The UR10 series C folder, or `None` (with a SKIPPED line) without `../shared`.

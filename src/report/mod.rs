@@ -6,6 +6,7 @@
 //! page are those recorded in the inputs' provenance.
 
 pub mod plots;
+pub mod verdict;
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -15,25 +16,56 @@ use plotters::style::RGBColor;
 use crate::robot::ParamId;
 use crate::table::Provenance;
 use plots::{Axes, HistogramSeries, LineSeries2, PosePoint};
+pub use verdict::{CommandRow, Criterion, VerdictSettings};
 
-/// The report's sections: anchor id and heading, in page order.
-pub const SECTIONS: [(&str, &str); 10] = [
-    (
+/// One section of the report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Section {
+    /// Anchor id.
+    pub id: &'static str,
+    pub heading: &'static str,
+    /// The paper's table or figure it reproduces, appended to the heading only
+    /// when the job reproduces the paper (`compare_with_paper`).
+    pub paper: &'static str,
+}
+
+impl Section {
+    /// The heading as the page shows it.
+    pub fn title(&self, compare_with_paper: bool) -> String {
+        if compare_with_paper && !self.paper.is_empty() {
+            format!("{} ({})", self.heading, self.paper)
+        } else {
+            self.heading.to_string()
+        }
+    }
+}
+
+const fn section_of(id: &'static str, heading: &'static str, paper: &'static str) -> Section {
+    Section { id, heading, paper }
+}
+
+/// The report's sections, in page order. The verdict comes first: it is what
+/// the first screen answers ("is my calibration good?").
+pub const SECTIONS: [Section; 11] = [
+    section_of("verdict", "Verdict: is the calibration good?", ""),
+    section_of(
         "errors",
-        "Position errors on the validation rows (Table III)",
+        "Position errors on the validation rows",
+        "Table III",
     ),
-    ("histograms", "Error histograms (Fig. 7)"),
-    ("poses", "Measurement poses (Fig. 4)"),
-    (
+    section_of("histograms", "Error histograms", "Fig. 7"),
+    section_of("poses", "Measurement poses", "Fig. 4"),
+    section_of(
         "accuracy",
         "Accuracy map: predicted 95 % position uncertainty",
+        "",
     ),
-    ("iso9283", "ISO 9283 pose accuracy and repeatability"),
-    ("parameters", "Identified parameters"),
-    ("observability", "Observability of the DETMAX selection"),
-    ("convergence", "Convergence of the identification"),
-    ("tests", "Hypothesis tests"),
-    ("provenance", "Provenance"),
+    section_of("iso9283", "ISO 9283 pose accuracy and repeatability", ""),
+    section_of("parameters", "Identified parameters", ""),
+    section_of("observability", "Observability of the DETMAX selection", ""),
+    section_of("convergence", "Convergence of the identification", ""),
+    section_of("tests", "Hypothesis tests", ""),
+    section_of("provenance", "Provenance", ""),
 ];
 
 /// One row of the paper's Table III: our model name, the paper's column, mean, std, max (mm).
@@ -100,6 +132,9 @@ pub struct ParamRow {
     pub value: f64,
     pub std_error: Option<f64>,
     pub status: String,
+    /// Why it is `held`, `fixed` or `dependent` (spec §8); `None` where the
+    /// table has no `reason` column or the cell is null.
+    pub reason: Option<String>,
 }
 
 /// A row of the `tests` table.
@@ -235,6 +270,14 @@ pub struct InputSource {
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReportData {
     pub title: String,
+    /// What the first screen's verdict judges, and against what.
+    pub verdict: VerdictSettings,
+    /// Whether the job reproduces the paper (a simulated IRB 1600 campaign):
+    /// only then are Table III, the figure numbers and the remarks on the
+    /// truth's world frame shown. Real data are not the paper's robot.
+    pub compare_with_paper: bool,
+    /// The `commands` input (compensate), when bound: targets not `ok` are warnings.
+    pub commands: Option<Vec<CommandRow>>,
     pub histogram_bins: usize,
     /// Which model of the truth table is the truth (a setting, shown in the page).
     pub truth_model: String,
@@ -415,6 +458,20 @@ td.mono, code { font-family: "DejaVu Sans Mono", Menlo, Consolas, monospace; fon
 td.mono { word-break: break-all; }
 .identified { color: #19692c; }
 .dependent { color: #9a6400; font-style: italic; }
+.held { color: #b54708; font-weight: 600; }
+div.verdict { border: 1px solid var(--rule); border-left: 10px solid #8a94a6; border-radius: 4px;
+  padding: 8px 16px; margin: 10px 0 14px; background: var(--band); }
+div.verdict.pass { border-left-color: #2e7d32; background: #edf7ee; }
+div.verdict.fail { border-left-color: #b42318; background: #fdeeed; }
+.outcome { font-size: 16px; margin: 4px 0 8px; }
+.badge { display: inline-block; font-size: 24px; font-weight: 800; letter-spacing: 0.05em; color: #fff;
+  background: #5b6474; padding: 2px 14px; border-radius: 4px; margin-right: 10px; vertical-align: middle; }
+.pass .badge { background: #2e7d32; }
+.fail .badge { background: #b42318; }
+td.judged, th.judged { font-weight: 700; }
+.fail td.judged { color: #b42318; }
+ul.warnings > li { margin: 6px 0; }
+ul.warnings li::marker { color: #b54708; }
 .fixed { color: var(--muted); }
 .flag { color: #b42318; font-weight: 600; }
 .significant { font-weight: 700; }
@@ -458,11 +515,22 @@ pub fn render(data: &ReportData) -> String {
         )),
         env!("CARGO_PKG_VERSION"),
     );
-    out.push_str("<nav><ol>\n");
-    for (id, heading) in SECTIONS {
-        let _ = writeln!(out, "<li><a href=\"#{id}\">{}</a></li>", escape(heading));
+    out.push_str("</header>\n");
+    let paper = data.compare_with_paper;
+    // The verdict before the table of contents: the first screen answers "is
+    // my calibration good?".
+    section(&mut out, 0, paper);
+    verdict::render(&mut out, &verdict::verdict(data));
+    out.push_str("</section>\n<nav><ol>\n");
+    for s in &SECTIONS {
+        let _ = writeln!(
+            out,
+            "<li><a href=\"#{}\">{}</a></li>",
+            s.id,
+            escape(&s.title(paper))
+        );
     }
-    out.push_str("</ol></nav>\n</header>\n");
+    out.push_str("</ol></nav>\n");
 
     let models = ordered_models(
         data.stats
@@ -479,26 +547,26 @@ pub fn render(data: &ReportData) -> String {
     );
     let colors = colors(&models);
 
-    section(&mut out, 0);
+    section(&mut out, 1, paper);
     stats_section(&mut out, data);
-    section(&mut out, 1);
+    section(&mut out, 2, paper);
     histogram_section(&mut out, data, &models, &colors);
-    section(&mut out, 2);
+    section(&mut out, 3, paper);
     poses_section(&mut out, data);
-    section(&mut out, 3);
+    section(&mut out, 4, paper);
     accuracy_map_section(&mut out, data);
-    section(&mut out, 4);
+    section(&mut out, 5, paper);
     iso9283_section(&mut out, data);
-    section(&mut out, 5);
+    section(&mut out, 6, paper);
     parameters_section(&mut out, data);
-    section(&mut out, 6);
+    section(&mut out, 7, paper);
     detmax_section(&mut out, data);
-    section(&mut out, 7);
+    section(&mut out, 8, paper);
     convergence_section(&mut out, data, &models, &colors);
     excluded_rows_part(&mut out, data);
-    section(&mut out, 8);
+    section(&mut out, 9, paper);
     tests_section(&mut out, data);
-    section(&mut out, 9);
+    section(&mut out, 10, paper);
     provenance_section(&mut out, data);
 
     let _ = writeln!(
@@ -509,16 +577,19 @@ pub fn render(data: &ReportData) -> String {
     out
 }
 
-fn section(out: &mut String, index: usize) {
-    let (id, heading) = SECTIONS[index];
-    if index > 0 {
+/// Opens section `index`, closing the one before it (the verdict's is closed
+/// where the table of contents follows it).
+fn section(out: &mut String, index: usize, compare_with_paper: bool) {
+    let s = SECTIONS[index];
+    if index > 1 {
         out.push_str("</section>\n");
     }
     let _ = writeln!(
         out,
-        "<section id=\"{id}\">\n<h2>{}. {}</h2>",
+        "<section id=\"{}\">\n<h2>{}. {}</h2>",
+        s.id,
         index + 1,
-        escape(heading)
+        escape(&s.title(compare_with_paper))
     );
 }
 
@@ -542,7 +613,30 @@ fn world_offset(data: &ReportData) -> Option<(f64, f64)> {
     ))
 }
 
+/// What a model name means, as the README defines the terms; `None` for a
+/// name egcal does not write.
+fn model_meaning(model: &str) -> Option<&'static str> {
+    Some(match model {
+        "nominal" => "the robot file's model in the robot file's frames; nothing fitted",
+        "registered" => {
+            "the nominal robot with the world frame and the tool translation fitted: the fair \"before calibration\" figure"
+        }
+        "reregistered" => {
+            "an existing calibration (the identify stage's input <code>start</code>) with only the world frame and the \
+             tool translation refitted on these measurements"
+        }
+        "kinematic" => {
+            "geometric calibration: the frames and the identifiable geometric parameters fitted, joint compliances at zero"
+        }
+        "elastogeometric" => {
+            "elasto-geometric calibration: the geometric parameters and the joint compliances fitted"
+        }
+        _ => return None,
+    })
+}
+
 fn stats_section(out: &mut String, data: &ReportData) {
+    let paper = data.compare_with_paper;
     let stats: Vec<&StatsRow> = {
         let order = ordered_models(data.stats.iter().map(|s| s.model.as_str()));
         order
@@ -550,18 +644,34 @@ fn stats_section(out: &mut String, data: &ReportData) {
             .filter_map(|m| data.stats.iter().find(|s| &s.model == m))
             .collect()
     };
-    let _ = writeln!(
-        out,
-        "<p>Statistics of the error norm ‖predicted − measured‖ per model on the validation rows, \
-         beside the paper's Table III ({PAPER_VALIDATION_ROWS} validation rows; the paper gives mean, std and max only). All values in mm.</p>"
-    );
+    if paper {
+        let _ = writeln!(
+            out,
+            "<p>Statistics of the error norm ‖predicted − measured‖ per model on the validation rows, \
+             beside the paper's Table III ({PAPER_VALIDATION_ROWS} validation rows; the paper gives mean, std and max only). All values in mm.</p>"
+        );
+        out.push_str(
+            "<div class=\"wide\"><table class=\"stats\">\n<thead>\n<tr><th colspan=\"8\">This run</th>\
+             <th class=\"paper\" colspan=\"4\">Paper, Table III</th></tr>\n",
+        );
+    } else {
+        out.push_str(
+            "<p>Statistics of the error norm ‖predicted − measured‖ per model on the validation rows (the rows the \
+             calibration did not use). All values in mm.</p>\n<div class=\"wide\"><table class=\"stats\">\n<thead>\n",
+        );
+    }
     out.push_str(
-        "<div class=\"wide\"><table class=\"stats\">\n<thead>\n<tr><th colspan=\"8\">This run</th>\
-         <th class=\"paper\" colspan=\"4\">Paper, Table III</th></tr>\n<tr><th>model</th><th class=\"num\">n</th>\
+        "<tr><th>model</th><th class=\"num\">n</th>\
          <th class=\"num\">mean</th><th class=\"num\">std</th><th class=\"num\">median</th><th class=\"num\">rms</th>\
-         <th class=\"num\">p95</th><th class=\"num\">max</th><th class=\"paper\">column</th><th class=\"num paper\">mean</th>\
-         <th class=\"num paper\">std</th><th class=\"num paper\">max</th></tr>\n</thead>\n<tbody>\n",
+         <th class=\"num\">p95</th><th class=\"num\">max</th>",
     );
+    if paper {
+        out.push_str(
+            "<th class=\"paper\">column</th><th class=\"num paper\">mean</th>\
+             <th class=\"num paper\">std</th><th class=\"num paper\">max</th>",
+        );
+    }
+    out.push_str("</tr>\n</thead>\n<tbody>\n");
     for s in &stats {
         let _ = write!(
             out,
@@ -576,6 +686,10 @@ fn stats_section(out: &mut String, data: &ReportData) {
             mm(s.p95),
             mm(s.max)
         );
+        if !paper {
+            out.push_str("</tr>\n");
+            continue;
+        }
         match PAPER_TABLE_III.iter().find(|p| p.model == s.model) {
             Some(p) => {
                 let _ = writeln!(
@@ -593,33 +707,56 @@ fn stats_section(out: &mut String, data: &ReportData) {
         }
     }
     out.push_str("</tbody>\n</table></div>\n");
-    let offset = world_offset(data)
-        .map(|(deg, mm)| {
-            format!("; this truth's world frame is off by up to {deg:.2}° and {mm:.2} mm")
+    let terms: Vec<String> = stats
+        .iter()
+        .filter_map(|s| {
+            model_meaning(&s.model).map(|meaning| {
+                format!("<li><strong>{}</strong>: {meaning}.</li>", escape(&s.model))
+            })
         })
-        .unwrap_or_default();
-    let _ = writeln!(
-        out,
-        "<p>Here <strong>nominal</strong> is the nominal robot in the nominal world frame, so its error includes the \
-         world-frame error of the truth (spec §4{offset}): a fraction of a degree of world rotation is tens of \
-         millimetres at the tracker's distance. <strong>registered</strong> is the nominal robot with only the world \
-         frame fitted, as users do before any calibration: the fair \"before calibration\" figure. It has no column \
-         in the paper.</p>"
-    );
+        .collect();
+    if !terms.is_empty() {
+        let _ = writeln!(out, "<ul class=\"terms\">\n{}\n</ul>", terms.join("\n"));
+    }
+    if paper {
+        if stats.iter().any(|s| s.model == "nominal") {
+            let offset = world_offset(data)
+                .map(|(deg, mm)| {
+                    format!("; this truth's world frame is off by up to {deg:.2}° and {mm:.2} mm")
+                })
+                .unwrap_or_default();
+            let _ = writeln!(
+                out,
+                "<p>Here <strong>nominal</strong> is in the nominal world frame, so its error includes the \
+                 world-frame error of the truth (spec §4{offset}): a fraction of a degree of world rotation is tens of \
+                 millimetres at the tracker's distance. Hence <strong>registered</strong>, which has no column in the \
+                 paper.</p>"
+            );
+        } else if stats.iter().any(|s| s.model == "registered") {
+            out.push_str("<p><strong>registered</strong> has no column in the paper.</p>\n");
+        }
+    }
     let find = |m: &str| stats.iter().find(|s| s.model == m);
     if let (Some(k), Some(e)) = (find("kinematic"), find("elastogeometric"))
         && e.mean > 0.0
         && e.max > 0.0
     {
-        let _ = writeln!(
+        let _ = write!(
             out,
             "<p>Elasto-geometric calibration divides the mean error of the kinematic calibration by {:.1} and its \
-             maximum by {:.1} (paper: {:.1} and {:.1}).</p>",
+             maximum by {:.1}",
             k.mean / e.mean,
             k.max / e.max,
-            PAPER_TABLE_III[1].mean / PAPER_TABLE_III[2].mean,
-            PAPER_TABLE_III[1].max / PAPER_TABLE_III[2].max
         );
+        if paper {
+            let _ = write!(
+                out,
+                " (paper: {:.1} and {:.1})",
+                PAPER_TABLE_III[1].mean / PAPER_TABLE_III[2].mean,
+                PAPER_TABLE_III[1].max / PAPER_TABLE_III[2].max
+            );
+        }
+        out.push_str(".</p>\n");
     }
 }
 
@@ -668,7 +805,11 @@ fn histogram_section(
                 bins,
                 (1000, 420),
             ),
-            "Overlaid on the same bins, as the paper's Fig. 7.",
+            if data.compare_with_paper {
+                "Overlaid on the same bins, as the paper's Fig. 7."
+            } else {
+                "Overlaid on the same bins."
+            },
         );
     }
     out.push_str("<div class=\"grid\">\n");
@@ -717,7 +858,11 @@ fn poses_section(out: &mut String, data: &ReportData) {
             &points,
             (1000, 720),
         ),
-        "Target points and tool z axes, as the paper's Fig. 4.",
+        if data.compare_with_paper {
+            "Target points and tool z axes, as the paper's Fig. 4."
+        } else {
+            "Target points and tool z axes."
+        },
     );
 }
 
@@ -1039,8 +1184,10 @@ fn parameters_section(out: &mut String, data: &ReportData) {
 
     out.push_str(
         "<p>One column per model with its value ± standard error, and its status: <span class=\"identified\">identified</span>, \
-         <span class=\"dependent\">dependent</span> (not identifiable from positions, held at nominal) or \
-         <span class=\"fixed\">fixed</span> (not part of the model).",
+         <span class=\"dependent\">dependent</span> (not identifiable from these measurements, kept at nominal), \
+         <span class=\"held\">held</span> (identifiable in principle but not determined by the data, kept at \
+         nominal by egcal; the reasons are listed below the table) or <span class=\"fixed\">fixed</span> (not part \
+         of the model, or fixed by the job).",
     );
     match truth {
         Some(t) => {
@@ -1139,12 +1286,17 @@ fn parameters_section(out: &mut String, data: &ReportData) {
             match rows.get(&(model.as_str(), *name)) {
                 Some(p) => {
                     let class = match p.status.as_str() {
-                        "identified" | "dependent" | "fixed" => p.status.as_str(),
+                        "identified" | "dependent" | "fixed" | "held" => p.status.as_str(),
                         _ => "",
                     };
+                    // The reason as a tooltip; held ones are listed below the table too.
+                    let title = p
+                        .reason
+                        .as_deref()
+                        .map_or_else(String::new, |r| format!(" title=\"{}\"", escape(r)));
                     let _ = write!(
                         out,
-                        "<td class=\"num {class}\">{}</td><td class=\"{class}\">{}</td>",
+                        "<td class=\"num {class}\">{}</td><td class=\"{class}\"{title}>{}</td>",
                         with_error(p.value, p.std_error, &unit),
                         escape(&p.status)
                     );
@@ -1181,6 +1333,29 @@ fn parameters_section(out: &mut String, data: &ReportData) {
         out.push_str("</tr>\n");
     }
     out.push_str("</tbody>\n</table></div>\n");
+    let held: Vec<&ParamRow> = all_models
+        .iter()
+        .flat_map(|m| {
+            data.parameters
+                .iter()
+                .filter(move |p| &p.model == m && p.status == "held")
+        })
+        .collect();
+    if !held.is_empty() {
+        out.push_str("<h3 id=\"held\">Held parameters</h3>\n<table class=\"held\">\n<thead><tr><th>model</th><th>name</th><th>reason</th></tr></thead>\n<tbody>\n");
+        for p in held {
+            let _ = writeln!(
+                out,
+                "<tr><td>{}</td><td>{}</td><td>{}</td></tr>",
+                escape(&p.model),
+                escape(&p.name),
+                p.reason
+                    .as_deref()
+                    .map_or_else(|| "no reason recorded".to_string(), escape)
+            );
+        }
+        out.push_str("</tbody>\n</table>\n");
+    }
 }
 
 fn detmax_section(out: &mut String, data: &ReportData) {
@@ -1241,7 +1416,8 @@ fn convergence_section(
         return;
     };
     out.push_str(
-        "<p>Residual RMS per coordinate before each Gauss–Newton step, per identified model (log scale).</p>\n",
+        "<p>Residual RMS per coordinate before each step of the fit (Levenberg–Marquardt by default, or undamped \
+         Gauss–Newton), per identified model (log scale).</p>\n",
     );
     let traced: Vec<&String> = models
         .iter()
@@ -1338,11 +1514,14 @@ fn tests_section(out: &mut String, data: &ReportData) {
         note(out, "No tests input is bound to this report stage.");
         return;
     };
-    out.push_str(
+    out.push_str(if data.compare_with_paper {
         "<p>Two-sided tests of equal error norms between each pair of models on the same validation rows. The paper \
          used Student's t between kinematic and elasto-geometrical calibration (p &lt; 0.05); error norms are not \
-         normal, so the Wilcoxon signed-rank test is given too. p &lt; 0.05 in bold.</p>\n",
-    );
+         normal, so the Wilcoxon signed-rank test is given too. p &lt; 0.05 in bold.</p>\n"
+    } else {
+        "<p>Two-sided tests of equal error norms between each pair of models on the same validation rows: t tests \
+         and, since error norms are not normal, the Wilcoxon signed-rank test. p &lt; 0.05 in bold.</p>\n"
+    });
     if tests.is_empty() {
         note(out, "The tests table has no rows.");
         return;
@@ -1376,9 +1555,19 @@ fn provenance_section(out: &mut String, data: &ReportData) {
         out,
         "<p>Where each input table came from, as recorded in its Parquet footer when this page was rendered. The \
          report is cached by the content of its inputs: an upstream re-run that reproduces identical tables does not \
-         re-render it. Report settings: histogram_bins = {}, truth_model = <code>{}</code>.</p>",
+         re-render it. Report settings: histogram_bins = {}, truth_model = <code>{}</code>, model = {}, tolerance_mm = {}, \
+         criterion = <code>{}</code>, compare_with_paper = {}.</p>",
         data.histogram_bins,
-        escape(&data.truth_model)
+        escape(&data.truth_model),
+        data.verdict.model.as_deref().map_or_else(
+            || "not set".to_string(),
+            |m| format!("<code>{}</code>", escape(m))
+        ),
+        data.verdict
+            .tolerance_mm
+            .map_or_else(|| "not set".to_string(), |t| t.to_string()),
+        data.verdict.criterion.as_str(),
+        data.compare_with_paper
     );
     // Inputs written by the same stage run share one provenance: shown once.
     let mut groups: Vec<Vec<&InputSource>> = Vec::new();
@@ -1499,6 +1688,7 @@ mod tests {
             value,
             std_error: se,
             status: status.into(),
+            reason: None,
         }
     }
 
@@ -1561,6 +1751,13 @@ mod tests {
         };
         ReportData {
             title: "Synthetic <report>".into(),
+            verdict: VerdictSettings {
+                model: None,
+                tolerance_mm: Some(0.5),
+                criterion: Criterion::Max,
+            },
+            compare_with_paper: true,
+            commands: None,
             histogram_bins: 8,
             truth_model: "elastogeometric".into(),
             stats,
@@ -1705,10 +1902,15 @@ mod tests {
     fn report_has_every_section_table_and_chart() {
         let html = render(&sample());
         assert!(html.starts_with("<!DOCTYPE html>"));
-        for (id, heading) in SECTIONS {
-            assert!(html.contains(&format!("<section id=\"{id}\">")), "{id}");
-            assert!(html.contains(&escape(heading)), "{heading}");
+        for s in SECTIONS {
+            assert!(
+                html.contains(&format!("<section id=\"{}\">", s.id)),
+                "{}",
+                s.id
+            );
+            assert!(html.contains(&escape(&s.title(true))), "{}", s.heading);
         }
+        assert!(html.contains("(Table III)") && html.contains("(Fig. 7)"));
         // Stats rows with the paper beside them.
         assert!(
             html.contains("<td>kinematic</td><td class=\"num\">6</td><td class=\"num\">1.000</td>"),
@@ -1788,8 +1990,12 @@ mod tests {
         data.accuracy_map = None;
         data.iso9283 = None;
         let html = render(&data);
-        for (id, _) in SECTIONS {
-            assert!(html.contains(&format!("<section id=\"{id}\">")), "{id}");
+        for s in SECTIONS {
+            assert!(
+                html.contains(&format!("<section id=\"{}\">", s.id)),
+                "{}",
+                s.id
+            );
         }
         assert!(html.contains("No poses input is bound"));
         assert!(html.contains("No observability input is bound"));
@@ -1837,6 +2043,261 @@ mod tests {
         assert_eq!(world_offset(&data), Some((0.6, 1.5)));
         assert!(
             render(&data).contains("this truth's world frame is off by up to 0.60° and 1.50 mm")
+        );
+    }
+
+    /// The page's verdict block (from its section to the table of contents).
+    fn verdict_block(html: &str) -> &str {
+        let start = html
+            .find("<section id=\"verdict\">")
+            .expect("verdict section");
+        let end = html[start..].find("<nav>").expect("nav after the verdict") + start;
+        &html[start..end]
+    }
+
+    #[test]
+    fn the_first_screen_passes_the_model_in_service_within_tolerance() {
+        let html = render(&sample());
+        // The verdict comes before the table of contents and every other section.
+        assert!(html.find("id=\"verdict\"") < html.find("<nav>"));
+        assert!(html.find("<nav>") < html.find("<section id=\"errors\">"));
+        let block = verdict_block(&html);
+        // Elasto-geometric errors 0.10, 0.16, …, 0.40 mm: mean 0.25, p99.7 0.3991, max 0.40.
+        assert!(block.contains("<div class=\"verdict pass\">"), "{block}");
+        assert!(block.contains("<span class=\"badge\">PASS</span>"));
+        assert!(block.contains("Model in service: <strong>elastogeometric</strong>"));
+        assert!(block.contains(
+            "<td class=\"num\">6</td><td class=\"num\">0.250</td><td class=\"num\">0.399</td>\
+             <td class=\"num judged\">0.400</td><td class=\"num\">0.500</td><td>max</td>"
+        ));
+        assert!(
+            block.contains(
+                "Its max validation error, 0.400 mm, is within the tolerance of 0.500 mm."
+            )
+        );
+        assert!(
+            block.contains("<h3 id=\"warnings\">Warnings (1)</h3>"),
+            "{block}"
+        );
+        // The sample's one row check: a warning with its count.
+        assert!(block.contains("Rows left out of the calibration: 1 by the row checks (every model), 0 by the robust fit"));
+        assert!(block.contains("Not checked: targets (no <code>commands</code> input)."));
+    }
+
+    #[test]
+    fn the_first_screen_fails_beyond_tolerance_and_on_the_named_criterion() {
+        let mut data = sample();
+        data.verdict.tolerance_mm = Some(0.3);
+        let html = render(&data);
+        let block = verdict_block(&html);
+        assert!(block.contains("<div class=\"verdict fail\">"));
+        assert!(block.contains("<span class=\"badge\">FAIL</span>"));
+        assert!(
+            block
+                .contains("Its max validation error, 0.400 mm, exceeds the tolerance of 0.300 mm.")
+        );
+        // p99.7 of the kinematic errors (0.5, 0.8, …, 2.0): 1.9955; max 2.0.
+        data.verdict = VerdictSettings {
+            model: Some("kinematic".into()),
+            tolerance_mm: Some(1.999),
+            criterion: Criterion::P99_7,
+        };
+        let html = render(&data);
+        let block = verdict_block(&html);
+        assert!(
+            block.contains("<span class=\"badge\">PASS</span>"),
+            "{block}"
+        );
+        assert!(block.contains(
+            "Its p99.7 validation error, 1.996 mm, is within the tolerance of 1.999 mm."
+        ));
+        assert!(block.contains("the report's setting <code>model</code>"));
+        assert!(block.contains("<td class=\"num judged\">1.996</td><td class=\"num\">2.000</td>"));
+    }
+
+    #[test]
+    fn without_a_tolerance_there_are_figures_and_no_verdict() {
+        let mut data = sample();
+        data.verdict.tolerance_mm = None;
+        let html = render(&data);
+        let block = verdict_block(&html);
+        assert!(block.contains("<span class=\"badge\">NO VERDICT</span>"));
+        assert!(!block.contains("badge\">PASS") && !block.contains("badge\">FAIL"));
+        assert!(block.contains("set the report's <code>tolerance_mm</code>"));
+        assert!(
+            block.contains("<td class=\"num\">0.400</td><td class=\"num\">not set</td><td>—</td>")
+        );
+    }
+
+    #[test]
+    fn held_parameters_non_convergence_and_targets_are_warnings() {
+        let mut data = sample();
+        let mut held = param("elastogeometric", "dtheta5", "deg", 1.0, None, "held");
+        held.reason = Some("near-dependent on da6 (corr +1.000) & <more>".into());
+        data.parameters.push(held);
+        let mut elsewhere = param("kinematic", "da4", "mm", 1.0, None, "held");
+        elsewhere.reason = Some("std error 0.7 mm > 0.5".into());
+        data.parameters.push(elsewhere);
+        // identify's fact, in the provenance of its outputs (twice: deduplicated).
+        let mut provenance = match &data.sources[0].provenance {
+            Ok(Some(p)) => p.clone(),
+            _ => unreachable!("the sample's first source has a provenance"),
+        };
+        provenance.extra.insert(
+            "elastogeometric_not_converged_accepted".into(),
+            "elastogeometric: not converged after 200 steps, accepted (`accept_not_converged = true`)".into(),
+        );
+        for input in ["parameters", "identification_trace"] {
+            data.sources.push(InputSource {
+                input: input.into(),
+                file: format!("out/identify/{input}.parquet"),
+                rows: 1,
+                data_hash: "0".into(),
+                provenance: Ok(Some(provenance.clone())),
+            });
+        }
+        data.commands = Some(vec![
+            CommandRow {
+                target_id: 1,
+                status: "ok".into(),
+                envelope_distance: Some(0.1),
+                u95_mm: Some(0.05),
+            },
+            CommandRow {
+                target_id: 2,
+                status: "outside_envelope".into(),
+                envelope_distance: Some(2.5),
+                u95_mm: Some(0.8),
+            },
+            CommandRow {
+                target_id: 3,
+                status: "unreachable".into(),
+                envelope_distance: None,
+                u95_mm: None,
+            },
+        ]);
+        let html = render(&data);
+        let block = verdict_block(&html);
+        assert!(
+            block.contains("<h3 id=\"warnings\">Warnings (4)</h3>"),
+            "{block}"
+        );
+        assert!(block.contains(
+            "1 parameter of <strong>elastogeometric</strong> held at nominal: the data did not determine it"
+        ));
+        assert!(block.contains(
+            "<li><code>dtheta5</code>: near-dependent on da6 (corr +1.000) &amp; &lt;more&gt;</li>"
+        ));
+        assert!(
+            !block.contains("<code>da4</code>"),
+            "another model's held parameter is counted, not listed"
+        );
+        assert!(block.contains("Other models hold 1 parameter"));
+        assert_eq!(block.matches("did not converge").count(), 1);
+        assert!(block.contains(
+            "<strong>elastogeometric</strong>: the fit did not converge and was used anyway (not converged after 200 \
+             steps, accepted (`accept_not_converged = true`))"
+        ));
+        assert!(block.contains(
+            "2 of 3 targets have a command whose status is not <code>ok</code> (1 outside_envelope, 1 unreachable)"
+        ));
+        assert!(block.contains(
+            "<tr><td class=\"num\">2</td><td>outside_envelope</td><td class=\"num\">2.500</td><td class=\"num\">0.800</td></tr>"
+        ));
+        assert!(block.contains("<tr><td class=\"num\">3</td><td>unreachable</td><td class=\"num\">—</td><td class=\"num\">—</td></tr>"));
+        assert!(!block.contains("Not checked"));
+        // Warnings qualify the verdict; they do not change it.
+        assert!(block.contains("<span class=\"badge\">PASS</span>"));
+        // The parameters section lists every held parameter with its reason.
+        assert!(
+            html.contains(
+                "<tr><td>kinematic</td><td>da4</td><td>std error 0.7 mm &gt; 0.5</td></tr>"
+            )
+        );
+        assert!(html.contains("<td class=\"held\" title=\"std error 0.7 mm &gt; 0.5\">held</td>"));
+    }
+
+    #[test]
+    fn commands_without_the_envelope_columns_still_warn() {
+        let mut data = sample();
+        data.commands = Some(vec![CommandRow {
+            target_id: 7,
+            status: "joint_limit".into(),
+            envelope_distance: None,
+            u95_mm: None,
+        }]);
+        let html = render(&data);
+        let block = verdict_block(&html);
+        assert!(block.contains(
+            "1 of 1 targets have a command whose status is not <code>ok</code> (1 joint_limit)"
+        ));
+        assert!(
+            block.contains(
+                "<thead><tr><th class=\"num\">target_id</th><th>status</th></tr></thead>"
+            )
+        );
+        assert!(!block.contains("envelope_distance"));
+    }
+
+    #[test]
+    fn real_data_get_no_paper_comparison() {
+        let mut data = sample();
+        data.compare_with_paper = false;
+        data.truth = None;
+        let html = render(&data);
+        for paper in [
+            "Table III",
+            "Fig. 7",
+            "Fig. 4",
+            "paper:",
+            "no counterpart in the paper",
+            "Elasto-geometrical calibration",
+            "world-frame error",
+            "class=\"paper\"",
+            "The paper used",
+        ] {
+            assert!(!html.contains(paper), "{paper}");
+        }
+        // The terms, as the README defines them.
+        assert!(html.contains(
+            "<li><strong>registered</strong>: the nominal robot with the world frame and the tool translation fitted"
+        ));
+        assert!(
+            html.contains("maximum by 5.0.</p>"),
+            "ratio without the paper's"
+        );
+        assert!(html.contains("Position errors on the validation rows</h2>"));
+        // The paper job keeps it all.
+        data.compare_with_paper = true;
+        let html = render(&data);
+        assert!(html.contains("Position errors on the validation rows (Table III)</h2>"));
+        assert!(html.contains("(paper: 3.6 and 2.7)"));
+        assert!(html.contains("world-frame error of the truth"));
+    }
+
+    #[test]
+    fn the_default_model_in_service_is_the_most_complete_calibration() {
+        let errors = |models: &[&str]| -> BTreeMap<String, Vec<f64>> {
+            models.iter().map(|m| (m.to_string(), vec![1.0])).collect()
+        };
+        use verdict::{default_model, model_in_service};
+        assert_eq!(
+            default_model(&errors(&["registered", "kinematic", "elastogeometric"])).as_deref(),
+            Some("elastogeometric")
+        );
+        assert_eq!(
+            default_model(&errors(&["registered", "reregistered"])).as_deref(),
+            Some("reregistered")
+        );
+        assert_eq!(default_model(&errors(&["mine"])).as_deref(), Some("mine"));
+        assert_eq!(default_model(&errors(&[])), None);
+        assert_eq!(
+            model_in_service(&errors(&["kinematic"]), Some("elastogeometric")),
+            Err("setting `model`: the errors table has no rows of model `elastogeometric` (it has: kinematic)".into())
+        );
+        assert_eq!(
+            model_in_service(&errors(&["kinematic"]), Some("kinematic")).as_deref(),
+            Ok("kinematic")
         );
     }
 

@@ -1,8 +1,12 @@
 //! `report`: one self-contained HTML page (`report.html`) of a calibration run —
-//! the error statistics beside the paper's Table III, histograms like Fig. 7, the
-//! poses like Fig. 4, the parameters with standard errors (and the truth of a
-//! simulated robot), the DETMAX and identification traces, the hypothesis tests
-//! and the provenance of every input. Reads tables only; writes no table.
+//! first the verdict (the model in service's validation mean, p99.7 and max
+//! against the job's tolerance, PASS or FAIL, and the warnings: held
+//! parameters, accepted non-convergence, rows left out, targets not `ok`), then
+//! the error statistics (beside the paper's Table III when the job reproduces
+//! the paper), histograms, the poses, the parameters with standard errors (and
+//! the truth of a simulated robot), the DETMAX and identification traces, the
+//! hypothesis tests and the provenance of every input. Reads tables only;
+//! writes no table.
 //!
 //! This file reads the inputs into plain data; `crate::report` renders it.
 
@@ -15,10 +19,13 @@ use serde::{Deserialize, Serialize};
 
 use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
 use crate::report::{
-    self, AccuracyMap, DetmaxStep, ExcludedRow, InputSource, IsoDistance, IsoPoint, IsoTest,
-    MapPoint, ParamRow, Pose, ReportData, StatsRow, TestRow, TraceRow, Truth,
+    self, AccuracyMap, CommandRow, Criterion, DetmaxStep, ExcludedRow, InputSource, IsoDistance,
+    IsoPoint, IsoTest, MapPoint, ParamRow, Pose, ReportData, StatsRow, TestRow, TraceRow, Truth,
+    VerdictSettings,
 };
-use crate::table::schema::{self, f64_values, i64_values, io_error, str_values};
+use crate::table::schema::{
+    self, ColumnSpec, ColumnType, TableSchema, f64_values, i64_values, io_error, str_values,
+};
 use crate::table::{self as tables, TableError};
 
 pub struct ReportStage;
@@ -34,6 +41,47 @@ pub struct ReportSettings {
     pub histogram_bins: usize,
     /// Model of the `truth` table whose values are the truth.
     pub truth_model: String,
+    /// The model in service, which the verdict on the first screen judges;
+    /// unset: the most complete calibration the errors table holds
+    /// (elastogeometric, kinematic, reregistered, registered, nominal, in
+    /// that order), not the one with the smallest error.
+    #[schemars(length(min = 1, max = 200))]
+    pub model: Option<String>,
+    /// The accuracy the application needs (mm): the verdict is PASS when the
+    /// `criterion` figure of the model's validation errors is at most this,
+    /// FAIL otherwise. Unset: the figures without a verdict, since what is good
+    /// enough depends on the application.
+    #[schemars(range(max = 1.0e4))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub tolerance_mm: Option<f64>,
+    /// Which figure is compared with `tolerance_mm`.
+    pub criterion: CriterionSetting,
+    /// The job reproduces the paper (a simulated IRB 1600 campaign): show the
+    /// paper's Table III beside the statistics, the paper's figure numbers and
+    /// the remarks on the truth's world frame. Off for real data: another
+    /// robot is not the paper's.
+    pub compare_with_paper: bool,
+}
+
+/// Which figure of the validation errors the verdict compares with the tolerance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum CriterionSetting {
+    /// The largest error: no validation row beyond the tolerance (the stricter).
+    Max,
+    /// The 99.7th percentile, the distribution-free "3σ" of a datasheet: about
+    /// one row in 333 may lie beyond the tolerance.
+    #[serde(rename = "p99_7")]
+    P99_7,
+}
+
+impl From<CriterionSetting> for Criterion {
+    fn from(c: CriterionSetting) -> Criterion {
+        match c {
+            CriterionSetting::Max => Criterion::Max,
+            CriterionSetting::P99_7 => Criterion::P99_7,
+        }
+    }
 }
 
 impl Default for ReportSettings {
@@ -42,7 +90,41 @@ impl Default for ReportSettings {
             title: "Elasto-geometric calibration report".into(),
             histogram_bins: 30,
             truth_model: "elastogeometric".into(),
+            model: None,
+            tolerance_mm: None,
+            criterion: CriterionSetting::Max,
+            compare_with_paper: false,
         }
+    }
+}
+
+/// The columns of a `commands` table (compensate's output, spec §7–§8) that the
+/// report reads: only `target_id` and `status` are required, so a table written
+/// before spec §8 (without `envelope_distance` and `u95_mm`) or by another tool
+/// still binds; those two are read where present. Not a table kind of its own:
+/// a view of `commands`.
+fn command_status() -> TableSchema {
+    let column = |name, dtype, unit, required, meaning| ColumnSpec {
+        name,
+        dtype,
+        unit,
+        required,
+        meaning,
+    };
+    TableSchema {
+        kind: "commands",
+        description: "Joint commands per target (compensate): the report reads each target's status.",
+        columns: vec![
+            column("target_id", ColumnType::Int64, "", true, "the target's id"),
+            column(
+                "status",
+                ColumnType::Utf8,
+                "",
+                true,
+                "ok, or why not (unreachable, joint_limit, singular, not_converged, outside_envelope, ...)",
+            ),
+        ],
+        unique: Some("target_id"),
     }
 }
 
@@ -53,8 +135,8 @@ static INFO: StageInfo = StageInfo {
     kind: "report",
     uses_cable_robot: false,
     updates_input: None,
-    summary: "Self-contained HTML report (report.html): Table III, Fig. 4 and 7, accuracy map, ISO 9283, parameters, traces, tests, provenance",
-    code_version: 3,
+    summary: "Self-contained HTML report (report.html): verdict (PASS/FAIL against tolerance_mm, warnings), error statistics (Table III with compare_with_paper), histograms, poses, accuracy map, ISO 9283, parameters, traces, tests, provenance",
+    code_version: 4,
     inputs: &[
         TableSlot {
             name: "stats",
@@ -146,6 +228,12 @@ static INFO: StageInfo = StageInfo {
             required: false,
             meaning: "parameters of the simulated robot; the rows of model `truth_model` are the truth",
         },
+        TableSlot {
+            name: "commands",
+            schema: command_status,
+            required: false,
+            meaning: "joint commands per target (compensate): targets whose status is not ok (outside_envelope, unreachable, ...) are warnings on the first screen, with envelope_distance and u95_mm where the table has them",
+        },
     ],
     outputs: &[],
 };
@@ -171,12 +259,24 @@ impl Stage for ReportStage {
             .and_then(|t| tables::read_provenance(&t.path).ok().flatten())
             .and_then(|p| p.extra.get("o1_scaling").cloned())
             .unwrap_or_else(|| report::DEFAULT_O1_SCALING.to_string());
+        let errors = read_errors(ctx.input("errors")?)?;
+        // A named model the errors lack is a mistake in the job, not a page
+        // without a verdict.
+        report::verdict::model_in_service(&errors, settings.model.as_deref())
+            .map_err(StageError::Invalid)?;
         let data = ReportData {
             title: settings.title.clone(),
+            verdict: VerdictSettings {
+                model: settings.model.clone(),
+                tolerance_mm: settings.tolerance_mm,
+                criterion: settings.criterion.into(),
+            },
+            compare_with_paper: settings.compare_with_paper,
+            commands: ctx.inputs.get("commands").map(read_commands).transpose()?,
             histogram_bins: settings.histogram_bins,
             truth_model: settings.truth_model.clone(),
             stats: read_stats(ctx.input("stats")?)?,
-            errors: read_errors(ctx.input("errors")?)?,
+            errors,
             parameters: read_parameters(ctx.input("parameters")?)?,
             tests: ctx.inputs.get("tests").map(read_tests).transpose()?,
             poses: ctx.inputs.get("poses").map(read_poses).transpose()?,
@@ -315,6 +415,11 @@ fn read_parameters(table: &InputTable) -> Result<Vec<ParamRow>, TableError> {
     let value = floats(table, "value")?;
     let std_error = optional_floats(&table.df, "std_error", &table.path)?;
     let status = strings(table, "status")?;
+    // Written before spec §8: no reasons.
+    let reason = match table.df.column("reason") {
+        Ok(_) => str_values(&table.df, "reason", &table.path)?,
+        Err(_) => vec![None; table.df.height()],
+    };
     Ok((0..model.len())
         .map(|k| ParamRow {
             model: model[k].clone(),
@@ -324,6 +429,44 @@ fn read_parameters(table: &InputTable) -> Result<Vec<ParamRow>, TableError> {
             value: value[k],
             std_error: std_error[k].filter(|v| v.is_finite()),
             status: status[k].clone(),
+            reason: reason[k].clone().filter(|r| !r.is_empty()),
+        })
+        .collect())
+}
+
+/// The `commands` input: each target's status, and `envelope_distance` and
+/// `u95_mm` where the table has them (spec §8; nulls and non-finite values read
+/// as absent, since the report only shows them).
+fn read_commands(table: &InputTable) -> Result<Vec<CommandRow>, TableError> {
+    let target_id = ints(table, "target_id")?;
+    let status = strings(table, "status")?;
+    let lenient = |column: &str| -> Result<Vec<Option<f64>>, TableError> {
+        match table.df.column(column) {
+            Ok(c) if c.dtype().is_float() => Ok(c
+                .cast(&polars::prelude::DataType::Float64)
+                .map_err(|e| io_error(&table.path, e))?
+                .f64()
+                .map_err(|e| io_error(&table.path, e))?
+                .iter()
+                .map(|v| v.filter(|v| v.is_finite()))
+                .collect()),
+            Ok(c) if c.dtype() != &polars::prelude::DataType::Null => Err(TableError::WrongType {
+                file: table.path.clone(),
+                column: column.to_string(),
+                found: c.dtype().to_string(),
+                expected: polars::prelude::DataType::Float64.to_string(),
+            }),
+            _ => Ok(vec![None; table.df.height()]),
+        }
+    };
+    let distance = lenient("envelope_distance")?;
+    let u95 = lenient("u95_mm")?;
+    Ok((0..target_id.len())
+        .map(|k| CommandRow {
+            target_id: target_id[k],
+            status: status[k].clone(),
+            envelope_distance: distance[k],
+            u95_mm: u95[k],
         })
         .collect())
 }
