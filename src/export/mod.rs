@@ -14,11 +14,19 @@
 //! absolutely accurate robot) active, because the compensation is already in the
 //! numbers — an accuracy option would correct them a second time.
 //!
+//! What every program declares rather than assumes: the tool its Cartesian
+//! targets are poses of (RAPID `PERS tooldata`, KRL `$TOOL`), the robot base as
+//! the frame they are in (RAPID `PERS wobjdata`, KRL `$BASE`) and the load
+//! (RAPID `tload`, KRL `$LOAD`); every Cartesian move names them, so a program
+//! never moves a frame other than the one its targets were computed for
+//! ([`cartesian`]).
+//!
 //! Printed precision (documented in each header and the README): joint angles 6
 //! decimals in degrees, positions 4 decimals in mm, quaternions 9 decimals, Euler
 //! angles 6 decimals in degrees. The controllers store these as 32-bit floats,
 //! so the printed digits are never what limits them.
 
+pub mod cartesian;
 pub mod csv;
 pub mod krl;
 pub mod rapid;
@@ -27,6 +35,7 @@ pub mod urdf;
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
 use crate::robot::{Frame, JOINTS, ParamValues, Robot};
+pub use cartesian::{Payload, ProgramTool, Stop};
 
 /// Decimals of joint angles (deg) in every file.
 pub const JOINT_DECIMALS: usize = 6;
@@ -56,6 +65,13 @@ pub struct Command {
     pub position_mm: [f64; 3],
     /// Its orientation, base ← tool, unit quaternion (w, x, y, z).
     pub quaternion_wxyz: [f64; 4],
+    /// The target (SMR) whose tool the row was computed for (optional column
+    /// `tool_id`); `None` when the table has no such column.
+    pub tool_id: Option<String>,
+    /// Joint-space distance to the nearest calibration row and the predicted
+    /// 95 % uncertainty (spec §8; optional columns, null where not computed).
+    pub envelope_distance: Option<f64>,
+    pub u95_mm: Option<f64>,
 }
 
 impl Command {
@@ -73,6 +89,77 @@ pub struct Provenance {
     pub source: String,
     /// The robot file's model name.
     pub robot: String,
+}
+
+/// Everything a program file is written from, computed once by the stage:
+/// the table's rows, the tools, the Cartesian stops of the `ok` rows, and the
+/// warnings every file must show.
+#[derive(Debug, Clone)]
+pub struct Program {
+    /// Every row of the table, in order (those not `ok` only named).
+    pub commands: Vec<Command>,
+    /// The tools the `ok` rows use, in the order their names are numbered.
+    pub tools: Vec<ProgramTool>,
+    /// One per `ok` row, in order.
+    pub stops: Vec<Stop>,
+    /// The robot file's payload; `None` when it gives no mass.
+    pub payload: Option<Payload>,
+    /// Lines every file shows as a warning (and the stage prints).
+    pub warnings: Vec<String>,
+    pub provenance: Provenance,
+}
+
+/// Names of `count` declared tools: `base` for one, `base_1` … for several
+/// (at most [`crate::robot::MAX_TARGETS`]).
+pub fn tool_names(base: &str, count: usize) -> Vec<String> {
+    if count == 1 {
+        vec![base.to_string()]
+    } else {
+        (1..=count).map(|k| format!("{base}_{k}")).collect()
+    }
+}
+
+/// Header lines naming the declared tools (`names[i]` for `program.tools[i]`)
+/// and what the Cartesian targets are.
+pub fn tool_lines(program: &Program, names: &[String]) -> Vec<String> {
+    let mut lines: Vec<String> = program
+        .tools
+        .iter()
+        .zip(names)
+        .map(|(tool, name)| {
+            let target = tool
+                .target_id
+                .as_deref()
+                .map(|t| format!(" (target {})", one_line(t)))
+                .unwrap_or_default();
+            format!(
+                "Tool {name}{target}: flange -> tool TCP [{}] mm, orientation [{}] (w, x, y, z), from {}.",
+                tool.tcp_mm().map(|v| fixed(v, POSITION_DECIMALS)).join(", "),
+                tool.quaternion_wxyz()
+                    .map(|v| fixed(v, QUATERNION_DECIMALS))
+                    .join(", "),
+                one_line(&tool.source)
+            )
+        })
+        .collect();
+    lines.push(
+        "Every Cartesian target is the pose of its move's tool in the robot BASE frame on the"
+            .into(),
+    );
+    lines.push(
+        "NOMINAL arm at the joint command, so the controller's inverse kinematics gives the command back;".into(),
+    );
+    lines.push("never run them with another tool or base.".into());
+    lines
+}
+
+/// The warning lines of `program`, each prefixed `WARNING: `.
+pub fn warning_lines(program: &Program) -> Vec<String> {
+    program
+        .warnings
+        .iter()
+        .map(|w| format!("WARNING: {}", one_line(w)))
+        .collect()
 }
 
 /// How the program moves to the targets.
@@ -100,6 +187,10 @@ pub struct MotionSettings {
     /// exact stop (`fine`).
     pub zone_mm: Option<u32>,
     pub motions: Motions,
+    /// Approach and retract moves (drilling): the Cartesian path goes to the
+    /// point this far back along the tool's z axis before and after each
+    /// target, which it then reaches with an exact stop; `None` = off.
+    pub approach_mm: Option<f64>,
 }
 
 /// The header lines every file carries (without comment markers).
@@ -115,8 +206,6 @@ pub fn header_lines(provenance: &Provenance, file_kind: &str) -> Vec<String> {
         "accuracy option active (ABB Absolute Accuracy, KUKA absolutely accurate robot):".into(),
         "the compensation (geometry and load) is already in these numbers, and an".into(),
         "accuracy option would correct them a second time.".into(),
-        "Cartesian targets are in the robot BASE frame, with the robot file's nominal".into(),
-        "flange -> tool transform as the active tool.".into(),
         format!(
             "Printed precision: joints {JOINT_DECIMALS} decimals (deg), positions {POSITION_DECIMALS} decimals (mm), quaternions {QUATERNION_DECIMALS} decimals, Euler angles {EULER_DECIMALS} decimals (deg)."
         ),
@@ -133,11 +222,20 @@ pub fn skipped_lines(commands: &[Command]) -> Vec<String> {
         "{} row(s) not exported as motion (status not ok):",
         failed.len()
     )];
-    lines.extend(
-        failed
-            .iter()
-            .map(|c| format!("  target_id {}: {}", c.target_id, one_line(&c.status))),
-    );
+    lines.extend(failed.iter().map(|c| {
+        let mut line = format!("  target_id {}: {}", c.target_id, one_line(&c.status));
+        let envelope: Vec<String> = [
+            ("envelope_distance", c.envelope_distance),
+            ("u95_mm", c.u95_mm),
+        ]
+        .iter()
+        .filter_map(|(name, value)| value.map(|v| format!("{name} {v}")))
+        .collect();
+        if !envelope.is_empty() {
+            line.push_str(&format!(" ({})", envelope.join(", ")));
+        }
+        line
+    }));
     lines
 }
 
@@ -284,16 +382,35 @@ pub fn identifier_problem(name: &str, max_len: usize, language: &str) -> Option<
         .then(|| format!("`{name}` is a reserved word of RAPID or KRL"))
 }
 
-/// Names the programs declare themselves (RAPID's speed data and routines).
-const GENERATED_NAMES: [&str; 4] = ["egcal_speed", "main", "path_joint", "path_linear"];
-/// Prefixes of the per-target data names (RAPID `jt_`, `pt_`; KRL `XJ_`, `XP_`).
-const GENERATED_PREFIXES: [&str; 4] = ["jt_", "pt_", "xj_", "xp_"];
+/// Names the programs declare themselves (RAPID's speed data and routines,
+/// KRL's base and tool frames).
+const GENERATED_NAMES: [&str; 6] = [
+    "egcal_speed",
+    "main",
+    "path_joint",
+    "path_linear",
+    "xbase",
+    "xtool",
+];
+/// Prefixes of the per-target data names (RAPID `jt_`, `pt_`, `pa_`; KRL `XJ_`,
+/// `XP_`, `XA_`) and of several KRL tools (`XTOOL_1`).
+const GENERATED_PREFIXES: [&str; 7] = ["jt_", "pt_", "pa_", "xj_", "xp_", "xa_", "xtool_"];
+
+/// ABB's predefined data (module BASE), which a module cannot declare again,
+/// and `tool0`, the flange, which cannot be redefined.
+pub const ABB_PREDEFINED: [&str; 3] = ["tool0", "wobj0", "load0"];
 
 /// Whether a user-chosen name (module, tool, work object) would clash with a
-/// name the programs declare: both languages ignore case, and the controller
-/// refuses a module that declares a name twice. `None` when it does not.
+/// name the programs declare or ABB predefines: both languages ignore case, and
+/// the controller refuses a module that declares a name twice. `None` when it
+/// does not.
 pub fn generated_name_clash(name: &str) -> Option<String> {
     let lower = name.to_ascii_lowercase();
+    if ABB_PREDEFINED.contains(&lower.as_str()) {
+        return Some(format!(
+            "`{name}` is ABB's predefined data, which a module cannot declare again (tool0 is the bare flange); the program declares its own"
+        ));
+    }
     if GENERATED_NAMES.contains(&lower.as_str()) {
         return Some(format!("`{name}` is a name the exported programs declare"));
     }
@@ -406,6 +523,81 @@ const RESERVED: &[&str] = &[
     "EXTFCT",
 ];
 
+/// Programs of a few rows for the format modules' tests.
+#[cfg(test)]
+pub(crate) mod test_support {
+    use super::*;
+
+    pub fn motion(zone_mm: Option<u32>, approach_mm: Option<f64>) -> MotionSettings {
+        MotionSettings {
+            name: "EGCAL_PROGRAM".into(),
+            speed_mm_s: 100.0,
+            joint_speed_percent: 20.0,
+            zone_mm,
+            motions: Motions {
+                joint: true,
+                linear: true,
+            },
+            approach_mm,
+        }
+    }
+
+    /// `ok` rows with `ids` at one joint command, the IRB 1600's nominal tool
+    /// (22, 50, 150) mm.
+    pub fn program(
+        robot: &Robot,
+        ids: &[i64],
+        approach_mm: Option<f64>,
+        payload: Option<Payload>,
+    ) -> Program {
+        let commands: Vec<Command> = ids
+            .iter()
+            .map(|&target_id| Command {
+                target_id,
+                q_deg: [10.0, 20.0, -30.0, 40.0, 50.0, 60.0],
+                status: STATUS_OK.into(),
+                residual_mm: 0.0,
+                correction_mm: 0.0,
+                elastic_mm: 0.0,
+                position_mm: [900.0, 0.0, 800.0],
+                quaternion_wxyz: [1.0, 0.0, 0.0, 0.0],
+                tool_id: None,
+                envelope_distance: None,
+                u95_mm: None,
+            })
+            .collect();
+        let tool = ProgramTool {
+            target_id: None,
+            source: "the robot file's [tool]".into(),
+            flange_from_tool: Frame {
+                rotation: Matrix3::identity(),
+                origin_mm: Vector3::new(22.0, 50.0, 150.0),
+            },
+        };
+        let row_tools = vec![0; commands.len()];
+        let stops = cartesian::stops(
+            robot,
+            &commands,
+            std::slice::from_ref(&tool),
+            &row_tools,
+            approach_mm,
+        )
+        .unwrap();
+        Program {
+            commands,
+            tools: vec![tool],
+            stops,
+            payload,
+            warnings: Vec::new(),
+            provenance: Provenance {
+                version: "0".into(),
+                source: "commands.parquet".into(),
+                robot: "r".into(),
+            },
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -479,9 +671,23 @@ mod tests {
             elastic_mm: 0.0,
             position_mm: [0.0; 3],
             quaternion_wxyz: [1.0, 0.0, 0.0, 0.0],
+            tool_id: None,
+            envelope_distance: None,
+            u95_mm: None,
         };
         let lines = skipped_lines(std::slice::from_ref(&command));
         assert_eq!(lines[1], "  target_id 3: unreachable MoveAbsJ jt_1");
+        let outside = Command {
+            status: "outside_envelope".into(),
+            envelope_distance: Some(2.5),
+            u95_mm: Some(0.75),
+            ..command
+        };
+        let lines = skipped_lines(std::slice::from_ref(&outside));
+        assert_eq!(
+            lines[1],
+            "  target_id 3: outside_envelope (envelope_distance 2.5, u95_mm 0.75)"
+        );
     }
 
     #[test]
@@ -515,7 +721,10 @@ mod tests {
         assert!(identifier_problem(&"a".repeat(25), 24, "KRL").is_some());
         assert!(identifier_problem("module", 32, "RAPID").is_some());
         assert!(identifier_problem("", 32, "RAPID").is_some());
-        assert!(generated_name_clash("tool0").is_none());
+        assert!(generated_name_clash("egcal_tool").is_none());
+        assert!(generated_name_clash("tool0").is_some());
+        assert!(generated_name_clash("WOBJ0").is_some());
+        assert!(generated_name_clash("XA_3").is_some());
         assert!(generated_name_clash("Main").is_some());
         assert!(generated_name_clash("EGCAL_SPEED").is_some());
         assert!(generated_name_clash("XP_7").is_some());
