@@ -153,14 +153,30 @@ pub fn tool_lines(program: &Program, names: &[String]) -> Vec<String> {
     lines
 }
 
-/// The warning lines of `program`, each prefixed `WARNING: `.
+/// The warning lines of `program`: each warning prefixed `WARNING: ` and
+/// wrapped at word boundaries to at most [`WARNING_WIDTH`] characters (where
+/// a word allows), so that a controller's editor shows it whole.
 pub fn warning_lines(program: &Program) -> Vec<String> {
-    program
-        .warnings
-        .iter()
-        .map(|w| format!("WARNING: {}", one_line(w)))
-        .collect()
+    let mut lines = Vec::new();
+    for warning in &program.warnings {
+        let mut line = String::from("WARNING:");
+        for word in one_line(warning).split_whitespace() {
+            if line.len() + 1 + word.len() > WARNING_WIDTH && line.len() > "WARNING:".len() {
+                lines.push(std::mem::take(&mut line));
+                line.push_str("  ");
+                line.push_str(word);
+            } else {
+                line.push(' ');
+                line.push_str(word);
+            }
+        }
+        lines.push(line);
+    }
+    lines
 }
+
+/// Width a warning line is wrapped to, characters.
+const WARNING_WIDTH: usize = 96;
 
 /// How the program moves to the targets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -687,6 +703,22 @@ mod tests {
         assert_eq!(
             lines[1],
             "  target_id 3: outside_envelope (envelope_distance 2.5, u95_mm 0.75)"
+        );
+    }
+
+    #[test]
+    fn warnings_are_wrapped_whole() {
+        let mut program = test_support::program(&irb1600(), &[1], None, None);
+        let words: Vec<String> = (0..60).map(|k| format!("w{k}")).collect();
+        program.warnings = vec![words.join(" ")];
+        let lines = warning_lines(&program);
+        assert!(lines.len() > 1 && lines.iter().all(|l| l.len() <= WARNING_WIDTH));
+        assert!(lines[0].starts_with("WARNING: w0 w1"));
+        assert!(lines[1..].iter().all(|l| l.starts_with("  w")));
+        let back: Vec<&str> = lines.iter().flat_map(|l| l.split_whitespace()).collect();
+        assert_eq!(
+            back[1..],
+            words.iter().map(String::as_str).collect::<Vec<_>>()[..]
         );
     }
 
