@@ -79,9 +79,8 @@ pub struct Stop {
     pub tool: usize,
     /// The joint command's pose: where the move to the target goes.
     pub target: Pose,
-    /// The point [`approach_mm`](Stop::approach) back along the tool's z axis,
-    /// moved to before the target and again after it; `None` without approach
-    /// moves.
+    /// The point `approach_mm` back along the tool's z axis, moved to before
+    /// the target and again after it; `None` without approach moves.
     pub approach: Option<Pose>,
 }
 

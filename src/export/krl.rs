@@ -31,8 +31,8 @@
 
 use super::cartesian::Pose;
 use super::{
-    EULER_DECIMALS, JOINT_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload, Program,
-    ProgramTool, fixed, header_lines, rotation_from_quaternion, skipped_lines, tool_lines,
+    EULER_DECIMALS, JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload,
+    Program, ProgramTool, fixed, header_lines, rotation_from_quaternion, skipped_lines, tool_lines,
     tool_names, warning_lines, wrist_placement, zyx_angles,
 };
 use crate::robot::{JOINTS, Robot};
@@ -95,7 +95,7 @@ fn load_value(payload: &Payload, tool: &ProgramTool) -> String {
         .map(|v| fixed(v, POSITION_DECIMALS));
     format!(
         "{{M {},CM {{X {x},Y {y},Z {z},A 0.0,B 0.0,C 0.0}},J {{X 0.0,Y 0.0,Z 0.0}}}}",
-        fixed(payload.mass_kg, 3)
+        fixed(payload.mass_kg, MASS_DECIMALS)
     )
 }
 
@@ -104,7 +104,7 @@ fn header(out: &mut String, program: &Program, kind: &str) {
     let load_lines: Vec<String> = match &program.payload {
         Some(payload) => vec![format!(
             "$LOAD: the robot file's payload, {} kg at its centre of gravity, a point mass (no inertia known).",
-            fixed(payload.mass_kg, 3)
+            fixed(payload.mass_kg, MASS_DECIMALS)
         )],
         None => vec![
             "WARNING: the robot file gives no payload mass, so this program leaves $LOAD as the controller has it.".into(),

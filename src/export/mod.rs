@@ -45,6 +45,8 @@ pub const POSITION_DECIMALS: usize = 4;
 pub const QUATERNION_DECIMALS: usize = 9;
 /// Decimals of Euler angles (deg, KRL A, B, C).
 pub const EULER_DECIMALS: usize = 6;
+/// Decimals of masses (kg, the tool load).
+pub const MASS_DECIMALS: usize = 3;
 
 /// The status of a command a controller may execute.
 pub const STATUS_OK: &str = "ok";
@@ -154,7 +156,7 @@ pub fn tool_lines(program: &Program, names: &[String]) -> Vec<String> {
 }
 
 /// The warning lines of `program`: each warning prefixed `WARNING: ` and
-/// wrapped at word boundaries to at most [`WARNING_WIDTH`] characters (where
+/// wrapped at word boundaries to at most `WARNING_WIDTH` characters (where
 /// a word allows), so that a controller's editor shows it whole.
 pub fn warning_lines(program: &Program) -> Vec<String> {
     let mut lines = Vec::new();

@@ -21,9 +21,9 @@
 
 use super::cartesian::Pose;
 use super::{
-    JOINT_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload, Program, ProgramTool,
-    QUATERNION_DECIMALS, Stop, fixed, header_lines, skipped_lines, tool_lines, tool_names,
-    warning_lines, wrist_placement,
+    JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload, Program,
+    ProgramTool, QUATERNION_DECIMALS, Stop, fixed, header_lines, skipped_lines, tool_lines,
+    tool_names, warning_lines, wrist_placement,
 };
 use crate::robot::{JOINTS, Robot};
 
@@ -101,9 +101,6 @@ pub fn tooldata(tool: &ProgramTool, payload: Option<&Payload>) -> String {
     };
     format!("[TRUE, [[{tcp}], [{orientation}]], {load}]")
 }
-
-/// Decimals of masses (kg).
-const MASS_DECIMALS: usize = 3;
 
 fn robtarget(robot: &Robot, pose: &Pose) -> String {
     let p = pose

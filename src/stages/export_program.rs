@@ -6,7 +6,7 @@
 //! The conventions live in `crate::export`; this file reads the rows, checks
 //! the settings (names must be identifiers the controllers accept), decides
 //! what to do with rows whose status is not `ok` (`on_failed`), and which tool
-//! the programs declare ([`program_tools`]): the calibrated tool of the
+//! the programs declare (`program_tools`): the calibrated tool of the
 //! commands' target (SMR) in the `parameters` input, the row's own with a
 //! `tool_id` column (spec §8: every stage that evaluates the model uses the
 //! row's target), else the robot file's `[tool]`.
