@@ -1,10 +1,15 @@
 //! `export_program` end to end through `egcal stage`: the RAPID and KRL files
 //! read back by a small parser written here (string splitting, nothing shared
-//! with egcal) give the commands to the printed precision; the quaternion and
-//! Z-Y-X Euler conventions on hand-computed rotations; configuration bits
-//! recomputed from their definitions; the URDF's forward kinematics, composed
-//! here from its xyz/rpy origins, equals egcal's rigid model; `on_failed`; and
-//! bad settings refused by `egcal check` with their key.
+//! with egcal) give the commands to the printed precision; every Cartesian move
+//! names the tool and base the program declares, and that tool's pose from the
+//! commanded joints on the nominal arm is the move's target (so the program
+//! moves the frame its targets were computed for); approach points lie back
+//! along the tool axis; the quaternion and Z-Y-X Euler conventions on
+//! hand-computed rotations; configuration bits recomputed from their
+//! definitions; the CSV is plain CSV; the URDF's forward kinematics, composed
+//! here from its xyz/rpy origins, equals egcal's rigid model, and its limits
+//! are the robot file's; `on_failed`; the tool of several-target parameters;
+//! and bad settings refused by `egcal check` with their key.
 
 mod common;
 
@@ -20,17 +25,26 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
 /// One row of a `commands` table.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 struct Row {
     id: i64,
     q: [f64; 6],
     status: &'static str,
     p: [f64; 3],
     quat: [f64; 4],
+    /// The optional `tool_id` column (written when a row has one).
+    tool: Option<&'static str>,
+    /// The optional spec §8 columns `envelope_distance`, `u95_mm` (written
+    /// when a row has them).
+    envelope: Option<[Option<f64>; 2]>,
+}
+
+fn robot_file() -> PathBuf {
+    common::root().join("jobs/robots/irb1600_145.toml")
 }
 
 fn robot() -> Robot {
-    Robot::new(RobotSpec::load(&common::root().join("jobs/robots/irb1600_145.toml")).unwrap())
+    Robot::new(RobotSpec::load(&robot_file()).unwrap())
 }
 
 /// `n` rows at random joint commands: the corrected Cartesian target is the
@@ -52,6 +66,7 @@ fn random_rows(robot: &Robot, n: usize, seed: u64) -> Vec<Row> {
                 status: "ok",
                 p: [tool.origin_mm.x, tool.origin_mm.y, tool.origin_mm.z],
                 quat: [uq.w, uq.i, uq.j, uq.k],
+                ..Row::default()
             }
         })
         .collect()
@@ -87,6 +102,22 @@ fn commands_frame(rows: &[Row]) -> DataFrame {
             rows.iter().map(|r| r.quat[k]).collect::<Vec<_>>(),
         ));
     }
+    if rows.iter().any(|r| r.tool.is_some()) {
+        columns.push(Column::new(
+            "tool_id".into(),
+            rows.iter().map(|r| r.tool).collect::<Vec<_>>(),
+        ));
+    }
+    if rows.iter().any(|r| r.envelope.is_some()) {
+        for (k, name) in ["envelope_distance", "u95_mm"].iter().enumerate() {
+            columns.push(Column::new(
+                (*name).into(),
+                rows.iter()
+                    .map(|r| r.envelope.and_then(|e| e[k]))
+                    .collect::<Vec<_>>(),
+            ));
+        }
+    }
     let df = DataFrame::new(rows.len(), columns).unwrap();
     egcal::table::schema::commands()
         .check(&df, Path::new("commands"))
@@ -101,12 +132,22 @@ fn export(
     parameters: Option<&Path>,
     settings: &str,
 ) -> (i32, String, PathBuf) {
+    export_for(&robot_file(), dir, rows, parameters, settings)
+}
+
+/// [`export`] with another robot file.
+fn export_for(
+    robot_file: &Path,
+    dir: &Path,
+    rows: &[Row],
+    parameters: Option<&Path>,
+    settings: &str,
+) -> (i32, String, PathBuf) {
     let commands = dir.join("commands.parquet");
     egcal::table::write_parquet(&mut commands_frame(rows), &commands, None).unwrap();
     let settings_file = dir.join("settings.toml");
     std::fs::write(&settings_file, settings).unwrap();
     let out = dir.join("out");
-    let robot_file = common::root().join("jobs/robots/irb1600_145.toml");
     let mut args: Vec<String> = [
         "stage",
         "export_program",
@@ -149,12 +190,13 @@ fn id_of(name: &str, prefix: &str) -> i64 {
     }
 }
 
-/// RAPID: `CONST <type> <name> := <value>;` lines by type, name → numbers.
+/// RAPID: `CONST <type> <name> := <value>;` and `PERS <type> <name> := <value>;`
+/// lines by type, name → numbers.
 fn rapid_data(text: &str, ty: &str) -> BTreeMap<String, Vec<f64>> {
-    let lead = format!("CONST {ty} ");
+    let leads = [format!("CONST {ty} "), format!("PERS {ty} ")];
     text.lines()
         .map(str::trim)
-        .filter_map(|l| l.strip_prefix(lead.as_str()))
+        .filter_map(|l| leads.iter().find_map(|lead| l.strip_prefix(lead.as_str())))
         .map(|rest| {
             let (name, value) = rest.split_once(":=").unwrap();
             (name.trim().to_string(), numbers(value))
@@ -180,6 +222,213 @@ fn krl_data(text: &str, ty: &str) -> BTreeMap<String, BTreeMap<String, f64>> {
             (name.trim().to_string(), fields)
         })
         .collect()
+}
+
+/// A RAPID move instruction as read back.
+#[derive(Debug, Clone, PartialEq)]
+struct RapidMove {
+    instruction: String,
+    target: String,
+    zone: String,
+    tool: String,
+    wobj: String,
+}
+
+/// The move instructions of RAPID routine `routine`, in order.
+fn rapid_moves(text: &str, routine: &str) -> Vec<RapidMove> {
+    let start = format!("PROC {routine}()");
+    text.lines()
+        .map(str::trim)
+        .skip_while(|l| *l != start)
+        .take_while(|l| *l != "ENDPROC")
+        .filter(|l| l.starts_with("Move"))
+        .map(|l| {
+            let (instruction, rest) = l.split_once(' ').unwrap();
+            let fields: Vec<&str> = rest.trim_end_matches(';').split(", ").collect();
+            assert_eq!(fields.len(), 4, "{l}");
+            let (tool, wobj) = fields[3].split_once("\\WObj:=").unwrap();
+            RapidMove {
+                instruction: instruction.to_string(),
+                target: fields[0].to_string(),
+                zone: fields[2].to_string(),
+                tool: tool.to_string(),
+                wobj: wobj.to_string(),
+            }
+        })
+        .collect()
+}
+
+/// A tool or pose as a rotation and a translation (mm).
+type Pose = (Matrix3<f64>, Vector3<f64>);
+
+/// The flange pose at `q` on the robot file's nominal arm (egcal's model; the
+/// URDF test checks that model independently).
+fn nominal_flange(robot: &Robot, q: &[f64; 6]) -> Pose {
+    let (frames, _) = robot.frames_in_base(&ParamValues::nominal(robot.spec()), q);
+    (frames[JOINTS].rotation, frames[JOINTS].origin_mm)
+}
+
+/// `a · b`.
+fn compose(a: &Pose, b: &Pose) -> Pose {
+    (a.0 * b.0, a.1 + a.0 * b.1)
+}
+
+/// Half a unit of the last printed digit of each position component (√3 of
+/// it for the distance), plus what the tool's printed orientation and the
+/// arithmetic can add: the declared tool's pose from the commanded joints must
+/// be the printed target to this.
+const FK_POSITION_TOL_MM: f64 = 0.5e-4 * 1.7321 + 1e-6;
+
+/// Asserts that every Cartesian move of a RAPID module names a tool and work
+/// object the module declares (never `tool0`/`wobj0`), that the work object is
+/// the base frame, and that the move's target is its tool's pose at the row's
+/// joint command on the nominal arm; approach points (`pa_`) lie
+/// `approach_mm` back along the tool axis from their target. Returns the tool
+/// each target id is moved with.
+fn assert_rapid_moves_its_tools(
+    robot: &Robot,
+    module: &str,
+    rows: &[Row],
+    approach_mm: Option<f64>,
+) -> BTreeMap<i64, String> {
+    let tools = rapid_data(module, "tooldata");
+    let wobjs = rapid_data(module, "wobjdata");
+    let targets = rapid_data(module, "robtarget");
+    assert!(!tools.is_empty() && !wobjs.is_empty(), "{module}");
+    for wobj in wobjs.values() {
+        let identity = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        assert_eq!(wobj[..7], identity);
+        assert_eq!(wobj[7..], identity);
+    }
+    let mut tool_of = BTreeMap::new();
+    let moves: Vec<RapidMove> = ["path_joint", "path_linear"]
+        .iter()
+        .flat_map(|r| rapid_moves(module, r))
+        .collect();
+    assert!(!moves.is_empty());
+    for m in &moves {
+        assert!(
+            tools.contains_key(&m.tool),
+            "{m:?} names an undeclared tool"
+        );
+        assert!(
+            wobjs.contains_key(&m.wobj),
+            "{m:?} names an undeclared work object"
+        );
+        assert!(!m.tool.eq_ignore_ascii_case("tool0") && !m.wobj.eq_ignore_ascii_case("wobj0"));
+        if !m.target.starts_with("pt_") {
+            continue;
+        }
+        let id = id_of(&m.target, "pt_");
+        let row = rows.iter().find(|r| r.id == id).unwrap();
+        let t = &tools[&m.tool];
+        let tool: Pose = (
+            quat_matrix([t[3], t[4], t[5], t[6]]),
+            Vector3::new(t[0], t[1], t[2]),
+        );
+        let (r, p) = compose(&nominal_flange(robot, &row.q), &tool);
+        let printed = &targets[&m.target];
+        let printed_p = Vector3::new(printed[0], printed[1], printed[2]);
+        assert!(
+            (p - printed_p).norm() <= FK_POSITION_TOL_MM,
+            "{}: tool {} at the joint command is {} mm from the robtarget",
+            m.target,
+            m.tool,
+            (p - printed_p).norm()
+        );
+        let printed_r = quat_matrix([printed[3], printed[4], printed[5], printed[6]]);
+        assert!((r - printed_r).abs().max() < 1e-8, "{}", m.target);
+        tool_of.insert(id, m.tool.clone());
+        if let Some(a) = approach_mm {
+            let approach = &targets[&m.target.replacen("pt_", "pa_", 1)];
+            let expected = printed_p - printed_r.column(2) * a;
+            let found = Vector3::new(approach[0], approach[1], approach[2]);
+            assert!(
+                (found - expected).norm() <= 2.0 * FK_POSITION_TOL_MM,
+                "{}",
+                m.target
+            );
+            assert_eq!(approach[3..7], printed[3..7]);
+        }
+    }
+    // Every ok row's target is moved to.
+    let ok = rows.iter().filter(|r| r.status == "ok").count();
+    if moves.iter().any(|m| m.target.starts_with("pt_")) {
+        assert_eq!(tool_of.len(), ok);
+    }
+    tool_of
+}
+
+/// KRL's Z-Y-X A, B, C (deg) as a rotation.
+fn abc_matrix(f: &BTreeMap<String, f64>) -> Matrix3<f64> {
+    rz(f["A"].to_radians()) * ry(f["B"].to_radians()) * rx(f["C"].to_radians())
+}
+
+/// The KRL counterpart of [`assert_rapid_moves_its_tools`]: `$BASE` and `$TOOL`
+/// are set from frames the `.dat` declares before the first move, the base is
+/// the identity, and every E6POS moved to is its active tool's pose at the
+/// row's joint command. Returns the tool each target id is moved with.
+fn assert_krl_moves_its_tools(
+    robot: &Robot,
+    src: &str,
+    dat: &str,
+    rows: &[Row],
+    approach_mm: Option<f64>,
+) -> BTreeMap<i64, String> {
+    let frames = krl_data(dat, "FRAME");
+    let poses = krl_data(dat, "E6POS");
+    let mut base = None;
+    let mut tool: Option<String> = None;
+    let mut tool_of = BTreeMap::new();
+    for line in src.lines().filter(|l| !l.starts_with(';')) {
+        if let Some(name) = line.strip_prefix("$BASE = ") {
+            base = Some(name.to_string());
+        } else if let Some(name) = line.strip_prefix("$TOOL = ") {
+            assert!(
+                frames.contains_key(name),
+                "{name} is not declared in the .dat"
+            );
+            tool = Some(name.to_string());
+        } else if line.starts_with("PTP ") || line.starts_with("LIN ") {
+            let base = base.as_ref().expect("$BASE set before the first move");
+            assert!(frames[base].values().all(|v| *v == 0.0), "{base}");
+            let tool = tool.as_ref().expect("$TOOL set before the first move");
+            let name = line.split_whitespace().nth(1).unwrap();
+            if !name.starts_with("XP_") {
+                continue;
+            }
+            let id = id_of(name, "XP_");
+            let row = rows.iter().find(|r| r.id == id).unwrap();
+            let t = &frames[tool];
+            let tool_pose: Pose = (abc_matrix(t), Vector3::new(t["X"], t["Y"], t["Z"]));
+            let (r, p) = compose(&nominal_flange(robot, &row.q), &tool_pose);
+            let e6 = &poses[name];
+            let printed_p = Vector3::new(e6["X"], e6["Y"], e6["Z"]);
+            // Euler angles printed to 1e-6 deg move a 200 mm tool by 2e-6 mm.
+            assert!(
+                (p - printed_p).norm() <= FK_POSITION_TOL_MM + 1e-5,
+                "{name}: {tool} at the joint command is {} mm from the E6POS",
+                (p - printed_p).norm()
+            );
+            assert!((r - abc_matrix(e6)).abs().max() < 1e-7, "{name}");
+            tool_of.insert(id, tool.clone());
+            if let Some(a) = approach_mm {
+                let approach = &poses[&name.replacen("XP_", "XA_", 1)];
+                let expected = printed_p - abc_matrix(e6).column(2) * a;
+                let found = Vector3::new(approach["X"], approach["Y"], approach["Z"]);
+                assert!(
+                    (found - expected).norm() <= 2.0 * FK_POSITION_TOL_MM,
+                    "{name}"
+                );
+            }
+        } else {
+            assert!(
+                !line.contains("$NULLFRAME") && !line.contains("TOOL_DATA"),
+                "{line}"
+            );
+        }
+    }
+    tool_of
 }
 
 /// Rotation of a quaternion (w, x, y, z), written out.
@@ -239,7 +488,16 @@ fn rapid_and_krl_read_back_give_the_commands_to_the_printed_precision() {
     let dat = std::fs::read_to_string(out.join("EGCAL_PROGRAM.dat")).unwrap();
     let src = std::fs::read_to_string(out.join("EGCAL_PROGRAM.src")).unwrap();
     let csv = std::fs::read_to_string(out.join("commands.csv")).unwrap();
+    let notes = std::fs::read_to_string(out.join("commands.csv.txt")).unwrap();
     assert!(!out.join("robot.urdf").exists(), "no parameters, no URDF");
+    // The robot file's tool (no parameters), the tool the rows were computed for.
+    assert!(
+        module.contains("  PERS tooldata egcal_tool := [TRUE, [[22.0000, 50.0000, 150.0000], [1.000000000, 0.000000000, 0.000000000, 0.000000000]], [0.001, [0, 0, 0.001], [1, 0, 0, 0], 0, 0, 0]];"),
+        "{module}"
+    );
+    assert!(!module.contains("WARNING: the commands table"), "{module}");
+    assert_rapid_moves_its_tools(&robot, &module, &rows, None);
+    assert_krl_moves_its_tools(&robot, &src, &dat, &rows, None);
 
     let joints = rapid_data(&module, "jointtarget");
     let targets = rapid_data(&module, "robtarget");
@@ -268,8 +526,11 @@ fn rapid_and_krl_read_back_give_the_commands_to_the_printed_precision() {
         for (printed, p) in v.iter().zip(row.p) {
             assert!((printed - p).abs() <= pos_tol, "{name} pos");
         }
+        // q and −q are the same rotation; the files print w ≥ 0.
+        let sign = if row.quat[0] < 0.0 { -1.0 } else { 1.0 };
+        assert!(v[3] >= 0.0, "{name}");
         for (printed, q) in v[3..].iter().zip(row.quat) {
-            assert!((printed - q).abs() <= quat_tol, "{name} quaternion");
+            assert!((printed - sign * q).abs() <= quat_tol, "{name} quaternion");
         }
         // confdata: quadrants ⌊q/90⌋ of axes 1, 4, 6; cfx's last bit is axis 5's sign.
         let quadrant = |q: f64| (q / 90.0).floor();
@@ -315,45 +576,78 @@ fn rapid_and_krl_read_back_give_the_commands_to_the_printed_precision() {
     assert_eq!(moves(&module, "MoveJ") + moves(&module, "MoveL"), ok.len());
     assert_eq!(moves(&src, "PTP"), ok.len() + 1);
     assert_eq!(moves(&src, "LIN"), ok.len() - 1);
-    for text in [&module, &dat, &src, &csv] {
+    for text in [&module, &dat, &src, &notes] {
         assert!(text.contains("target_id 4: unreachable"), "{text}");
         assert!(text.contains("target_id 8: joint_limit"));
         assert!(text.contains("NOMINAL kinematic model"));
         assert!(text.contains("ABB Absolute Accuracy"));
         assert!(text.contains("generated by egcal"));
+        assert!(text.contains("from the robot file's [tool]"), "{text}");
     }
     assert!(!module.contains("jt_4 ") && !module.contains("jt_4,"));
-    assert_eq!(
-        csv.lines().filter(|l| !l.starts_with('#')).count(),
-        ok.len() + 1
-    );
+    // Plain CSV: a header line, then one line per ok row, every line the same
+    // number of fields; the values are the rows'.
+    let lines: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+    assert_eq!(lines.len(), ok.len() + 1, "{csv}");
+    assert_eq!(lines[0][..2], ["target_id", "q1_deg"]);
+    assert!(lines.iter().all(|l| l.len() == lines[0].len()), "{csv}");
+    for (line, row) in lines[1..].iter().zip(&ok) {
+        assert_eq!(line[0].parse::<i64>().unwrap(), row.id);
+        let column = |name: &str| lines[0].iter().position(|c| *c == name).unwrap();
+        assert!((line[column("q3_deg")].parse::<f64>().unwrap() - row.q[2]).abs() <= joint_tol);
+        assert!((line[column("y_cmd_mm")].parse::<f64>().unwrap() - row.p[1]).abs() <= pos_tol);
+    }
+}
+
+/// A robot file whose six axes all turn about one vertical line through
+/// (1000, 0) mm at height 800.25 mm, so that its tool pose is hand-computed:
+/// position (1000, 0, 800.25), rotation Rot(z, Σq)·(the tool's
+/// Rot(x, α)·Rot(y, β)), no tool translation.
+fn one_axis_robot_file(dir: &Path, tool_alpha_deg: f64, tool_beta_deg: f64) -> PathBuf {
+    let mut text = String::from("name = \"one axis\"\n");
+    for (a, d) in [
+        (1000.0, 800.25),
+        (0.0, 0.0),
+        (0.0, 0.0),
+        (0.0, 0.0),
+        (0.0, 0.0),
+        (0.0, 0.0),
+    ] {
+        text.push_str(&format!(
+            "[[joints]]\nalpha_deg = 0.0\na_mm = {a}\ntheta_offset_deg = 0.0\nd_mm = {d}\nlimits_deg = [-400.0, 400.0]\nlink_mass_kg = 1.0\nlink_cog_mm = [0.0, 0.0, 0.0]\n\n"
+        ));
+    }
+    text.push_str(&format!(
+        "[tool]\nx_mm = 0.0\ny_mm = 0.0\nz_mm = 0.0\nalpha_deg = {tool_alpha_deg}\nbeta_deg = {tool_beta_deg}\ngamma_deg = 0.0\n"
+    ));
+    let path = dir.join("one_axis.toml");
+    std::fs::write(&path, text).unwrap();
+    path
 }
 
 #[test]
 fn conventions_on_hand_computed_rotations() {
-    let dir = tempfile::tempdir().unwrap();
-    let h = 45f64.to_radians().cos();
-    let about_y = [20f64.to_radians().cos(), 0.0, 20f64.to_radians().sin(), 0.0];
-    let cases: [(&str, [f64; 4], [f64; 3]); 3] = [
-        // 90° about z: quaternion (cos 45°, 0, 0, sin 45°), A = 90, B = C = 0.
-        ("z90", [h, 0.0, 0.0, h], [90.0, 0.0, 0.0]),
-        // 40° about y: B = 40.
-        ("y40", about_y, [0.0, 40.0, 0.0]),
-        // Rot(z, 30)·Rot(y, 20)·Rot(x, 10).
-        ("zyx", zyx_quaternion(30.0, 20.0, 10.0), [30.0, 20.0, 10.0]),
+    // Axes 3 and 5 at -30 and -45 deg (Turn 4 + 16 = 20), axis 1 making up
+    // the sum Σq; the table's own Cartesian columns are those of the tool.
+    let row = |id: i64, sum_deg: f64, quat: [f64; 4]| Row {
+        id,
+        q: [sum_deg + 75.0, 0.0, -30.0, 0.0, -45.0, 0.0],
+        status: "ok",
+        p: [1000.0, 0.0, 800.25],
+        quat,
+        ..Row::default()
+    };
+    // Tool Rot(y, 40): Rot(z, 90)·Rot(y, 40) is A 90, B 40, C 0; Rot(y, 40)
+    // alone B 40; Rot(z, 30)·Rot(y, 40) A 30, B 40.
+    let rows = [
+        row(1, 90.0, zyx_quaternion(90.0, 40.0, 0.0)),
+        row(2, 0.0, zyx_quaternion(0.0, 40.0, 0.0)),
+        row(3, 30.0, zyx_quaternion(30.0, 40.0, 0.0)),
     ];
-    let rows: Vec<Row> = cases
-        .iter()
-        .enumerate()
-        .map(|(k, (_, quat, _))| Row {
-            id: k as i64 + 1,
-            q: [10.0, 20.0, -30.0, 100.0, -45.0, 190.0],
-            status: "ok",
-            p: [1000.0, -250.5, 800.25],
-            quat: *quat,
-        })
-        .collect();
-    let (code, log, out) = export(
+    let dir = tempfile::tempdir().unwrap();
+    let robot_file = one_axis_robot_file(dir.path(), 0.0, 40.0);
+    let (code, log, out) = export_for(
+        &robot_file,
         dir.path(),
         &rows,
         None,
@@ -362,20 +656,43 @@ fn conventions_on_hand_computed_rotations() {
     assert_eq!(code, 0, "{log}");
     let module = std::fs::read_to_string(out.join("EGCAL_PROGRAM.mod")).unwrap();
     let dat = std::fs::read_to_string(out.join("EGCAL_PROGRAM.dat")).unwrap();
-    assert!(module.contains("CONST robtarget pt_1 := [[1000.0000, -250.5000, 800.2500], [0.707106781, 0.000000000, 0.000000000, 0.707106781], [0, 1, 2, "), "{module}");
+    // ABB's quaternion order [w, x, y, z], and confdata's cf1 = ⌊165/90⌋.
+    assert!(
+        module.contains("CONST robtarget pt_1 := [[1000.0000, 0.0000, 800.2500], ["),
+        "{module}"
+    );
+    assert!(module.contains("], [1, 0, 0, "), "{module}");
+    let printed = zyx_quaternion(90.0, 40.0, 0.0)
+        .map(|v| format!("{v:.9}"))
+        .join(", ");
+    assert!(module.contains(&printed), "{printed}\n{module}");
+    // The tool itself: Rot(y, 40) = (cos 20°, 0, sin 20°, 0).
+    let tool = [20f64.to_radians().cos(), 0.0, 20f64.to_radians().sin(), 0.0]
+        .map(|v| format!("{v:.9}"))
+        .join(", ");
+    assert!(
+        module.contains(&format!(
+            "PERS tooldata egcal_tool := [TRUE, [[0.0000, 0.0000, 0.0000], [{tool}]]"
+        )),
+        "{module}"
+    );
     assert!(
         dat.contains(
-            "DECL E6POS XP_1={X 1000.0000,Y -250.5000,Z 800.2500,A 90.000000,B 0.000000,C 0.000000,"
+            "DECL E6POS XP_1={X 1000.0000,Y 0.0000,Z 800.2500,A 90.000000,B 40.000000,C 0.000000,"
         ),
         "{dat}"
     );
     assert!(
-        dat.contains("XP_2={X 1000.0000,Y -250.5000,Z 800.2500,A 0.000000,B 40.000000,C 0.000000,"),
+        dat.contains("XP_2={X 1000.0000,Y 0.0000,Z 800.2500,A 0.000000,B 40.000000,C 0.000000,"),
+        "{dat}"
+    );
+    assert!(
+        dat.contains("XP_3={X 1000.0000,Y 0.0000,Z 800.2500,A 30.000000,B 40.000000,C 0.000000,"),
         "{dat}"
     );
     assert!(
         dat.contains(
-            "XP_3={X 1000.0000,Y -250.5000,Z 800.2500,A 30.000000,B 20.000000,C 10.000000,"
+            "DECL FRAME XTOOL={X 0.0000,Y 0.0000,Z 0.0000,A 0.000000,B 40.000000,C 0.000000}"
         ),
         "{dat}"
     );
@@ -383,33 +700,354 @@ fn conventions_on_hand_computed_rotations() {
     assert!(dat.contains(",T 20,"), "{dat}");
     // The joint path is not written.
     assert!(!module.contains("jointtarget") && !dat.contains("E6AXIS"));
-    // The hand-computed composite quaternion is what RAPID prints.
-    let q = zyx_quaternion(30.0, 20.0, 10.0);
-    let printed = q.map(|v| format!("{v:.9}")).join(", ");
-    assert!(module.contains(&printed), "{printed}");
+
+    // C: tool Rot(x, 10) at Σq = 30 is A 30, B 0, C 10.
+    let dir = tempfile::tempdir().unwrap();
+    let robot_file = one_axis_robot_file(dir.path(), 10.0, 0.0);
+    let rows = [row(1, 30.0, zyx_quaternion(30.0, 0.0, 10.0))];
+    let (code, log, out) = export_for(
+        &robot_file,
+        dir.path(),
+        &rows,
+        None,
+        "motion = \"linear\"\nformats = [\"krl\"]\n",
+    );
+    assert_eq!(code, 0, "{log}");
+    let dat = std::fs::read_to_string(out.join("EGCAL_PROGRAM.dat")).unwrap();
+    assert!(
+        dat.contains("XP_1={X 1000.0000,Y 0.0000,Z 800.2500,A 30.000000,B 0.000000,C 10.000000,"),
+        "{dat}"
+    );
 }
 
 #[test]
 fn on_failed_skip_names_the_rows_and_fail_refuses_them() {
     let robot = robot();
     let dir = tempfile::tempdir().unwrap();
-    let mut rows = random_rows(&robot, 5, 3);
+    let mut rows = random_rows(&robot, 6, 3);
     rows[1].status = "singular";
     rows[4].status = "not_converged";
+    // Spec §8: `outside_envelope`, with the two columns that go with it.
+    rows[5].status = "outside_envelope";
+    rows[5].envelope = Some([Some(41.5), Some(0.875)]);
+    rows[0].envelope = Some([Some(3.0), None]);
     let (code, log, out) = export(dir.path(), &rows, None, "on_failed = \"skip\"\n");
     assert_eq!(code, 0, "{log}");
     let module = std::fs::read_to_string(out.join("EGCAL_PROGRAM.mod")).unwrap();
-    assert!(module.contains("2 row(s) not exported as motion"));
-    assert!(log.contains("skipped = 2"), "{log}");
+    let csv = std::fs::read_to_string(out.join("commands.csv")).unwrap();
+    assert!(module.contains("3 row(s) not exported as motion"));
+    assert!(
+        module.contains("target_id 6: outside_envelope (envelope_distance 41.5, u95_mm 0.875)"),
+        "{module}"
+    );
+    assert!(!module.contains("jt_6 "));
+    assert!(log.contains("skipped = 3"), "{log}");
+    // The CSV keeps the optional columns, empty where null.
+    assert!(
+        csv.lines()
+            .next()
+            .unwrap()
+            .ends_with(",qz_cmd,envelope_distance,u95_mm"),
+        "{csv}"
+    );
+    assert!(csv.lines().nth(1).unwrap().ends_with(",3,"), "{csv}");
+    assert_eq!(csv.lines().count(), 4);
 
     let dir = tempfile::tempdir().unwrap();
     let (code, log, out) = export(dir.path(), &rows, None, "on_failed = \"fail\"\n");
     assert_eq!(code, 2, "{log}");
     assert!(
-        log.contains("target_id 2 (singular), 5 (not_converged)"),
+        log.contains("target_id 2 (singular), 5 (not_converged), 6 (outside_envelope)"),
         "{log}"
     );
     assert!(!out.join("EGCAL_PROGRAM.mod").exists());
+}
+
+/// A parameters table with one elasto-geometric set of `values`, targets
+/// `targets` (several-target set when more than one).
+fn parameters_file(dir: &Path, robot: &Robot, values: ParamValues, targets: &[&str]) -> PathBuf {
+    let nominal = ParamValues::nominal(robot.spec());
+    let mut set = ParameterSet::fixed(ModelName::Elastogeometric, values);
+    if targets.len() > 1 {
+        set.targets = targets.iter().map(|t| t.to_string()).collect();
+    }
+    let path = dir.join("parameters.parquet");
+    egcal::table::write_parquet(&mut parameters::to_frame(&nominal, &[set]), &path, None).unwrap();
+    path
+}
+
+/// Issue 26 part 6: the robtargets were computed for a 22/50/150 mm tool and
+/// moved with `tool0`. Now the module declares the calibrated tool and every
+/// move uses it; the table's Cartesian columns, computed (as `compensate` does
+/// today) for the robot file's tool, are not those of the calibrated tool, so
+/// the files say so and use the calibrated tool's poses, which give the same
+/// joint commands.
+#[test]
+fn programs_declare_and_move_the_calibrated_tool() {
+    let robot = robot();
+    let dir = tempfile::tempdir().unwrap();
+    let values = ParamValues::load_overrides(
+        robot.spec(),
+        &common::root().join("jobs/truth/irb1600_paper.toml"),
+    )
+    .unwrap();
+    let parameters = parameters_file(dir.path(), &robot, values, &[]);
+    let rows = random_rows(&robot, 12, 8);
+    let (code, log, out) = export(
+        dir.path(),
+        &rows,
+        Some(&parameters),
+        "motion = \"both\"\nformats = [\"rapid\", \"krl\", \"csv\"]\n",
+    );
+    assert_eq!(code, 0, "{log}");
+    let read = |name: &str| std::fs::read_to_string(out.join(name)).unwrap();
+    let (module, src, dat, notes) = (
+        read("EGCAL_PROGRAM.mod"),
+        read("EGCAL_PROGRAM.src"),
+        read("EGCAL_PROGRAM.dat"),
+        read("commands.csv.txt"),
+    );
+    // The truth's x_t, y_t, z_t = 22.193, 50.024, 148.905 mm.
+    assert!(
+        module.contains("PERS tooldata egcal_tool := [TRUE, [[22.1930, 50.0240, 148.9050], [1.000000000, 0.000000000, 0.000000000, 0.000000000]]"),
+        "{module}"
+    );
+    assert!(
+        dat.contains("DECL FRAME XTOOL={X 22.1930,Y 50.0240,Z 148.9050,"),
+        "{dat}"
+    );
+    assert_rapid_moves_its_tools(&robot, &module, &rows, None);
+    assert_krl_moves_its_tools(&robot, &src, &dat, &rows, None);
+    for text in [&module, &src, &dat, &notes] {
+        assert!(
+            text.contains("WARNING: the commands table's Cartesian targets"),
+            "{text}"
+        );
+        assert!(
+            text.contains("calibrated tool of model elastogeometric in parameters.parquet"),
+            "{text}"
+        );
+    }
+    assert!(
+        log.contains("warning = the commands table's Cartesian targets"),
+        "{log}"
+    );
+
+    // Rows computed for the calibrated tool: the same program, no warning.
+    let calibrated = robot.flange_from_tool(&values, 0);
+    let rows: Vec<Row> = rows
+        .iter()
+        .map(|r| {
+            let (frames, _) = robot.frames_in_base(&ParamValues::nominal(robot.spec()), &r.q);
+            let tool = frames[JOINTS].compose(&calibrated);
+            let uq = UnitQuaternion::from_matrix(&tool.rotation);
+            Row {
+                p: tool.origin_mm.into(),
+                quat: [uq.w, uq.i, uq.j, uq.k],
+                ..r.clone()
+            }
+        })
+        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    let parameters = parameters_file(dir.path(), &robot, values, &[]);
+    let (code, log, out) = export(dir.path(), &rows, Some(&parameters), "motion = \"both\"\n");
+    assert_eq!(code, 0, "{log}");
+    let again = std::fs::read_to_string(out.join("EGCAL_PROGRAM.mod")).unwrap();
+    assert!(!again.contains("WARNING: the commands table"), "{again}");
+    assert!(!log.contains("warning"), "{log}");
+    let strip = |t: &str| {
+        t.lines()
+            .filter(|l| !l.contains("!"))
+            .collect::<Vec<_>>()
+            .join("\n")
+    };
+    assert_eq!(strip(&again), strip(&module));
+}
+
+/// Issue 26 part 7 (export): each row's target tool, and a target the
+/// parameters do not know is an error naming it.
+#[test]
+fn several_targets_each_row_moves_its_own_tool() {
+    let robot = robot();
+    let mut values = ParamValues::nominal(robot.spec());
+    for (target, t) in [[10.0, 20.0, 100.0], [-30.0, 40.0, 180.0]]
+        .iter()
+        .enumerate()
+    {
+        for (axis, value) in t.iter().enumerate() {
+            values.set(ParamId::target_translation(target, axis), *value);
+        }
+    }
+    let run = |rows: &[Row], settings: &str| {
+        let dir = tempfile::tempdir().unwrap();
+        let parameters = parameters_file(dir.path(), &robot, values, &["nest_a", "nest_b"]);
+        let (code, log, out) = export(dir.path(), rows, Some(&parameters), settings);
+        let files = (code == 0).then(|| {
+            [
+                "EGCAL_PROGRAM.mod",
+                "EGCAL_PROGRAM.src",
+                "EGCAL_PROGRAM.dat",
+                "commands.csv",
+            ]
+            .map(|f| std::fs::read_to_string(out.join(f)).unwrap())
+        });
+        (code, log, files)
+    };
+    let rows = random_rows(&robot, 6, 17);
+
+    // No tool_id column and no setting: which tool is unknown.
+    let (code, log, _) = run(&rows, "motion = \"linear\"\n");
+    assert_eq!(code, 2, "{log}");
+    assert!(
+        log.contains("several targets (nest_a, nest_b)") && log.contains("tool_target"),
+        "{log}"
+    );
+
+    // The setting names it.
+    let (code, log, files) = run(&rows, "motion = \"linear\"\ntool_target = \"nest_b\"\n");
+    assert_eq!(code, 0, "{log}");
+    let [module, src, dat, _] = files.unwrap();
+    assert!(
+        module.contains("PERS tooldata egcal_tool := [TRUE, [[-30.0000, 40.0000, 180.0000],"),
+        "{module}"
+    );
+    assert!(
+        module.contains("Tool egcal_tool (target nest_b)"),
+        "{module}"
+    );
+    assert_rapid_moves_its_tools(&robot, &module, &rows, None);
+    assert_krl_moves_its_tools(&robot, &src, &dat, &rows, None);
+
+    let (code, log, _) = run(&rows, "tool_target = \"nest_c\"\n");
+    assert_eq!(code, 2, "{log}");
+    assert!(
+        log.contains("target `nest_c`") && log.contains("nest_a, nest_b"),
+        "{log}"
+    );
+
+    // A tool_id column: each row its own tool.
+    let mut rows = rows;
+    for (k, row) in rows.iter_mut().enumerate() {
+        row.tool = Some(if k % 3 == 0 { "nest_a" } else { "nest_b" });
+    }
+    let (code, log, files) = run(&rows, "motion = \"both\"\n");
+    assert_eq!(code, 0, "{log}");
+    let [module, src, dat, csv] = files.unwrap();
+    assert!(
+        module.contains("PERS tooldata egcal_tool_1 := [TRUE, [[10.0000, 20.0000, 100.0000],"),
+        "{module}"
+    );
+    assert!(
+        module.contains("PERS tooldata egcal_tool_2 := [TRUE, [[-30.0000, 40.0000, 180.0000],"),
+        "{module}"
+    );
+    let expected = |tools: [&str; 2]| -> BTreeMap<i64, String> {
+        rows.iter()
+            .map(|r| {
+                (
+                    r.id,
+                    tools[usize::from(r.tool == Some("nest_b"))].to_string(),
+                )
+            })
+            .collect()
+    };
+    assert_eq!(
+        assert_rapid_moves_its_tools(&robot, &module, &rows, None),
+        expected(["egcal_tool_1", "egcal_tool_2"])
+    );
+    assert_eq!(
+        assert_krl_moves_its_tools(&robot, &src, &dat, &rows, None),
+        expected(["XTOOL_1", "XTOOL_2"])
+    );
+    assert!(csv.lines().next().unwrap().ends_with(",tool_id"), "{csv}");
+    assert!(csv.lines().nth(1).unwrap().ends_with(",nest_a"), "{csv}");
+
+    // Both the column and the setting: refused.
+    let (code, log, _) = run(&rows, "tool_target = \"nest_a\"\n");
+    assert_eq!(code, 2, "{log}");
+    assert!(
+        log.contains("tool_target") && log.contains("tool_id"),
+        "{log}"
+    );
+
+    // A target the parameters do not know, even on a row that is not ok.
+    rows[4].tool = Some("nest_c");
+    rows[4].status = "unreachable";
+    let (code, log, _) = run(&rows, "");
+    assert_eq!(code, 2, "{log}");
+    assert!(
+        log.contains("`nest_c`") && log.contains("nest_a, nest_b"),
+        "{log}"
+    );
+}
+
+/// Rows at random joint commands in the middle of each joint's range, with the
+/// robot file's tool.
+fn middle_rows(robot: &Robot, n: usize, seed: u64) -> Vec<Row> {
+    let mut rng = StdRng::seed_from_u64(seed);
+    let mut rows = random_rows(robot, n, seed);
+    let nominal = ParamValues::nominal(robot.spec());
+    for row in &mut rows {
+        row.q = std::array::from_fn(|i| {
+            let [lo, hi] = robot.limits_deg(i);
+            let margin = 0.25 * (hi - lo);
+            rng.random_range(lo + margin..hi - margin)
+        });
+        // Away from the wrist singularity at q5 = 0.
+        if row.q[4].abs() < 20.0 {
+            row.q[4] = 20.0f64.copysign(row.q[4]);
+        }
+        let (_, tool) = robot.frames_in_base(&nominal, &row.q);
+        let uq = UnitQuaternion::from_matrix(&tool.rotation);
+        row.p = tool.origin_mm.into();
+        row.quat = [uq.w, uq.i, uq.j, uq.k];
+    }
+    rows
+}
+
+#[test]
+fn approach_moves_go_back_along_the_tool_axis() {
+    let robot = robot();
+    let dir = tempfile::tempdir().unwrap();
+    let rows = middle_rows(&robot, 8, 31);
+    let (code, log, out) = export(
+        dir.path(),
+        &rows,
+        None,
+        "motion = \"linear\"\napproach_mm = 50.0\nzone = \"z10\"\n",
+    );
+    assert_eq!(code, 0, "{log}");
+    let module = std::fs::read_to_string(out.join("EGCAL_PROGRAM.mod")).unwrap();
+    let src = std::fs::read_to_string(out.join("EGCAL_PROGRAM.src")).unwrap();
+    let dat = std::fs::read_to_string(out.join("EGCAL_PROGRAM.dat")).unwrap();
+    assert_rapid_moves_its_tools(&robot, &module, &rows, Some(50.0));
+    assert_krl_moves_its_tools(&robot, &src, &dat, &rows, Some(50.0));
+    // Approach (blended), the target (exact stop), retract, per row.
+    let moves = rapid_moves(&module, "path_linear");
+    assert_eq!(moves.len(), 3 * rows.len());
+    for (k, three) in moves.chunks(3).enumerate() {
+        let id = rows[k].id;
+        let instruction = if k == 0 { "MoveJ" } else { "MoveL" };
+        assert_eq!(three[0].instruction, instruction);
+        assert_eq!(three[0].target, format!("pa_{id}"));
+        assert_eq!(three[0].zone, "z10");
+        assert_eq!(
+            (three[1].target.as_str(), three[1].zone.as_str()),
+            (format!("pt_{id}").as_str(), "fine")
+        );
+        assert_eq!(three[2].target, format!("pa_{id}"));
+        let last = k + 1 == rows.len();
+        assert_eq!(three[2].zone, if last { "fine" } else { "z10" });
+    }
+    let krl_moves: Vec<&str> = src
+        .lines()
+        .filter(|l| l.starts_with("PTP") || l.starts_with("LIN"))
+        .collect();
+    assert_eq!(
+        krl_moves[..4],
+        ["PTP XA_1", "LIN XP_1", "LIN XA_1 C_DIS", "LIN XA_2 C_DIS"]
+    );
+    assert_eq!(*krl_moves.last().unwrap(), format!("LIN XA_{}", rows.len()));
 }
 
 /// A 4×4 homogeneous transform from a URDF `xyz` (m) and `rpy` (rad).
@@ -587,6 +1225,90 @@ fn urdf_matches_the_model(robot: &Robot, values: &ParamValues) -> String {
     text
 }
 
+/// `(lower, upper, effort, velocity)` of each revolute joint's `<limit>`.
+fn urdf_limits(text: &str) -> Vec<[f64; 4]> {
+    text.split("<limit ")
+        .skip(1)
+        .map(|element| {
+            ["lower", "upper", "effort", "velocity"].map(|a| attribute(element, a).parse().unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn urdf_limits_are_the_robot_file_s_or_marked_placeholders() {
+    let robot = robot();
+    let dir = tempfile::tempdir().unwrap();
+    let nominal = ParamValues::nominal(robot.spec());
+    let parameters = parameters_file(dir.path(), &robot, nominal, &[]);
+    let rows = random_rows(&robot, 2, 5);
+    // The IRB 1600's file gives joint speeds, no torques.
+    let (code, log, out) = export(
+        dir.path(),
+        &rows,
+        Some(&parameters),
+        "formats = [\"urdf\"]\n",
+    );
+    assert_eq!(code, 0, "{log}");
+    let text = std::fs::read_to_string(out.join("robot.urdf")).unwrap();
+    let limits = urdf_limits(&text);
+    assert_eq!(limits.len(), JOINTS);
+    for (i, [lower, upper, effort, velocity]) in limits.iter().enumerate() {
+        let joint = &robot.spec().joints[i];
+        assert_eq!(*lower, joint.limits_deg[0].to_radians());
+        assert_eq!(*upper, joint.limits_deg[1].to_radians());
+        let speed = joint.max_velocity_deg_s.unwrap();
+        assert!(
+            (velocity - speed.to_radians()).abs() < 1e-12,
+            "joint{}",
+            i + 1
+        );
+        assert!(
+            *velocity > 0.0 && *effort > 0.0,
+            "0 would read as a joint that cannot move"
+        );
+    }
+    assert_eq!(limits[0][3], 150f64.to_radians());
+    assert!(text.contains("WARNING: the robot file gives no max_torque_nm for joint1, joint2, joint3, joint4, joint5, joint6"), "{text}");
+    assert!(!text.contains("no max_velocity_deg_s"), "{text}");
+
+    // A file with torques and without speeds.
+    let file_text = std::fs::read_to_string(robot_file()).unwrap();
+    let torques = [900.0, 800.0, 400.0, 60.0, 50.0, 40.0];
+    let mut k = 0;
+    let edited: String = file_text
+        .lines()
+        .map(|l| {
+            if l.starts_with("max_velocity_deg_s") {
+                k += 1;
+                format!("max_torque_nm = {}", torques[k - 1])
+            } else {
+                l.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let robot_file = dir.path().join("robot.toml");
+    std::fs::write(&robot_file, edited).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (code, log, out) = export_for(
+        &robot_file,
+        dir.path(),
+        &rows,
+        Some(&parameters),
+        "formats = [\"urdf\"]\n",
+    );
+    assert_eq!(code, 0, "{log}");
+    let text = std::fs::read_to_string(out.join("robot.urdf")).unwrap();
+    let limits = urdf_limits(&text);
+    for (limit, torque) in limits.iter().zip(torques) {
+        assert_eq!(limit[2], torque);
+        assert_eq!(limit[3], 0.5, "the slow placeholder");
+    }
+    assert!(text.contains("WARNING: the robot file gives no max_velocity_deg_s for joint1, joint2, joint3, joint4, joint5, joint6"), "{text}");
+    assert!(!text.contains("no max_torque_nm"), "{text}");
+}
+
 #[test]
 fn check_refuses_bad_settings_with_their_key() {
     let dir = tempfile::tempdir().unwrap();
@@ -646,7 +1368,30 @@ fn check_refuses_bad_settings_with_their_key() {
             "stages[0].speed_mm_s",
             "range [1, 7000]",
         ),
-        ("krl_tool = 17", "stages[0].krl_tool", "range [0, 16]"),
+        ("tool_name = \"tool0\"", "stages[0].tool_name", "predefined"),
+        ("wobj_name = \"wobj0\"", "stages[0].wobj_name", "predefined"),
+        (
+            "wobj_name = \"EGCAL_TOOL\"",
+            "stages[0].wobj_name",
+            "also `tool_name`",
+        ),
+        ("tool_name = \"pt\"", "stages[0].tool_name", "`pt_1`"),
+        (
+            "approach_mm = 50.0\nmotion = \"joint\"",
+            "stages[0].approach_mm",
+            "approach moves are linear",
+        ),
+        (
+            "approach_mm = -1.0",
+            "stages[0].approach_mm",
+            "range [0, 1000]",
+        ),
+        (
+            "tool_target = \"nest2\"",
+            "stages[0].tool_target",
+            "input `parameters`",
+        ),
+        ("krl_tool = 1", "krl_tool", "unknown"),
         (
             "formats = [\"urdf\"]",
             "stages[0].formats[0]",
@@ -707,27 +1452,29 @@ fn export_program_runs_in_a_job_and_publishes_its_files() {
     let read = |name: &str| {
         std::fs::read_to_string(out.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"))
     };
-    let (module, src, dat, csv, urdf) = (
+    let (module, src, dat, csv, notes, urdf) = (
         read("CELL_A.mod"),
         read("CELL_A.src"),
         read("CELL_A.dat"),
         read("commands.csv"),
+        read("commands.csv.txt"),
         read("robot.urdf"),
     );
     assert!(module.starts_with("MODULE CELL_A\n  ! ABB RAPID module generated by egcal"));
     assert!(src.starts_with("DEF CELL_A( )\n; KUKA KRL program generated by egcal"));
     assert!(dat.starts_with("DEFDAT CELL_A\n; KUKA KRL data list generated by egcal"));
-    assert!(csv.starts_with("# CSV of joint commands generated by egcal"));
+    assert!(csv.starts_with("target_id,q1_deg,"));
+    assert!(notes.starts_with("commands.csv generated by egcal"));
     assert!(urdf.starts_with("<?xml version=\"1.0\"?>\n<!--\n  URDF generated by egcal"));
-    for text in [&module, &src, &dat, &csv] {
+    for text in [&module, &src, &dat, &notes] {
         assert!(text.contains("NOMINAL kinematic model"), "{text}");
         assert!(text.contains("target_id 3: singular"), "{text}");
     }
     assert!(urdf.contains("cannot be expressed in URDF"));
     // Corner zones between moves, an exact stop at the end of each path.
-    assert!(module.contains(", z10, tool0\\WObj:=wobj0;"));
-    assert!(module.contains("MoveAbsJ jt_4, egcal_speed, fine, tool0\\WObj:=wobj0;"));
-    assert!(module.contains("MoveL pt_4, egcal_speed, fine, tool0\\WObj:=wobj0;"));
+    assert!(module.contains(", z10, egcal_tool\\WObj:=egcal_wobj;"));
+    assert!(module.contains("MoveAbsJ jt_4, egcal_speed, fine, egcal_tool\\WObj:=egcal_wobj;"));
+    assert!(module.contains("MoveL pt_4, egcal_speed, fine, egcal_tool\\WObj:=egcal_wobj;"));
     assert!(src.contains("$APO.CDIS = 10 ; mm\n") && src.contains("LIN XP_2 C_DIS\n"));
     assert!(src.contains("LIN XP_4\n"));
 

@@ -22,10 +22,18 @@
 //! Status is computed on the NOMINAL arm at the joint command, like ABB's
 //! `confdata`, and assumes the robot file's joint directions are the
 //! controller's (they must be, for the E6AXIS values to mean anything).
+//!
+//! Frames: the `.dat` declares the tool the E6POS are poses of (`XTOOL`, the
+//! flange → tool transform) and the robot base (`XBASE`, identity), and the
+//! `.src` assigns them to `$TOOL` and `$BASE` (and the robot file's payload to
+//! `$LOAD`) before the first move, rather than assuming what `TOOL_DATA` or
+//! `$NULLFRAME` hold.
 
+use super::cartesian::Pose;
 use super::{
-    Command, EULER_DECIMALS, JOINT_DECIMALS, MotionSettings, POSITION_DECIMALS, Provenance, fixed,
-    header_lines, rotation_from_quaternion, skipped_lines, wrist_placement, zyx_angles,
+    EULER_DECIMALS, JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload,
+    Program, ProgramTool, fixed, header_lines, rotation_from_quaternion, skipped_lines, tool_lines,
+    tool_names, warning_lines, wrist_placement, zyx_angles,
 };
 use crate::robot::{JOINTS, Robot};
 
@@ -66,75 +74,114 @@ pub fn data_name(prefix: &str, target_id: i64) -> String {
     }
 }
 
-/// KUKA tool and base selection: `TOOL_DATA[tool]`, `BASE_DATA[base]` (0 =
-/// `$NULLFRAME`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Frames {
-    pub tool: u32,
-    pub base: u32,
+/// Name of the base frame the `.dat` declares.
+pub const BASE_NAME: &str = "XBASE";
+/// Name (with `_1` … for several) of the tool frames the `.dat` declares.
+pub const TOOL_NAME: &str = "XTOOL";
+
+/// The fields `X ..,Y ..,Z ..,A ..,B ..,C ..` of a position (mm) and a
+/// rotation (w, x, y, z), as a `FRAME` and an `E6POS` start.
+fn frame_fields(position_mm: [f64; 3], quaternion_wxyz: [f64; 4]) -> String {
+    let [x, y, z] = position_mm.map(|v| fixed(v, POSITION_DECIMALS));
+    let [a, b, c] = abc_deg(quaternion_wxyz).map(|v| fixed(v, EULER_DECIMALS));
+    format!("X {x},Y {y},Z {z},A {a},B {b},C {c}")
 }
 
-fn frame_text(array: &str, index: u32) -> String {
-    if index == 0 {
-        "$NULLFRAME".to_string()
-    } else {
-        format!("{array}[{index}]")
-    }
+/// The `$LOAD` value of the robot file's payload on `tool`: mass, centre of
+/// gravity in the flange frame, no inertia known.
+fn load_value(payload: &Payload, tool: &ProgramTool) -> String {
+    let [x, y, z] = payload
+        .cog_in_flange_mm(tool)
+        .map(|v| fixed(v, POSITION_DECIMALS));
+    format!(
+        "{{M {},CM {{X {x},Y {y},Z {z},A 0.0,B 0.0,C 0.0}},J {{X 0.0,Y 0.0,Z 0.0}}}}",
+        fixed(payload.mass_kg, MASS_DECIMALS)
+    )
 }
 
-fn header(
-    out: &mut String,
-    provenance: &Provenance,
-    kind: &str,
-    commands: &[Command],
-    frames: Frames,
-) {
-    for text in header_lines(provenance, kind)
+fn header(out: &mut String, program: &Program, kind: &str) {
+    let tools = tool_names(TOOL_NAME, program.tools.len());
+    let load_lines: Vec<String> = match &program.payload {
+        Some(payload) => vec![format!(
+            "$LOAD: the robot file's payload, {} kg at its centre of gravity, a point mass (no inertia known).",
+            fixed(payload.mass_kg, MASS_DECIMALS)
+        )],
+        None => vec![
+            "WARNING: the robot file gives no payload mass, so this program leaves $LOAD as the controller has it.".into(),
+            "Set the real tool's load data (or determine them) before running: a wrong load".into(),
+            "degrades path accuracy and the collision detection.".into(),
+        ],
+    };
+    for text in header_lines(&program.provenance, kind)
         .iter()
+        .chain(&tool_lines(program, &tools))
         .chain(&[
-            format!(
-                "$TOOL = {} must hold the robot file's nominal [tool]; $BASE = {} must be the robot base frame.",
-                frame_text("TOOL_DATA", frames.tool),
-                frame_text("BASE_DATA", frames.base)
-            ),
+            format!("$BASE = {BASE_NAME}: the robot base frame, identity relative to $WORLD, which must coincide with"),
+            "the robot root ($ROBROOT = $WORLD: KUKA's default without a linear unit or other external".into(),
+            "kinematics); $IPO_MODE = #BASE: the tool is on the flange.".into(),
+        ])
+        .chain(&load_lines)
+        .chain(&[
             "Status/Turn from the nominal arm at each joint command; Status bit 4 (absolutely accurate) is 0.".into(),
         ])
-        .chain(&skipped_lines(commands))
+        .chain(&warning_lines(program))
+        .chain(&skipped_lines(&program.commands))
     {
         out.push_str(&format!("; {text}\n"));
     }
 }
 
-/// The `.dat` file: one `E6AXIS` and/or `E6POS` per `ok` row.
-pub fn dat(
-    robot: &Robot,
-    commands: &[Command],
-    motion: &MotionSettings,
-    frames: Frames,
-    provenance: &Provenance,
-) -> String {
+fn e6pos(robot: &Robot, pose: &Pose, externals: &str) -> String {
+    format!(
+        "{{{},S {},T {},{externals}}}",
+        frame_fields(pose.position_mm, pose.quaternion_wxyz),
+        status(robot, &pose.q_deg),
+        turn(&pose.q_deg)
+    )
+}
+
+/// The `.dat` file: the base and tool frames, then one `E6AXIS` and/or `E6POS`
+/// (and an approach `E6POS`) per `ok` row.
+pub fn dat(robot: &Robot, program: &Program, motion: &MotionSettings) -> String {
     let mut out = format!("DEFDAT {}\n", motion.name);
-    header(&mut out, provenance, "KUKA KRL data list", commands, frames);
+    header(&mut out, program, "KUKA KRL data list");
+    out.push_str(&format!(
+        "DECL FRAME {BASE_NAME}={{{}}}\n",
+        frame_fields([0.0; 3], [1.0, 0.0, 0.0, 0.0])
+    ));
+    for (name, tool) in tool_names(TOOL_NAME, program.tools.len())
+        .iter()
+        .zip(&program.tools)
+    {
+        out.push_str(&format!(
+            "DECL FRAME {name}={{{}}}\n",
+            frame_fields(tool.tcp_mm(), tool.quaternion_wxyz())
+        ));
+    }
     let externals = "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0";
-    for c in commands.iter().filter(|c| c.is_ok()) {
+    for stop in &program.stops {
         if motion.motions.joint {
             let axes: Vec<String> = (0..JOINTS)
-                .map(|i| format!("A{} {}", i + 1, fixed(c.q_deg[i], JOINT_DECIMALS)))
+                .map(|i| format!("A{} {}", i + 1, fixed(stop.target.q_deg[i], JOINT_DECIMALS)))
                 .collect();
             out.push_str(&format!(
                 "DECL E6AXIS {}={{{},{externals}}}\n",
-                data_name("XJ_", c.target_id),
+                data_name("XJ_", stop.target_id),
                 axes.join(",")
             ));
         }
         if motion.motions.linear {
-            let [x, y, z] = c.position_mm.map(|v| fixed(v, POSITION_DECIMALS));
-            let [a, b, cc] = abc_deg(c.quaternion_wxyz).map(|v| fixed(v, EULER_DECIMALS));
+            if let Some(approach) = &stop.approach {
+                out.push_str(&format!(
+                    "DECL E6POS {}={}\n",
+                    data_name("XA_", stop.target_id),
+                    e6pos(robot, approach, externals)
+                ));
+            }
             out.push_str(&format!(
-                "DECL E6POS {}={{X {x},Y {y},Z {z},A {a},B {b},C {cc},S {},T {},{externals}}}\n",
-                data_name("XP_", c.target_id),
-                status(robot, &c.q_deg),
-                turn(&c.q_deg)
+                "DECL E6POS {}={}\n",
+                data_name("XP_", stop.target_id),
+                e6pos(robot, &stop.target, externals)
             ));
         }
     }
@@ -142,15 +189,12 @@ pub fn dat(
     out
 }
 
-/// The `.src` file: settings, then the motions to the `ok` rows.
-pub fn src(
-    commands: &[Command],
-    motion: &MotionSettings,
-    frames: Frames,
-    provenance: &Provenance,
-) -> String {
+/// The `.src` file: settings, the base, tool and load, then the motions to the
+/// `ok` rows; with several tools, `$TOOL` (and `$LOAD`) change before the first
+/// move of a row with another tool.
+pub fn src(program: &Program, motion: &MotionSettings) -> String {
     let mut out = format!("DEF {}( )\n", motion.name);
-    header(&mut out, provenance, "KUKA KRL program", commands, frames);
+    header(&mut out, program, "KUKA KRL program");
     // KUKA's standard initialisation: accelerations, orientation control and
     // the other motion variables a program must set before its first move get
     // the controller's defaults; the lines after it set what egcal chooses.
@@ -172,28 +216,55 @@ pub fn src(
         }
         None => "",
     };
-    out.push_str(&format!(
-        "$TOOL = {}\n$BASE = {}\n",
-        frame_text("TOOL_DATA", frames.tool),
-        frame_text("BASE_DATA", frames.base)
-    ));
-    let ok: Vec<&Command> = commands.iter().filter(|c| c.is_ok()).collect();
+    out.push_str(&format!("$BASE = {BASE_NAME}\n$IPO_MODE = #BASE\n"));
+    let names = tool_names(TOOL_NAME, program.tools.len());
+    let mut active: Option<usize> = None;
+    let mut select = |out: &mut String, tool: usize| {
+        if active != Some(tool) {
+            out.push_str(&format!("$TOOL = {}\n", names[tool]));
+            if let Some(payload) = &program.payload {
+                out.push_str(&format!(
+                    "$LOAD = {}\n",
+                    load_value(payload, &program.tools[tool])
+                ));
+            }
+            active = Some(tool);
+        }
+    };
+    let stops = &program.stops;
+    if let Some(first) = stops.first() {
+        select(&mut out, first.tool);
+    }
     if motion.motions.joint {
         out.push_str("; joint moves to the joint commands (exact stops)\n");
-        for c in &ok {
-            out.push_str(&format!("PTP {}\n", data_name("XJ_", c.target_id)));
+        for stop in stops {
+            select(&mut out, stop.tool);
+            out.push_str(&format!("PTP {}\n", data_name("XJ_", stop.target_id)));
         }
     }
     if motion.motions.linear {
         out.push_str("; Cartesian moves to the corrected targets\n");
-        for (k, c) in ok.iter().enumerate() {
-            let name = data_name("XP_", c.target_id);
+        for (k, stop) in stops.iter().enumerate() {
+            select(&mut out, stop.tool);
+            let name = data_name("XP_", stop.target_id);
             // The last move stops exactly: there is nothing to blend into.
-            let approximate = if k + 1 == ok.len() { "" } else { approximation };
-            if k == 0 {
-                out.push_str(&format!("PTP {name}\n"));
+            let approximate = if k + 1 == stops.len() {
+                ""
             } else {
-                out.push_str(&format!("LIN {name}{approximate}\n"));
+                approximation
+            };
+            let first = if k == 0 { "PTP" } else { "LIN" };
+            match &stop.approach {
+                None if k == 0 => out.push_str(&format!("PTP {name}\n")),
+                None => out.push_str(&format!("LIN {name}{approximate}\n")),
+                // Approach (blended), the target with an exact stop, retract.
+                Some(_) => {
+                    let approach = data_name("XA_", stop.target_id);
+                    let blend = if k == 0 { "" } else { approximation };
+                    out.push_str(&format!("{first} {approach}{blend}\n"));
+                    out.push_str(&format!("LIN {name}\n"));
+                    out.push_str(&format!("LIN {approach}{approximate}\n"));
+                }
             }
         }
     }
@@ -204,6 +275,7 @@ pub fn src(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::export::test_support;
     use crate::robot::test_support::irb1600;
 
     #[test]
@@ -235,51 +307,81 @@ mod tests {
 
     #[test]
     fn every_declared_name_is_one_the_settings_check_refuses() {
-        let command = |target_id| Command {
-            target_id,
-            q_deg: [10.0, 20.0, -30.0, 40.0, 50.0, 60.0],
-            status: crate::export::STATUS_OK.into(),
-            residual_mm: 0.0,
-            correction_mm: 0.0,
-            elastic_mm: 0.0,
-            position_mm: [900.0, 0.0, 800.0],
-            quaternion_wxyz: [1.0, 0.0, 0.0, 0.0],
-        };
-        let motion = MotionSettings {
-            name: "EGCAL_PROGRAM".into(),
-            speed_mm_s: 100.0,
-            joint_speed_percent: 20.0,
-            zone_mm: None,
-            motions: crate::export::Motions {
-                joint: true,
-                linear: true,
-            },
-        };
-        let provenance = Provenance {
-            version: "0".into(),
-            source: "commands.parquet".into(),
-            robot: "r".into(),
-        };
-        let frames = Frames { tool: 1, base: 0 };
-        let text = dat(
-            &irb1600(),
-            &[command(1), command(-2)],
-            &motion,
-            frames,
-            &provenance,
-        );
+        let motion = test_support::motion(None, Some(40.0));
+        let program = test_support::program(&irb1600(), &[1, -2], Some(40.0), None);
+        let text = dat(&irb1600(), &program, &motion);
         let declared: Vec<&str> = text
             .lines()
             .filter_map(|l| l.strip_prefix("DECL "))
             .filter_map(|rest| rest.split(['=', ' ']).nth(1))
             .collect();
-        assert_eq!(declared, ["XJ_1", "XP_1", "XJ_N2", "XP_N2"]);
+        assert_eq!(
+            declared,
+            [
+                "XBASE", "XTOOL", "XJ_1", "XA_1", "XP_1", "XJ_N2", "XA_N2", "XP_N2"
+            ]
+        );
         for name in declared {
             assert!(
                 crate::export::generated_name_clash(name).is_some(),
                 "{name}"
             );
         }
+    }
+
+    #[test]
+    fn the_program_sets_its_base_tool_and_load_before_moving() {
+        let robot = irb1600();
+        let payload = Payload {
+            mass_kg: 2.5,
+            cog_in_tool_mm: [0.0, 0.0, -100.0],
+        };
+        let program = test_support::program(&robot, &[1, 2], Some(40.0), Some(payload));
+        let motion = test_support::motion(Some(10), Some(40.0));
+        let dat_text = dat(&robot, &program, &motion);
+        assert!(
+            dat_text.contains(
+                "DECL FRAME XBASE={X 0.0000,Y 0.0000,Z 0.0000,A 0.000000,B 0.000000,C 0.000000}\n"
+            ),
+            "{dat_text}"
+        );
+        assert!(dat_text.contains(
+            "DECL FRAME XTOOL={X 22.0000,Y 50.0000,Z 150.0000,A 0.000000,B 0.000000,C 0.000000}\n"
+        ));
+        let src_text = src(&program, &motion);
+        let body: Vec<&str> = src_text.lines().filter(|l| !l.starts_with(';')).collect();
+        let first_move = body.iter().position(|l| l.starts_with("PTP")).unwrap();
+        for expected in [
+            "$BASE = XBASE",
+            "$TOOL = XTOOL",
+            "$IPO_MODE = #BASE",
+            "$LOAD = {M 2.500,CM {X 22.0000,Y 50.0000,Z 50.0000,A 0.0,B 0.0,C 0.0},J {X 0.0,Y 0.0,Z 0.0}}",
+        ] {
+            let at = body.iter().position(|l| *l == expected);
+            assert!(
+                at.is_some_and(|at| at < first_move),
+                "{expected}\n{src_text}"
+            );
+        }
+        assert!(!src_text.contains("$NULLFRAME") && !src_text.contains("TOOL_DATA"));
+        let moves: Vec<&str> = body
+            .iter()
+            .copied()
+            .filter(|l| l.starts_with("PTP") || l.starts_with("LIN"))
+            .collect();
+        assert_eq!(
+            moves,
+            [
+                "PTP XJ_1",
+                "PTP XJ_2",
+                "PTP XA_1",
+                "LIN XP_1",
+                "LIN XA_1 C_DIS",
+                "LIN XA_2 C_DIS",
+                "LIN XP_2",
+                "LIN XA_2"
+            ]
+        );
     }
 
     #[test]

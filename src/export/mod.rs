@@ -14,11 +14,19 @@
 //! absolutely accurate robot) active, because the compensation is already in the
 //! numbers — an accuracy option would correct them a second time.
 //!
+//! What every program declares rather than assumes: the tool its Cartesian
+//! targets are poses of (RAPID `PERS tooldata`, KRL `$TOOL`), the robot base as
+//! the frame they are in (RAPID `PERS wobjdata`, KRL `$BASE`) and the load
+//! (RAPID `tload`, KRL `$LOAD`); every Cartesian move names them, so a program
+//! never moves a frame other than the one its targets were computed for
+//! ([`cartesian`]).
+//!
 //! Printed precision (documented in each header and the README): joint angles 6
 //! decimals in degrees, positions 4 decimals in mm, quaternions 9 decimals, Euler
 //! angles 6 decimals in degrees. The controllers store these as 32-bit floats,
 //! so the printed digits are never what limits them.
 
+pub mod cartesian;
 pub mod csv;
 pub mod krl;
 pub mod rapid;
@@ -27,6 +35,7 @@ pub mod urdf;
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
 use crate::robot::{Frame, JOINTS, ParamValues, Robot};
+pub use cartesian::{Payload, ProgramTool, Stop};
 
 /// Decimals of joint angles (deg) in every file.
 pub const JOINT_DECIMALS: usize = 6;
@@ -36,6 +45,8 @@ pub const POSITION_DECIMALS: usize = 4;
 pub const QUATERNION_DECIMALS: usize = 9;
 /// Decimals of Euler angles (deg, KRL A, B, C).
 pub const EULER_DECIMALS: usize = 6;
+/// Decimals of masses (kg, the tool load).
+pub const MASS_DECIMALS: usize = 3;
 
 /// The status of a command a controller may execute.
 pub const STATUS_OK: &str = "ok";
@@ -56,6 +67,13 @@ pub struct Command {
     pub position_mm: [f64; 3],
     /// Its orientation, base ← tool, unit quaternion (w, x, y, z).
     pub quaternion_wxyz: [f64; 4],
+    /// The target (SMR) whose tool the row was computed for (optional column
+    /// `tool_id`); `None` when the table has no such column.
+    pub tool_id: Option<String>,
+    /// Joint-space distance to the nearest calibration row and the predicted
+    /// 95 % uncertainty (spec §8; optional columns, null where not computed).
+    pub envelope_distance: Option<f64>,
+    pub u95_mm: Option<f64>,
 }
 
 impl Command {
@@ -74,6 +92,93 @@ pub struct Provenance {
     /// The robot file's model name.
     pub robot: String,
 }
+
+/// Everything a program file is written from, computed once by the stage:
+/// the table's rows, the tools, the Cartesian stops of the `ok` rows, and the
+/// warnings every file must show.
+#[derive(Debug, Clone)]
+pub struct Program {
+    /// Every row of the table, in order (those not `ok` only named).
+    pub commands: Vec<Command>,
+    /// The tools the `ok` rows use, in the order their names are numbered.
+    pub tools: Vec<ProgramTool>,
+    /// One per `ok` row, in order.
+    pub stops: Vec<Stop>,
+    /// The robot file's payload; `None` when it gives no mass.
+    pub payload: Option<Payload>,
+    /// Lines every file shows as a warning (and the stage prints).
+    pub warnings: Vec<String>,
+    pub provenance: Provenance,
+}
+
+/// Names of `count` declared tools: `base` for one, `base_1` … for several
+/// (at most [`crate::robot::MAX_TARGETS`]).
+pub fn tool_names(base: &str, count: usize) -> Vec<String> {
+    if count == 1 {
+        vec![base.to_string()]
+    } else {
+        (1..=count).map(|k| format!("{base}_{k}")).collect()
+    }
+}
+
+/// Header lines naming the declared tools (`names[i]` for `program.tools[i]`)
+/// and what the Cartesian targets are.
+pub fn tool_lines(program: &Program, names: &[String]) -> Vec<String> {
+    let mut lines: Vec<String> = program
+        .tools
+        .iter()
+        .zip(names)
+        .map(|(tool, name)| {
+            let target = tool
+                .target_id
+                .as_deref()
+                .map(|t| format!(" (target {})", one_line(t)))
+                .unwrap_or_default();
+            format!(
+                "Tool {name}{target}: flange -> tool TCP [{}] mm, orientation [{}] (w, x, y, z), from {}.",
+                tool.tcp_mm().map(|v| fixed(v, POSITION_DECIMALS)).join(", "),
+                tool.quaternion_wxyz()
+                    .map(|v| fixed(v, QUATERNION_DECIMALS))
+                    .join(", "),
+                one_line(&tool.source)
+            )
+        })
+        .collect();
+    lines.push(
+        "Every Cartesian target is the pose of its move's tool in the robot BASE frame on the"
+            .into(),
+    );
+    lines.push(
+        "NOMINAL arm at the joint command, so the controller's inverse kinematics gives the command back;".into(),
+    );
+    lines.push("never run them with another tool or base.".into());
+    lines
+}
+
+/// The warning lines of `program`: each warning prefixed `WARNING: ` and
+/// wrapped at word boundaries to at most `WARNING_WIDTH` characters (where
+/// a word allows), so that a controller's editor shows it whole.
+pub fn warning_lines(program: &Program) -> Vec<String> {
+    let mut lines = Vec::new();
+    for warning in &program.warnings {
+        let mut line = String::from("WARNING:");
+        for word in one_line(warning).split_whitespace() {
+            if line.len() + 1 + word.len() > WARNING_WIDTH && line.len() > "WARNING:".len() {
+                lines.push(std::mem::take(&mut line));
+                line.push_str("  ");
+                line.push_str(word);
+            } else {
+                line.push(' ');
+                line.push_str(word);
+            }
+        }
+        lines.push(line);
+    }
+    lines
+}
+
+/// Width a warning line is wrapped to, characters.
+const WARNING_WIDTH: usize = 96;
 
 /// How the program moves to the targets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -100,6 +205,10 @@ pub struct MotionSettings {
     /// exact stop (`fine`).
     pub zone_mm: Option<u32>,
     pub motions: Motions,
+    /// Approach and retract moves (drilling): the Cartesian path goes to the
+    /// point this far back along the tool's z axis before and after each
+    /// target, which it then reaches with an exact stop; `None` = off.
+    pub approach_mm: Option<f64>,
 }
 
 /// The header lines every file carries (without comment markers).
@@ -115,8 +224,6 @@ pub fn header_lines(provenance: &Provenance, file_kind: &str) -> Vec<String> {
         "accuracy option active (ABB Absolute Accuracy, KUKA absolutely accurate robot):".into(),
         "the compensation (geometry and load) is already in these numbers, and an".into(),
         "accuracy option would correct them a second time.".into(),
-        "Cartesian targets are in the robot BASE frame, with the robot file's nominal".into(),
-        "flange -> tool transform as the active tool.".into(),
         format!(
             "Printed precision: joints {JOINT_DECIMALS} decimals (deg), positions {POSITION_DECIMALS} decimals (mm), quaternions {QUATERNION_DECIMALS} decimals, Euler angles {EULER_DECIMALS} decimals (deg)."
         ),
@@ -133,11 +240,20 @@ pub fn skipped_lines(commands: &[Command]) -> Vec<String> {
         "{} row(s) not exported as motion (status not ok):",
         failed.len()
     )];
-    lines.extend(
-        failed
-            .iter()
-            .map(|c| format!("  target_id {}: {}", c.target_id, one_line(&c.status))),
-    );
+    lines.extend(failed.iter().map(|c| {
+        let mut line = format!("  target_id {}: {}", c.target_id, one_line(&c.status));
+        let envelope: Vec<String> = [
+            ("envelope_distance", c.envelope_distance),
+            ("u95_mm", c.u95_mm),
+        ]
+        .iter()
+        .filter_map(|(name, value)| value.map(|v| format!("{name} {v}")))
+        .collect();
+        if !envelope.is_empty() {
+            line.push_str(&format!(" ({})", envelope.join(", ")));
+        }
+        line
+    }));
     lines
 }
 
@@ -284,16 +400,35 @@ pub fn identifier_problem(name: &str, max_len: usize, language: &str) -> Option<
         .then(|| format!("`{name}` is a reserved word of RAPID or KRL"))
 }
 
-/// Names the programs declare themselves (RAPID's speed data and routines).
-const GENERATED_NAMES: [&str; 4] = ["egcal_speed", "main", "path_joint", "path_linear"];
-/// Prefixes of the per-target data names (RAPID `jt_`, `pt_`; KRL `XJ_`, `XP_`).
-const GENERATED_PREFIXES: [&str; 4] = ["jt_", "pt_", "xj_", "xp_"];
+/// Names the programs declare themselves (RAPID's speed data and routines,
+/// KRL's base and tool frames).
+const GENERATED_NAMES: [&str; 6] = [
+    "egcal_speed",
+    "main",
+    "path_joint",
+    "path_linear",
+    "xbase",
+    "xtool",
+];
+/// Prefixes of the per-target data names (RAPID `jt_`, `pt_`, `pa_`; KRL `XJ_`,
+/// `XP_`, `XA_`) and of several KRL tools (`XTOOL_1`).
+const GENERATED_PREFIXES: [&str; 7] = ["jt_", "pt_", "pa_", "xj_", "xp_", "xa_", "xtool_"];
+
+/// ABB's predefined data (module BASE), which a module cannot declare again,
+/// and `tool0`, the flange, which cannot be redefined.
+pub const ABB_PREDEFINED: [&str; 3] = ["tool0", "wobj0", "load0"];
 
 /// Whether a user-chosen name (module, tool, work object) would clash with a
-/// name the programs declare: both languages ignore case, and the controller
-/// refuses a module that declares a name twice. `None` when it does not.
+/// name the programs declare or ABB predefines: both languages ignore case, and
+/// the controller refuses a module that declares a name twice. `None` when it
+/// does not.
 pub fn generated_name_clash(name: &str) -> Option<String> {
     let lower = name.to_ascii_lowercase();
+    if ABB_PREDEFINED.contains(&lower.as_str()) {
+        return Some(format!(
+            "`{name}` is ABB's predefined data, which a module cannot declare again (tool0 is the bare flange); the program declares its own"
+        ));
+    }
     if GENERATED_NAMES.contains(&lower.as_str()) {
         return Some(format!("`{name}` is a name the exported programs declare"));
     }
@@ -406,6 +541,81 @@ const RESERVED: &[&str] = &[
     "EXTFCT",
 ];
 
+/// Programs of a few rows for the format modules' tests.
+#[cfg(test)]
+pub(crate) mod test_support {
+    use super::*;
+
+    pub fn motion(zone_mm: Option<u32>, approach_mm: Option<f64>) -> MotionSettings {
+        MotionSettings {
+            name: "EGCAL_PROGRAM".into(),
+            speed_mm_s: 100.0,
+            joint_speed_percent: 20.0,
+            zone_mm,
+            motions: Motions {
+                joint: true,
+                linear: true,
+            },
+            approach_mm,
+        }
+    }
+
+    /// `ok` rows with `ids` at one joint command, the IRB 1600's nominal tool
+    /// (22, 50, 150) mm.
+    pub fn program(
+        robot: &Robot,
+        ids: &[i64],
+        approach_mm: Option<f64>,
+        payload: Option<Payload>,
+    ) -> Program {
+        let commands: Vec<Command> = ids
+            .iter()
+            .map(|&target_id| Command {
+                target_id,
+                q_deg: [10.0, 20.0, -30.0, 40.0, 50.0, 60.0],
+                status: STATUS_OK.into(),
+                residual_mm: 0.0,
+                correction_mm: 0.0,
+                elastic_mm: 0.0,
+                position_mm: [900.0, 0.0, 800.0],
+                quaternion_wxyz: [1.0, 0.0, 0.0, 0.0],
+                tool_id: None,
+                envelope_distance: None,
+                u95_mm: None,
+            })
+            .collect();
+        let tool = ProgramTool {
+            target_id: None,
+            source: "the robot file's [tool]".into(),
+            flange_from_tool: Frame {
+                rotation: Matrix3::identity(),
+                origin_mm: Vector3::new(22.0, 50.0, 150.0),
+            },
+        };
+        let row_tools = vec![0; commands.len()];
+        let stops = cartesian::stops(
+            robot,
+            &commands,
+            std::slice::from_ref(&tool),
+            &row_tools,
+            approach_mm,
+        )
+        .unwrap();
+        Program {
+            commands,
+            tools: vec![tool],
+            stops,
+            payload,
+            warnings: Vec::new(),
+            provenance: Provenance {
+                version: "0".into(),
+                source: "commands.parquet".into(),
+                robot: "r".into(),
+            },
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -479,9 +689,39 @@ mod tests {
             elastic_mm: 0.0,
             position_mm: [0.0; 3],
             quaternion_wxyz: [1.0, 0.0, 0.0, 0.0],
+            tool_id: None,
+            envelope_distance: None,
+            u95_mm: None,
         };
         let lines = skipped_lines(std::slice::from_ref(&command));
         assert_eq!(lines[1], "  target_id 3: unreachable MoveAbsJ jt_1");
+        let outside = Command {
+            status: "outside_envelope".into(),
+            envelope_distance: Some(2.5),
+            u95_mm: Some(0.75),
+            ..command
+        };
+        let lines = skipped_lines(std::slice::from_ref(&outside));
+        assert_eq!(
+            lines[1],
+            "  target_id 3: outside_envelope (envelope_distance 2.5, u95_mm 0.75)"
+        );
+    }
+
+    #[test]
+    fn warnings_are_wrapped_whole() {
+        let mut program = test_support::program(&irb1600(), &[1], None, None);
+        let words: Vec<String> = (0..60).map(|k| format!("w{k}")).collect();
+        program.warnings = vec![words.join(" ")];
+        let lines = warning_lines(&program);
+        assert!(lines.len() > 1 && lines.iter().all(|l| l.len() <= WARNING_WIDTH));
+        assert!(lines[0].starts_with("WARNING: w0 w1"));
+        assert!(lines[1..].iter().all(|l| l.starts_with("  w")));
+        let back: Vec<&str> = lines.iter().flat_map(|l| l.split_whitespace()).collect();
+        assert_eq!(
+            back[1..],
+            words.iter().map(String::as_str).collect::<Vec<_>>()[..]
+        );
     }
 
     #[test]
@@ -515,7 +755,10 @@ mod tests {
         assert!(identifier_problem(&"a".repeat(25), 24, "KRL").is_some());
         assert!(identifier_problem("module", 32, "RAPID").is_some());
         assert!(identifier_problem("", 32, "RAPID").is_some());
-        assert!(generated_name_clash("tool0").is_none());
+        assert!(generated_name_clash("egcal_tool").is_none());
+        assert!(generated_name_clash("tool0").is_some());
+        assert!(generated_name_clash("WOBJ0").is_some());
+        assert!(generated_name_clash("XA_3").is_some());
         assert!(generated_name_clash("Main").is_some());
         assert!(generated_name_clash("EGCAL_SPEED").is_some());
         assert!(generated_name_clash("XP_7").is_some());

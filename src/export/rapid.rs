@@ -12,10 +12,18 @@
 //! matches them, so `ConfL\On` (the default) gives back the command.
 //!
 //! Quaternions are `[q1, q2, q3, q4] = [w, x, y, z]`, ABB's order.
+//!
+//! The module declares the tool its robtargets are poses of (`PERS tooldata`:
+//! `tframe` the flange → tool transform, `tload` the robot file's payload) and
+//! the robot base as a work object (`PERS wobjdata`, identity frames), and every
+//! move names both; `tool0`, ABB's flange, is never used, since it cannot be
+//! redefined and the robtargets are not poses of the flange.
 
+use super::cartesian::Pose;
 use super::{
-    Command, JOINT_DECIMALS, MotionSettings, POSITION_DECIMALS, Provenance, QUATERNION_DECIMALS,
-    fixed, header_lines, skipped_lines, wrist_placement,
+    JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload, Program,
+    ProgramTool, QUATERNION_DECIMALS, Stop, fixed, header_lines, skipped_lines, tool_lines,
+    tool_names, warning_lines, wrist_placement,
 };
 use crate::robot::{JOINTS, Robot};
 
@@ -61,32 +69,114 @@ pub fn data_name(prefix: &str, target_id: i64) -> String {
     }
 }
 
+/// The minimal load RAPID accepts in a `tooldata` (ABB's `load0`): a tool's
+/// mass must be positive.
+const MINIMAL_LOAD: &str = "[0.001, [0, 0, 0.001], [1, 0, 0, 0], 0, 0, 0]";
+
+/// The work object of the robot base: `uframe` and `oframe` identity, fixed
+/// (not robot-held), programmed user frame.
+const BASE_WOBJ: &str = "[FALSE, TRUE, \"\", [[0, 0, 0], [1, 0, 0, 0]], [[0, 0, 0], [1, 0, 0, 0]]]";
+
+/// The `tooldata` value of `tool` carrying `payload` (`robhold` TRUE: the
+/// robot holds it).
+pub fn tooldata(tool: &ProgramTool, payload: Option<&Payload>) -> String {
+    let tcp = tool
+        .tcp_mm()
+        .map(|v| fixed(v, POSITION_DECIMALS))
+        .join(", ");
+    let orientation = tool
+        .quaternion_wxyz()
+        .map(|v| fixed(v, QUATERNION_DECIMALS))
+        .join(", ");
+    let load = match payload {
+        Some(payload) => format!(
+            "[{}, [{}], [1, 0, 0, 0], 0, 0, 0]",
+            fixed(payload.mass_kg, MASS_DECIMALS),
+            payload
+                .cog_in_flange_mm(tool)
+                .map(|v| fixed(v, POSITION_DECIMALS))
+                .join(", ")
+        ),
+        None => MINIMAL_LOAD.to_string(),
+    };
+    format!("[TRUE, [[{tcp}], [{orientation}]], {load}]")
+}
+
+fn robtarget(robot: &Robot, pose: &Pose) -> String {
+    let p = pose
+        .position_mm
+        .map(|v| fixed(v, POSITION_DECIMALS))
+        .join(", ");
+    let q = normalised(pose.quaternion_wxyz)
+        .map(|v| fixed(v, QUATERNION_DECIMALS))
+        .join(", ");
+    let conf = confdata(robot, &pose.q_deg);
+    format!(
+        "[[{p}], [{q}], [{}, {}, {}, {}], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]]",
+        conf.cf1, conf.cf4, conf.cf6, conf.cfx
+    )
+}
+
 /// The whole module text. Rows whose status is not `ok` are listed in a
-/// comment and get no data and no motion.
+/// comment and get no data and no motion. `tool_name` names the tool (with a
+/// suffix `_1` … when the rows use several), `wobj_name` the work object; the
+/// module declares both, and every move names them.
 pub fn module(
     robot: &Robot,
-    commands: &[Command],
+    program: &Program,
     motion: &MotionSettings,
     tool_name: &str,
     wobj_name: &str,
-    provenance: &Provenance,
 ) -> String {
     let mut out = String::new();
     let line = |out: &mut String, text: &str| {
         out.push_str(text);
         out.push('\n');
     };
+    let tools = tool_names(tool_name, program.tools.len());
+    let load_lines = match &program.payload {
+        Some(payload) => vec![format!(
+            "Tool load (tload): the robot file's payload, {} kg at its centre of gravity, a point mass (no inertia known).",
+            fixed(payload.mass_kg, MASS_DECIMALS)
+        )],
+        None => vec![
+            "WARNING: the robot file gives no payload mass, so tload is ABB's minimal load (0.001 kg, as load0).".into(),
+            "Enter the real tool's load (or run LoadIdentify) before running: a wrong load".into(),
+            "degrades path accuracy and the motion supervision.".into(),
+        ],
+    };
     line(&mut out, &format!("MODULE {}", motion.name));
-    for text in header_lines(provenance, "ABB RAPID module")
+    for text in header_lines(&program.provenance, "ABB RAPID module")
         .iter()
+        .chain(&tool_lines(program, &tools))
         .chain(&[
-            format!("Tool `{tool_name}` must hold the robot file's nominal [tool]; work object `{wobj_name}` must be the robot base frame."),
+            format!("Work object {wobj_name}: the robot base frame (uframe and oframe identity, like wobj0 relative to"),
+            "the controller's world frame, which must coincide with the robot base: ABB's default for a".into(),
+            "floor-mounted robot without track or positioner).".into(),
+        ])
+        .chain(&load_lines)
+        .chain(&[
+            "The tool and work object get their values again in main: a PERS of the same name in another".into(),
+            "loaded module shares one value with them.".into(),
             "Configuration: confdata from the nominal arm at each joint command (ConfL/ConfJ on).".into(),
         ])
-        .chain(&skipped_lines(commands))
+        .chain(&warning_lines(program))
+        .chain(&skipped_lines(&program.commands))
     {
         line(&mut out, &format!("  ! {text}"));
     }
+    let tool_values: Vec<String> = program
+        .tools
+        .iter()
+        .map(|t| tooldata(t, program.payload.as_ref()))
+        .collect();
+    for (name, value) in tools.iter().zip(&tool_values) {
+        line(&mut out, &format!("  PERS tooldata {name} := {value};"));
+    }
+    line(
+        &mut out,
+        &format!("  PERS wobjdata {wobj_name} := {BASE_WOBJ};"),
+    );
     // Not derived from the module name, so it never collides with it and stays
     // within the identifier limit.
     let speed = "egcal_speed";
@@ -101,44 +191,51 @@ pub fn module(
         Some(radius) => format!("z{radius}"),
         None => "fine".to_string(),
     };
-    let ok: Vec<&Command> = commands.iter().filter(|c| c.is_ok()).collect();
+    let stops = &program.stops;
     if motion.motions.joint {
-        for c in &ok {
-            let q = c.q_deg.map(|v| fixed(v, JOINT_DECIMALS)).join(", ");
+        for stop in stops {
+            let q = stop
+                .target
+                .q_deg
+                .map(|v| fixed(v, JOINT_DECIMALS))
+                .join(", ");
             line(
                 &mut out,
                 &format!(
                     "  CONST jointtarget {} := [[{q}], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]];",
-                    data_name("jt_", c.target_id)
+                    data_name("jt_", stop.target_id)
                 ),
             );
         }
     }
     if motion.motions.linear {
-        for c in &ok {
-            let p = c
-                .position_mm
-                .map(|v| fixed(v, POSITION_DECIMALS))
-                .join(", ");
-            let q = normalised(c.quaternion_wxyz)
-                .map(|v| fixed(v, QUATERNION_DECIMALS))
-                .join(", ");
-            let conf = confdata(robot, &c.q_deg);
+        for stop in stops {
+            if let Some(approach) = &stop.approach {
+                line(
+                    &mut out,
+                    &format!(
+                        "  CONST robtarget {} := {};",
+                        data_name("pa_", stop.target_id),
+                        robtarget(robot, approach)
+                    ),
+                );
+            }
             line(
                 &mut out,
                 &format!(
-                    "  CONST robtarget {} := [[{p}], [{q}], [{}, {}, {}, {}], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]];",
-                    data_name("pt_", c.target_id),
-                    conf.cf1,
-                    conf.cf4,
-                    conf.cf6,
-                    conf.cfx
+                    "  CONST robtarget {} := {};",
+                    data_name("pt_", stop.target_id),
+                    robtarget(robot, &stop.target)
                 ),
             );
         }
     }
     line(&mut out, "");
     line(&mut out, "  PROC main()");
+    for (name, value) in tools.iter().zip(&tool_values) {
+        line(&mut out, &format!("    {name} := {value};"));
+    }
+    line(&mut out, &format!("    {wobj_name} := {BASE_WOBJ};"));
     if motion.motions.joint {
         line(&mut out, "    path_joint;");
     }
@@ -146,22 +243,22 @@ pub fn module(
         line(&mut out, "    path_linear;");
     }
     line(&mut out, "  ENDPROC");
+    let tail = |stop: &Stop, zone: &str| {
+        format!("{speed}, {zone}, {}\\WObj:={wobj_name};", tools[stop.tool])
+    };
     // The last move of a path stops exactly: a corner zone there has no next
     // move to blend into.
-    let tail = |k: usize| {
-        let zone = if k + 1 == ok.len() { "fine" } else { &zone };
-        format!("{speed}, {zone}, {tool_name}\\WObj:={wobj_name};")
-    };
+    let zone_at = |k: usize| if k + 1 == stops.len() { "fine" } else { &zone };
     if motion.motions.joint {
         line(&mut out, "");
         line(&mut out, "  PROC path_joint()");
-        for (k, c) in ok.iter().enumerate() {
+        for (k, stop) in stops.iter().enumerate() {
             line(
                 &mut out,
                 &format!(
                     "    MoveAbsJ {}, {}",
-                    data_name("jt_", c.target_id),
-                    tail(k)
+                    data_name("jt_", stop.target_id),
+                    tail(stop, zone_at(k))
                 ),
             );
         }
@@ -170,16 +267,32 @@ pub fn module(
     if motion.motions.linear {
         line(&mut out, "");
         line(&mut out, "  PROC path_linear()");
-        for (k, c) in ok.iter().enumerate() {
-            let instruction = if k == 0 { "MoveJ" } else { "MoveL" };
-            line(
-                &mut out,
-                &format!(
-                    "    {instruction} {}, {}",
-                    data_name("pt_", c.target_id),
-                    tail(k)
+        for (k, stop) in stops.iter().enumerate() {
+            let first = if k == 0 { "MoveJ" } else { "MoveL" };
+            let target = data_name("pt_", stop.target_id);
+            match &stop.approach {
+                None => line(
+                    &mut out,
+                    &format!("    {first} {target}, {}", tail(stop, zone_at(k))),
                 ),
-            );
+                // Approach, the target with an exact stop, retract to the
+                // approach point.
+                Some(_) => {
+                    let approach = data_name("pa_", stop.target_id);
+                    line(
+                        &mut out,
+                        &format!("    {first} {approach}, {}", tail(stop, &zone)),
+                    );
+                    line(
+                        &mut out,
+                        &format!("    MoveL {target}, {}", tail(stop, "fine")),
+                    );
+                    line(
+                        &mut out,
+                        &format!("    MoveL {approach}, {}", tail(stop, zone_at(k))),
+                    );
+                }
+            }
         }
         line(&mut out, "  ENDPROC");
     }
@@ -196,6 +309,7 @@ fn normalised(q: [f64; 4]) -> [f64; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::export::test_support;
     use crate::robot::test_support::irb1600;
 
     #[test]
@@ -239,39 +353,9 @@ mod tests {
 
     #[test]
     fn every_declared_name_is_one_the_settings_check_refuses() {
-        let command = |target_id| Command {
-            target_id,
-            q_deg: [10.0, 20.0, -30.0, 40.0, 50.0, 60.0],
-            status: crate::export::STATUS_OK.into(),
-            residual_mm: 0.0,
-            correction_mm: 0.0,
-            elastic_mm: 0.0,
-            position_mm: [900.0, 0.0, 800.0],
-            quaternion_wxyz: [1.0, 0.0, 0.0, 0.0],
-        };
-        let motion = MotionSettings {
-            name: "EGCAL_PROGRAM".into(),
-            speed_mm_s: 100.0,
-            joint_speed_percent: 20.0,
-            zone_mm: Some(10),
-            motions: crate::export::Motions {
-                joint: true,
-                linear: true,
-            },
-        };
-        let provenance = Provenance {
-            version: "0".into(),
-            source: "commands.parquet".into(),
-            robot: "r".into(),
-        };
-        let text = module(
-            &irb1600(),
-            &[command(1), command(-2)],
-            &motion,
-            "tool0",
-            "wobj0",
-            &provenance,
-        );
+        let motion = test_support::motion(Some(10), Some(50.0));
+        let program = test_support::program(&irb1600(), &[1, -2], Some(50.0), None);
+        let text = module(&irb1600(), &program, &motion, "egcal_tool", "egcal_wobj");
         let declared: Vec<&str> = text
             .lines()
             .filter_map(|l| {
@@ -284,13 +368,76 @@ mod tests {
                     })
             })
             .collect();
-        assert_eq!(declared.len(), 8, "{declared:?}");
+        assert_eq!(declared.len(), 10, "{declared:?}");
         for name in declared {
             assert!(
                 crate::export::generated_name_clash(name).is_some(),
                 "{name}"
             );
         }
+    }
+
+    #[test]
+    fn moves_name_the_declared_tool_and_work_object_never_tool0() {
+        let robot = irb1600();
+        let motion = test_support::motion(Some(10), Some(50.0));
+        let program = test_support::program(&robot, &[1, 2], Some(50.0), None);
+        let text = module(&robot, &program, &motion, "egcal_tool", "egcal_wobj");
+        assert!(text.contains("  PERS tooldata egcal_tool := [TRUE, [[22.0000, 50.0000, 150.0000], [1.000000000, 0.000000000, 0.000000000, 0.000000000]], [0.001, [0, 0, 0.001], [1, 0, 0, 0], 0, 0, 0]];"), "{text}");
+        assert!(text.contains("  PERS wobjdata egcal_wobj := [FALSE, TRUE, \"\", [[0, 0, 0], [1, 0, 0, 0]], [[0, 0, 0], [1, 0, 0, 0]]];"));
+        assert!(text.contains("WARNING: the robot file gives no payload mass"));
+        let moves: Vec<&str> = text
+            .lines()
+            .map(str::trim)
+            .filter(|l| l.starts_with("Move"))
+            .collect();
+        // Joint path 2, linear path 3 per target: approach, target, retract.
+        assert_eq!(moves.len(), 2 + 6, "{moves:?}");
+        for m in &moves {
+            assert!(m.ends_with("egcal_tool\\WObj:=egcal_wobj;"), "{m}");
+            assert!(!m.contains("tool0"));
+        }
+        assert_eq!(
+            moves[2],
+            "MoveJ pa_1, egcal_speed, z10, egcal_tool\\WObj:=egcal_wobj;"
+        );
+        assert_eq!(
+            moves[3],
+            "MoveL pt_1, egcal_speed, fine, egcal_tool\\WObj:=egcal_wobj;"
+        );
+        assert_eq!(
+            moves[4],
+            "MoveL pa_1, egcal_speed, z10, egcal_tool\\WObj:=egcal_wobj;"
+        );
+        assert_eq!(
+            moves[7],
+            "MoveL pa_2, egcal_speed, fine, egcal_tool\\WObj:=egcal_wobj;"
+        );
+    }
+
+    #[test]
+    fn a_payload_is_the_tool_load_with_its_centre_of_gravity_in_the_flange_frame() {
+        let robot = irb1600();
+        let payload = Payload {
+            mass_kg: 2.5,
+            cog_in_tool_mm: [0.0, 0.0, -100.0],
+        };
+        let program = test_support::program(&robot, &[1], None, Some(payload));
+        let text = module(
+            &robot,
+            &program,
+            &test_support::motion(None, None),
+            "gripper",
+            "base_wobj",
+        );
+        // Tool (22, 50, 150) without rotation: the centre of gravity 100 mm
+        // back along its z is at z = 50 in the flange frame.
+        assert!(
+            text.contains("[2.500, [22.0000, 50.0000, 50.0000], [1, 0, 0, 0], 0, 0, 0]]"),
+            "{text}"
+        );
+        assert!(!text.contains("WARNING"));
+        assert!(text.contains("    gripper := [TRUE,"));
     }
 
     #[test]

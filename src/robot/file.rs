@@ -36,6 +36,15 @@ pub struct JointSpec {
     /// Collision shape of the link in the joint's frame (for pose generation).
     #[serde(default)]
     pub capsule: Option<CapsuleSpec>,
+    /// Highest joint speed from the vendor's data sheet, degrees per second.
+    /// Optional; only the URDF export uses it (`<limit velocity>`), and says
+    /// so where it is absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_velocity_deg_s: Option<f64>,
+    /// Highest joint torque from the vendor's data sheet, newton metres.
+    /// Optional; only the URDF export uses it (`<limit effort>`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_torque_nm: Option<f64>,
 }
 
 /// A capsule: the set of points within `radius_mm` of the segment `from_mm`–`to_mm`.
@@ -234,6 +243,20 @@ impl RobotSpec {
                 Bound::Mass,
             ));
             checks.push((key("link_cog_mm"), &joint.link_cog_mm, Bound::Length));
+            if let Some(speed) = &joint.max_velocity_deg_s {
+                checks.push((
+                    key("max_velocity_deg_s"),
+                    std::slice::from_ref(speed),
+                    Bound::Speed,
+                ));
+            }
+            if let Some(torque) = &joint.max_torque_nm {
+                checks.push((
+                    key("max_torque_nm"),
+                    std::slice::from_ref(torque),
+                    Bound::Torque,
+                ));
+            }
             if let Some(capsule) = &joint.capsule {
                 checks.push((key("capsule.from_mm"), &capsule.from_mm, Bound::Length));
                 checks.push((key("capsule.to_mm"), &capsule.to_mm, Bound::Length));
@@ -282,6 +305,12 @@ pub const MAX_JOINT_TRAVEL_DEG: f64 = 36_000.0;
 const MAX_MASS_KG: f64 = 1.0e5;
 /// Largest gravity component that is not a typo (m/s²).
 const MAX_GRAVITY_MPS2: f64 = 100.0;
+/// Largest joint speed that is not a typo (deg/s; an industrial wrist axis
+/// turns at most about 1000°/s).
+const MAX_JOINT_SPEED_DEG_S: f64 = 10_000.0;
+/// Largest joint torque that is not a typo (N·m; the largest arms' base axes
+/// stay below 1e5).
+const MAX_JOINT_TORQUE_NM: f64 = 1.0e6;
 
 /// What a number of the robot file must satisfy besides being finite.
 #[derive(Debug, Clone, Copy)]
@@ -292,6 +321,8 @@ enum Bound {
     Mass,
     Radius,
     Gravity,
+    Speed,
+    Torque,
 }
 
 impl Bound {
@@ -318,6 +349,15 @@ impl Bound {
             Bound::Gravity => (
                 value.abs() <= MAX_GRAVITY_MPS2,
                 format!("components within ±{MAX_GRAVITY_MPS2} m/s²"),
+            ),
+            // Zero would tell a planner the joint cannot move.
+            Bound::Speed => (
+                value > 0.0 && value <= MAX_JOINT_SPEED_DEG_S,
+                format!("a joint speed > 0 and at most {MAX_JOINT_SPEED_DEG_S} deg/s"),
+            ),
+            Bound::Torque => (
+                value > 0.0 && value <= MAX_JOINT_TORQUE_NM,
+                format!("a joint torque > 0 and at most {MAX_JOINT_TORQUE_NM} N·m"),
             ),
         };
         // NaN fails every comparison above, so it lands here too.
@@ -370,6 +410,39 @@ mod tests {
         let spec = RobotSpec::parse(&text, Path::new("r.toml")).unwrap();
         assert_eq!(spec.world, TransformSpec::default());
         assert_eq!(spec.tool.z_mm, 0.0);
+    }
+
+    #[test]
+    fn joint_speed_and_torque_are_optional_and_checked() {
+        let spec = RobotSpec::parse(IRB1600, Path::new("r.toml")).unwrap();
+        assert_eq!(spec.joints[0].max_velocity_deg_s, Some(150.0));
+        assert_eq!(spec.joints[0].max_torque_nm, None);
+        let text = IRB1600.replacen("max_velocity_deg_s = 150.0", "max_velocity_deg_s = 0.0", 1);
+        let err = RobotSpec::parse(&text, Path::new("r.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("joints[0].max_velocity_deg_s") && err.contains("> 0"),
+            "{err}"
+        );
+        let text = IRB1600.replacen(
+            "max_velocity_deg_s = 150.0",
+            "max_velocity_deg_s = 150.0\nmax_torque_nm = -3.0",
+            1,
+        );
+        let err = RobotSpec::parse(&text, Path::new("r.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("joints[0].max_torque_nm"), "{err}");
+    }
+
+    #[test]
+    fn a_file_without_speeds_hashes_as_before_they_existed() {
+        // Absent optional keys are not serialised: adding them to the format
+        // must not change the cache key of every robot file.
+        let spec = RobotSpec::parse(IRB1600, Path::new("r.toml")).unwrap();
+        let json = serde_json::to_string(&spec).unwrap();
+        assert!(!json.contains("max_torque_nm"), "{json}");
     }
 
     #[test]

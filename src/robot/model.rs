@@ -157,6 +157,17 @@ impl Robot {
         )
     }
 
+    /// Flange → tool frame of `target` (0-based; spec §7) in a parameter set
+    /// (eq. (4)): the set's tool rotation and that target's translation.
+    pub fn flange_from_tool(&self, p: &ParamValues, target: usize) -> Frame {
+        let v = &p.0;
+        let t = |axis| v[ParamId::target_translation(target, axis).index()];
+        Frame::from_xyz_euler_then_translation(
+            [v[9] * DEG, v[10] * DEG, v[11] * DEG],
+            Vector3::new(t(0), t(1), t(2)),
+        )
+    }
+
     /// This robot at one parameter set, with the set's constant geometry computed
     /// once: the form every evaluation over many rows uses.
     pub fn prepare(&self, p: &ParamValues) -> PreparedRobot<'_> {
@@ -169,13 +180,7 @@ impl Robot {
             a_mm: std::array::from_fn(|i| self.a_mm[i] + v[24 + i]),
             d_mm: std::array::from_fn(|i| self.d_mm[i] + v[30 + i]),
             theta_zero_rad: std::array::from_fn(|i| v[12 + i] * DEG + self.theta_offset_rad[i]),
-            flange_from_tool: std::array::from_fn(|target| {
-                let t = |axis| v[ParamId::target_translation(target, axis).index()];
-                Frame::from_xyz_euler_then_translation(
-                    [v[9] * DEG, v[10] * DEG, v[11] * DEG],
-                    Vector3::new(t(0), t(1), t(2)),
-                )
-            }),
+            flange_from_tool: std::array::from_fn(|target| self.flange_from_tool(p, target)),
             tool_rxy: tool_rx * super::frame::rot_y(v[10] * DEG),
             tool_rx,
             world_from_base: self.world_from_base(p),

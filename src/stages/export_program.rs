@@ -4,22 +4,29 @@
 //! table; the runner publishes and caches them beside other stages' tables.
 //!
 //! The conventions live in `crate::export`; this file reads the rows, checks
-//! the settings (names must be identifiers the controllers accept) and decides
-//! what to do with rows whose status is not `ok` (`on_failed`).
+//! the settings (names must be identifiers the controllers accept), decides
+//! what to do with rows whose status is not `ok` (`on_failed`), and which tool
+//! the programs declare (`program_tools`): the calibrated tool of the
+//! commands' target (SMR) in the `parameters` input, the row's own with a
+//! `tool_id` column (spec §8: every stage that evaluates the model uses the
+//! row's target), else the robot file's `[tool]`.
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
-    TableSlot, model_name_problem,
+    TableSlot, model_name_problem, model_set,
 };
-use crate::export::{self, Command, MotionSettings, Motions, Provenance, krl, rapid, urdf};
-use crate::robot::ParamValues;
-use crate::table::parameters::{self, ModelName};
+use crate::export::cartesian::{self, Payload, ProgramTool};
+use crate::export::{
+    self, Command, MotionSettings, Motions, Program, Provenance, krl, rapid, urdf,
+};
+use crate::robot::{Frame, Robot};
+use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
     self, COMMAND_POSITION_COLUMNS, COMMAND_QUATERNION_COLUMNS, JOINT_COLUMNS, f64_values,
-    i64_values, str_values,
+    i64_values, optional_f64_values, optional_str_values, str_values,
 };
 use crate::table::{self as tables, TableError};
 
@@ -74,7 +81,8 @@ pub struct ExportProgramSettings {
     /// Files to write; by default every format that applies (URDF only with a
     /// `parameters` input).
     pub formats: Option<Vec<ProgramFormat>>,
-    /// Model of the `parameters` input the URDF shows.
+    /// Model of the `parameters` input whose calibrated tool the programs
+    /// declare and the URDF shows: the one the commands were compensated with.
     pub model: String,
     /// RAPID module and KRL program name (and the files' base name): a letter,
     /// then letters, digits or `_`; at most 24 characters with KRL, 32 with RAPID.
@@ -88,18 +96,21 @@ pub struct ExportProgramSettings {
     /// `fine` (exact stop) or a RAPID predefined zone `z0` … `z200` (KRL:
     /// `$APO.CDIS` with `C_DIS` on linear moves).
     pub zone: String,
-    /// RAPID tooldata name; it must hold the robot file's nominal tool.
+    /// Name of the RAPID `PERS tooldata` the module declares (with `_1` … when
+    /// the rows use several tools): the tool whose poses the robtargets are.
+    /// Not `tool0`, ABB's flange, which cannot be redefined.
     pub tool_name: String,
-    /// RAPID work object name; it must be the robot base frame.
+    /// Name of the RAPID `PERS wobjdata` the module declares: the robot base.
     pub wobj_name: String,
-    /// KRL `TOOL_DATA` index of the robot file's nominal tool (0 = `$NULLFRAME`,
-    /// the flange; KUKA's array has 16 entries).
-    #[schemars(range(min = 0, max = 16))]
-    pub krl_tool: u32,
-    /// KRL `BASE_DATA` index of the robot base frame (0 = `$NULLFRAME`; KUKA's
-    /// array has 32 entries).
-    #[schemars(range(min = 0, max = 32))]
-    pub krl_base: u32,
+    /// The target (SMR) id, in a several-target `parameters` input, whose
+    /// calibrated tool the commands were computed for; needed when the commands
+    /// table has no `tool_id` column and the set has several targets.
+    pub tool_target: Option<String>,
+    /// Approach and retract moves (drilling), mm: the Cartesian path moves to
+    /// the point this far back along the tool's z axis before and after each
+    /// target, which it reaches with an exact stop. 0 = off.
+    #[schemars(range(min = 0.0, max = 1000.0))]
+    pub approach_mm: f64,
     /// `joint`, `linear` or `both`.
     pub motion: MotionSetting,
     /// Rows whose status is not `ok`: `skip` (named in the headers) or `fail`.
@@ -115,10 +126,10 @@ impl Default for ExportProgramSettings {
             speed_mm_s: 100.0,
             joint_speed_percent: 20.0,
             zone: "fine".into(),
-            tool_name: "tool0".into(),
-            wobj_name: "wobj0".into(),
-            krl_tool: 1,
-            krl_base: 0,
+            tool_name: "egcal_tool".into(),
+            wobj_name: "egcal_wobj".into(),
+            tool_target: None,
+            approach_mm: 0.0,
             motion: MotionSetting::Joint,
             on_failed: OnFailedSetting::Skip,
         }
@@ -165,19 +176,19 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Programs for the controller from joint commands: ABB RAPID (.mod), KUKA KRL (.src/.dat), CSV, and a URDF of the calibrated geometry",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "commands",
             schema: schema::commands,
             required: true,
-            meaning: "joint commands and corrected Cartesian targets (compensate)",
+            meaning: "joint commands and corrected Cartesian targets (compensate); an optional utf8 `tool_id` names each row's target (SMR)",
         },
         TableSlot {
             name: "parameters",
             schema: schema::parameters,
             required: false,
-            meaning: "identified parameters; the URDF shows the model `model`",
+            meaning: "identified parameters: the programs' tool is the calibrated tool of `model` (of the rows' `tool_id` or `tool_target`); the URDF shows that model",
         },
     ],
     outputs: &[],
@@ -224,10 +235,11 @@ impl Stage for ExportProgramStage {
                 rapid::MAX_IDENTIFIER_LEN,
                 "RAPID",
             ));
+            // Room for the suffix `_1` … `_8` of several tools.
             name_checks.push((
                 "tool_name",
                 &settings.tool_name,
-                rapid::MAX_IDENTIFIER_LEN,
+                rapid::MAX_IDENTIFIER_LEN - 2,
                 "RAPID",
             ));
             name_checks.push((
@@ -255,8 +267,46 @@ impl Stage for ExportProgramStage {
                 problems.push(SettingsProblem::new(key, message));
             }
         }
+        if rapid && !problems.iter().any(|p| p.key == "tool_name") {
+            let several = format!("{}_1", settings.tool_name);
+            if let Some(message) = export::generated_name_clash(&several) {
+                problems.push(SettingsProblem::new(
+                    "tool_name",
+                    format!(
+                        "with several tools it becomes `{several}`, `{}_2` …: {message}",
+                        settings.tool_name
+                    ),
+                ));
+            }
+        }
+        if rapid && settings.tool_name.eq_ignore_ascii_case(&settings.wobj_name) {
+            problems.push(SettingsProblem::new(
+                "wobj_name",
+                format!(
+                    "`{}` is also `tool_name`; the module declares both",
+                    settings.wobj_name
+                ),
+            ));
+        }
         if let Err(message) = settings.zone_mm() {
             problems.push(SettingsProblem::new("zone", message));
+        }
+        if settings.approach_mm > 0.0 && settings.motion == MotionSetting::Joint {
+            problems.push(SettingsProblem::new(
+                "approach_mm",
+                "approach moves are linear (MoveL, LIN): set `motion` to `linear` or `both`",
+            ));
+        }
+        match &settings.tool_target {
+            Some(target) if target.is_empty() => problems.push(SettingsProblem::new(
+                "tool_target",
+                "empty: name a target (SMR) id of the parameters, or leave it out",
+            )),
+            Some(_) if !parameters_bound => problems.push(SettingsProblem::new(
+                "tool_target",
+                "`tool_target` picks a calibrated tool of the input `parameters`, which is not bound",
+            )),
+            _ => {}
         }
         problems
     }
@@ -281,11 +331,6 @@ impl Stage for ExportProgramStage {
                 failed.join(", ")
             )));
         }
-        let provenance = Provenance {
-            version: env!("CARGO_PKG_VERSION").to_string(),
-            source: describe(&input.path, &input.df),
-            robot: ctx.robot.spec().name.clone(),
-        };
         let motion = MotionSettings {
             name: settings.module_name.clone(),
             speed_mm_s: settings.speed_mm_s,
@@ -297,31 +342,65 @@ impl Stage for ExportProgramStage {
                 joint: settings.motion != MotionSetting::Linear,
                 linear: settings.motion != MotionSetting::Joint,
             },
+            approach_mm: (settings.approach_mm > 0.0 && settings.motion != MotionSetting::Joint)
+                .then_some(settings.approach_mm),
         };
-        let frames = krl::Frames {
-            tool: settings.krl_tool,
-            base: settings.krl_base,
+        let set = model_set(ctx, "parameters", "model", &settings.model)?;
+        let parameters = match &set {
+            Some(set) => Some((set, ctx.input("parameters")?.path.as_path())),
+            None => None,
+        };
+        let (tools, row_tools) = program_tools(
+            ctx.robot,
+            parameters,
+            settings.tool_target.as_deref(),
+            &commands,
+            &input.path,
+        )?;
+        let stops = cartesian::stops(ctx.robot, &commands, &tools, &row_tools, motion.approach_mm)
+            .map_err(|e| StageError::Invalid(format!("{}: {e}", input.path.display())))?;
+        let mut warnings = Vec::new();
+        if let Some(d) = cartesian::table_deviation(&commands, &stops) {
+            warnings.push(format!(
+                "the commands table's Cartesian targets (x_cmd_mm ... qz_cmd) are up to {:.4} mm (target_id {}) and {:.2e} rad from the poses of the declared tool at the joint commands: they were computed for another tool. These files use the declared tool and its poses, which give the same joint commands.",
+                d.position_mm, d.target_id, d.angle_rad
+            ));
+        }
+        let payload = &ctx.robot.spec().payload;
+        let program = Program {
+            commands,
+            tools,
+            stops,
+            payload: (payload.mass_kg > 0.0).then_some(Payload {
+                mass_kg: payload.mass_kg,
+                cog_in_tool_mm: payload.cog_mm,
+            }),
+            warnings,
+            provenance: Provenance {
+                version: env!("CARGO_PKG_VERSION").to_string(),
+                source: describe(&input.path, &input.df),
+                robot: ctx.robot.spec().name.clone(),
+            },
         };
         let mut outputs = StageOutputs::default();
         let name = &settings.module_name;
-        for format in settings.formats(ctx.inputs.contains_key("parameters")) {
+        for format in settings.formats(parameters.is_some()) {
             match format {
                 ProgramFormat::Rapid => {
                     let text = rapid::module(
                         ctx.robot,
-                        &commands,
+                        &program,
                         &motion,
                         &settings.tool_name,
                         &settings.wobj_name,
-                        &provenance,
                     );
                     outputs
                         .files
                         .insert(format!("{name}.mod"), text.into_bytes());
                 }
                 ProgramFormat::Krl => {
-                    let src = krl::src(&commands, &motion, frames, &provenance);
-                    let dat = krl::dat(ctx.robot, &commands, &motion, frames, &provenance);
+                    let src = krl::src(&program, &motion);
+                    let dat = krl::dat(ctx.robot, &program, &motion);
                     outputs
                         .files
                         .insert(format!("{name}.src"), src.into_bytes());
@@ -330,30 +409,224 @@ impl Stage for ExportProgramStage {
                         .insert(format!("{name}.dat"), dat.into_bytes());
                 }
                 ProgramFormat::Csv => {
-                    let text = export::csv::table(&commands, &provenance);
-                    outputs
-                        .files
-                        .insert("commands.csv".into(), text.into_bytes());
+                    outputs.files.insert(
+                        "commands.csv".into(),
+                        export::csv::table(&program).into_bytes(),
+                    );
+                    outputs.files.insert(
+                        export::csv::NOTES_FILE.into(),
+                        export::csv::notes(&program).into_bytes(),
+                    );
                 }
                 ProgramFormat::Urdf => {
-                    let text = urdf_text(ctx, settings)?;
+                    let (set, path) = parameters.ok_or_else(|| {
+                        StageError::Invalid(
+                            "format `urdf` needs the input `parameters` (the calibrated geometry)"
+                                .into(),
+                        )
+                    })?;
+                    let source = urdf::UrdfSource {
+                        version: env!("CARGO_PKG_VERSION").to_string(),
+                        parameters: describe(path, &ctx.input("parameters")?.df),
+                        model: set.model.to_string(),
+                        targets: set.targets.clone(),
+                    };
+                    let text = urdf::robot_urdf(ctx.robot, &set.values, &source);
                     outputs.files.insert("robot.urdf".into(), text.into_bytes());
                 }
             }
         }
-        let exported = commands.len() - failed.len();
+        let exported = program.stops.len();
         outputs
             .facts
             .insert("exported".into(), exported.to_string());
         outputs
             .facts
             .insert("skipped".into(), failed.len().to_string());
+        outputs
+            .facts
+            .insert("tools".into(), program.tools.len().to_string());
+        // Printed by `egcal stage` and `egcal run`, cached or not.
+        if !program.warnings.is_empty() {
+            outputs
+                .facts
+                .insert("warning".into(), program.warnings.join(" | "));
+        }
         outputs.facts.insert(
             "files".into(),
             outputs.files.keys().cloned().collect::<Vec<_>>().join(","),
         );
         Ok(outputs)
     }
+}
+
+/// The tools the programs declare (those of the `ok` rows, in target order)
+/// and each row's tool as an index into them (0 for rows that are not `ok`).
+///
+/// Which tool a row's Cartesian target is a pose of, first match wins:
+///
+/// * a `tool_id` column: the row's target in the parameter set (an id the set
+///   does not have is an error naming it and the set's ids; without a
+///   `parameters` input, the robot file's `[tool]` for a single id);
+/// * the setting `tool_target`: that target of a several-target set;
+/// * the set's one target; a several-target set without either is an error
+///   naming its targets;
+/// * without a `parameters` input, the robot file's `[tool]`.
+///
+/// The calibrated tool, not the robot file's: it is the point the joint
+/// commands put on the targets, so it is the frame linear and approach moves
+/// must move. (Which tool `compensate` wrote `x_cmd_mm …` for does not change
+/// the joint motion at the targets: the poses are recomputed for the declared
+/// tool, [`cartesian`].)
+fn program_tools(
+    robot: &Robot,
+    parameters: Option<(&ParameterSet, &std::path::Path)>,
+    tool_target: Option<&str>,
+    commands: &[Command],
+    commands_path: &std::path::Path,
+) -> Result<(Vec<ProgramTool>, Vec<usize>), StageError> {
+    let has_column = commands.iter().any(|c| c.tool_id.is_some());
+    let invalid = StageError::Invalid;
+    if has_column {
+        if let Some(row) = commands.iter().position(|c| c.tool_id.is_none()) {
+            return Err(invalid(format!(
+                "{}: row {row} (target_id {}): `tool_id` is null; every row needs its target (SMR) id",
+                commands_path.display(),
+                commands[row].target_id
+            )));
+        }
+        if tool_target.is_some() {
+            return Err(invalid(format!(
+                "setting `tool_target` and the column `tool_id` of {} both name the tool; the column names each row's, so leave the setting out",
+                commands_path.display()
+            )));
+        }
+    }
+    let row_ids: Vec<Option<String>> = commands.iter().map(|c| c.tool_id.clone()).collect();
+    // Each row's target index in the set (0 for a one-target set), and the
+    // name of each index for the headers.
+    let (row_targets, target_names): (Vec<usize>, Vec<Option<String>>) = match parameters {
+        Some((set, path)) => {
+            let several = set.targets.len() > 1;
+            let indices = if has_column {
+                set.target_indices(Some(&row_ids)).map_err(|m| {
+                    invalid(format!(
+                        "{}: column `tool_id`: {m} ({})",
+                        commands_path.display(),
+                        path.display()
+                    ))
+                })?
+            } else {
+                let index = match (tool_target, several) {
+                    (Some(target), true) => {
+                        set.targets.iter().position(|t| t == target).ok_or_else(|| {
+                            invalid(format!(
+                                "setting `tool_target`: target `{target}` has no tool translation in model `{}` of {} (it has {})",
+                                set.model,
+                                path.display(),
+                                set.targets.join(", ")
+                            ))
+                        })?
+                    }
+                    (Some(target), false) => {
+                        return Err(invalid(format!(
+                            "setting `tool_target`: model `{}` of {} has one target (x_t, y_t, z_t), not named `{target}`; leave the setting out",
+                            set.model,
+                            path.display()
+                        )));
+                    }
+                    (None, true) => {
+                        return Err(invalid(format!(
+                            "model `{}` of {} has several targets ({}), and {} does not say which one's tool the commands are for (no `tool_id` column): name it with the setting `tool_target`",
+                            set.model,
+                            path.display(),
+                            set.targets.join(", "),
+                            commands_path.display()
+                        )));
+                    }
+                    (None, false) => 0,
+                };
+                vec![index; commands.len()]
+            };
+            let names = if several {
+                set.targets.iter().cloned().map(Some).collect()
+            } else {
+                vec![None]
+            };
+            (indices, names)
+        }
+        None => {
+            let mut ids: Vec<&String> = row_ids.iter().flatten().collect();
+            ids.sort();
+            ids.dedup();
+            if ids.len() > 1 {
+                return Err(invalid(format!(
+                    "{}: column `tool_id` names several targets ({}), but without the input `parameters` egcal knows one tool, the robot file's [tool]: bind the parameters the commands were computed with",
+                    commands_path.display(),
+                    ids.iter()
+                        .map(|s| s.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )));
+            }
+            (
+                vec![0; commands.len()],
+                vec![ids.first().map(|s| (*s).clone())],
+            )
+        }
+    };
+    let mut used: Vec<usize> = commands
+        .iter()
+        .zip(&row_targets)
+        .filter(|(c, _)| c.is_ok())
+        .map(|(_, &t)| t)
+        .collect();
+    used.sort_unstable();
+    used.dedup();
+    let tools = used
+        .iter()
+        .map(|&target| {
+            let (flange_from_tool, source) = match parameters {
+                Some((set, path)) => (
+                    robot.flange_from_tool(&set.values, target),
+                    format!(
+                        "the calibrated tool of model {} in {}",
+                        set.model,
+                        path.file_name().map_or_else(
+                            || path.display().to_string(),
+                            |f| f.to_string_lossy().into_owned()
+                        )
+                    ),
+                ),
+                None => (
+                    robot_file_tool(robot),
+                    "the robot file's [tool] (no parameters input)".to_string(),
+                ),
+            };
+            ProgramTool {
+                target_id: target_names[target].clone(),
+                source,
+                flange_from_tool,
+            }
+        })
+        .collect();
+    let row_tools = commands
+        .iter()
+        .zip(&row_targets)
+        .map(|(c, t)| {
+            if c.is_ok() {
+                used.iter().position(|u| u == t).unwrap_or(0)
+            } else {
+                0
+            }
+        })
+        .collect();
+    Ok((tools, row_tools))
+}
+
+/// The robot file's nominal flange → tool.
+fn robot_file_tool(robot: &Robot) -> Frame {
+    robot.flange_from_tool(&crate::robot::ParamValues::nominal(robot.spec()), 0)
 }
 
 /// A table's file name and content hash, for the headers (not the full path,
@@ -364,33 +637,6 @@ fn describe(path: &std::path::Path, df: &polars::prelude::DataFrame) -> String {
         |f| f.to_string_lossy().into_owned(),
     );
     format!("{file} (content hash {})", &tables::content_hash(df))
-}
-
-fn urdf_text(ctx: &StageContext, settings: &ExportProgramSettings) -> Result<String, StageError> {
-    let table = ctx.input("parameters")?;
-    let model: ModelName = settings
-        .model
-        .parse()
-        .map_err(|m: String| StageError::Invalid(format!("setting `model`: {m}")))?;
-    let nominal = ParamValues::nominal(ctx.robot.spec());
-    let set = parameters::from_frame(&table.df, &table.path, &nominal)?
-        .into_iter()
-        .find(|s| s.model == model)
-        .ok_or_else(|| {
-            StageError::Table(TableError::BadValue {
-                file: table.path.clone(),
-                column: "model".into(),
-                row: 0,
-                message: format!("no rows for model `{model}`"),
-            })
-        })?;
-    let source = urdf::UrdfSource {
-        version: env!("CARGO_PKG_VERSION").to_string(),
-        parameters: describe(&table.path, &table.df),
-        model: model.to_string(),
-        targets: set.targets.clone(),
-    };
-    Ok(urdf::robot_urdf(ctx.robot, &set.values, &source))
 }
 
 /// The rows of a checked `commands` table; a quaternion far from unit length is
@@ -416,6 +662,13 @@ pub fn read_commands(
         .iter()
         .map(|c| f64_values(df, c, path))
         .collect::<Result<_, _>>()?;
+    // Optional: each row's target (SMR), and the envelope columns of spec §8.
+    let tool_id = optional_str_values(df, "tool_id", path)?;
+    let envelope_distance = optional_f64_values(df, "envelope_distance", path)?;
+    let u95_mm = optional_f64_values(df, "u95_mm", path)?;
+    let at = |column: &Option<Vec<Option<f64>>>, row: usize| {
+        column.as_ref().and_then(|c| c[row]).filter(|v| !v.is_nan())
+    };
     let mut rows = Vec::with_capacity(ids.len());
     for (row, id) in ids.iter().enumerate() {
         let q: [f64; 4] = std::array::from_fn(|k| quaternion[k][row]);
@@ -439,6 +692,9 @@ pub fn read_commands(
             elastic_mm: elastic[row],
             position_mm: std::array::from_fn(|k| position[k][row]),
             quaternion_wxyz: q,
+            tool_id: tool_id.as_ref().and_then(|c| c[row].clone()),
+            envelope_distance: at(&envelope_distance, row),
+            u95_mm: at(&u95_mm, row),
         });
     }
     Ok(rows)

@@ -1813,6 +1813,56 @@ pub fn i64_values(df: &DataFrame, name: &str, file: &Path) -> Result<Vec<i64>, T
     Ok(values.iter().map(|v| v.unwrap_or_default()).collect())
 }
 
+/// Values of an optional column the schema does not declare: `None` when the
+/// table has no such column, else its values (nulls as `None`); a column of
+/// another type than `dtype` is an error naming it. An all-null column written
+/// by pandas (type null) reads as nulls.
+fn optional_values<T>(
+    df: &DataFrame,
+    name: &str,
+    file: &Path,
+    dtype: ColumnType,
+    values: impl Fn(&Column) -> PolarsResult<Vec<Option<T>>>,
+) -> Result<Option<Vec<Option<T>>>, TableError> {
+    let Ok(column) = df.column(name) else {
+        return Ok(None);
+    };
+    if column.dtype() == &DataType::Null {
+        return Ok(Some((0..df.height()).map(|_| None).collect()));
+    }
+    if !dtype.accepts(column.dtype()) {
+        return Err(TableError::WrongType {
+            file: file.to_path_buf(),
+            column: name.to_string(),
+            found: column.dtype().to_string(),
+            expected: format!("{dtype:?}").to_lowercase(),
+        });
+    }
+    values(column).map(Some).map_err(|e| io_error(file, e))
+}
+
+/// [`optional_values`] of a float64 column.
+pub fn optional_f64_values(
+    df: &DataFrame,
+    name: &str,
+    file: &Path,
+) -> Result<Option<Vec<Option<f64>>>, TableError> {
+    optional_values(df, name, file, ColumnType::Float64, |c| {
+        Ok(c.f64()?.iter().collect())
+    })
+}
+
+/// [`optional_values`] of a utf8 column.
+pub fn optional_str_values(
+    df: &DataFrame,
+    name: &str,
+    file: &Path,
+) -> Result<Option<Vec<Option<String>>>, TableError> {
+    optional_values(df, name, file, ColumnType::Utf8, |c| {
+        Ok(c.str()?.iter().map(|v| v.map(str::to_string)).collect())
+    })
+}
+
 /// Values of a utf8 column (nulls as `None`).
 pub fn str_values(
     df: &DataFrame,
@@ -1902,6 +1952,36 @@ mod tests {
         assert!(
             err.to_string()
                 .contains("column `q2_deg` has type str, expected f64"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn optional_columns_are_absent_null_or_of_their_type() {
+        let file = Path::new("commands.parquet");
+        let df = DataFrame::new(
+            2,
+            vec![
+                Column::new("u95_mm".into(), [Some(0.5), None]),
+                Column::full_null("envelope_distance".into(), 2, &DataType::Null),
+                Column::new("tool_id".into(), [3i64, 4]),
+            ],
+        )
+        .unwrap();
+        assert_eq!(optional_f64_values(&df, "missing", file).unwrap(), None);
+        assert_eq!(
+            optional_f64_values(&df, "u95_mm", file).unwrap(),
+            Some(vec![Some(0.5), None])
+        );
+        assert_eq!(
+            optional_f64_values(&df, "envelope_distance", file).unwrap(),
+            Some(vec![None, None])
+        );
+        let err = optional_str_values(&df, "tool_id", file)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("column `tool_id` has type i64, expected utf8"),
             "{err}"
         );
     }
