@@ -509,13 +509,14 @@ fn program_tools(
         Some((set, path)) => {
             let several = set.targets.len() > 1;
             let indices = if has_column {
-                set.target_indices(Some(&row_ids)).map_err(|m| {
-                    invalid(format!(
-                        "{}: column `tool_id`: {m} ({})",
-                        commands_path.display(),
-                        path.display()
-                    ))
-                })?
+                set.target_indices(Some(&row_ids), row_ids.len())
+                    .map_err(|m| {
+                        invalid(format!(
+                            "{}: column `tool_id`: {m} ({})",
+                            commands_path.display(),
+                            path.display()
+                        ))
+                    })?
             } else {
                 let index = match (tool_target, several) {
                     (Some(target), true) => {
