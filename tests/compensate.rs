@@ -89,7 +89,9 @@ fn max_joint_difference_deg(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
 
 /// The corrected Cartesian target from the table's columns (position and
 /// quaternion), to the nominal flange, whose nominal IK must give the command.
-fn command_round_trips(robot: &Robot, command: &Command) -> bool {
+/// The nominal arm's IK of the corrected Cartesian target, with the tool of
+/// `declared` (the calibrated tool a program declares), gives the command back.
+fn command_round_trips(robot: &Robot, declared: &ParamValues, command: &Command) -> bool {
     let [w, x, y, z] = command.quaternion_wxyz_cmd;
     assert!(w >= 0.0, "{command:?}");
     assert!(((w * w + x * x + y * y + z * z).sqrt() - 1.0).abs() < 1e-12);
@@ -99,10 +101,10 @@ fn command_round_trips(robot: &Robot, command: &Command) -> bool {
             .matrix(),
         origin_mm: command.tool_in_base_cmd.origin_mm,
     };
-    // The nominal tool and world = identity: flange_target_in_base then maps base ← tool.
-    let mut nominal_tool = ParamValues::nominal(robot.spec());
-    nominal_tool.0[..6].copy_from_slice(&[0.0; 6]);
-    let flange = ik::flange_target_in_base(robot, &nominal_tool, &tool_in_base);
+    // The declared tool and world = identity: flange_target_in_base then maps base ← tool.
+    let mut tool_only = *declared;
+    tool_only.0[..6].copy_from_slice(&[0.0; 6]);
+    let flange = ik::flange_target_in_base(robot, &tool_only, &tool_in_base);
     ik::solve(robot, &flange)
         .unwrap()
         .iter()
@@ -187,7 +189,7 @@ fn the_calibrated_loaded_model_puts_every_ok_command_on_its_target() {
             "{c:?}"
         );
         assert!(reached.angle_to(&t.tool_in_world) <= 1e-6, "{c:?}");
-        assert!(command_round_trips(&robot, c), "{c:?}");
+        assert!(command_round_trips(&robot, &truth, c), "{c:?}");
         // The elastic part: loaded against rigid calibrated model at the command.
         let unloaded = robot.predict(&rigid, &c.q_deg, &Wrench::zero()).position_mm;
         assert!((c.elastic_mm - (predicted - unloaded).norm()).abs() < 1e-9);

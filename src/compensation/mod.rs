@@ -172,8 +172,9 @@ pub struct Command {
     /// gravity (links and payload) plus the target's wrench.
     pub elastic_mm: f64,
     /// The corrected Cartesian target for a controller with its nominal model:
-    /// nominal forward kinematics of the command with the robot file's flange →
-    /// tool, in the robot base frame.
+    /// nominal forward kinematics of the command with the calibrated flange →
+    /// tool of the row's SMR (the tool `export_program` declares), in the robot
+    /// base frame.
     pub tool_in_base_cmd: Frame,
     /// Its orientation, base←tool, as a unit quaternion (w, x, y, z) with w ≥ 0
     /// (q and −q are the same rotation; the sign is fixed so the table is
@@ -209,6 +210,22 @@ fn controller_model(robot: &Robot, calibrated: &ParamValues, tool: usize) -> Par
         let offset = calibrated.get(ParamId::target_translation(tool, axis))
             - calibrated.get(ParamId::target_translation(0, axis));
         values.0[ParamId::target_translation(0, axis).index()] += offset;
+    }
+    values
+}
+
+/// The nominal arm with the calibrated flange → tool of target `tool` (its
+/// translation and the set's tool rotation): the tool `export` declares in a
+/// program, whose pose at a command is the corrected Cartesian target.
+fn declared_tool_model(robot: &Robot, calibrated: &ParamValues, tool: usize) -> ParamValues {
+    let mut values = ParamValues::nominal(robot.spec());
+    for axis in 0..3 {
+        let slot = ParamId::target_translation(0, axis);
+        values.set(
+            slot,
+            calibrated.get(ParamId::target_translation(tool, axis)),
+        );
+        values.0[9 + axis] = calibrated.0[9 + axis];
     }
     values
 }
@@ -294,9 +311,13 @@ pub fn compensate(
         .collect();
     let calibrated_prepared: Vec<_> = aimed.iter().map(|v| robot.prepare(v)).collect();
     let controller_prepared: Vec<_> = controller.iter().map(|v| robot.prepare(v)).collect();
-    // The corrected Cartesian target is for the controller's one tool, the
-    // robot file's, whichever SMR the row aims.
-    let file_tool = robot.prepare(&controller_model(robot, calibrated, 0));
+    // The corrected Cartesian target is a pose of the tool a program declares
+    // for the row (`export`): the nominal arm with the set's calibrated tool of
+    // the row's SMR, so the table and the programs agree.
+    let declared: Vec<ParamValues> = (0..tools)
+        .map(|k| declared_tool_model(robot, calibrated, k))
+        .collect();
+    let declared_prepared: Vec<_> = declared.iter().map(|v| robot.prepare(v)).collect();
     let found: Vec<Candidates> = targets
         .par_iter()
         .map(|t| candidates(robot, &aimed[t.tool], t))
@@ -351,7 +372,9 @@ pub fn compensate(
                 .transform_point(&controller_tool.origin_mm)
                 - target.tool_in_world.origin_mm)
                 .norm();
-            let tool_in_base_cmd = file_tool.chain(&q, &[0.0; JOINTS]).tool;
+            let tool_in_base_cmd = declared_prepared[target.tool]
+                .chain(&q, &[0.0; JOINTS])
+                .tool;
             Command {
                 q_deg: q,
                 status,

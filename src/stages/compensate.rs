@@ -162,7 +162,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Load-aware compensation: joint commands that put the calibrated, loaded tool on each target, and corrected Cartesian targets for the nominal controller",
-    code_version: 3,
+    code_version: 4,
     inputs: &[
         TableSlot {
             name: "targets",
