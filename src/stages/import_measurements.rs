@@ -32,7 +32,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::import_source::{
-    CsvLayout, FileSettings, Kind, Mapped, Source, cannot_read, read_source,
+    CsvLayout, FileSettings, Kind, Mapped, Source, cannot_read, column_map_problems, read_source,
 };
 pub use super::import_source::{ForceUnit, JointUnit, LengthUnit, MomentUnit, SourceFormat};
 use super::{
@@ -274,14 +274,12 @@ impl ImportMeasurementsSettings {
             has_header: self.has_header,
         }
         .check(job_dir, &mut problems);
-        for key in REQUIRED {
-            if self.columns.get(key).is_none() {
-                problems.push(SettingsProblem::new(
-                    &format!("columns.{key}"),
-                    format!("required: the source column that holds `{key}`"),
-                ));
-            }
-        }
+        column_map_problems(
+            |key| self.columns.get(key),
+            &REQUIRED,
+            CONTRACT.iter().map(|(key, _)| *key),
+            &mut problems,
+        );
         let sigmas = schema::SIGMA_COLUMNS.map(|c| self.columns.get(c).is_some());
         if sigmas.contains(&true) && sigmas.contains(&false) {
             problems.push(SettingsProblem::new(
@@ -309,17 +307,6 @@ impl ImportMeasurementsSettings {
                 problems.push(SettingsProblem::new(
                     &format!("constant.{key}"),
                     format!("`columns.{key}` and `constant.{key}` are both set: choose one"),
-                ));
-            }
-        }
-        for (key, source) in CONTRACT
-            .iter()
-            .filter_map(|(c, _)| self.columns.get(c).map(|s| (*c, s)))
-        {
-            if source.is_empty() {
-                problems.push(SettingsProblem::new(
-                    &format!("columns.{key}"),
-                    "the source column name is empty",
                 ));
             }
         }

@@ -158,6 +158,33 @@ pub struct CsvLayout {
 
 /// The file settings every import stage has, as written (see
 /// `import_measurements`' settings for their meaning).
+/// The problems every column map shares, added to `problems`: a `required`
+/// contract column left unmapped, a `contract` column mapped to an empty name.
+/// `source_of` gives a contract column's source column.
+pub fn column_map_problems<'a>(
+    source_of: impl Fn(&str) -> Option<&'a str>,
+    required: &[&str],
+    contract: impl IntoIterator<Item = &'static str>,
+    problems: &mut Vec<SettingsProblem>,
+) {
+    for key in required {
+        if source_of(key).is_none() {
+            problems.push(SettingsProblem::new(
+                &format!("columns.{key}"),
+                format!("required: the source column that holds `{key}`"),
+            ));
+        }
+    }
+    for key in contract {
+        if source_of(key).is_some_and(str::is_empty) {
+            problems.push(SettingsProblem::new(
+                &format!("columns.{key}"),
+                "the source column name is empty",
+            ));
+        }
+    }
+}
+
 pub struct FileSettings<'s> {
     pub path: &'s str,
     pub format: Option<SourceFormat>,

@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use super::import_source::{
     CsvLayout, FileSettings, ForceUnit, JointUnit, Kind, LengthUnit, Mapped, MomentUnit, Source,
-    SourceFormat, cannot_read, read_source,
+    SourceFormat, cannot_read, column_map_problems, read_source,
 };
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
@@ -256,14 +256,12 @@ impl ImportTargetsSettings {
             has_header: self.has_header,
         }
         .check(job_dir, &mut problems);
-        for key in REQUIRED {
-            if self.columns.get(key).is_none() {
-                problems.push(SettingsProblem::new(
-                    &format!("columns.{key}"),
-                    format!("required: the source column that holds `{key}`"),
-                ));
-            }
-        }
+        column_map_problems(
+            |key| self.columns.get(key),
+            &REQUIRED,
+            CONTRACT.iter().map(|(key, _)| *key),
+            &mut problems,
+        );
         let hints = schema::JOINT_COLUMNS.map(|c| self.columns.get(c).is_some());
         if hints.contains(&true) && hints.contains(&false) {
             problems.push(SettingsProblem::new(
@@ -285,14 +283,6 @@ impl ImportTargetsSettings {
                 problems.push(SettingsProblem::new(
                     &format!("constant.{key}"),
                     format!("`columns.{key}` and `constant.{key}` are both set: choose one"),
-                ));
-            }
-        }
-        for (key, _) in CONTRACT {
-            if self.columns.get(key).is_some_and(str::is_empty) {
-                problems.push(SettingsProblem::new(
-                    &format!("columns.{key}"),
-                    "the source column name is empty",
                 ));
             }
         }
