@@ -21,6 +21,8 @@
 //! exit = 2
 //! stderr = ["job.toml:7", "edge_mm"]   # words that must appear
 //! stdout = []                          # optional
+//! unchanged = ["out/table.parquet"]    # optional: files or folders an earlier
+//!                                      # step wrote, byte-identical after this one
 //! ```
 //!
 //! Each case runs in its own temporary folder, which also holds `robots/`,
@@ -70,6 +72,33 @@ struct Step {
     stderr: Vec<String>,
     #[serde(default)]
     stdout: Vec<String>,
+    /// Files or folders (relative to the case folder) that this step must leave
+    /// byte for byte as it found them: a bad input damages nothing already written.
+    #[serde(default)]
+    unchanged: Vec<String>,
+}
+
+/// Every file under `path` (or `path` itself) with its bytes, sorted by path.
+fn snapshot(path: &Path) -> Result<Vec<(PathBuf, Vec<u8>)>, String> {
+    let meta = std::fs::symlink_metadata(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    if meta.is_file() {
+        let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        return Ok(vec![(path.to_path_buf(), bytes)]);
+    }
+    if !meta.is_dir() {
+        return Ok(Vec::new());
+    }
+    let mut entries: Vec<PathBuf> = std::fs::read_dir(path)
+        .map_err(|e| format!("{}: {e}", path.display()))?
+        .flatten()
+        .map(|e| e.path())
+        .collect();
+    entries.sort();
+    let mut all = Vec::new();
+    for entry in entries {
+        all.extend(snapshot(&entry)?);
+    }
+    Ok(all)
 }
 
 fn cases() -> Vec<PathBuf> {
@@ -80,6 +109,11 @@ fn cases() -> Vec<PathBuf> {
         .map(|e| e.path())
         .filter(|p| p.extension().is_some_and(|e| e == "toml"))
         .collect();
+    // `BAD_INPUT_CASE=word cargo test --test bad_inputs` runs the cases whose
+    // file name contains `word` (the full corpus still runs without it).
+    if let Ok(word) = std::env::var("BAD_INPUT_CASE") {
+        paths.retain(|p| p.to_string_lossy().contains(word.as_str()));
+    }
     paths.sort();
     paths
 }
@@ -206,8 +240,29 @@ fn check_case(path: &Path) -> Vec<String> {
     prepare(&case, dir.path());
     let mut problems = Vec::new();
     for (i, step) in case.step.iter().enumerate() {
-        let (code, stdout, stderr) = run_step(&step.args, dir.path());
         let label = format!("{name} ({}) step {i} `{}`", case.about, step.args.join(" "));
+        let mut before = Vec::new();
+        for kept in &step.unchanged {
+            match snapshot(&dir.path().join(kept)) {
+                Ok(files) if !files.is_empty() => before.push((kept, files)),
+                Ok(_) => problems.push(format!(
+                    "{label}: `unchanged` names {kept}, which holds no file before the step"
+                )),
+                Err(e) => problems.push(format!(
+                    "{label}: `unchanged` names {kept}, which is not there before the step: {e}"
+                )),
+            }
+        }
+        let (code, stdout, stderr) = run_step(&step.args, dir.path());
+        for (kept, files) in &before {
+            match snapshot(&dir.path().join(kept)) {
+                Ok(after) if &after == files => {}
+                Ok(_) => problems.push(format!(
+                    "{label}: {kept} was changed by a step that had to leave it alone"
+                )),
+                Err(e) => problems.push(format!("{label}: {kept} is gone after the step: {e}")),
+            }
+        }
         match code {
             Ok(code) if code == step.exit => {}
             Ok(code) => problems.push(format!(
@@ -241,7 +296,7 @@ fn check_case(path: &Path) -> Vec<String> {
 fn every_bad_input_ends_in_a_clear_error() {
     let cases = cases();
     assert!(
-        cases.len() >= 20,
+        cases.len() >= 20 || std::env::var("BAD_INPUT_CASE").is_ok(),
         "the corpus shrank: {} cases",
         cases.len()
     );
