@@ -19,6 +19,7 @@ use nalgebra::{Matrix3, Vector3};
 use std::path::Path;
 
 use super::CommandError;
+use crate::robot::file::MAX_LENGTH_MM;
 use crate::robot::frame::{rot_x, rot_y, rot_z};
 use crate::robot::{Frame, RobotSpec};
 use crate::table::{self, TableError};
@@ -110,10 +111,29 @@ pub fn frame_command(
                 numbers.len()
             ))
         })?;
-        if numbers.iter().any(|v| !v.is_finite()) {
-            return Err(CommandError::Usage(format!(
-                "--origin-in-tracker: expected finite numbers, found {numbers:?}"
-            )));
+        // The same bounds a robot file's `[world]` is held to: the numbers this
+        // prints must load.
+        let names = ["x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"];
+        for (k, (name, value)) in names.iter().zip(numbers).enumerate() {
+            let (ok, expected) = if k < 3 {
+                (
+                    value.abs() <= MAX_LENGTH_MM,
+                    format!("a finite length within ±{MAX_LENGTH_MM} mm"),
+                )
+            } else {
+                (value.abs() <= 360.0, "a finite angle within ±360°".into())
+            };
+            if !ok {
+                return Err(CommandError::Usage(format!(
+                    "--origin-in-tracker: value {} ({name}) is {}, expected {expected}",
+                    k + 1,
+                    if value.abs() >= 1e9 {
+                        format!("{value:e}")
+                    } else {
+                        format!("{value}")
+                    }
+                )));
+            }
         }
         let [x, y, z, a, b, c] = rot_trans_of(numbers);
         return Ok(format!(

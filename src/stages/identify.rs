@@ -32,6 +32,9 @@ use crate::table::frame;
 use crate::table::parameters::{self, ModelName};
 use crate::table::schema::{self, f64_values, i64_values, str_values};
 
+/// Calibration rows each of several targets needs (see the check in `run`).
+const MIN_ROWS_PER_TARGET: usize = 2;
+
 pub struct IdentifyStage;
 
 /// How the fit steps (see `calibration::fit`).
@@ -443,17 +446,20 @@ pub fn measured_rows(
         Ok(_) => Some(str_values(&table.df, "target_id", &table.path)?),
         Err(_) => None,
     };
-    if let Some((row, _)) = target_ids
+    if let Some((row, message)) = target_ids
         .iter()
         .flatten()
         .enumerate()
-        .find(|(_, id)| id.as_deref().is_none_or(str::is_empty))
+        .find_map(|(row, id)| {
+            crate::table::parameters::target_id_problem(id.as_deref().unwrap_or_default())
+                .map(|m| (row, m))
+        })
     {
         return Err(StageError::Table(crate::table::TableError::BadValue {
             file: table.path.clone(),
             column: "target_id".into(),
             row,
-            message: "expected a target id, found an empty or null value".into(),
+            message,
         }));
     }
     let sigma_present: Vec<bool> = schema::SIGMA_COLUMNS
@@ -644,6 +650,19 @@ impl Stage for IdentifyStage {
                 targets.iter().position(|t| t == id).unwrap_or(0)
             })
             .collect();
+        // A target's translation takes three equations: a target measured on one
+        // row absorbs that row whole, and nothing checks it.
+        if targets.len() > 1 {
+            for (index, id) in targets.iter().enumerate() {
+                let rows = target_of_row.iter().filter(|t| **t == index).count();
+                if rows < MIN_ROWS_PER_TARGET {
+                    return Err(StageError::Invalid(format!(
+                        "{}: target `{id}` has {rows} calibration row(s) after the selection and row checks; each of several targets needs at least {MIN_ROWS_PER_TARGET} (its translation alone takes 3 equations per row); measure it more or drop its rows",
+                        measurements.path.display(),
+                    )));
+                }
+            }
+        }
         data.set_targets(&target_of_row);
         // A fixed tool translation holds every target's.
         let tool_fixed: Vec<(ParamId, f64)> = fixed

@@ -203,12 +203,44 @@ impl ParameterSet {
     }
 }
 
+/// Why `id` cannot name a target, or `None` when it can. A target id becomes
+/// part of the parameter names `x_t[ID]` and of the programs' tool names, so
+/// it must read back the same: printable, without brackets, commas or quotes,
+/// without surrounding spaces (` a` and `a` would be two SMRs), at most 64
+/// characters.
+pub fn target_id_problem(id: &str) -> Option<String> {
+    const MAX_CHARS: usize = 64;
+    if id.is_empty() {
+        return Some("expected a target id, found an empty or null value".into());
+    }
+    if id.trim() != id {
+        return Some(format!(
+            "target id {id:?} starts or ends with white space (it would name another target than {:?})",
+            id.trim()
+        ));
+    }
+    if id.chars().count() > MAX_CHARS {
+        return Some(format!(
+            "target id {id:?} is longer than {MAX_CHARS} characters"
+        ));
+    }
+    if let Some(bad) = id
+        .chars()
+        .find(|c| c.is_control() || matches!(c, '[' | ']' | ',' | '"' | '\'' | '\\'))
+    {
+        return Some(format!(
+            "target id {id:?} holds {bad:?}; a target id is printable text without brackets, commas, quotes or backslashes"
+        ));
+    }
+    None
+}
+
 /// Splits `x_t[ID]` into the axis and the target id.
 fn parse_target_name(name: &str) -> Option<(usize, &str)> {
     let (base, rest) = name.split_once('[')?;
     let id = rest.strip_suffix(']')?;
     let axis = TOOL_TRANSLATION_NAMES.iter().position(|n| *n == base)?;
-    (!id.is_empty()).then_some((axis, id))
+    target_id_problem(id).is_none().then_some((axis, id))
 }
 
 /// The table for `sets`, with `nominal` in the `nominal` column.
