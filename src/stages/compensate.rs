@@ -220,11 +220,12 @@ impl CompensateSettings {
                 ));
             }
             let distance = Vector3::new(pose[0], pose[1], pose[2]).norm();
-            if !pose.iter().all(|v| v.is_finite()) || distance > MAX_POSITION_MM {
+            let angles_ok = pose[3..].iter().all(|a| a.abs() <= 360.0);
+            if !pose.iter().all(|v| v.is_finite()) || distance > MAX_POSITION_MM || !angles_ok {
                 problems.push(SettingsProblem::new(
                     &format!("frames.{name}"),
                     format!(
-                        "expected [x_mm, y_mm, z_mm, rx_deg, ry_deg, rz_deg] with the origin within {MAX_POSITION_MM} mm of the base, found {pose:?}"
+                        "expected [x_mm, y_mm, z_mm, rx_deg, ry_deg, rz_deg] with the origin within {MAX_POSITION_MM} mm of the base and the angles within ±360°, found {pose:?}"
                     ),
                 ));
             }
@@ -242,7 +243,12 @@ impl CompensateSettings {
         }
         let known: Vec<&str> = [WORLD_FRAME, BASE_FRAME]
             .into_iter()
-            .chain(self.frames.keys().map(String::as_str))
+            .chain(
+                self.frames
+                    .keys()
+                    .map(String::as_str)
+                    .filter(|k| *k != WORLD_FRAME && *k != BASE_FRAME),
+            )
             .collect();
         Some(format!(
             "unknown frame `{name}`{}; the frames are {} (user frames are declared in the setting `frames`)",
