@@ -20,10 +20,28 @@ use crate::table::schema::{self, POSITION_COLUMNS, f64_values, i64_values};
 
 pub struct AccuracyStage;
 
-/// Settings of `accuracy` (none: the runs are its inputs).
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
+/// Farthest a target may lie from the origin of its frame (mm), as in a robot
+/// file's lengths: a larger number is a unit or a typing error.
+const MAX_POSITION_MM: f64 = crate::robot::file::MAX_LENGTH_MM;
+
+/// Settings of `accuracy`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
-pub struct AccuracySettings {}
+pub struct AccuracySettings {
+    /// A measured point farther than this from its target (mm) refuses the
+    /// run: it was another target, another frame or another unit, not an error
+    /// of the robot. The default, 50 mm, is ten times what an uncalibrated
+    /// industrial arm misses by.
+    #[schemars(range(max = 100_000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub max_error_mm: f64,
+}
+
+impl Default for AccuracySettings {
+    fn default() -> Self {
+        Self { max_error_mm: 50.0 }
+    }
+}
 
 type TwoSampleTest = fn(&[f64], &[f64]) -> Result<stats::TestResult, stats::StatsError>;
 
@@ -82,7 +100,11 @@ impl Stage for AccuracyStage {
         &INFO
     }
 
-    fn run(&self, ctx: &StageContext, _: &AccuracySettings) -> Result<StageOutputs, StageError> {
+    fn run(
+        &self,
+        ctx: &StageContext,
+        settings: &AccuracySettings,
+    ) -> Result<StageOutputs, StageError> {
         let targets = ctx.input("targets")?;
         super::compensate::world_frame_rows_only(targets, "accuracy")?;
         let targets = target_points(targets)?;
@@ -93,7 +115,13 @@ impl Stage for AccuracyStage {
         let mut errors = ErrorColumns::default();
         let mut norms_by_run = Vec::with_capacity(runs.len());
         for (run, table) in &runs {
-            norms_by_run.push(run_errors(run, table, &targets.points, &mut errors)?);
+            norms_by_run.push(run_errors(
+                run,
+                table,
+                &targets.points,
+                settings.max_error_mm,
+                &mut errors,
+            )?);
         }
         // Compared on the targets every run reached: a compensation that
         // leaves out its unreachable targets must not look better for it.
@@ -166,6 +194,14 @@ fn target_points(table: &InputTable) -> Result<TargetPoints, StageError> {
     let mut points = HashMap::with_capacity(ids.len());
     for (k, id) in ids.iter().enumerate() {
         let point = Vector3::new(axes[0][k], axes[1][k], axes[2][k]);
+        if let Some(axis) = (0..3).find(|a| point[*a].abs() > MAX_POSITION_MM) {
+            return Err(StageError::Invalid(format!(
+                "{}: row {k} (target_id {id}): {} = {} lies beyond ±{MAX_POSITION_MM} mm; expected a point of the robot's cell in mm",
+                table.path.display(),
+                POSITION_COLUMNS[axis],
+                crate::table::readable_number(point[axis])
+            )));
+        }
         if points.insert(*id, point).is_some() {
             return Err(StageError::Invalid(format!(
                 "{}: row {k}: target_id {id} appears twice",
@@ -183,6 +219,7 @@ fn run_errors(
     run: &'static str,
     table: &InputTable,
     targets: &HashMap<i64, Vector3<f64>>,
+    max_error_mm: f64,
     errors: &mut ErrorColumns,
 ) -> Result<HashMap<i64, f64>, StageError> {
     let rows = measured_rows(table, None)?;
@@ -195,7 +232,24 @@ fn run_errors(
                 rows.file_rows[k]
             ))
         })?;
+        if let Some(axis) = (0..3).find(|a| rows.positions[k][*a].abs() > MAX_POSITION_MM) {
+            return Err(StageError::Invalid(format!(
+                "{}: row {} (cw_id {id}): {} = {} lies beyond ±{MAX_POSITION_MM} mm; expected a tracker reading in mm",
+                table.path.display(),
+                rows.file_rows[k],
+                POSITION_COLUMNS[axis],
+                crate::table::readable_number(rows.positions[k][axis])
+            )));
+        }
         let error = rows.positions[k] - target;
+        if !(error.norm() <= max_error_mm) {
+            return Err(StageError::Invalid(format!(
+                "{}: row {} (cw_id {id}): the measured point lies {} mm from its target, more than max_error_mm = {max_error_mm}: another target, frame or unit? (raise the setting if the robot really missed by that much)",
+                table.path.display(),
+                rows.file_rows[k],
+                crate::table::readable_number(error.norm())
+            )));
+        }
         if norms.insert(*id, error.norm()).is_some() {
             return Err(StageError::Invalid(format!(
                 "{}: row {}: target {id} was measured twice; keep one row per target",
