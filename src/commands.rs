@@ -435,11 +435,30 @@ pub fn stage(
 /// `egcal publish`: puts a parameters table in service by hand (the first
 /// calibration of a cell, or a rollback): `dir/current.parquet`, the previous one
 /// kept as `retired-<date>.parquet`.
-pub fn publish(parameters: &Path, dir: &Path, day: i64) -> Result<String, CommandError> {
+pub fn publish(
+    parameters: &Path,
+    dir: &Path,
+    day: i64,
+    accept_implausible: bool,
+) -> Result<String, CommandError> {
     let checked = table::read_checked(parameters, &table::schema::parameters())?;
     if checked.height() == 0 {
         return Err(CommandError::Usage(format!(
             "{}: the parameters table is empty",
+            parameters.display()
+        )));
+    }
+    // What a controller would load is held to identify's own bounds.
+    let defaults = crate::stages::identify::IdentifySettings::default();
+    if let Some(problem) = table::parameters::implausible_row(
+        &checked,
+        parameters,
+        defaults.plausible_length_mm,
+        defaults.plausible_angle_deg,
+        accept_implausible,
+    )? {
+        return Err(CommandError::Usage(format!(
+            "{}: {problem}; nothing was put in service",
             parameters.display()
         )));
     }

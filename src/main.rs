@@ -139,6 +139,11 @@ enum Command {
         /// Date the replaced file is retired under, YYYY-MM-DD (default: today, UTC).
         #[arg(long, value_parser = parse_run_date)]
         date: Option<i64>,
+        /// Put in service a set whose length or angle errors lie beyond
+        /// identify's default plausibility bounds (10 mm, 2°): a robot that
+        /// truly differs that much from its file. Absurd values stay refused.
+        #[arg(long)]
+        accept_implausible: bool,
     },
     /// Stage kinds with their inputs, outputs and settings (with defaults).
     ListStages,
@@ -400,10 +405,12 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
             parameters,
             to,
             date,
+            accept_implausible,
         } => commands::publish(
             &parameters,
             &to,
             date.unwrap_or_else(egcal::table::time::today),
+            accept_implausible,
         )
         .map(Finished::from),
         Command::LabDriver { cell } => commands::lab_driver(&cell).map(Finished::from),

@@ -235,6 +235,65 @@ pub fn target_id_problem(id: &str) -> Option<String> {
     None
 }
 
+/// Largest compliance a parameters table may hold (deg/(N·m)): a joint that
+/// turned a degree per newton-metre would not hold its own arm.
+pub const MAX_COMPLIANCE_DEG_PER_NM: f64 = 1.0;
+
+/// The first row of a parameters table (already schema-checked) whose value or
+/// nominal no robot could have: a length beyond ±[`crate::robot::file::MAX_LENGTH_MM`],
+/// an angle beyond ±360°, a compliance beyond ±[`MAX_COMPLIANCE_DEG_PER_NM`];
+/// and, unless `accept_deviation`, an identified length or angle error
+/// (`da`, `dd`, `dtheta`, `dalpha`) farther from nominal than identify's
+/// default plausibility bounds (`max_deviation_mm`, `max_deviation_deg`).
+pub fn implausible_row(
+    df: &DataFrame,
+    file: &Path,
+    max_deviation_mm: f64,
+    max_deviation_deg: f64,
+    accept_deviation: bool,
+) -> Result<Option<String>, TableError> {
+    let names = str_values(df, "name", file)?;
+    let units = str_values(df, "unit", file)?;
+    let statuses = str_values(df, "status", file)?;
+    let models = str_values(df, "model", file)?;
+    let values = f64_values(df, "value", file)?;
+    let nominals = f64_values(df, "nominal", file)?;
+    for row in 0..df.height() {
+        let name = names[row].as_deref().unwrap_or_default();
+        let unit = units[row].as_deref().unwrap_or_default();
+        let model = models[row].as_deref().unwrap_or_default();
+        let bound = match unit {
+            "mm" => crate::robot::file::MAX_LENGTH_MM,
+            "deg" => 360.0,
+            _ => MAX_COMPLIANCE_DEG_PER_NM,
+        };
+        for (column, value) in [("value", values[row]), ("nominal", nominals[row])] {
+            if value.abs() > bound {
+                return Ok(Some(format!(
+                    "row {row} (model {model}, `{name}`): {column} = {} {unit} lies beyond ±{bound} {unit}",
+                    super::readable_number(value)
+                )));
+            }
+        }
+        let is_error = ["da", "dd", "dtheta", "dalpha"].iter().any(|prefix| {
+            name.strip_prefix(prefix)
+                .is_some_and(|rest| rest.len() == 1 && rest.chars().all(|c| c.is_ascii_digit()))
+        });
+        let deviation = values[row] - nominals[row];
+        let limit = if unit == "mm" { max_deviation_mm } else { max_deviation_deg };
+        if is_error
+            && !accept_deviation
+            && statuses[row].as_deref() == Some("identified")
+            && deviation.abs() > limit
+        {
+            return Ok(Some(format!(
+                "row {row} (model {model}, `{name}`): {deviation:+.4} {unit} from nominal, beyond the plausible ±{limit} {unit} identify accepts by default; a unit, joint zero or sign, or the robot file is wrong (put it in service anyway with --accept-implausible)"
+            )));
+        }
+    }
+    Ok(None)
+}
+
 /// Splits `x_t[ID]` into the axis and the target id.
 fn parse_target_name(name: &str) -> Option<(usize, &str)> {
     let (base, rest) = name.split_once('[')?;
