@@ -458,8 +458,7 @@ pub fn publish(
         accept_implausible,
     )? {
         return Err(CommandError::Usage(format!(
-            "{}: {problem}; nothing was put in service",
-            parameters.display()
+            "{problem}; nothing was put in service"
         )));
     }
     let bytes = std::fs::read(parameters)

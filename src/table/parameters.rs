@@ -251,7 +251,7 @@ pub fn implausible_row(
     max_deviation_mm: f64,
     max_deviation_deg: f64,
     accept_deviation: bool,
-) -> Result<Option<String>, TableError> {
+) -> Result<Option<TableError>, TableError> {
     let names = str_values(df, "name", file)?;
     let units = str_values(df, "unit", file)?;
     let statuses = str_values(df, "status", file)?;
@@ -262,17 +262,24 @@ pub fn implausible_row(
         let name = names[row].as_deref().unwrap_or_default();
         let unit = units[row].as_deref().unwrap_or_default();
         let model = models[row].as_deref().unwrap_or_default();
+        // A unit the table may not hold is reported by the reader's unit check.
         let bound = match unit {
             "mm" => crate::robot::file::MAX_LENGTH_MM,
             "deg" => 360.0,
-            _ => MAX_COMPLIANCE_DEG_PER_NM,
+            "deg/(N·m)" => MAX_COMPLIANCE_DEG_PER_NM,
+            _ => continue,
         };
         for (column, value) in [("value", values[row]), ("nominal", nominals[row])] {
             if value.abs() > bound {
-                return Ok(Some(format!(
-                    "row {row} (model {model}, `{name}`): {column} = {} {unit} lies beyond ±{bound} {unit}",
-                    super::readable_number(value)
-                )));
+                return Ok(Some(TableError::BadValue {
+                    file: file.to_path_buf(),
+                    column: column.into(),
+                    row,
+                    message: format!(
+                        "model {model}, `{name}` = {} {unit} lies beyond ±{bound} {unit}",
+                        super::readable_number(value)
+                    ),
+                }));
             }
         }
         let is_error = ["da", "dd", "dtheta", "dalpha"].iter().any(|prefix| {
@@ -280,15 +287,24 @@ pub fn implausible_row(
                 .is_some_and(|rest| rest.len() == 1 && rest.chars().all(|c| c.is_ascii_digit()))
         });
         let deviation = values[row] - nominals[row];
-        let limit = if unit == "mm" { max_deviation_mm } else { max_deviation_deg };
+        let limit = if unit == "mm" {
+            max_deviation_mm
+        } else {
+            max_deviation_deg
+        };
         if is_error
             && !accept_deviation
             && statuses[row].as_deref() == Some("identified")
             && deviation.abs() > limit
         {
-            return Ok(Some(format!(
-                "row {row} (model {model}, `{name}`): {deviation:+.4} {unit} from nominal, beyond the plausible ±{limit} {unit} identify accepts by default; a unit, joint zero or sign, or the robot file is wrong (put it in service anyway with --accept-implausible)"
-            )));
+            return Ok(Some(TableError::BadValue {
+                file: file.to_path_buf(),
+                column: "value".into(),
+                row,
+                message: format!(
+                    "model {model}, `{name}` lies {deviation:+.4} {unit} from nominal, beyond the plausible ±{limit} {unit} identify accepts by default; a unit, joint zero or sign, or the robot file is wrong (put it in service anyway with --accept-implausible)"
+                ),
+            }));
         }
     }
     Ok(None)
@@ -369,6 +385,10 @@ pub fn from_frame(
         row,
         message,
     };
+    // A value no robot has (1e300 mm) would turn every prediction into inf.
+    if let Some(problem) = implausible_row(df, file, f64::INFINITY, f64::INFINITY, true)? {
+        return Err(problem);
+    }
     // First pass: each model's target ids, sorted, so that indices follow them.
     let mut targets: std::collections::BTreeMap<ModelName, std::collections::BTreeSet<String>> =
         Default::default();
