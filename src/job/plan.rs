@@ -150,6 +150,15 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
         ));
     }
 
+    if let Some(problem) = output_holds_the_job(&output_dir, &dir) {
+        let key = if raw.header.output.is_some() {
+            "job.output"
+        } else {
+            "job.name"
+        };
+        problems.push(at(key, problem));
+    }
+
     // Stage ids and kinds first, so references can be resolved in any order.
     let mut ids: HashMap<&str, usize> = HashMap::new();
     let mut kinds: Vec<Option<&'static dyn StageKind>> = Vec::new();
@@ -301,6 +310,48 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
 
 /// The nearest existing ancestor of `dir` (or `dir` itself) when it is not a
 /// folder, so the output folder could never be created under it.
+/// Why `output_dir` cannot be a job's output folder, or `None`: the folder of
+/// the job file itself or one of its ancestors (`""`, `"."`, `".."`, `"/"`),
+/// where stage folders and `.egcal` would sit among the user's own files, and
+/// a stage's table could overwrite an input of the same name.
+fn output_holds_the_job(output_dir: &Path, job_dir: &Path) -> Option<String> {
+    let output = resolved(output_dir);
+    let job = resolved(job_dir);
+    job.starts_with(&output).then(|| {
+        format!(
+            "the output folder `{}` is the job file's folder or holds it; name a folder of its own (e.g. `out/<job name>`)",
+            output_dir.display()
+        )
+    })
+}
+
+/// `path` made absolute, component by component: symbolic links resolved
+/// where the path exists, `.` and `..` applied as the file system would.
+fn resolved(path: &Path) -> PathBuf {
+    use std::path::Component;
+    let absolute = if path.is_absolute() {
+        path.to_path_buf()
+    } else {
+        std::env::current_dir().unwrap_or_default().join(path)
+    };
+    let mut out = PathBuf::new();
+    for part in absolute.components() {
+        match part {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                out.pop();
+            }
+            other => {
+                out.push(other);
+                if let Ok(real) = out.canonicalize() {
+                    out = real;
+                }
+            }
+        }
+    }
+    out
+}
+
 fn non_folder_ancestor(dir: &Path) -> Option<PathBuf> {
     dir.ancestors()
         .find(|p| p.exists())
