@@ -150,6 +150,18 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
         ));
     }
 
+    // The name is the default output folder's last part and a provenance label.
+    let name = raw.header.name.as_str();
+    if name == "."
+        || name == ".."
+        || name.contains(['/', '\\'])
+        || name.chars().any(char::is_control)
+    {
+        problems.push(at(
+            "job.name",
+            format!("job name {name:?} must be one folder name: no `/`, `\\`, control characters, `.` or `..`"),
+        ));
+    }
     if let Some(problem) = output_holds_the_job(&output_dir, &dir) {
         let key = if raw.header.output.is_some() {
             "job.output"
