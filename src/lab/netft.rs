@@ -624,9 +624,24 @@ mod tests {
         assert_eq!(meaning(0), None);
         assert_eq!(meaning(0x0001_0000), None, "a monitor condition latched");
         for (word, code, transient, words) in [
-            (0x8800_0000u32, ErrorCode::OutOfRange, false, "gage out of range"),
-            (0xC000_0000, ErrorCode::OutOfRange, false, "F/T out of range"),
-            (0xA000_0000, ErrorCode::NotReady, false, "calibration checksum"),
+            (
+                0x8800_0000u32,
+                ErrorCode::OutOfRange,
+                false,
+                "gage out of range",
+            ),
+            (
+                0xC000_0000,
+                ErrorCode::OutOfRange,
+                false,
+                "F/T out of range",
+            ),
+            (
+                0xA000_0000,
+                ErrorCode::NotReady,
+                false,
+                "calibration checksum",
+            ),
             (0x8000_0004, ErrorCode::NotReady, false, "broken gage"),
             (0x9000_0000, ErrorCode::NotReady, true, "simulated error"),
             (0x8000_0008, ErrorCode::Busy, true, "busy"),

@@ -17,7 +17,7 @@ use super::emscon::Emscon;
 use super::netft::NetFt;
 use super::rws::Rws;
 use crate::rig::protocol::ErrorCode;
-use crate::rig::{Rig, RigError};
+use crate::rig::{Disposition, Rig, RigError};
 
 /// A device slot: absent from the cell file, connected, or not (yet).
 enum Slot<D> {
@@ -178,9 +178,7 @@ impl LabRig {
     fn devices(&self) -> Vec<(String, Option<&RigError>)> {
         let mut all = Vec::new();
         if let Some(cell::Robot::AbbRws(s)) = &self.cell.robot {
-            let port = s
-                .port
-                .unwrap_or(if s.rws_version == 2 { 443 } else { 80 });
+            let port = s.port.unwrap_or(if s.rws_version == 2 { 443 } else { 80 });
             all.push((
                 format!("[robot] abb_rws at {}:{port}", s.address),
                 slot_error(&self.robot),
@@ -241,10 +239,10 @@ fn slot_error<D>(slot: &Slot<D>) -> Option<&RigError> {
 
 /// Whether a failed connection fails `hello`: the device cannot be reached
 /// (refused, unknown host, no reply in time) or refused the cell file's settings
-/// (any error that is not transient). A transient refusal (busy) is retried at
-/// the first call instead.
+/// (an error the campaign would not retry). One it would retry (busy) is tried
+/// again at the first call instead.
 fn fails_hello(e: &RigError) -> bool {
-    !e.is_transient() || e.code() == Some(ErrorCode::Timeout)
+    e.disposition() != Disposition::Retry || e.code() == Some(ErrorCode::Timeout)
 }
 
 /// The connected device, or why there is none.
