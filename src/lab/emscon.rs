@@ -554,6 +554,34 @@ mod tests {
     }
 
     #[test]
+    fn reflector_records_follow_the_header_layout() {
+        // GetReflectorsRT: BasicCommandRT {100, 0, 42, status}, iTotalReflectors,
+        // iInternalReflectorId, targetType, dSurfaceOffset at 28, name at 36.
+        let mut record = vec![];
+        for v in [100i32, 0, 42, 0, 2, 7, 5] {
+            record.extend(v.to_le_bytes());
+        }
+        record.extend(19.05f64.to_le_bytes());
+        let mut name: Vec<u8> = "RRR 1.5in"
+            .encode_utf16()
+            .flat_map(|c| c.to_le_bytes())
+            .collect();
+        name.resize(64, 0);
+        record.extend(name);
+        assert_eq!(record.len(), GET_REFLECTORS_RT_BYTES);
+        let r = parse_reflector(&record).unwrap().unwrap();
+        assert_eq!((r.status, r.total, r.id), (0, 2, 7));
+        assert_eq!(r.name, "RRR 1.5in");
+        // Not a record: a status-only answer, or another command's packet.
+        assert!(parse_reflector(&record[..16]).is_none());
+        record[8..12].copy_from_slice(&41i32.to_le_bytes());
+        assert!(parse_reflector(&record).is_none());
+        record[8..12].copy_from_slice(&42i32.to_le_bytes());
+        record[16..20].copy_from_slice(&(-1i32).to_le_bytes());
+        assert!(parse_reflector(&record).unwrap().is_err());
+    }
+
+    #[test]
     fn statuses_map_to_the_protocols_codes() {
         let code = |s| status_error(49, s).map(|e| (e.code().unwrap(), e.is_transient()));
         assert_eq!(code(0), None);
