@@ -147,6 +147,33 @@ fn lab_driver(cell: &Path) -> ExternalDriver {
         .expect("the lab driver starts")
 }
 
+/// The error with which `egcal lab-driver` on the cell file fails to start (its
+/// `hello`), as the measure stage reports it.
+fn failed_start(cell: &Path) -> String {
+    let command = vec![
+        env!("CARGO_BIN_EXE_egcal").to_string(),
+        "lab-driver".to_string(),
+        "--cell".to_string(),
+        cell.display().to_string(),
+    ];
+    match ExternalDriver::start(&command, cell.parent().unwrap(), Duration::from_secs(15)) {
+        Ok(_) => panic!("the lab driver answered hello"),
+        Err(e) => {
+            assert!(
+                matches!(e, RigError::Fatal(_)) && e.disposition() == Disposition::Stop,
+                "{e:?}"
+            );
+            e.to_string()
+        }
+    }
+}
+
+/// A loopback port nothing listens on.
+fn closed_port() -> u16 {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    listener.local_addr().unwrap().port()
+}
+
 fn code(result: Result<impl std::fmt::Debug, RigError>) -> (ErrorCode, Disposition, String) {
     let e = result.expect_err("an error");
     (
@@ -230,16 +257,6 @@ fn sensor_faults_are_retried_recorded_or_stop_the_campaign() {
             ErrorCode::SequenceGap,
             Disposition::Retry,
         ),
-        (
-            serde_json::json!({"ati": [{"kind": "status", "word": 0x8002_0000u32, "times": 1}]}),
-            ErrorCode::OutOfRange,
-            Disposition::FailRow,
-        ),
-        (
-            serde_json::json!({"ati": [{"kind": "status", "word": 0xa000_0000u32, "times": 1}]}),
-            ErrorCode::NotReady,
-            Disposition::Retry,
-        ),
     ];
     for (faults, expected_code, expected_disposition) in cases {
         emulator.inject(faults.clone());
@@ -303,15 +320,12 @@ fn a_box_configured_for_other_units_is_refused_when_the_driver_starts() {
         serde_json::json!({"ati_http": [{"kind": "torque_unit", "code": 4, "label": "Nmm"}]}),
     );
     let dir = tempfile::tempdir().unwrap();
-    let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
-    let (c, d, message) = code(driver.read_wrench());
-    assert_eq!(
-        (c, d),
-        (ErrorCode::UnitMismatch, Disposition::Stop),
-        "{message}"
-    );
+    // `hello` fails, naming the device, its address and the units.
+    let message = failed_start(&emulator.cell(dir.path(), ""));
     assert!(
-        message.contains("configured for N and N-mm, the cell file declares N and N-m"),
+        message.contains("configured for N and N-mm, the cell file declares N and N-m")
+            && message.contains("[force_sensor] ati_netft at 127.0.0.1")
+            && message.contains("cell.toml"),
         "{message}"
     );
     // Declared as the box is configured: accepted, and converted to N·m.
@@ -765,4 +779,275 @@ fn the_shipped_example_cell_file_is_valid() {
     let cell = egcal::lab::CellFile::load(&common::root().join("jobs/lab/cell.toml")).unwrap();
     assert!(cell.robot.is_some() && cell.tracker.is_some());
     assert!(cell.force_sensor.is_some() && cell.cable_robot.is_some());
+}
+
+/// A reading whose records carry the status word `word`: its outcome, and the
+/// next reading (without the fault) is right again.
+fn reading_with_status(word: u32) -> Result<(), (ErrorCode, Disposition, String)> {
+    let emulator = Emulator::start();
+    let dir = tempfile::tempdir().unwrap();
+    let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
+    driver.apply_wrench(WRENCH).unwrap();
+    emulator.inject(serde_json::json!({"ati": [{"kind": "status", "word": word, "times": 1}]}));
+    let outcome = match driver.read_wrench() {
+        Ok(read) => {
+            assert!(close(read, WRENCH), "0x{word:08x}: {read:?}");
+            Ok(())
+        }
+        Err(e) => Err(code(Err::<(), _>(e))),
+    };
+    assert!(
+        close(driver.read_wrench().unwrap(), WRENCH),
+        "0x{word:08x}: recovered"
+    );
+    outcome
+}
+
+/// One test per status word of the ATI manual (9620-05, system status code):
+/// the code, what the campaign does, and the bit's name in the message.
+macro_rules! status_word {
+    ($name:ident, $word:expr, ok) => {
+        #[test]
+        fn $name() {
+            assert_eq!(reading_with_status($word), Ok(()));
+        }
+    };
+    ($name:ident, $word:expr, $code:expr, $disposition:expr, $words:expr) => {
+        #[test]
+        fn $name() {
+            let word: u32 = $word;
+            let (c, d, message) = reading_with_status(word).unwrap_err();
+            assert_eq!((c, d), ($code, $disposition), "{message}");
+            assert!(
+                message.contains($words) && message.contains(&format!("0x{word:08x}")),
+                "{message}"
+            );
+        }
+    };
+}
+
+status_word!(
+    status_0x00010000_a_latched_monitor_condition_is_a_reading,
+    0x0001_0000,
+    ok
+);
+status_word!(
+    status_0x88000000_gage_out_of_range_records_the_row,
+    0x8800_0000,
+    ErrorCode::OutOfRange,
+    Disposition::FailRow,
+    "gage out of range"
+);
+status_word!(
+    status_0xc0000000_ft_out_of_range_records_the_row,
+    0xC000_0000,
+    ErrorCode::OutOfRange,
+    Disposition::FailRow,
+    "F/T out of range"
+);
+status_word!(
+    status_0xa0000000_calibration_checksum_error_stops,
+    0xA000_0000,
+    ErrorCode::NotReady,
+    Disposition::Stop,
+    "calibration checksum error"
+);
+status_word!(
+    status_0x80000004_broken_gage_stops,
+    0x8000_0004,
+    ErrorCode::NotReady,
+    Disposition::Stop,
+    "broken gage"
+);
+status_word!(
+    status_0x90000000_simulated_error_is_retried,
+    0x9000_0000,
+    ErrorCode::NotReady,
+    Disposition::Retry,
+    "simulated error"
+);
+status_word!(
+    status_0x80000008_busy_is_retried,
+    0x8000_0008,
+    ErrorCode::Busy,
+    Disposition::Retry,
+    "busy"
+);
+status_word!(
+    status_0x80000002_supply_out_of_range_is_retried,
+    0x8000_0002,
+    ErrorCode::NotReady,
+    Disposition::Retry,
+    "supply voltage out of range"
+);
+status_word!(
+    status_0x80000001_temperature_out_of_range_is_retried,
+    0x8000_0001,
+    ErrorCode::NotReady,
+    Disposition::Retry,
+    "temperature out of range"
+);
+status_word!(
+    status_0x80000020_other_error_is_retried,
+    0x8000_0020,
+    ErrorCode::NotReady,
+    Disposition::Retry,
+    "other error"
+);
+
+#[test]
+fn a_reading_waits_for_its_samples_at_the_boxs_rdt_rate() {
+    // 150 records at comrdtrate 100 Hz take 1.5 s, beyond the cell's 1 s limit
+    // of an exchange: the wait is samples / comrdtrate plus that limit.
+    let emulator = Emulator::start_with(1, &["--rdt-rate".to_string(), "100".to_string()]);
+    let dir = tempfile::tempdir().unwrap();
+    let cell = emulator.cell(dir.path(), "");
+    let text = std::fs::read_to_string(&cell)
+        .unwrap()
+        .replace("samples = 20", "samples = 150");
+    std::fs::write(&cell, text).unwrap();
+    let mut driver = lab_driver(&cell);
+    driver.apply_wrench(WRENCH).unwrap();
+    let started = Instant::now();
+    let read = driver.read_wrench().unwrap();
+    assert!(close(read, WRENCH), "{read:?}");
+    assert!(started.elapsed() >= Duration::from_millis(1400));
+    // Records that stop coming still time out, the message saying what was waited for.
+    emulator.inject(serde_json::json!({"ati": [{"kind": "stolen", "after": 10, "times": 1}]}));
+    let (c, d, message) = code(driver.read_wrench());
+    assert_eq!(
+        (c, d),
+        (ErrorCode::Timeout, Disposition::Retry),
+        "{message}"
+    );
+    assert!(
+        message.contains("10 of 150") && message.contains("comrdtrate 100 Hz"),
+        "{message}"
+    );
+}
+
+#[test]
+fn the_reflector_list_is_read_in_each_layout_a_server_answers() {
+    // The header's answer (the GetReflectorsRT records alone), and a status-only
+    // BasicCommandRT before or after them.
+    for answer in ["records", "status_first", "records_first"] {
+        let emulator =
+            Emulator::start_with(1, &["--reflectors-answer".to_string(), answer.to_string()]);
+        let dir = tempfile::tempdir().unwrap();
+        let cell = full_cell(&emulator, dir.path());
+        let started = Instant::now();
+        let mut driver = lab_driver(&cell);
+        // No wait for an answer that never comes: the cell's 1 s limit is not reached.
+        assert!(
+            started.elapsed() < Duration::from_millis(900),
+            "{answer}: {:?}",
+            started.elapsed()
+        );
+        let p = driver.measure().unwrap();
+        assert!(p.iter().any(|v| *v != 0.0), "{answer}: {p:?}");
+        // An id that is not in the list is refused at start, with the list named.
+        let text = std::fs::read_to_string(&cell)
+            .unwrap()
+            .replace("reflector_id = 1", "reflector_id = 7");
+        std::fs::write(&cell, text).unwrap();
+        drop(driver);
+        let message = failed_start(&cell);
+        assert!(
+            message.contains("reflector_id = 7")
+                && message.contains("1 (RRR 1.5in), 2 (RRR 0.5in)")
+                && message.contains("[tracker] leica_emscon at 127.0.0.1"),
+            "{answer}: {message}"
+        );
+    }
+}
+
+#[test]
+fn hello_fails_naming_a_device_that_cannot_be_reached() {
+    let dir = tempfile::tempdir().unwrap();
+    let cell = dir.path().join("cell.toml");
+    for (table, port) in [
+        (
+            "[robot]\nkind = \"abb_rws\"\naddress = \"127.0.0.1\"\nrws_version = 1\n",
+            "",
+        ),
+        (
+            "[tracker]\nkind = \"leica_emscon\"\naddress = \"127.0.0.1\"\nreflector_id = 1\n",
+            "",
+        ),
+        (
+            "[force_sensor]\nkind = \"ati_netft\"\naddress = \"127.0.0.1\"\n",
+            "http_port",
+        ),
+    ] {
+        let closed = closed_port();
+        let key = if port.is_empty() { "port" } else { port };
+        std::fs::write(
+            &cell,
+            format!("[cell]\nname = \"c\"\ntimeout_s = 1.0\n{table}{key} = {closed}\n"),
+        )
+        .unwrap();
+        let message = failed_start(&cell);
+        let device = table.lines().next().unwrap();
+        assert!(
+            message.contains("starting driver")
+                && message.contains(device)
+                && message.contains(&format!(
+                    "127.0.0.1{}{closed}",
+                    if port.is_empty() { ":" } else { " (HTTP " }
+                ))
+                && message.contains("cell.toml"),
+            "{message}"
+        );
+    }
+}
+
+#[test]
+fn shutdown_logs_out_of_the_controller_before_it_is_answered() {
+    use std::io::{BufRead, BufReader, Write};
+    for version in [1, 2] {
+        let emulator = Emulator::start_rws(version);
+        let dir = tempfile::tempdir().unwrap();
+        let cell = emulator.cell(dir.path(), "");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_egcal"))
+            .args(["lab-driver", "--cell"])
+            .arg(&cell)
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut stdin = child.stdin.take().unwrap();
+        let mut stdout = BufReader::new(child.stdout.take().unwrap());
+        let mut line = String::new();
+        use egcal::rig::protocol::{Call, PROTOCOL_VERSION, Request};
+        for (id, call) in [
+            Call::Hello {
+                protocol: PROTOCOL_VERSION,
+            },
+            Call::ReadJoints {},
+            Call::Shutdown {},
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let request = serde_json::to_string(&Request {
+                id: id as u64 + 1,
+                call,
+            })
+            .unwrap();
+            writeln!(stdin, "{request}").unwrap();
+            stdin.flush().unwrap();
+            line.clear();
+            stdout.read_line(&mut line).unwrap();
+            assert!(!line.contains("error"), "RWS {version}: {request}: {line}");
+        }
+        // Answered: the session is already gone, whatever happens to the driver now.
+        assert!(line.contains("\"id\":3"), "{line}");
+        let _ = child.kill();
+        let _ = child.wait();
+        let log = emulator.log();
+        assert!(
+            log.contains("GET /logout") && log.contains("logged out (0 open)"),
+            "RWS {version}: no logout before the shutdown reply\n{log}"
+        );
+    }
 }

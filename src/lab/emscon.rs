@@ -1,6 +1,14 @@
 //! A Leica laser tracker over emScon TPI (TCP port 700): packed little-endian C
 //! structures (`#pragma pack(4)`, 32-bit `long`), each packet led by
-//! `{i32 size, i32 type}`.
+//! `{i32 size, i32 type}`. Layouts, command numbers and result statuses follow
+//! Leica's TPI header `ES_C_API_Def.h` (emScon TPI/SDK 3.6): `PacketHeaderT`,
+//! `BasicCommandCT`/`RT` `{header, ES_Command command[, ES_ResultStatus status]}`,
+//! `ErrorResponseT` (the same 16 bytes with type `ES_DT_Error`),
+//! `SingleMeasResultT` (156 bytes: `ReturnDataT {header, status}`, `measMode`,
+//! `bIsTryMode`, then 17 doubles from `dVal1`) and `GetReflectorsRT` (100 bytes:
+//! `BasicCommandRT`, `int iTotalReflectors`, `int iInternalReflectorId`,
+//! `enum ES_TargetType targetType`, `double dSurfaceOffset` at offset 28,
+//! `unsigned short cReflectorName[32]`, UTF-16, at offset 36).
 //!
 //! Start-up: units (mm, degree, °C, mbar, %RH), environment, `Initialize`,
 //! stationary measurement mode and its parameters, the reflector (checked
@@ -262,7 +270,11 @@ impl Emscon {
                 format!(
                     "reflector_id = {} is not among the tracker's reflectors: {}",
                     s.reflector_id,
-                    known.join(", ")
+                    if known.is_empty() {
+                        "(none)".to_string()
+                    } else {
+                        known.join(", ")
+                    }
                 ),
             ));
         }
@@ -352,22 +364,57 @@ impl Emscon {
     }
 
     /// The tracker's reflectors: (internal id, name).
+    ///
+    /// The header's answer to `GetReflectors` is the `GetReflectorsRT` record
+    /// itself, one per reflector, each carrying the command's status and
+    /// `iTotalReflectors`; servers that also send a status-only
+    /// `BasicCommandRT`, before or after the records, are accepted too.
     fn reflectors(&mut self) -> Result<Vec<(i32, String)>, RigError> {
-        self.command(CMD_GET_REFLECTORS, &[], self.timeout)?;
+        self.send(CMD_GET_REFLECTORS, &[])?;
         let deadline = Instant::now() + self.timeout;
-        let mut found = Vec::new();
+        let mut found: Vec<(i32, String)> = Vec::new();
+        let mut acknowledged = false;
         loop {
-            let packet = self.read_packet(deadline)?;
-            if packet.len() != GET_REFLECTORS_RT_BYTES || i32_at(&packet, 8) != CMD_GET_REFLECTORS {
+            let packet = match self.read_packet(deadline) {
+                Ok(packet) => packet,
+                // A status-only answer and then nothing: the list is empty.
+                Err(e) if acknowledged && found.is_empty() && is_timeout(&e) => {
+                    return Ok(found);
+                }
+                Err(e) if is_timeout(&e) => {
+                    return Err(device(
+                        ErrorCode::Timeout,
+                        true,
+                        format!(
+                            "GetReflectors: {} reflector record(s) within {:.1} s, and no end of the list",
+                            found.len(),
+                            self.timeout.as_secs_f64()
+                        ),
+                    ));
+                }
+                Err(e) => return Err(e),
+            };
+            if let Some(status) = reply_status(&packet, CMD_GET_REFLECTORS) {
+                if let Some(e) = status_error(CMD_GET_REFLECTORS, status) {
+                    return Err(e);
+                }
+                acknowledged = true;
                 continue;
             }
-            let total = i32_at(&packet, 16);
-            let name: Vec<u16> = (0..32)
-                .map(|k| u16::from_le_bytes([packet[36 + 2 * k], packet[37 + 2 * k]]))
-                .take_while(|c| *c != 0)
-                .collect();
-            found.push((i32_at(&packet, 20), String::from_utf16_lossy(&name)));
-            if found.len() as i32 >= total {
+            let Some(record) = parse_reflector(&packet) else {
+                continue; // an unsolicited packet
+            };
+            let record = record.map_err(|e| device(ErrorCode::Protocol, false, e))?;
+            if let Some(e) = status_error(CMD_GET_REFLECTORS, record.status) {
+                return Err(e);
+            }
+            if record.total == 0 {
+                return Ok(found); // an empty list, told by its one record
+            }
+            if !found.iter().any(|(id, _)| *id == record.id) {
+                found.push((record.id, record.name));
+            }
+            if found.len() as i64 >= i64::from(record.total) {
                 return Ok(found);
             }
         }
@@ -428,6 +475,46 @@ impl Emscon {
     }
 }
 
+fn is_timeout(e: &RigError) -> bool {
+    e.code() == Some(ErrorCode::Timeout)
+}
+
+/// One `GetReflectorsRT` record.
+#[derive(Debug, Clone, PartialEq)]
+struct ReflectorRecord {
+    status: i32,
+    total: i32,
+    id: i32,
+    name: String,
+}
+
+/// A `GetReflectorsRT` record (`None`: the packet is not one), or why it is
+/// malformed.
+fn parse_reflector(packet: &[u8]) -> Option<Result<ReflectorRecord, String>> {
+    if packet.len() != GET_REFLECTORS_RT_BYTES
+        || i32_at(packet, 4) != DT_COMMAND
+        || i32_at(packet, 8) != CMD_GET_REFLECTORS
+    {
+        return None;
+    }
+    let total = i32_at(packet, 16);
+    if !(0..=1000).contains(&total) {
+        return Some(Err(format!(
+            "GetReflectors: iTotalReflectors is {total}, expected 0 to 1000"
+        )));
+    }
+    let name: Vec<u16> = (0..32)
+        .map(|k| u16::from_le_bytes([packet[36 + 2 * k], packet[37 + 2 * k]]))
+        .take_while(|c| *c != 0)
+        .collect();
+    Some(Ok(ReflectorRecord {
+        status: i32_at(packet, 12),
+        total,
+        id: i32_at(packet, 20),
+        name: String::from_utf16_lossy(&name),
+    }))
+}
+
 /// The status of a reply to `command`: a `BasicCommandRT` or an `ErrorResponseT`.
 fn reply_status(packet: &[u8], command: i32) -> Option<i32> {
     let kind = i32_at(packet, 4);
@@ -464,6 +551,34 @@ mod tests {
         }
         assert_eq!(reply_status(&rt, 49), Some(10009));
         assert_eq!(reply_status(&rt, 7), None);
+    }
+
+    #[test]
+    fn reflector_records_follow_the_header_layout() {
+        // GetReflectorsRT: BasicCommandRT {100, 0, 42, status}, iTotalReflectors,
+        // iInternalReflectorId, targetType, dSurfaceOffset at 28, name at 36.
+        let mut record = vec![];
+        for v in [100i32, 0, 42, 0, 2, 7, 5] {
+            record.extend(v.to_le_bytes());
+        }
+        record.extend(19.05f64.to_le_bytes());
+        let mut name: Vec<u8> = "RRR 1.5in"
+            .encode_utf16()
+            .flat_map(|c| c.to_le_bytes())
+            .collect();
+        name.resize(64, 0);
+        record.extend(name);
+        assert_eq!(record.len(), GET_REFLECTORS_RT_BYTES);
+        let r = parse_reflector(&record).unwrap().unwrap();
+        assert_eq!((r.status, r.total, r.id), (0, 2, 7));
+        assert_eq!(r.name, "RRR 1.5in");
+        // Not a record: a status-only answer, or another command's packet.
+        assert!(parse_reflector(&record[..16]).is_none());
+        record[8..12].copy_from_slice(&41i32.to_le_bytes());
+        assert!(parse_reflector(&record).is_none());
+        record[8..12].copy_from_slice(&42i32.to_le_bytes());
+        record[16..20].copy_from_slice(&(-1i32).to_le_bytes());
+        assert!(parse_reflector(&record).unwrap().is_err());
     }
 
     #[test]

@@ -3,9 +3,12 @@
 //! the RDT stream over UDP (big-endian; a request `0x1234, command, count` and
 //! 36-byte records `rdt_sequence, ft_sequence, status, 6 × counts`).
 //!
-//! A reading asks for `samples` records and averages them. It is refused when a
-//! record is malformed (`protocol`), when the status word reports an error
-//! (saturation: `out_of_range`; anything else: `not_ready`), when `ft_sequence`
+//! A reading asks for `samples` records and averages them, waiting for them
+//! `samples / comrdtrate` (the box's RDT output rate, from `netftapi2.xml`) plus
+//! the time limit of an exchange. It is refused when a
+//! record is malformed (`protocol`), when the status word reports an error (see
+//! [`status_error`]: saturation is `out_of_range`, a broken gage or a corrupt
+//! calibration stops, anything else is a transient `not_ready`), when `ft_sequence`
 //! stalls or goes backwards (`stale_data`), when `rdt_sequence` skips
 //! (`sequence_gap`), when the records stop coming (a stream another client took,
 //! or no reply: `timeout`), and when the calibration changed since the driver
@@ -26,10 +29,31 @@ const CMD_STOP: u16 = 0x0000;
 const CMD_START_REALTIME: u16 = 0x0002;
 const CMD_BIAS: u16 = 0x0042;
 const RECORD_BYTES: usize = 36;
-/// Status of a healthy box, and the one warning that is not an error (the
-/// monitor-condition latch with its summary bit).
-const STATUS_LATCH_WARNING: u32 = 0x8001_0000;
-const STATUS_SATURATION: u32 = 0x0002_0000;
+/// The bits of the RDT status word (ATI manual 9620-05, Net F/T, "system
+/// status code"; the Ethernet Axia's manual 9610-05 gives the same bits). Bit 31
+/// summarises the errors; bit 16 (a monitor condition latched) is not one.
+const STATUS_ERROR: u32 = 1 << 31;
+const STATUS_FT_OUT_OF_RANGE: u32 = 1 << 30;
+const STATUS_CALIBRATION_CHECKSUM: u32 = 1 << 29;
+const STATUS_SIMULATED_ERROR: u32 = 1 << 28;
+const STATUS_GAGE_OUT_OF_RANGE: u32 = 1 << 27;
+const STATUS_OTHER_ERROR: u32 = 1 << 5;
+const STATUS_BUSY: u32 = 1 << 3;
+const STATUS_BROKEN_GAGE: u32 = 1 << 2;
+const STATUS_SUPPLY_OUT_OF_RANGE: u32 = 1 << 1;
+const STATUS_TEMPERATURE_OUT_OF_RANGE: u32 = 1 << 0;
+/// Every documented error bit: any of them, or the summary bit, makes the
+/// record an error reading.
+const STATUS_ERRORS: u32 = STATUS_ERROR
+    | STATUS_FT_OUT_OF_RANGE
+    | STATUS_CALIBRATION_CHECKSUM
+    | STATUS_SIMULATED_ERROR
+    | STATUS_GAGE_OUT_OF_RANGE
+    | STATUS_OTHER_ERROR
+    | STATUS_BUSY
+    | STATUS_BROKEN_GAGE
+    | STATUS_SUPPLY_OUT_OF_RANGE
+    | STATUS_TEMPERATURE_OUT_OF_RANGE;
 
 /// What `netftapi2.xml` says about the active configuration.
 #[derive(Debug, Clone, PartialEq)]
@@ -98,6 +122,21 @@ pub fn parse_calibration(xml: &str) -> Result<Calibration, String> {
     })
 }
 
+/// The RDT output rate (`comrdtrate`, Hz) of a `netftapi2.xml` document: `None`
+/// when the document does not give it, an error when it is not a positive number.
+pub fn parse_rdt_rate(xml: &str) -> Result<Option<f64>, String> {
+    let Some(text) = element(xml, "comrdtrate") else {
+        return Ok(None);
+    };
+    text.parse::<f64>()
+        .ok()
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .map(Some)
+        .ok_or_else(|| {
+            format!("netftapi2.xml <comrdtrate> is `{text}`, expected a positive rate in Hz")
+        })
+}
+
 fn force_unit_label(label: &str) -> Option<ForceUnit> {
     Some(match label {
         "lbf" => ForceUnit::Lbf,
@@ -158,6 +197,8 @@ pub struct NetFt {
     timeout: Duration,
     socket: UdpSocket,
     calibration: Calibration,
+    /// The RDT output rate the box reported last (Hz), when it reports one.
+    rdt_rate_hz: Option<f64>,
 }
 
 impl NetFt {
@@ -187,6 +228,7 @@ impl NetFt {
                 serial: String::new(),
                 slot: String::new(),
             },
+            rdt_rate_hz: None,
         };
         netft.calibration = netft.fetch_calibration(true)?;
         if settings.bias_at_start {
@@ -201,7 +243,7 @@ impl NetFt {
 
     /// `netftapi2.xml`, checked against the declared units (at connect) or the
     /// calibration read at connect (afterwards).
-    fn fetch_calibration(&self, connecting: bool) -> Result<Calibration, RigError> {
+    fn fetch_calibration(&mut self, connecting: bool) -> Result<Calibration, RigError> {
         let s = &self.settings;
         let (status, body) =
             super::http::get(&s.address, s.http_port, "/netftapi2.xml", self.timeout).map_err(
@@ -226,6 +268,8 @@ impl NetFt {
         }
         let calibration =
             parse_calibration(&body).map_err(|e| device(ErrorCode::Protocol, false, e))?;
+        self.rdt_rate_hz =
+            parse_rdt_rate(&body).map_err(|e| device(ErrorCode::Protocol, false, e))?;
         if calibration.force_unit != s.force_unit || calibration.torque_unit != s.torque_unit {
             return Err(device(
                 ErrorCode::UnitMismatch,
@@ -285,21 +329,41 @@ impl NetFt {
         received
     }
 
+    /// How long `count` records take at the box's output rate, plus the time
+    /// limit of an exchange; without a rate, the time limit runs from the last
+    /// record received (`None`).
+    fn stream_time(&self, count: u32) -> Option<Duration> {
+        self.rdt_rate_hz
+            .map(|rate| Duration::from_secs_f64(f64::from(count) / rate) + self.timeout)
+    }
+
     fn receive(&self, count: u32) -> Result<Vec<Record>, RigError> {
-        let deadline = Instant::now() + self.timeout;
+        let started = Instant::now();
+        let whole = self.stream_time(count);
+        let mut deadline = started + whole.unwrap_or(self.timeout);
         let mut records: Vec<Record> = Vec::with_capacity(count as usize);
         let mut buffer = [0u8; 1500];
         while records.len() < count as usize {
             let n = match super::udp::recv_before(&self.socket, &mut buffer, deadline) {
                 Ok(Some(n)) => n,
                 Ok(None) => {
+                    let waited = match (whole, self.rdt_rate_hz) {
+                        (Some(w), Some(rate)) => format!(
+                            "within {:.1} s ({count} records at comrdtrate {rate} Hz plus the {:.1} s time limit)",
+                            w.as_secs_f64(),
+                            self.timeout.as_secs_f64()
+                        ),
+                        _ => format!(
+                            "with {:.1} s without a record (netftapi2.xml gives no comrdtrate)",
+                            self.timeout.as_secs_f64()
+                        ),
+                    };
                     return Err(device(
                         ErrorCode::Timeout,
                         true,
                         format!(
-                            "{} of {count} RDT records within {:.1} s (no reply, or another client took the stream)",
+                            "{} of {count} RDT records {waited} (no reply, or another client took the stream)",
                             records.len(),
-                            self.timeout.as_secs_f64()
                         ),
                     ));
                 }
@@ -318,6 +382,9 @@ impl NetFt {
             }
             check_record(&record, records.last())?;
             records.push(record);
+            if whole.is_none() {
+                deadline = Instant::now() + self.timeout;
+            }
         }
         Ok(records)
     }
@@ -384,25 +451,65 @@ impl Drop for NetFt {
     }
 }
 
-/// A record's status and sequence, against the previous record of the request.
-fn check_record(record: &Record, previous: Option<&Record>) -> Result<(), RigError> {
-    if record.status != 0 && record.status != STATUS_LATCH_WARNING {
-        return Err(if record.status & STATUS_SATURATION != 0 {
-            device(
+/// What a record's status word means (`None`: a valid reading). Saturation (the
+/// F/T or a gage out of range) is the load, not the box: `out_of_range` at once,
+/// the row recorded. A broken gage or a corrupt calibration will not go away by
+/// retrying: `not_ready` that stops. Busy, supply or temperature out of range, a
+/// simulated error or another error: retried. Bit 16 (a monitor condition
+/// latched) and other bits without the error bit are not errors.
+pub fn status_error(status: u32) -> Option<RigError> {
+    if status & STATUS_ERRORS == 0 {
+        return None;
+    }
+    let named: Vec<&str> = [
+        (STATUS_FT_OUT_OF_RANGE, "F/T out of range"),
+        (STATUS_GAGE_OUT_OF_RANGE, "gage out of range"),
+        (STATUS_BROKEN_GAGE, "broken gage"),
+        (STATUS_CALIBRATION_CHECKSUM, "calibration checksum error"),
+        (STATUS_BUSY, "busy"),
+        (STATUS_SUPPLY_OUT_OF_RANGE, "supply voltage out of range"),
+        (STATUS_TEMPERATURE_OUT_OF_RANGE, "temperature out of range"),
+        (STATUS_SIMULATED_ERROR, "simulated error"),
+        (STATUS_OTHER_ERROR, "other error"),
+    ]
+    .iter()
+    .filter(|(bit, _)| status & bit != 0)
+    .map(|(_, name)| *name)
+    .collect();
+    let what = if named.is_empty() {
+        "error".to_string()
+    } else {
+        named.join(", ")
+    };
+    let (code, transient, meaning) =
+        if status & (STATUS_FT_OUT_OF_RANGE | STATUS_GAGE_OUT_OF_RANGE) != 0 {
+            (
                 ErrorCode::OutOfRange,
                 false,
-                format!(
-                    "status 0x{:08x}: the transducer is saturated (load beyond its range)",
-                    record.status
-                ),
+                "the transducer is saturated (load beyond its range)",
             )
-        } else {
-            device(
+        } else if status & (STATUS_BROKEN_GAGE | STATUS_CALIBRATION_CHECKSUM) != 0 {
+            (
                 ErrorCode::NotReady,
-                true,
-                format!("status 0x{:08x}: the box reports an error", record.status),
+                false,
+                "the transducer or its calibration is faulty: check the box",
             )
-        });
+        } else if status & STATUS_BUSY != 0 {
+            (ErrorCode::Busy, true, "the box is busy")
+        } else {
+            (ErrorCode::NotReady, true, "the box reports an error")
+        };
+    Some(device(
+        code,
+        transient,
+        format!("status 0x{status:08x} ({what}): {meaning}"),
+    ))
+}
+
+/// A record's status and sequence, against the previous record of the request.
+fn check_record(record: &Record, previous: Option<&Record>) -> Result<(), RigError> {
+    if let Some(e) = status_error(record.status) {
+        return Err(e);
     }
     if let Some(previous) = previous {
         let step = record.ft_sequence.wrapping_sub(previous.ft_sequence);
@@ -503,13 +610,58 @@ mod tests {
             ErrorCode::SequenceGap
         );
         assert_eq!(
-            code(check_record(&r(1, 7, 0x8002_0000), None).unwrap_err()),
+            code(check_record(&r(1, 7, 0xC000_0000), None).unwrap_err()),
             ErrorCode::OutOfRange
         );
-        assert_eq!(
-            code(check_record(&r(1, 7, 0xa000_0000), None).unwrap_err()),
-            ErrorCode::NotReady
-        );
-        assert!(check_record(&r(1, 7, STATUS_LATCH_WARNING), None).is_ok());
+        assert!(check_record(&r(1, 7, 0x0001_0000), None).is_ok());
+    }
+
+    #[test]
+    fn every_documented_status_word_has_its_meaning() {
+        let meaning = |status: u32| {
+            status_error(status).map(|e| (e.code().unwrap(), e.is_transient(), e.to_string()))
+        };
+        assert_eq!(meaning(0), None);
+        assert_eq!(meaning(0x0001_0000), None, "a monitor condition latched");
+        for (word, code, transient, words) in [
+            (
+                0x8800_0000u32,
+                ErrorCode::OutOfRange,
+                false,
+                "gage out of range",
+            ),
+            (
+                0xC000_0000,
+                ErrorCode::OutOfRange,
+                false,
+                "F/T out of range",
+            ),
+            (
+                0xA000_0000,
+                ErrorCode::NotReady,
+                false,
+                "calibration checksum",
+            ),
+            (0x8000_0004, ErrorCode::NotReady, false, "broken gage"),
+            (0x9000_0000, ErrorCode::NotReady, true, "simulated error"),
+            (0x8000_0008, ErrorCode::Busy, true, "busy"),
+            (0x8000_0002, ErrorCode::NotReady, true, "supply voltage"),
+            (0x8000_0001, ErrorCode::NotReady, true, "temperature"),
+            (0x8000_0020, ErrorCode::NotReady, true, "other error"),
+            (0x8001_0000, ErrorCode::NotReady, true, "0x80010000 (error)"),
+        ] {
+            let (c, t, message) = meaning(word).unwrap();
+            assert_eq!((c, t), (code, transient), "0x{word:08x}: {message}");
+            assert!(message.contains(words), "0x{word:08x}: {message}");
+        }
+    }
+
+    #[test]
+    fn the_rdt_rate_is_read_when_given() {
+        assert_eq!(parse_rdt_rate(XML).unwrap(), None);
+        let with = XML.replace("</netft>", "<comrdtrate>100</comrdtrate></netft>");
+        assert_eq!(parse_rdt_rate(&with).unwrap(), Some(100.0));
+        let bad = XML.replace("</netft>", "<comrdtrate>0</comrdtrate></netft>");
+        assert!(parse_rdt_rate(&bad).unwrap_err().contains("comrdtrate"));
     }
 }

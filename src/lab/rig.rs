@@ -1,9 +1,13 @@
 //! The cell's devices behind the [`Rig`] interface, served over the driver
 //! protocol by `egcal lab-driver`.
 //!
-//! Devices connect when the driver starts; one that fails to connect is tried
-//! again on the next call that needs it, and until then that call answers the
-//! connection's error (a transient one is retried by the campaign).
+//! Devices connect when the driver starts. `hello` fails, naming the device and
+//! its address, when one cannot be reached (refused, no reply in time) or
+//! refused what the cell file declares; one that failed with a transient error
+//! (a busy controller) is tried again on the next call that needs it, and until
+//! then that call answers the connection's error (retried by the campaign).
+//! `shutdown` releases every device (the controller's session is logged out)
+//! before it is answered.
 
 use std::path::Path;
 
@@ -13,7 +17,7 @@ use super::emscon::Emscon;
 use super::netft::NetFt;
 use super::rws::Rws;
 use crate::rig::protocol::ErrorCode;
-use crate::rig::{Rig, RigError};
+use crate::rig::{Disposition, Rig, RigError};
 
 /// A device slot: absent from the cell file, connected, or not (yet).
 enum Slot<D> {
@@ -168,6 +172,79 @@ impl LabRig {
     }
 }
 
+impl LabRig {
+    /// Each configured device, its table and kind, address and whether its
+    /// connection failed (and why).
+    fn devices(&self) -> Vec<(String, Option<&RigError>)> {
+        let mut all = Vec::new();
+        if let Some(cell::Robot::AbbRws(s)) = &self.cell.robot {
+            let port = s.port.unwrap_or(if s.rws_version == 2 { 443 } else { 80 });
+            all.push((
+                format!("[robot] abb_rws at {}:{port}", s.address),
+                slot_error(&self.robot),
+            ));
+        }
+        if let Some(cell::Tracker::LeicaEmscon(s)) = &self.cell.tracker {
+            all.push((
+                format!("[tracker] leica_emscon at {}:{}", s.address, s.port),
+                slot_error(&self.tracker),
+            ));
+        }
+        if let Some(cell::ForceSensor::AtiNetft(s)) = &self.cell.force_sensor {
+            all.push((
+                format!(
+                    "[force_sensor] ati_netft at {} (HTTP {}, RDT {})",
+                    s.address, s.http_port, s.rdt_port
+                ),
+                slot_error(&self.force_sensor),
+            ));
+        }
+        if let Some(cell::CableRobot::EgcalUdp(s)) = &self.cell.cable_robot {
+            all.push((
+                format!("[cable_robot] egcal_udp at {}:{}", s.address, s.port),
+                slot_error(&self.cable_robot),
+            ));
+        }
+        all
+    }
+
+    /// Drops every connected device (each releases what it holds), leaving the
+    /// slot to reconnect on its next use.
+    fn release(&mut self) {
+        release(&mut self.robot);
+        release(&mut self.tracker);
+        release(&mut self.force_sensor);
+        release(&mut self.cable_robot);
+    }
+}
+
+/// Drops a connected device (it releases what it holds); the slot reconnects
+/// on its next use.
+fn release<D>(slot: &mut Slot<D>) {
+    if let Slot::Connected(_) = slot {
+        *slot = Slot::Failed(RigError::device(
+            ErrorCode::NotConnected,
+            true,
+            "released by the driver".to_string(),
+        ));
+    }
+}
+
+fn slot_error<D>(slot: &Slot<D>) -> Option<&RigError> {
+    match slot {
+        Slot::Failed(e) => Some(e),
+        _ => None,
+    }
+}
+
+/// Whether a failed connection fails `hello`: the device cannot be reached
+/// (refused, unknown host, no reply in time) or refused the cell file's settings
+/// (an error the campaign would not retry). One it would retry (busy) is tried
+/// again at the first call instead.
+fn fails_hello(e: &RigError) -> bool {
+    e.disposition() != Disposition::Retry || e.code() == Some(ErrorCode::Timeout)
+}
+
 /// The connected device, or why there is none.
 fn ready<D>(slot: &mut Slot<D>, absent: RigError) -> Result<&mut D, RigError> {
     match slot {
@@ -213,5 +290,42 @@ impl Rig for LabRig {
 
     fn measured_sigma_mm(&self) -> Option<[f64; 3]> {
         self.measured_sigma_mm
+    }
+
+    fn ready(&mut self) -> Result<(), RigError> {
+        let problems: Vec<(String, ErrorCode)> = self
+            .devices()
+            .into_iter()
+            .filter_map(|(device, error)| {
+                let e = error.filter(|e| fails_hello(e))?;
+                Some((
+                    format!("{device} cannot be used: {e}"),
+                    e.code().unwrap_or(ErrorCode::NotConnected),
+                ))
+            })
+            .collect();
+        let Some((_, code)) = problems.first() else {
+            return Ok(());
+        };
+        let code = *code;
+        // The driver is ended after a failed `hello`: log out of what did connect.
+        self.release();
+        Err(RigError::device(
+            code,
+            false,
+            format!(
+                "cell file {}: {}",
+                self.file,
+                problems
+                    .into_iter()
+                    .map(|(p, _)| p)
+                    .collect::<Vec<_>>()
+                    .join("; ")
+            ),
+        ))
+    }
+
+    fn shutdown(&mut self) {
+        self.release();
     }
 }

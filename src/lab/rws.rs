@@ -329,9 +329,17 @@ impl Rws {
             }
             let response = request.send().map_err(|e| {
                 if e.is_timeout() {
-                    device(ErrorCode::Timeout, true, format!("{path}: no reply: {e}"))
+                    device(
+                        ErrorCode::Timeout,
+                        true,
+                        format!("{path}: no reply: {}", with_causes(&e)),
+                    )
                 } else {
-                    device(ErrorCode::NotConnected, false, format!("{path}: {e}"))
+                    device(
+                        ErrorCode::NotConnected,
+                        false,
+                        format!("{path}: {}", with_causes(&e)),
+                    )
                 }
             })?;
             for value in response.headers().get_all("set-cookie") {
@@ -641,6 +649,21 @@ impl Drop for Rws {
         let _ = self.mastership(false);
         let _ = self.exchange(false, "/logout", &[]);
     }
+}
+
+/// An error with its causes ("error sending request …: connection refused"), so
+/// the reason a controller cannot be reached is named.
+fn with_causes(e: &dyn std::error::Error) -> String {
+    let mut text = e.to_string();
+    let mut source = e.source();
+    while let Some(cause) = source {
+        let cause_text = cause.to_string();
+        if !text.contains(&cause_text) {
+            text += &format!(": {cause_text}");
+        }
+        source = cause.source();
+    }
+    text
 }
 
 /// `application/x-www-form-urlencoded` encoding of a value.

@@ -385,12 +385,11 @@ pub fn serve(
         };
         let mut result = ReplyResult::default();
         let outcome: Result<(), RigError> = match request.call {
-            Call::Hello { .. } => {
+            Call::Hello { .. } => rig.ready().map(|()| {
                 result.protocol = Some(PROTOCOL_VERSION);
                 result.name = Some(name.to_string());
                 result.capabilities = Some(capabilities.to_vec());
-                Ok(())
-            }
+            }),
             Call::MoveJoints { cw_id, q_deg } => rig.move_joints(cw_id, q_deg),
             Call::ApplyWrench { wrench } => rig.apply_wrench(wrench),
             Call::ReleaseWrench {} => rig.release_wrench(),
@@ -402,6 +401,7 @@ pub fn serve(
                 result.sigma_mm = rig.measured_sigma_mm();
             }),
             Call::Shutdown {} => {
+                rig.shutdown();
                 writeln!(
                     output,
                     "{}",

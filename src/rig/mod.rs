@@ -110,6 +110,13 @@ pub trait Rig {
     fn measured_sigma_mm(&self) -> Option<[f64; 3]> {
         None
     }
+    /// Whether the rig can serve: checked before a driver answers `hello`, so a
+    /// device that cannot be reached fails the start, named.
+    fn ready(&mut self) -> Result<(), RigError> {
+        Ok(())
+    }
+    /// Releases the devices (sessions, streams) before a driver answers `shutdown`.
+    fn shutdown(&mut self) {}
 }
 
 /// Per-request time limit of external drivers.

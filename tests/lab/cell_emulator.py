@@ -24,14 +24,20 @@ Behaviour
   norms) or a non-finite value is refused: flag bit 2 in its reply and in later replies until the next
   accepted SET_WRENCH or RELEASE, and the state does not change. 4 cables, 100 N pretension.
   Datagrams of the wrong size, magic, version or command are ignored without a reply.
-  Net F/T: one stream slot (the last start wins; stop or bias from anyone ends it), 1 record per ms,
+  Net F/T: one stream slot (the last start wins; stop or bias from anyone ends it), one record per
+  1/comrdtrate s (--rdt-rate, default 1000 Hz, reported as <comrdtrate> in netftapi2.xml),
   rdt_sequence from 1 on each start, ft_sequence +7 per record and never reset, counts =
-  round((wrench - bias) * 1000000) + noise, status 0 (0x80020000 if a count saturates i32). 0x0042 tares
-  at the current load, 0x0041 does nothing, other commands are ignored.
+  round((wrench - bias) * 1000000) + noise, status 0 (0xC0000000, error + F/T out of range, if a count
+  saturates i32). 0x0042 tares at the current load, 0x0041 does nothing, other commands are ignored.
+  The status word's bits (ATI manual 9620-05, Net F/T system status code): 31 error (summary), 30 F/T
+  out of range, 29 calibration checksum error, 28 simulated error, 27 gage out of range, 16 monitor
+  condition latched (not an error), 5 other error, 3 busy, 2 broken gage, 1 supply voltage out of
+  range, 0 temperature out of range.
 
 CLI
   python3 tests/lab/cell_emulator.py --ready-file PATH [--faults FILE] [--seed N]
-      [--rws-version {1,2}] [--sim-driver JSON]
+      [--rws-version {1,2}] [--sim-driver JSON] [--rdt-rate HZ]
+      [--reflectors-answer {records,status_first,records_first}]
 
   When every server is bound, PATH is written atomically (PATH.tmp, then a rename) with
   {"ati_http": port, "ati_rdt": port, "cable_robot": port, "rws": port, "rws_version": 1 or 2,
@@ -39,7 +45,9 @@ CLI
   logs one line per request and per injected fault to stderr, each prefixed "cell_emulator:".
   --seed (default 0) seeds the +-2-count noise added to the force readings. --rws-version (default
   1) picks RWS 1.0 or 2.0 (user "Default User", password "robotics", at most 70 sessions, a move
-  takes 0.02 s, joint limits +-180 deg). --sim-driver takes a JSON list, the command of a driver
+  takes 0.02 s, joint limits +-180 deg). --rdt-rate (default 1000) is the Net F/T's RDT output rate
+  in Hz. --reflectors-answer (default records) is how the tracker answers GetReflectors (see
+  emscon_emulator.py). --sim-driver takes a JSON list, the command of a driver
   speaking schemas/driver-protocol.md, e.g. '["egcal", "sim-driver", "--robot", "r.toml"]'; it is
   started before the servers and shut down at exit (exit 2 if it or the RWS server cannot start). With it:
     * SET_WRENCH (once accepted as today) and RELEASE call apply_wrench / release_wrench; an error
@@ -47,8 +55,8 @@ CLI
       other error puts the controller in FAULT until the next accepted SET_WRENCH or RELEASE. The
       reply's wrench and tensions are still those of the set-point, as without it;
     * an RDT start request reads read_wrench once and every record of it carries that wrench (minus
-      the bias, quantised and with the +-2-count noise as now); an error gives status 0xA0000000
-      (error summary + digital board error) and the counts of the cable robot's load;
+      the bias, quantised and with the +-2-count noise as now); an error gives status 0x80000020
+      (error + other error) and the counts of the cable robot's load;
     * the RAPID loop's moves call move_joints(egc_cw_id, q) and, once moved, the jointtarget reads
       read_joints;
     * the tracker's StartMeasurement result is at measure()'s position_mm (std sigma_mm when given);
@@ -78,7 +86,7 @@ Fault file (JSON). It is re-read before each request, so rewrite it atomically t
                            with a body that is not XML. The request itself is still carried out.
   ati (RDT). Every kind except `die` affects only start requests (0x0002) and the records sent for them,
   whether the request asks for a count or a stream:
-    status       word      status word in every record (an int or a "0x..." string; default 0x20000000)
+    status       word      status word in every record (an int or a "0x..." string; default 0x80000020)
     stalled_sequence       ft_sequence does not advance (it repeats the last value sent)
     backward_sequence      ft_sequence goes down by 7 per record
     rdt_gap                one record is lost before the 2nd record (before the 1st if count is 1):
@@ -311,11 +319,11 @@ class AtiRdt:
 
     REQUEST = struct.Struct(">HHI")
     RECORD = struct.Struct(">IIIiiiiii")
-    PERIOD_S = 0.001  # comrdtrate 1000 Hz
     FT_STEP = 7  # 7 kHz internal samples per 1 kHz output record
 
-    def __init__(self, load, faults, seed, stop, backend=None):
+    def __init__(self, load, faults, seed, stop, backend=None, rate_hz=1000.0):
         self.load, self.faults, self.stop, self.backend = load, faults, stop, backend
+        self.period_s = 1.0 / rate_hz  # one record per 1/comrdtrate s
         self.sock = udp_socket()
         self.port = self.sock.getsockname()[1]
         self.cond = threading.Condition()
@@ -353,11 +361,11 @@ class AtiRdt:
                 s.wrench = self.backend.read_wrench()
             except BackendError as e:
                 log(f"ati: backend read_wrench failed: {e}")
-                s.status |= 0xA0000000
+                s.status |= 0x80000020
         if f := fx.take("late_reply"):
             s.next_t += float(f.get("delay_s", 1.0))
         if f := fx.take("status"):
-            word = f.get("word", 0x20000000)
+            word = f.get("word", 0x80000020)
             s.status |= (int(word, 0) if isinstance(word, str) else int(word)) & 0xFFFFFFFF
         s.stalled = fx.take("stalled_sequence") is not None
         s.backward = fx.take("backward_sequence") is not None
@@ -393,7 +401,7 @@ class AtiRdt:
         else:
             net = self.load.net()
         counts, saturated = to_counts(net, self.noise)
-        status = s.status | (0x80020000 if saturated else 0)
+        status = s.status | (0xC0000000 if saturated else 0)
         data = self.RECORD.pack(s.rdt_seq % 2**32, self.ft_seq, status, *counts)
         return data[:30] if s.malformed else data
 
@@ -415,7 +423,7 @@ class AtiRdt:
                     self.stream = None
                     continue
                 s.sent += 1
-                s.next_t = max(s.next_t + self.PERIOD_S, time.monotonic() - 0.02)
+                s.next_t = max(s.next_t + self.period_s, time.monotonic() - 0.02)
                 if s.count is not None and s.sent >= s.count:
                     self.stream = None
                 elif s.stop_after is not None and s.sent >= s.stop_after:
@@ -485,8 +493,8 @@ class _NetFtHandler(BaseHTTPRequestHandler):
 class AtiHttp:
     """Net F/T configuration plane: GET /netftapi2.xml."""
 
-    def __init__(self, load, faults, stop):
-        self.load, self.faults, self.stop = load, faults, stop
+    def __init__(self, load, faults, stop, rate_hz=1000.0):
+        self.load, self.faults, self.stop, self.rate_hz = load, faults, stop, rate_hz
         self.server = ThreadingHTTPServer((HOST, 0), _NetFtHandler)
         self.server.daemon_threads = True
         self.server.device = self
@@ -512,7 +520,7 @@ class AtiHttp:
             ("scfgtu", stu), ("cfgcpf", number(cpf)), ("cfgcpt", number(cpt)), ("cfgtfx", "0;0;0;0;0;0"),
             ("scfgtdu", "mm"), ("scfgtau", "degrees"), ("cfgmr", "2500;2500;6250;400;400;400"),
             ("setbias", joined(to_counts(self.load.get_bias())[0])), ("setuserfilter", 0),
-            ("comrdte", "Enabled"), ("comrdtrate", 1000), ("comrdtbsiz", 1),
+            ("comrdte", "Enabled"), ("comrdtrate", number(self.rate_hz)), ("comrdtbsiz", 1),
             ("nethwaddr", "00:16:BD:00:23:56"), ("netip", HOST), ("mfgdigsn", "LOT2821"), ("mfgdigver", "2.2.59"),
         ]
         xml = "".join(f"<{name}>{escape(str(value))}</{name}>" for name, value in fields)
@@ -657,9 +665,15 @@ def main(argv=None):
                         help="the controller's joint limits, six [min, max] pairs in degrees (default +-180)")
     parser.add_argument("--rws-version", type=int, choices=(1, 2), default=1,
                         help="Robot Web Services 1.0 (HTTP, Digest) or 2.0 (HTTPS, Basic)")
+    parser.add_argument("--rdt-rate", type=float, default=1000.0,
+                        help="the Net F/T's RDT output rate (comrdtrate), Hz")
+    parser.add_argument("--reflectors-answer", choices=EmsconEmulator.REFLECTORS_ANSWERS, default="records",
+                        help="how the tracker answers GetReflectors")
     parser.add_argument("--sim-driver", metavar="JSON",
                         help='command of a driver-protocol simulator as a JSON list, e.g. ["egcal", "sim-driver", ...]')
     args = parser.parse_args(argv)
+    if not (math.isfinite(args.rdt_rate) and args.rdt_rate > 0):
+        parser.error("--rdt-rate: expected a positive rate in Hz")
     command = None
     if args.sim_driver is not None:
         try:
@@ -679,7 +693,8 @@ def main(argv=None):
             return 2
         log(f"simulator {json.dumps(command)} ready ({backend.name})")
     load, faults = Load(), Faults(args.faults)
-    ati_http, ati_rdt = AtiHttp(load, faults, stop), AtiRdt(load, faults, args.seed, stop, backend)
+    ati_http = AtiHttp(load, faults, stop, args.rdt_rate)
+    ati_rdt = AtiRdt(load, faults, args.seed, stop, backend, args.rdt_rate)
     robot = CableRobot(load, faults, stop, backend)
     try:
         rws = RwsEmulator(args.rws_version, faults, backend, log=log,
@@ -690,7 +705,7 @@ def main(argv=None):
             backend.shutdown()
         return 2
     try:
-        tracker = EmsconEmulator(faults, backend, log=log)
+        tracker = EmsconEmulator(faults, backend, log=log, reflectors_answer=args.reflectors_answer)
     except OSError as e:
         log(f"cannot start the emScon tracker server: {e}")
         rws.close()

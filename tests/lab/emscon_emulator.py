@@ -1,16 +1,19 @@
 #!/usr/bin/env python3
 """Leica laser-tracker emulator (emScon TPI over TCP) for egcal's lab-driver tests (Python 3.11, standard library only).
 
-EmsconEmulator(faults=..., backend=...) serves the emScon Tracker Programming Interface on 127.0.0.1
-(port 0 = ephemeral; see .port) in its own threads, as in notes/i18-protocols.md section 3.
+EmsconEmulator(faults=..., backend=..., reflectors_answer=...) serves the emScon Tracker Programming
+Interface on 127.0.0.1 (port 0 = ephemeral; see .port) in its own threads, as in notes/i18-protocols.md
+section 3. Layouts, command numbers and statuses are those of Leica's TPI header ES_C_API_Def.h
+(emScon TPI/SDK 3.6).
 
 Wire format: binary C structs, little-endian, #pragma pack(4), `long` = i32. Every packet starts with
 PacketHeaderT {i32 lPacketSize (whole packet), i32 type}; packets are split by lPacketSize.
   BasicCommandCT   12  {size, type 0, command}                 (+ parameters, see COMMAND_SIZES)
-  BasicCommandRT   16  {16, 0, command, status}                every command gets one
+  BasicCommandRT   16  {16, 0, command, status}                every command but GetReflectors gets one
   ErrorResponseT   16  {16, 1, command, status}
-  GetReflectorsRT 100  RT + iTotalReflectors, iInternalReflectorId, targetType, f64 dSurfaceOffset,
-                       u16[32] cReflectorName (UTF-16LE, NUL-padded)
+  GetReflectorsRT 100  BasicCommandRT {100, 0, 42, status} + int iTotalReflectors, int iInternalReflectorId,
+                       enum targetType, f64 dSurfaceOffset (offset 28), unsigned short cReflectorName[32]
+                       (UTF-16LE, NUL-padded, offset 36): the answer to GetReflectors, one per reflector
   SingleMeasResultT 156 {156, 2, status, measMode, bIsTryMode, 17 f64: dVal1..3, dStd1..3, dStdTotal,
                        dPointingError1..3, dAprioriStd1..3, dAprioriStdTotal, dTemperature, dPressure, dHumidity}
 
@@ -28,8 +31,11 @@ wrong size: status 3 WrongParameter):
   SetMeasurementMode 24 (16)   only 0 (stationary), else 4
   SetStationaryModeParams 28 (20) lMeasTime ms > 0 else 4, bUseADM 0/1 else 5 (stored; no wait)
   SetReflector 40 (16)         id 1 or 2, else 4 (the current reflector is 1 until set)
-  GetReflectors 42 (12)        RT, then one GetReflectorsRT per reflector: id 1 "RRR 1.5in" type 5
-                               (offset 19.05 mm), id 2 "RRR 0.5in" type 6 (offset 6.35 mm)
+  GetReflectors 42 (12)        one GetReflectorsRT per reflector and nothing else, as the header has it:
+                               id 1 "RRR 1.5in" type 5 (ES_TT_RRR15, offset 19.05 mm), id 2 "RRR 0.5in"
+                               type 6 (ES_TT_RRR05, offset 6.35 mm). reflectors_answer="status_first"
+                               sends a BasicCommandRT {42, 0} before the records, "records_first" after
+                               them (servers seen to do either).
   GoBirdBath 54, StopMeasurement 52 (12)  status 0 (GoBirdBath: 39 before Initialize)
   StartMeasurement 49 (12)     before Initialize: RT status 39 and no result. Else RT {49, 0}, then a
                                SingleMeasResultT (status 0, measMode 0, bIsTryMode 0) at backend.measure()
@@ -146,7 +152,12 @@ def single_meas_result(position, std, environment, status=RS_ALL_OK, scale=1.0):
 
 
 class EmsconEmulator:
-    def __init__(self, faults=None, backend=None, *, log=None, host=HOST, port=0):
+    REFLECTORS_ANSWERS = ("records", "status_first", "records_first")
+
+    def __init__(self, faults=None, backend=None, *, log=None, host=HOST, port=0, reflectors_answer="records"):
+        if reflectors_answer not in self.REFLECTORS_ANSWERS:
+            raise ValueError(f"reflectors_answer {reflectors_answer!r}: expected one of {self.REFLECTORS_ANSWERS}")
+        self.reflectors_answer = reflectors_answer
         self.backend = backend
         self.log = log or _default_log
         if isinstance(faults, (str, os.PathLike)):
@@ -279,6 +290,8 @@ class EmsconEmulator:
             return self.send(conn, basic_rt(command, RS_WRONG_PARAMETER), f"RT {{{command}, {RS_WRONG_PARAMETER}}}")
         if command == C_START_MEASUREMENT:
             return self.start_measurement(conn)
+        if command == C_GET_REFLECTORS:
+            return self.get_reflectors(conn)
         status, extra = self.execute(command, packet)
         if not self.send(conn, basic_rt(command, status), f"RT {{{command}, {status}}}"):
             return False
@@ -330,12 +343,20 @@ class EmsconEmulator:
             if rid not in {r[0] for r in REFLECTORS}:
                 return RS_WRONG_PARAMETER1, []
             self.reflector = rid
-        elif command == C_GET_REFLECTORS:
-            return RS_ALL_OK, [reflector_rt(len(REFLECTORS), *r) for r in REFLECTORS]
         elif command == C_GO_BIRD_BATH:
             if not self.initialised:
                 return RS_TRACKER_NOT_INITIALIZED, []
         return RS_ALL_OK, []
+
+    def get_reflectors(self, conn):
+        """GetReflectorsRT per reflector; a status-only RT before or after them when so configured."""
+        packets = [(reflector_rt(len(REFLECTORS), *r), f"GetReflectorsRT id {r[0]} {r[3]!r}") for r in REFLECTORS]
+        status = (basic_rt(C_GET_REFLECTORS, RS_ALL_OK), "RT {42, 0}")
+        if self.reflectors_answer == "status_first":
+            packets.insert(0, status)
+        elif self.reflectors_answer == "records_first":
+            packets.append(status)
+        return all(self.send(conn, data, what) for data, what in packets)
 
     def start_measurement(self, conn):
         fx = self.faults.check("tracker")
