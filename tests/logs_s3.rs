@@ -294,8 +294,11 @@ fn without_credentials(home: &Path) -> std::process::Command {
 #[test]
 fn no_credentials_say_where_they_are_looked_for() {
     let dir = tempfile::tempdir().unwrap();
-    std::os::unix::fs::symlink(common::root().join("jobs/robots"), dir.path().join("robots"))
-        .unwrap();
+    std::os::unix::fs::symlink(
+        common::root().join("jobs/robots"),
+        dir.path().join("robots"),
+    )
+    .unwrap();
     let job = scan_job(
         dir.path(),
         "no_credentials",
@@ -318,7 +321,11 @@ fn no_credentials_say_where_they_are_looked_for() {
     ] {
         assert!(stderr.contains(word), "{word}: {stderr}");
     }
-    assert!(started.elapsed().as_secs() < 60, "took {:?}", started.elapsed());
+    assert!(
+        started.elapsed().as_secs() < 60,
+        "took {:?}",
+        started.elapsed()
+    );
 
     // A profile that is not there is named at once.
     let out = without_credentials(dir.path())
@@ -334,8 +341,11 @@ fn no_credentials_say_where_they_are_looked_for() {
 #[test]
 fn a_malformed_endpoint_is_refused_before_the_client() {
     let dir = tempfile::tempdir().unwrap();
-    std::os::unix::fs::symlink(common::root().join("jobs/robots"), dir.path().join("robots"))
-        .unwrap();
+    std::os::unix::fs::symlink(
+        common::root().join("jobs/robots"),
+        dir.path().join("robots"),
+    )
+    .unwrap();
     let job = scan_job(dir.path(), "bad_endpoint", "s3://egcal-test/logs", "");
     for (variable, value, word) in [
         ("AWS_ENDPOINT_URL", "not a url", "AWS_ENDPOINT_URL"),

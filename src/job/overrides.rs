@@ -49,21 +49,32 @@ impl JobOverrides {
         let key = format!("{}.{relative}", origin.key);
         let written = relative
             .split(['.', '['])
-            .take(if relative.starts_with("stages.") { 3 } else { 2 })
+            .take(if relative.starts_with("stages.") {
+                3
+            } else {
+                2
+            })
             .collect::<Vec<_>>()
             .join(".");
-        origin.lines.has(&format!("{}.{written}", origin.key)).then(|| JobProblem {
-            file: origin.file.clone(),
-            line: origin.lines.line_of(&key),
-            key,
-            message: message.to_string(),
-        })
+        origin
+            .lines
+            .has(&format!("{}.{written}", origin.key))
+            .then(|| JobProblem {
+                file: origin.file.clone(),
+                line: origin.lines.line_of(&key),
+                key,
+                message: message.to_string(),
+            })
     }
 
     /// `problems` with those at a stage setting the overrides replaced moved to
     /// the file the overrides came from; `stages`: (key, id) of each stage
     /// (`stages[2]`, `gate`).
-    pub fn relocate(&self, problems: Vec<JobProblem>, stages: &[(String, String)]) -> Vec<JobProblem> {
+    pub fn relocate(
+        &self,
+        problems: Vec<JobProblem>,
+        stages: &[(String, String)],
+    ) -> Vec<JobProblem> {
         if self.origin.is_none() {
             return problems;
         }
@@ -71,7 +82,10 @@ impl JobOverrides {
             .into_iter()
             .map(|problem| {
                 let moved = stages.iter().find_map(|(stage_key, id)| {
-                    let rest = problem.key.strip_prefix(stage_key.as_str())?.strip_prefix('.')?;
+                    let rest = problem
+                        .key
+                        .strip_prefix(stage_key.as_str())?
+                        .strip_prefix('.')?;
                     let setting = rest.split(['.', '[']).next().unwrap_or(rest);
                     self.stage_settings.get(id)?.get(setting)?;
                     self.origin_problem(&format!("stages.{id}.{rest}"), &problem.message)

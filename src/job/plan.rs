@@ -84,9 +84,8 @@ impl Plan {
             .iter()
             .map(|s| (s.key.clone(), s.id.clone()))
             .collect();
-        build(raw, path).map_err(|JobProblems(problems)| {
-            JobProblems(overrides.relocate(problems, &stages))
-        })
+        build(raw, path)
+            .map_err(|JobProblems(problems)| JobProblems(overrides.relocate(problems, &stages)))
     }
 
     pub fn stage_index(&self, id: &str) -> Option<usize> {

@@ -300,8 +300,7 @@ fn discover_local(source: &Path, query: &LogQuery) -> Result<Discovered, LogErro
         }
     } else if text.contains("**") {
         // `**` descends any depth: walked with the loop guard, then matched.
-        let pattern =
-            glob::Pattern::new(&text).map_err(|e| setting(format!("bad glob: {e}")))?;
+        let pattern = glob::Pattern::new(&text).map_err(|e| setting(format!("bad glob: {e}")))?;
         let options = glob::MatchOptions {
             require_literal_separator: true,
             ..glob::MatchOptions::default()
@@ -509,7 +508,8 @@ fn walk(root: &Path, files: &mut Vec<PathBuf>) -> std::io::Result<()> {
     }
     let mut pending = vec![root.to_path_buf()];
     while let Some(dir) = pending.pop() {
-        let named = |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", dir.display()));
+        let named =
+            |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", dir.display()));
         for entry in std::fs::read_dir(&dir).map_err(named)? {
             let entry = entry.map_err(named)?;
             let path = entry.path();
@@ -537,11 +537,16 @@ fn walk(root: &Path, files: &mut Vec<PathBuf>) -> std::io::Result<()> {
 pub fn parse_day(text: &str) -> Option<i64> {
     let bytes = text.as_bytes();
     let shape = bytes.len() == 10
-        && bytes
-            .iter()
-            .enumerate()
-            .all(|(i, b)| if i == 4 || i == 7 { *b == b'-' } else { b.is_ascii_digit() });
-    shape.then(|| crate::table::time::parse_date(text)).flatten()
+        && bytes.iter().enumerate().all(|(i, b)| {
+            if i == 4 || i == 7 {
+                *b == b'-'
+            } else {
+                b.is_ascii_digit()
+            }
+        });
+    shape
+        .then(|| crate::table::time::parse_date(text))
+        .flatten()
 }
 
 /// The robot of a `robot_id=` folder in `relative` (`/`-separated, below the root).
@@ -561,8 +566,9 @@ fn partition_matches(relative: &str, query: &LogQuery) -> bool {
 fn segment_matches(segment: &str, query: &LogQuery) -> bool {
     match segment.split_once('=') {
         Some(("robot_id", id)) => id == query.robot_id,
-        Some(("date", date)) => parse_day(date)
-            .is_none_or(|day| (query.first_day..=query.last_day).contains(&day)),
+        Some(("date", date)) => {
+            parse_day(date).is_none_or(|day| (query.first_day..=query.last_day).contains(&day))
+        }
         _ => true,
     }
 }
@@ -872,8 +878,7 @@ mod tests {
         for (name, target) in [("here", "."), ("again", "."), ("up", "..")] {
             std::os::unix::fs::symlink(target, logs.join(name)).unwrap();
         }
-        std::os::unix::fs::symlink("../..", logs.join("robot_id=r1/date=2026-11-11/top"))
-            .unwrap();
+        std::os::unix::fs::symlink("../..", logs.join("robot_id=r1/date=2026-11-11/top")).unwrap();
         // A linked folder elsewhere is followed, once.
         std::fs::create_dir_all(dir.path().join("disk2/date=2026-11-12")).unwrap();
         std::fs::write(dir.path().join("disk2/date=2026-11-12/c.parquet"), b"").unwrap();
@@ -890,13 +895,23 @@ mod tests {
         assert_eq!(files.len(), 3, "{files:?}");
         assert!(files.contains(&"robot_id=r1/date=2026-11-10/a.parquet"));
         assert!(files.contains(&"robot_id=r1/date=2026-11-11/a.parquet"));
-        assert!(files.iter().any(|f| f.ends_with("date=2026-11-12/c.parquet")));
+        assert!(
+            files
+                .iter()
+                .any(|f| f.ends_with("date=2026-11-12/c.parquet"))
+        );
     }
 
     #[test]
     fn partition_dates_need_four_digit_years() {
         assert!(parse_day("2026-11-10").is_some());
-        for bad in ["99999999999-01-01", "2026-1-10", "2026-02-30", "+026-11-10", ""] {
+        for bad in [
+            "99999999999-01-01",
+            "2026-1-10",
+            "2026-02-30",
+            "+026-11-10",
+            "",
+        ] {
             assert!(parse_day(bad).is_none(), "{bad}");
         }
     }

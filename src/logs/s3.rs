@@ -341,9 +341,7 @@ fn find_credentials() -> Result<Credentials, String> {
             Ok(text) => {
                 let name = profile.as_deref().unwrap_or("default");
                 if let Some(found) = profile_credentials(&text, name) {
-                    return found.map_err(|m| {
-                        format!("{}: profile [{name}]: {m}", file.display())
-                    });
+                    return found.map_err(|m| format!("{}: profile [{name}]: {m}", file.display()));
                 }
                 if profile.is_some() {
                     return Err(format!(
@@ -489,7 +487,8 @@ fn check_endpoint(text: &str) -> Result<reqwest::Url, String> {
             "`{text}` is not a URL (spaces or non-ASCII characters); {expected}"
         ));
     }
-    let url = reqwest::Url::parse(text).map_err(|e| format!("`{text}` is not a URL ({e}); {expected}"))?;
+    let url = reqwest::Url::parse(text)
+        .map_err(|e| format!("`{text}` is not a URL ({e}); {expected}"))?;
     if !matches!(url.scheme(), "http" | "https") {
         return Err(format!(
             "`{text}` has the scheme `{}`; {expected}",
@@ -587,7 +586,9 @@ fn check_connection(settings: &S3Settings) -> Result<(), String> {
     }
     if let Some(allow) = env("AWS_ALLOW_HTTP")
         && settings.allow_http.is_none()
-        && !["true", "false"].iter().any(|v| allow.eq_ignore_ascii_case(v))
+        && !["true", "false"]
+            .iter()
+            .any(|v| allow.eq_ignore_ascii_case(v))
     {
         return Err(format!("AWS_ALLOW_HTTP: `{allow}` is not true or false"));
     }
@@ -649,15 +650,31 @@ mod tests {
             let message = S3Location::parse(bad).unwrap().unwrap_err();
             assert!(message.contains('`'), "{bad}: {message}");
         }
-        assert!(S3Location::parse("s3://egcal-test/tests/1-2/logs").unwrap().is_ok());
+        assert!(
+            S3Location::parse("s3://egcal-test/tests/1-2/logs")
+                .unwrap()
+                .is_ok()
+        );
     }
 
     #[test]
     fn endpoints_and_regions_are_checked() {
-        for bad in ["not a url", "ftp://x", "http://", "http://u:p@h", "127.0.0.1:3900", "http://h/?a", "http://mü.de"] {
+        for bad in [
+            "not a url",
+            "ftp://x",
+            "http://",
+            "http://u:p@h",
+            "127.0.0.1:3900",
+            "http://h/?a",
+            "http://mü.de",
+        ] {
             assert!(check_endpoint(bad).is_err(), "{bad}");
         }
-        for good in ["http://127.0.0.1:3900", "https://s3.example.com/base", "http://[::1]:9000"] {
+        for good in [
+            "http://127.0.0.1:3900",
+            "https://s3.example.com/base",
+            "http://[::1]:9000",
+        ] {
             assert!(check_endpoint(good).is_ok(), "{good}");
         }
         let settings = S3Settings {
@@ -665,7 +682,11 @@ mod tests {
             region: Some("eu west".into()),
             allow_http: None,
         };
-        let keys: Vec<String> = settings.problems("s3").into_iter().map(|(k, _)| k).collect();
+        let keys: Vec<String> = settings
+            .problems("s3")
+            .into_iter()
+            .map(|(k, _)| k)
+            .collect();
         assert_eq!(keys, ["s3.endpoint", "s3.region"]);
     }
 

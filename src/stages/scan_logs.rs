@@ -21,10 +21,10 @@ use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, settings_error,
 };
+use crate::logs::parse_day;
 use crate::logs::s3::{S3Location, S3Settings};
 use crate::logs::{self, ContentKey, LogQuery, LogSource, ScanReport};
 use crate::table::schema;
-use crate::logs::parse_day;
 use crate::table::time::date_string;
 
 pub struct ScanLogsStage;
@@ -413,6 +413,14 @@ fn no_rows_message(query: &LogQuery, window: &str, report: &ScanReport) -> Strin
     message
 }
 
+/// `; N partition folders not listed` for an S3 scan that skipped some.
+fn folders_not_listed(report: &ScanReport) -> String {
+    match report.folders_pruned {
+        0 => String::new(),
+        n => format!("; {n} partition folder(s) outside the window not listed"),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -432,7 +440,10 @@ mod tests {
             ("1.5d", "not a number of days"),
         ] {
             let message = last_days(text).unwrap_err();
-            assert!(message.contains(word) && message.contains("1d to 36600d"), "{text}: {message}");
+            assert!(
+                message.contains(word) && message.contains("1d to 36600d"),
+                "{text}: {message}"
+            );
         }
     }
 
@@ -446,20 +457,17 @@ mod tests {
             ..ScanLogsSettings::default()
         };
         let keys = |s: ScanLogsSettings| -> Vec<String> {
-            s.window().err().unwrap_or_default().into_iter().map(|p| p.key).collect()
+            s.window()
+                .err()
+                .unwrap_or_default()
+                .into_iter()
+                .map(|p| p.key)
+                .collect()
         };
         assert!(keys(settings("2026-11-01", "2026-11-14")).is_empty());
         assert_eq!(keys(settings("2026-11-20", "2026-11-14")), ["from"]);
         assert_eq!(keys(settings("2026-02-30", "2026-11-14")), ["from"]);
         assert_eq!(keys(settings("99999999999-01-01", "2026-11-14")), ["from"]);
         assert_eq!(keys(settings("2026-11-01", "26-11-14")), ["to"]);
-    }
-}
-
-/// `; N partition folders not listed` for an S3 scan that skipped some.
-fn folders_not_listed(report: &ScanReport) -> String {
-    match report.folders_pruned {
-        0 => String::new(),
-        n => format!("; {n} partition folder(s) outside the window not listed"),
     }
 }
