@@ -14,8 +14,11 @@
 //! [derived."arm.toml"]    # a repository file with text replaced (each `old` must occur)
 //! from = "jobs/robots/irb1600_145.toml"
 //! replace = [["d_mm = 486.5", "d_mm = nan"]]
-//! [tables]                # CSV text, written as Parquet (unit-suffixed columns as f64)
+//! [tables]                # CSV text, written as Parquet (unit-suffixed columns as f64,
+//!                         # `measured_at` as a UTC µs timestamp from `2026-11-01T08:00:00`)
 //! "rows.parquet" = '''cw_id,q1_deg,...'''
+//! [links]                 # symbolic links, made last: name = target (as written)
+//! "logs/loop" = "."
 //! [[step]]
 //! args = ["check", "job.toml"]
 //! exit = 2
@@ -37,7 +40,7 @@ use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use polars::prelude::{CsvReadOptions, DataType, SerReader};
+use polars::prelude::{CsvReadOptions, DataType, SerReader, TimeUnit, TimeZone};
 use serde::Deserialize;
 
 /// Longer than any case needs; a step still running then counts as a hang.
@@ -53,6 +56,8 @@ struct Case {
     derived: BTreeMap<String, Derived>,
     #[serde(default)]
     tables: BTreeMap<String, String>,
+    #[serde(default)]
+    links: BTreeMap<String, String>,
     step: Vec<Step>,
 }
 
@@ -140,6 +145,15 @@ fn write_table(csv: &str, path: &Path) {
             .expect("casts to f64");
         df.with_column(cast).expect("same length");
     }
+    if let Ok(stamps) = df.column("measured_at") {
+        let utc = DataType::Datetime(TimeUnit::Microseconds, Some(TimeZone::UTC));
+        let cast = stamps
+            .cast(&DataType::Datetime(TimeUnit::Microseconds, None))
+            .and_then(|c| c.cast(&utc))
+            .unwrap_or_else(|e| panic!("{}: measured_at is not a timestamp: {e}", path.display()));
+        df.with_column(cast).expect("same length");
+    }
+    std::fs::create_dir_all(path.parent().expect("in the case folder")).expect("mkdir");
     egcal::table::write_parquet(&mut df, path, None).expect("write table");
 }
 
@@ -177,6 +191,11 @@ fn prepare(case: &Case, dir: &Path) {
     }
     for (name, csv) in &case.tables {
         write_table(csv, &dir.join(name));
+    }
+    for (name, target) in &case.links {
+        let path = dir.join(name);
+        std::fs::create_dir_all(path.parent().expect("in the case folder")).expect("mkdir");
+        std::os::unix::fs::symlink(target, &path).expect("make the link");
     }
 }
 

@@ -266,3 +266,50 @@ fn cache_key_follows_new_files_and_the_run_date() {
     );
     assert!(run("2026-11-19").contains("1 cached"));
 }
+
+#[test]
+fn a_fifo_or_unreadable_log_file_is_a_bad_file_not_a_hang() {
+    let dir = tempfile::tempdir().unwrap();
+    let logs = log_folder(dir.path());
+    let day = logs.join("robot_id=r1/date=2026-11-17");
+    let fifo = day.join("part-1.parquet");
+    let made = std::process::Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let settings = format!(
+        "logs = \"{}\"\nrobot_id = \"r1\"\nlast = \"5d\"\n",
+        logs.display()
+    );
+    let (code, stdout, stderr, _) = scan(dir.path(), &settings, "2026-11-18");
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains("part-1.parquet") && stdout.contains("FIFO"),
+        "{stdout}"
+    );
+    let strict = format!("{settings}bad_data = \"fail\"\n");
+    let (code, _, stderr, _) = scan(dir.path(), &strict, "2026-11-18");
+    assert_eq!(code, 3, "{stderr}");
+    assert!(
+        stderr.contains("part-1.parquet") && stderr.contains("FIFO"),
+        "{stderr}"
+    );
+    std::fs::remove_file(&fifo).unwrap();
+
+    // Permission denied (not testable as root, who reads anything).
+    let locked = day.join("part-2.parquet");
+    std::fs::copy(day.join("part-0.parquet"), &locked).unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&locked, std::fs::Permissions::from_mode(0o000)).unwrap();
+    if std::fs::File::open(&locked).is_ok() {
+        eprintln!("skipped the permission check: this user reads a mode-000 file");
+        return;
+    }
+    let (code, _, stderr, _) = scan(dir.path(), &strict, "2026-11-18");
+    assert_eq!(code, 3, "{stderr}");
+    assert!(
+        stderr.contains("part-2.parquet") && stderr.contains("ermission denied"),
+        "{stderr}"
+    );
+}

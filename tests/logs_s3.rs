@@ -6,7 +6,9 @@
 //!
 //! Needs `EGCAL_TEST_S3_ENDPOINT`, `EGCAL_TEST_S3_BUCKET` and the `AWS_*`
 //! credentials of `.ci/services.sh`'s env.sh; where they are missing the tests say
-//! so and skip.
+//! so and skip. The tests of missing credentials and malformed endpoints need no
+//! server (a closed loopback port stands for the instance-metadata service) and
+//! always run.
 
 mod common;
 
@@ -260,4 +262,109 @@ fn wrong_credentials_or_bucket_fail_with_the_address() {
         common::run(&["run", job.to_str().unwrap(), "--run-date", RUN_DATE], dir);
     assert_eq!(code, 3, "{stderr}");
     assert!(stderr.contains("s3://no-such-bucket-egcal"), "{stderr}");
+}
+
+/// egcal with no credentials anywhere: no `AWS_*` key pair or provider, a home
+/// without `~/.aws`, and the instance-metadata service on a closed loopback port
+/// (so the test needs no server and cannot wait on a real one).
+fn without_credentials(home: &Path) -> std::process::Command {
+    let mut command = common::egcal();
+    for name in [
+        "AWS_ACCESS_KEY_ID",
+        "AWS_SECRET_ACCESS_KEY",
+        "AWS_SESSION_TOKEN",
+        "AWS_PROFILE",
+        "AWS_SHARED_CREDENTIALS_FILE",
+        "AWS_WEB_IDENTITY_TOKEN_FILE",
+        "AWS_CONTAINER_CREDENTIALS_RELATIVE_URI",
+        "AWS_CONTAINER_CREDENTIALS_FULL_URI",
+        "AWS_ENDPOINT_URL",
+        "AWS_ENDPOINT",
+        "AWS_REGION",
+    ] {
+        command.env_remove(name);
+    }
+    command
+        .env("HOME", home)
+        .env("AWS_METADATA_ENDPOINT", "http://127.0.0.1:9")
+        .current_dir(home);
+    command
+}
+
+#[test]
+fn no_credentials_say_where_they_are_looked_for() {
+    let dir = tempfile::tempdir().unwrap();
+    std::os::unix::fs::symlink(
+        common::root().join("jobs/robots"),
+        dir.path().join("robots"),
+    )
+    .unwrap();
+    let job = scan_job(
+        dir.path(),
+        "no_credentials",
+        "s3://egcal-test/plant/logs",
+        "s3 = { endpoint = \"http://127.0.0.1:9\", region = \"garage\", allow_http = true }",
+    );
+    let started = std::time::Instant::now();
+    let out = without_credentials(dir.path())
+        .args(["run", job.to_str().unwrap(), "--run-date", RUN_DATE])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    for word in [
+        "s3://egcal-test/plant/logs",
+        "no S3 credentials found",
+        "AWS_ACCESS_KEY_ID",
+        "~/.aws/credentials",
+        "AWS_PROFILE",
+    ] {
+        assert!(stderr.contains(word), "{word}: {stderr}");
+    }
+    assert!(
+        started.elapsed().as_secs() < 60,
+        "took {:?}",
+        started.elapsed()
+    );
+
+    // A profile that is not there is named at once.
+    let out = without_credentials(dir.path())
+        .env("AWS_PROFILE", "night")
+        .args(["run", job.to_str().unwrap(), "--run-date", RUN_DATE])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("AWS_PROFILE"), "{stderr}");
+}
+
+#[test]
+fn a_malformed_endpoint_is_refused_before_the_client() {
+    let dir = tempfile::tempdir().unwrap();
+    std::os::unix::fs::symlink(
+        common::root().join("jobs/robots"),
+        dir.path().join("robots"),
+    )
+    .unwrap();
+    let job = scan_job(dir.path(), "bad_endpoint", "s3://egcal-test/logs", "");
+    for (variable, value, word) in [
+        ("AWS_ENDPOINT_URL", "not a url", "AWS_ENDPOINT_URL"),
+        ("AWS_REGION", "eu west", "AWS_REGION"),
+        ("AWS_ENDPOINT_URL", "http://127.0.0.1:9", "allow_http"),
+    ] {
+        let out = without_credentials(dir.path())
+            .env("AWS_ACCESS_KEY_ID", "a")
+            .env("AWS_SECRET_ACCESS_KEY", "b")
+            .env_remove("AWS_ALLOW_HTTP")
+            .env(variable, value)
+            .args(["run", job.to_str().unwrap(), "--run-date", RUN_DATE])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{variable}={value}: {stderr}");
+        assert!(
+            stderr.contains(word) && !stderr.contains("panicked"),
+            "{variable}={value}: {stderr}"
+        );
+    }
 }

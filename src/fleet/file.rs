@@ -24,6 +24,8 @@ use serde::{Deserialize, Serialize};
 
 use super::FleetError;
 use crate::job::JobOverrides;
+use crate::job::overrides::OverrideOrigin;
+use crate::job::raw::LineIndex;
 use crate::logs::s3::S3Settings;
 use crate::logs::{self, LogSource};
 
@@ -132,6 +134,8 @@ pub struct Fleet {
     pub robots: Vec<String>,
     pub slurm: SlurmSettings,
     overrides: BTreeMap<String, RobotOverrides>,
+    /// Lines of the fleet file's keys, for problems with a robot's overrides.
+    lines: LineIndex,
 }
 
 /// `true` for an id safe in paths and file names.
@@ -161,6 +165,9 @@ impl Fleet {
             }
             crate::toml_error::StrictError::Invalid { key, message } => bad(&key, message),
         })?;
+        let lines = toml::de::DeTable::parse(&text)
+            .map(|table| LineIndex::build(&text, table.get_ref()))
+            .unwrap_or_default();
         let file = std::path::absolute(path)
             .map_err(|e| bad("", format!("cannot resolve the path: {e}")))?;
         let dir = file.parent().unwrap_or(Path::new("/")).to_path_buf();
@@ -260,6 +267,7 @@ impl Fleet {
             robots,
             slurm: raw.slurm,
             overrides: raw.robots,
+            lines,
         })
     }
 
@@ -272,7 +280,20 @@ impl Fleet {
         JobOverrides {
             vars,
             stage_settings: own.stages,
+            origin: Some(OverrideOrigin {
+                file: self.file.clone(),
+                key: format!("robots.{robot}"),
+                lines: self.lines.clone(),
+            }),
         }
+    }
+
+    /// The robots with settings of their own in the fleet file.
+    pub fn robots_with_overrides(&self) -> impl Iterator<Item = &str> {
+        self.overrides
+            .iter()
+            .filter(|(_, o)| !o.vars.is_empty() || !o.stages.is_empty())
+            .map(|(id, _)| id.as_str())
     }
 
     /// The output folder of `robot`'s job (its cache lives there across nights).

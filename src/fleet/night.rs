@@ -157,9 +157,29 @@ pub fn run_night(
 
 /// Refuses a template that no robot can run (a broken job file, a variable
 /// missing everywhere) before any night or array task starts: exit 2 with the
-/// job's problems for the first robot. A problem of some robots only (a missing
-/// calibration in service) is left to their nights, which record it.
+/// job's problems for the first robot. A robot's own settings that do not fit
+/// the template (a misspelt setting or stage id, a wrong type, a variable the
+/// template does not use) are refused the same way, naming the fleet file's line
+/// and key. A problem of some robots only (a missing calibration in service) is
+/// left to their nights, which record it.
 pub fn check_template(fleet: &Fleet) -> Result<(), FleetError> {
+    for robot in fleet.robots_with_overrides() {
+        if let Err(problems) = Plan::load_with(&fleet.job, &fleet.job_overrides(robot)) {
+            let own: Vec<String> = problems
+                .0
+                .iter()
+                .filter(|p| p.file == fleet.file)
+                .map(|p| p.to_string())
+                .collect();
+            if !own.is_empty() {
+                return Err(FleetError::Usage(format!(
+                    "the settings of robot `{robot}` in the fleet file do not fit the job template {}:\n{}",
+                    fleet.job.display(),
+                    own.join("\n")
+                )));
+            }
+        }
+    }
     let mut first = None;
     for robot in &fleet.robots {
         match Plan::load_with(&fleet.job, &fleet.job_overrides(robot)) {

@@ -6,8 +6,18 @@
 //! Placeholders are replaced inside string values of the parsed TOML, never in the
 //! text, so a value cannot change the file's structure and every problem keeps the
 //! line of its key.
+//!
+//! Overrides written in another file (a fleet file's `[robots.<id>]`) carry
+//! their [`OverrideOrigin`]: a problem with an overridden value (a misspelt
+//! setting, a wrong type, an unknown stage id, a variable the template does not
+//! use) names that file, its line and the key as written there
+//! (`robots.robot_b.stages.gate.alpha`), not the template's line.
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::path::PathBuf;
+
+use super::JobProblem;
+use super::raw::LineIndex;
 
 /// Values for a job's placeholders and settings to merge into its stages.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -16,6 +26,74 @@ pub struct JobOverrides {
     pub vars: BTreeMap<String, String>,
     /// Stage id → keys replacing (or adding to) that stage's settings.
     pub stage_settings: BTreeMap<String, toml::Table>,
+    /// The file the overrides were written in, when not the command line.
+    pub origin: Option<OverrideOrigin>,
+}
+
+/// Where overrides were written.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OverrideOrigin {
+    pub file: PathBuf,
+    /// Key of the overrides' table in that file, e.g. `robots.robot_b`; below it
+    /// `vars.<name>` and `stages.<stage id>.<setting>`.
+    pub key: String,
+    pub lines: LineIndex,
+}
+
+impl JobOverrides {
+    /// A problem with the override at `relative` (`vars.cell`,
+    /// `stages.gate.alpha[0]`), in the file it was written in; `None` when the
+    /// overrides have no origin or the file does not hold that key.
+    pub fn origin_problem(&self, relative: &str, message: &str) -> Option<JobProblem> {
+        let origin = self.origin.as_ref()?;
+        let key = format!("{}.{relative}", origin.key);
+        let written = relative
+            .split(['.', '['])
+            .take(if relative.starts_with("stages.") {
+                3
+            } else {
+                2
+            })
+            .collect::<Vec<_>>()
+            .join(".");
+        origin
+            .lines
+            .has(&format!("{}.{written}", origin.key))
+            .then(|| JobProblem {
+                file: origin.file.clone(),
+                line: origin.lines.line_of(&key),
+                key,
+                message: message.to_string(),
+            })
+    }
+
+    /// `problems` with those at a stage setting the overrides replaced moved to
+    /// the file the overrides came from; `stages`: (key, id) of each stage
+    /// (`stages[2]`, `gate`).
+    pub fn relocate(
+        &self,
+        problems: Vec<JobProblem>,
+        stages: &[(String, String)],
+    ) -> Vec<JobProblem> {
+        if self.origin.is_none() {
+            return problems;
+        }
+        problems
+            .into_iter()
+            .map(|problem| {
+                let moved = stages.iter().find_map(|(stage_key, id)| {
+                    let rest = problem
+                        .key
+                        .strip_prefix(stage_key.as_str())?
+                        .strip_prefix('.')?;
+                    let setting = rest.split(['.', '[']).next().unwrap_or(rest);
+                    self.stage_settings.get(id)?.get(setting)?;
+                    self.origin_problem(&format!("stages.{id}.{rest}"), &problem.message)
+                });
+                moved.unwrap_or(problem)
+            })
+            .collect()
+    }
 }
 
 impl JobOverrides {

@@ -79,7 +79,13 @@ impl Plan {
             }])
         })?;
         let raw = raw::parse_with(&text, path, overrides)?;
+        let stages: Vec<(String, String)> = raw
+            .stages
+            .iter()
+            .map(|s| (s.key.clone(), s.id.clone()))
+            .collect();
         build(raw, path)
+            .map_err(|JobProblems(problems)| JobProblems(overrides.relocate(problems, &stages)))
     }
 
     pub fn stage_index(&self, id: &str) -> Option<usize> {

@@ -74,6 +74,11 @@ impl LineIndex {
         LineIndex(index)
     }
 
+    /// `true` when the file holds exactly `key`.
+    pub fn has(&self, key: &str) -> bool {
+        self.0.contains_key(key)
+    }
+
     /// Line of `key`, or of its closest enclosing key that has one.
     pub fn line_of(&self, key: &str) -> Option<usize> {
         let mut key = key;
@@ -197,7 +202,12 @@ pub fn parse_with(
     problems.extend(
         apply_overrides(&mut root, overrides)
             .into_iter()
-            .map(|(key, message)| at(&key, message)),
+            .map(|(blame, message)| match blame {
+                Blame::Job(key) => at(&key, message),
+                Blame::Override { relative, job_key } => overrides
+                    .origin_problem(&relative, &message)
+                    .unwrap_or_else(|| at(&job_key, message)),
+            }),
     );
 
     for key in root.keys().filter(|k| *k != "job" && *k != "stages") {
@@ -265,13 +275,35 @@ pub fn parse_with(
             stages,
             lines,
         }),
-        _ => Err(JobProblems(problems)),
+        _ => {
+            let ids: Vec<(String, String)> = root
+                .get("stages")
+                .and_then(toml::Value::as_array)
+                .into_iter()
+                .flatten()
+                .enumerate()
+                .filter_map(|(i, stage)| {
+                    let id = stage.get("id")?.as_str()?;
+                    Some((format!("stages[{i}]"), id.to_string()))
+                })
+                .collect();
+            Err(JobProblems(overrides.relocate(problems, &ids)))
+        }
     }
+}
+
+/// Who a problem found while applying overrides is about.
+enum Blame {
+    /// A key of the job file.
+    Job(String),
+    /// An override (`relative` below its table, e.g. `stages.gate.alpha`), named
+    /// in its own file when it has one, else at `job_key` of the job file.
+    Override { relative: String, job_key: String },
 }
 
 /// Merges the overrides' stage settings into `root` and fills the placeholders of
 /// every string outside `[job] vars`; problems as (key, message).
-fn apply_overrides(root: &mut toml::Table, overrides: &JobOverrides) -> Vec<(String, String)> {
+fn apply_overrides(root: &mut toml::Table, overrides: &JobOverrides) -> Vec<(Blame, String)> {
     let mut problems = Vec::new();
     let mut vars = BTreeMap::new();
     match root.get("job").and_then(|job| job.get("vars")) {
@@ -283,14 +315,14 @@ fn apply_overrides(root: &mut toml::Table, overrides: &JobOverrides) -> Vec<(Str
                         vars.insert(name.clone(), text.to_string());
                     }
                     None => problems.push((
-                        format!("job.vars.{name}"),
+                        Blame::Job(format!("job.vars.{name}")),
                         format!("expected a string, found {}", value.type_str()),
                     )),
                 }
             }
         }
         Some(other) => problems.push((
-            "job.vars".to_string(),
+            Blame::Job("job.vars".to_string()),
             format!(
                 "expected a table of name = \"value\", found {}",
                 other.type_str()
@@ -314,7 +346,10 @@ fn apply_overrides(root: &mut toml::Table, overrides: &JobOverrides) -> Vec<(Str
                 for (key, value) in settings {
                     if STAGE_KEYS.contains(&key.as_str()) {
                         problems.push((
-                            "stages".to_string(),
+                            Blame::Override {
+                                relative: format!("stages.{id}.{key}"),
+                                job_key: "stages".to_string(),
+                            },
                             format!("an override of stage `{id}` may not change `{key}`"),
                         ));
                     } else {
@@ -322,10 +357,26 @@ fn apply_overrides(root: &mut toml::Table, overrides: &JobOverrides) -> Vec<(Str
                     }
                 }
             }
-            None => problems.push((
-                "stages".to_string(),
-                format!("settings override a stage `{id}` that the job does not declare"),
-            )),
+            None => {
+                let ids: Vec<&str> = root
+                    .get("stages")
+                    .and_then(toml::Value::as_array)
+                    .into_iter()
+                    .flatten()
+                    .filter_map(|s| s.get("id").and_then(toml::Value::as_str))
+                    .collect();
+                problems.push((
+                    Blame::Override {
+                        relative: format!("stages.{id}"),
+                        job_key: "stages".to_string(),
+                    },
+                    format!(
+                        "settings override a stage `{id}` that the job does not declare{}; its stages: {}",
+                        crate::suggest::did_you_mean(id, ids.iter().copied()),
+                        ids.join(", ")
+                    ),
+                ));
+            }
         }
     }
 
@@ -349,7 +400,7 @@ fn apply_overrides(root: &mut toml::Table, overrides: &JobOverrides) -> Vec<(Str
     }
     for (key, name) in unknown {
         problems.push((
-            key,
+            Blame::Job(key),
             format!(
                 "`{{{name}}}` is not a variable of this job: declare it in `[job] vars` or pass `--var {name}=VALUE`"
             ),
@@ -357,7 +408,10 @@ fn apply_overrides(root: &mut toml::Table, overrides: &JobOverrides) -> Vec<(Str
     }
     for name in overrides.vars.keys().filter(|n| !used.contains(*n)) {
         problems.push((
-            "job.vars".to_string(),
+            Blame::Override {
+                relative: format!("vars.{name}"),
+                job_key: "job.vars".to_string(),
+            },
             format!("a value was given for `{{{name}}}` but the job file uses no `{{{name}}}`"),
         ));
     }

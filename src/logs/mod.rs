@@ -8,6 +8,15 @@
 //! the measurement columns and the rows of the window. Bad data is expected in
 //! logs (a half-written file, a NaN from a glitch, a file delivered twice): it is
 //! counted per reason and dropped, or fails the scan, as the caller chooses.
+//!
+//! Symbolic links in a log folder: the log folder itself may be a link, links to
+//! files are read as the files, and links to folders are followed, except a link
+//! back to the log folder, to a folder above it or to a folder already walked
+//! (`.`, `..`, a loop): each folder is read once, by its device and inode, and
+//! nothing outside the log folder is reached through a link to an ancestor. Only
+//! regular files are opened: a FIFO, socket or device named `*.parquet` is a bad
+//! file (it would block a reader forever), and so is a file that cannot be
+//! opened (permission denied).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -83,6 +92,25 @@ pub enum LogError {
     BadRows { count: usize, reason: String },
     #[error("reading the logs: {0}")]
     Polars(#[from] PolarsError),
+    /// A setting (or the environment it relies on) that cannot work: bad input,
+    /// not a failure of the run. `key` is the setting (`logs`, `s3.endpoint`).
+    #[error("setting `{key}`: {message}")]
+    Setting { key: String, message: String },
+    /// The source cannot be reached as configured (S3 settings or variables, no
+    /// credentials): bad input, like [`LogError::Setting`].
+    #[error("{source_path}: {message}")]
+    Refused {
+        source_path: String,
+        message: String,
+    },
+}
+
+impl LogError {
+    /// `true` for bad input (a setting, the environment), `false` for a failure
+    /// while reading.
+    pub fn is_bad_input(&self) -> bool {
+        matches!(self, LogError::Setting { .. } | LogError::Refused { .. })
+    }
 }
 
 /// What a scan found and what it left out, for the stage log and metadata.
@@ -150,6 +178,9 @@ pub struct Discovered {
     pub partition_robots: BTreeSet<String>,
     /// The bucket, for S3 sources.
     pub store: Option<S3Store>,
+    /// Files found that cannot be opened (not a regular file, no permission),
+    /// with the reason: bad files of the scan, never opened.
+    pub unreadable: Vec<(LogFile, String)>,
 }
 
 /// How the cache key names a log file's content.
@@ -185,6 +216,10 @@ pub fn content_keys(
         source_path: file.address.clone(),
         message,
     };
+    let unreadable = found
+        .unreadable
+        .iter()
+        .map(|(file, reason)| Ok((file.relative.clone(), format!("unreadable: {reason}"))));
     found
         .files
         .iter()
@@ -202,6 +237,7 @@ pub fn content_keys(
             };
             Ok((file.relative.clone(), identity))
         })
+        .chain(unreadable)
         .collect()
 }
 
@@ -228,31 +264,64 @@ fn discover_local(source: &Path, query: &LogQuery) -> Result<Discovered, LogErro
         source_path: source.display().to_string(),
         message,
     };
+    let setting = |message: String| LogError::Setting {
+        key: "logs".into(),
+        message: format!("{}: {message}", source.display()),
+    };
+    let text = source.to_string_lossy();
+    let is_glob = text.contains(['*', '?', '[']);
     let mut files = Vec::new();
-    let root = if source.is_dir() {
-        walk(source, &mut files).map_err(|e| source_error(e.to_string()))?;
-        source.to_path_buf()
-    } else {
-        let pattern = source.to_string_lossy();
-        let paths = glob::glob(&pattern).map_err(|e| source_error(format!("bad glob: {e}")))?;
-        for path in paths {
-            files.push(path.map_err(|e| source_error(e.to_string()))?);
-        }
-        if files.is_empty() && !pattern.contains(['*', '?', '[']) {
-            return Err(source_error(
-                "no such folder (expected a log folder or a glob)".into(),
-            ));
-        }
+    let root: PathBuf = if is_glob {
         source
             .components()
             .take_while(|c| !c.as_os_str().to_string_lossy().contains(['*', '?', '[']))
             .collect()
+    } else {
+        source.to_path_buf()
     };
+    if !is_glob {
+        match std::fs::metadata(source) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Err(setting(
+                    "no such folder (expected a log folder, a glob or an s3:// prefix)".into(),
+                ));
+            }
+            Err(e) => return Err(setting(format!("cannot read the log folder: {e}"))),
+            Ok(meta) if meta.is_dir() => {
+                walk(source, &mut files).map_err(|e| source_error(e.to_string()))?;
+            }
+            Ok(_) if text.ends_with(".parquet") => files.push(source.to_path_buf()),
+            Ok(_) => {
+                return Err(setting(
+                    "is a file, not a folder (expected a log folder, a glob or an s3:// prefix)"
+                        .into(),
+                ));
+            }
+        }
+    } else if text.contains("**") {
+        // `**` descends any depth: walked with the loop guard, then matched.
+        let pattern = glob::Pattern::new(&text).map_err(|e| setting(format!("bad glob: {e}")))?;
+        let options = glob::MatchOptions {
+            require_literal_separator: true,
+            ..glob::MatchOptions::default()
+        };
+        if root.is_dir() {
+            walk(&root, &mut files).map_err(|e| source_error(e.to_string()))?;
+        }
+        files.retain(|p| pattern.matches_path_with(p, options));
+    } else {
+        let paths = glob::glob(&text).map_err(|e| setting(format!("bad glob: {e}")))?;
+        for path in paths {
+            files.push(path.map_err(|e| source_error(e.to_string()))?);
+        }
+    }
     files.retain(|p| p.extension().is_some_and(|e| e == "parquet"));
     files.sort();
+    files.dedup();
     let found = files.len();
     let mut partition_robots = BTreeSet::new();
     let mut kept = Vec::new();
+    let mut unreadable = Vec::new();
     for path in files {
         let below = path.strip_prefix(&root).unwrap_or(&path);
         let relative = below
@@ -262,20 +331,50 @@ fn discover_local(source: &Path, query: &LogQuery) -> Result<Discovered, LogErro
             .join("/");
         partition_robots.extend(partition_robot(&relative));
         if partition_matches(&relative, query) {
-            kept.push(LogFile {
+            let file = LogFile {
                 address: path.display().to_string(),
                 relative,
                 e_tag: None,
-            });
+            };
+            match readable(&path) {
+                Ok(()) => kept.push(file),
+                Err(reason) => unreadable.push((file, reason)),
+            }
         }
     }
     Ok(Discovered {
-        pruned: found - kept.len(),
+        pruned: found - kept.len() - unreadable.len(),
         folders_pruned: 0,
         files: kept,
         partition_robots,
         store: None,
+        unreadable,
     })
+}
+
+/// `Ok` for a regular file this process can open; else why not. Never opens a
+/// FIFO (which would block until a writer comes).
+fn readable(path: &Path) -> Result<(), String> {
+    let meta = std::fs::metadata(path).map_err(|e| format!("cannot open: {e}"))?;
+    if !meta.is_file() {
+        use std::os::unix::fs::FileTypeExt;
+        let kind = meta.file_type();
+        let what = if kind.is_dir() {
+            "a folder"
+        } else if kind.is_fifo() {
+            "a FIFO (named pipe)"
+        } else if kind.is_socket() {
+            "a socket"
+        } else if kind.is_block_device() || kind.is_char_device() {
+            "a device"
+        } else {
+            "not a regular file"
+        };
+        return Err(format!("not a regular file: {what}"));
+    }
+    std::fs::File::open(path)
+        .map(drop)
+        .map_err(|e| format!("cannot open: {e}"))
 }
 
 fn discover_s3(
@@ -287,10 +386,17 @@ fn discover_s3(
         source_path: location.to_string(),
         message,
     };
-    let store = S3Store::connect(location, settings).map_err(source_error)?;
+    let refused = |message: String| LogError::Refused {
+        source_path: location.to_string(),
+        message,
+    };
+    let store = S3Store::connect(location, settings).map_err(refused)?;
     let listing = store
         .list(&|segment| segment_matches(segment, query))
-        .map_err(source_error)?;
+        .map_err(|m| match store.found_credentials() {
+            true => source_error(m),
+            false => refused(m),
+        })?;
     let partition_robots = listing
         .folders_seen
         .iter()
@@ -313,6 +419,7 @@ fn discover_s3(
         folders_pruned: listing.folders_pruned,
         partition_robots,
         store: Some(store),
+        unreadable: Vec::new(),
     })
 }
 
@@ -332,14 +439,20 @@ pub fn partition_robot_ids(source: &LogSource) -> Result<BTreeSet<String>, LogEr
             })?;
         }
         LogSource::S3 { location, settings } => {
-            let failed = |message: String| LogError::Source {
+            let refused = |message: String| LogError::Refused {
                 source_path: location.to_string(),
                 message,
             };
-            let store = S3Store::connect(location, settings).map_err(failed)?;
+            let store = S3Store::connect(location, settings).map_err(refused)?;
             let listing = store
                 .list(&|segment| !segment.starts_with("robot_id=") && !segment.starts_with("date="))
-                .map_err(failed)?;
+                .map_err(|message| match store.found_credentials() {
+                    true => LogError::Source {
+                        source_path: location.to_string(),
+                        message,
+                    },
+                    false => refused(message),
+                })?;
             ids.extend(
                 listing
                     .folders_seen
@@ -354,7 +467,11 @@ pub fn partition_robot_ids(source: &LogSource) -> Result<BTreeSet<String>, LogEr
 fn find_robot_dirs(dir: &Path, depth: usize, ids: &mut BTreeSet<String>) -> std::io::Result<()> {
     for entry in std::fs::read_dir(dir)? {
         let entry = entry?;
-        if !entry.file_type()?.is_dir() {
+        let kind = entry.file_type()?;
+        // A linked folder counts as a robot's; only real folders are entered
+        // (the depth bound keeps even those from looping).
+        let linked_dir = kind.is_symlink() && entry.path().is_dir();
+        if !kind.is_dir() && !linked_dir {
             continue;
         }
         let name = entry.file_name().to_string_lossy().to_string();
@@ -362,7 +479,11 @@ fn find_robot_dirs(dir: &Path, depth: usize, ids: &mut BTreeSet<String>) -> std:
             Some(id) => {
                 ids.insert(id.to_string());
             }
-            None if depth < 6 && !name.starts_with("date=") && !name.starts_with('.') => {
+            None if kind.is_dir()
+                && depth < 6
+                && !name.starts_with("date=")
+                && !name.starts_with('.') =>
+            {
                 find_robot_dirs(&entry.path(), depth + 1, ids)?;
             }
             None => {}
@@ -371,16 +492,61 @@ fn find_robot_dirs(dir: &Path, depth: usize, ids: &mut BTreeSet<String>) -> std:
     Ok(())
 }
 
-fn walk(dir: &Path, files: &mut Vec<PathBuf>) -> std::io::Result<()> {
-    for entry in std::fs::read_dir(dir)? {
-        let path = entry?.path();
-        if path.is_dir() {
-            walk(&path, files)?;
-        } else {
-            files.push(path);
+/// Every non-folder entry below `root`, following links to folders except to
+/// `root`, its ancestors and folders already walked (see the module doc).
+fn walk(root: &Path, files: &mut Vec<PathBuf>) -> std::io::Result<()> {
+    use std::os::unix::fs::MetadataExt;
+    let identity = |meta: &std::fs::Metadata| (meta.dev(), meta.ino());
+    let mut seen = std::collections::HashSet::new();
+    // The log folder's ancestors: a link to one of them would leave the folder.
+    if let Ok(canonical) = std::fs::canonicalize(root) {
+        for ancestor in canonical.ancestors() {
+            if let Ok(meta) = std::fs::metadata(ancestor) {
+                seen.insert(identity(&meta));
+            }
+        }
+    }
+    let mut pending = vec![root.to_path_buf()];
+    while let Some(dir) = pending.pop() {
+        let named =
+            |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", dir.display()));
+        for entry in std::fs::read_dir(&dir).map_err(named)? {
+            let entry = entry.map_err(named)?;
+            let path = entry.path();
+            let kind = entry.file_type().map_err(named)?;
+            let is_dir = if kind.is_symlink() {
+                // A dangling link is listed as a file: opening it names the problem.
+                std::fs::metadata(&path).is_ok_and(|m| m.is_dir())
+            } else {
+                kind.is_dir()
+            };
+            if !is_dir {
+                files.push(path);
+                continue;
+            }
+            let meta = std::fs::metadata(&path).map_err(named)?;
+            if seen.insert(identity(&meta)) {
+                pending.push(path);
+            }
         }
     }
     Ok(())
+}
+
+/// A `YYYY-MM-DD` date (four-digit year) as a day number; anything else `None`.
+pub fn parse_day(text: &str) -> Option<i64> {
+    let bytes = text.as_bytes();
+    let shape = bytes.len() == 10
+        && bytes.iter().enumerate().all(|(i, b)| {
+            if i == 4 || i == 7 {
+                *b == b'-'
+            } else {
+                b.is_ascii_digit()
+            }
+        });
+    shape
+        .then(|| crate::table::time::parse_date(text))
+        .flatten()
 }
 
 /// The robot of a `robot_id=` folder in `relative` (`/`-separated, below the root).
@@ -400,8 +566,9 @@ fn partition_matches(relative: &str, query: &LogQuery) -> bool {
 fn segment_matches(segment: &str, query: &LogQuery) -> bool {
     match segment.split_once('=') {
         Some(("robot_id", id)) => id == query.robot_id,
-        Some(("date", date)) => crate::table::time::parse_date(date)
-            .is_none_or(|day| (query.first_day..=query.last_day).contains(&day)),
+        Some(("date", date)) => {
+            parse_day(date).is_none_or(|day| (query.first_day..=query.last_day).contains(&day))
+        }
         _ => true,
     }
 }
@@ -419,6 +586,16 @@ pub fn scan(query: &LogQuery, found: &Discovered) -> Result<LogScan, LogError> {
     let to_us = (query.last_day + 1) * 86_400_000_000;
     let mut opened = Vec::new();
     let cloud = found.store.as_ref().map(S3Store::cloud_options);
+    report.files_found += found.unreadable.len();
+    for (file, message) in &found.unreadable {
+        if !query.skip_bad_data {
+            return Err(LogError::BadFile {
+                file: file.address.clone(),
+                message: message.clone(),
+            });
+        }
+        report.bad_files.push((file.clone(), message.clone()));
+    }
     for file in &found.files {
         match open(file, partition_robot(&file.relative), cloud.clone()) {
             Ok(frame) => {
@@ -685,6 +862,57 @@ mod tests {
             assert_eq!(found.pruned, 1);
             let robots: Vec<&str> = found.partition_robots.iter().map(String::as_str).collect();
             assert_eq!(robots, ["r1", "r2"]);
+        }
+    }
+
+    #[test]
+    fn links_to_the_folder_or_above_are_not_followed() {
+        let dir = tempfile::tempdir().unwrap();
+        let logs = dir.path().join("logs");
+        for part in ["robot_id=r1/date=2026-11-10", "robot_id=r1/date=2026-11-11"] {
+            std::fs::create_dir_all(logs.join(part)).unwrap();
+            std::fs::write(logs.join(part).join("a.parquet"), b"").unwrap();
+        }
+        std::fs::create_dir_all(dir.path().join("other")).unwrap();
+        std::fs::write(dir.path().join("other/b.parquet"), b"").unwrap();
+        for (name, target) in [("here", "."), ("again", "."), ("up", "..")] {
+            std::os::unix::fs::symlink(target, logs.join(name)).unwrap();
+        }
+        std::os::unix::fs::symlink("../..", logs.join("robot_id=r1/date=2026-11-11/top")).unwrap();
+        // A linked folder elsewhere is followed, once.
+        std::fs::create_dir_all(dir.path().join("disk2/date=2026-11-12")).unwrap();
+        std::fs::write(dir.path().join("disk2/date=2026-11-12/c.parquet"), b"").unwrap();
+        std::os::unix::fs::symlink(dir.path().join("disk2"), logs.join("robot_id=r1/more"))
+            .unwrap();
+        std::os::unix::fs::symlink(dir.path().join("disk2"), logs.join("robot_id=r1/same"))
+            .unwrap();
+        let found = discover(&LogQuery {
+            source: LogSource::Local(logs),
+            ..query("r1")
+        })
+        .unwrap();
+        let files: Vec<&str> = found.files.iter().map(|f| f.relative.as_str()).collect();
+        assert_eq!(files.len(), 3, "{files:?}");
+        assert!(files.contains(&"robot_id=r1/date=2026-11-10/a.parquet"));
+        assert!(files.contains(&"robot_id=r1/date=2026-11-11/a.parquet"));
+        assert!(
+            files
+                .iter()
+                .any(|f| f.ends_with("date=2026-11-12/c.parquet"))
+        );
+    }
+
+    #[test]
+    fn partition_dates_need_four_digit_years() {
+        assert!(parse_day("2026-11-10").is_some());
+        for bad in [
+            "99999999999-01-01",
+            "2026-1-10",
+            "2026-02-30",
+            "+026-11-10",
+            "",
+        ] {
+            assert!(parse_day(bad).is_none(), "{bad}");
         }
     }
 }

@@ -21,10 +21,11 @@ use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, settings_error,
 };
+use crate::logs::parse_day;
 use crate::logs::s3::{S3Location, S3Settings};
 use crate::logs::{self, ContentKey, LogQuery, LogSource, ScanReport};
 use crate::table::schema;
-use crate::table::time::{date_string, parse_date};
+use crate::table::time::date_string;
 
 pub struct ScanLogsStage;
 
@@ -57,8 +58,8 @@ pub struct ScanLogsSettings {
     pub content_key: ContentKey,
     /// The robot whose rows to keep.
     pub robot_id: String,
-    /// Window of whole days ending on the run date, e.g. `"14d"`. Ignored when
-    /// `from` is set.
+    /// Window of whole days ending on the run date (or `to`), e.g. `"14d"`:
+    /// `1d` to `36600d`. Ignored when `from` is set.
     pub last: String,
     /// First day of an absolute window, `YYYY-MM-DD`.
     pub from: Option<String>,
@@ -95,7 +96,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Logged measurements of one robot over a time window, split by day for validation",
-    code_version: 1,
+    code_version: 2,
     inputs: &[],
     outputs: &[
         TableSlot {
@@ -138,12 +139,15 @@ impl ScanLogsSettings {
         if self.robot_id.is_empty() {
             problems.push(SettingsProblem::new("robot_id", "required"));
         }
+        for (key, message) in self.s3.problems("s3") {
+            problems.push(SettingsProblem::new(&key, message));
+        }
         let mut date = |key: &str, text: &str| {
-            let day = parse_date(text);
+            let day = parse_day(text);
             if day.is_none() {
                 problems.push(SettingsProblem::new(
                     key,
-                    format!("`{text}` is not a date YYYY-MM-DD"),
+                    format!("`{text}` is not a date YYYY-MM-DD (a four-digit year, a real day)"),
                 ));
             }
             day
@@ -151,21 +155,26 @@ impl ScanLogsSettings {
         let to = self.to.as_deref().map(|to| date("to", to));
         let start = match &self.from {
             Some(from) => date("from", from).map(WindowStart::Day),
-            None => {
-                let days = self
-                    .last
-                    .strip_suffix('d')
-                    .and_then(|n| n.parse::<i64>().ok())
-                    .filter(|n| *n >= 1);
-                if days.is_none() {
-                    problems.push(SettingsProblem::new(
-                        "last",
-                        format!("`{}` is not a number of days like \"14d\"", self.last),
-                    ));
+            None => match last_days(&self.last) {
+                Ok(days) => Some(WindowStart::Last(days)),
+                Err(message) => {
+                    problems.push(SettingsProblem::new("last", message));
+                    None
                 }
-                days.map(WindowStart::Last)
-            }
+            },
         };
+        if let (Some(WindowStart::Day(from)), Some(Some(to))) = (&start, &to)
+            && from > to
+        {
+            problems.push(SettingsProblem::new(
+                "from",
+                format!(
+                    "`{}` is after `to` = `{}`: the window would be empty",
+                    date_string(*from),
+                    date_string(*to)
+                ),
+            ));
+        }
         match (start, to) {
             (Some(start), None) if problems.is_empty() => Ok((start, None)),
             (Some(start), Some(Some(to))) if problems.is_empty() => Ok((start, Some(to))),
@@ -182,18 +191,53 @@ impl ScanLogsSettings {
         };
         if first_day > last_day {
             return Err(StageError::Invalid(format!(
-                "the window {} .. {} is empty",
+                "setting `from`: the window {} .. {} is empty (`from` is after the run date {})",
                 date_string(first_day),
+                date_string(last_day),
                 date_string(last_day)
             )));
         }
         Ok(LogQuery {
-            source: LogSource::parse(&self.logs, job_dir, &self.s3).map_err(StageError::Invalid)?,
+            source: LogSource::parse(&self.logs, job_dir, &self.s3)
+                .map_err(|m| StageError::Invalid(format!("setting `logs`: {m}")))?,
             robot_id: self.robot_id.clone(),
             first_day,
             last_day,
             skip_bad_data: self.bad_data == BadData::Skip,
         })
+    }
+}
+
+/// Longest window `last` allows, in days (100 years).
+const MAX_LAST_DAYS: i64 = 36_600;
+
+/// The days of a `last` window (`"14d"`), or why it is not one.
+fn last_days(text: &str) -> Result<i64, String> {
+    let allowed = format!("allowed: 1d to {MAX_LAST_DAYS}d");
+    let digits = text.strip_prefix('+').unwrap_or(text).strip_suffix('d');
+    match digits {
+        Some(n) if !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()) => {
+            match n.parse::<i64>() {
+                Ok(0) => Err(format!("`{text}` is an empty window ({allowed})")),
+                Ok(days) if days <= MAX_LAST_DAYS => Ok(days),
+                _ => Err(format!("`{text}` is out of range ({allowed})")),
+            }
+        }
+        _ if text.starts_with('-') => Err(format!(
+            "`{text}` is negative; a window counts days back from the run date ({allowed})"
+        )),
+        _ => Err(format!(
+            "`{text}` is not a number of days like \"14d\" ({allowed})"
+        )),
+    }
+}
+
+/// A scan's error as a stage error: a setting or the environment is bad input.
+fn stage_error(e: logs::LogError) -> StageError {
+    if e.is_bad_input() {
+        StageError::Invalid(e.to_string())
+    } else {
+        StageError::Failed(e.to_string())
     }
 }
 
@@ -219,9 +263,8 @@ impl Stage for ScanLogsStage {
         run_date: i64,
     ) -> Result<serde_json::Value, StageError> {
         let query = settings.query(job_dir, run_date)?;
-        let failed = |e: logs::LogError| StageError::Failed(e.to_string());
-        let found = logs::discover(&query).map_err(failed)?;
-        let hashes = logs::content_keys(&found, settings.content_key).map_err(failed)?;
+        let found = logs::discover(&query).map_err(stage_error)?;
+        let hashes = logs::content_keys(&found, settings.content_key).map_err(stage_error)?;
         Ok(serde_json::json!({
             "window": [date_string(query.first_day), date_string(query.last_day)],
             "files": hashes,
@@ -234,9 +277,8 @@ impl Stage for ScanLogsStage {
         settings: &ScanLogsSettings,
     ) -> Result<StageOutputs, StageError> {
         let query = settings.query(ctx.job_dir, ctx.run_date)?;
-        let failed = |e: logs::LogError| StageError::Failed(e.to_string());
-        let found = logs::discover(&query).map_err(failed)?;
-        let scan = logs::scan(&query, &found).map_err(failed)?;
+        let found = logs::discover(&query).map_err(stage_error)?;
+        let scan = logs::scan(&query, &found).map_err(stage_error)?;
         let window = format!(
             "{} .. {}",
             date_string(query.first_day),
@@ -339,6 +381,13 @@ impl Stage for ScanLogsStage {
 
 /// Explains an empty scan: nothing there, or rows of other robots only.
 fn no_rows_message(query: &LogQuery, window: &str, report: &ScanReport) -> String {
+    if report.files_found == 0 {
+        return format!(
+            "no log files under {}: no `*.parquet` file found{} (expected robot_id=…/date=YYYY-MM-DD/*.parquet)",
+            query.source,
+            folders_not_listed(report)
+        );
+    }
     let mut message = format!(
         "no logged rows of robot `{}` in {window} under {} ({} file(s) found, {} pruned by partition, {} read{}",
         query.robot_id,
@@ -369,5 +418,56 @@ fn folders_not_listed(report: &ScanReport) -> String {
     match report.folders_pruned {
         0 => String::new(),
         n => format!("; {n} partition folder(s) outside the window not listed"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn last_windows_are_checked_with_their_range() {
+        assert_eq!(last_days("14d"), Ok(14));
+        assert_eq!(last_days("36600d"), Ok(36_600));
+        for (text, word) in [
+            ("1000000000000d", "out of range"),
+            ("99999999999999999999999d", "out of range"),
+            ("36601d", "out of range"),
+            ("0d", "empty window"),
+            ("-3d", "negative"),
+            ("14", "not a number of days"),
+            ("d", "not a number of days"),
+            ("1.5d", "not a number of days"),
+        ] {
+            let message = last_days(text).unwrap_err();
+            assert!(
+                message.contains(word) && message.contains("1d to 36600d"),
+                "{text}: {message}"
+            );
+        }
+    }
+
+    #[test]
+    fn dates_and_their_order_are_checked() {
+        let settings = |from: &str, to: &str| ScanLogsSettings {
+            logs: "logs".into(),
+            robot_id: "r".into(),
+            from: Some(from.into()),
+            to: Some(to.into()),
+            ..ScanLogsSettings::default()
+        };
+        let keys = |s: ScanLogsSettings| -> Vec<String> {
+            s.window()
+                .err()
+                .unwrap_or_default()
+                .into_iter()
+                .map(|p| p.key)
+                .collect()
+        };
+        assert!(keys(settings("2026-11-01", "2026-11-14")).is_empty());
+        assert_eq!(keys(settings("2026-11-20", "2026-11-14")), ["from"]);
+        assert_eq!(keys(settings("2026-02-30", "2026-11-14")), ["from"]);
+        assert_eq!(keys(settings("99999999999-01-01", "2026-11-14")), ["from"]);
+        assert_eq!(keys(settings("2026-11-01", "26-11-14")), ["to"]);
     }
 }
