@@ -242,7 +242,7 @@ fn run_errors(
             )));
         }
         let error = rows.positions[k] - target;
-        if !(error.norm() <= max_error_mm) {
+        if error.norm().is_nan() || error.norm() > max_error_mm {
             return Err(StageError::Invalid(format!(
                 "{}: row {} (cw_id {id}): the measured point lies {} mm from its target, more than max_error_mm = {max_error_mm}: another target, frame or unit? (raise the setting if the robot really missed by that much)",
                 table.path.display(),
