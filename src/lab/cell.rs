@@ -369,6 +369,21 @@ fn device_settings<T: serde::de::DeserializeOwned>(
     })
 }
 
+/// Whether `value` is an IP address or a host name (RFC 1123 labels of
+/// letters, digits and `-`, at most 63 characters each, 253 in all).
+fn is_host(value: &str) -> bool {
+    if value.parse::<std::net::IpAddr>().is_ok() {
+        return true;
+    }
+    value.len() <= 253
+        && value.split('.').all(|label| {
+            (1..=63).contains(&label.len())
+                && !label.starts_with('-')
+                && !label.ends_with('-')
+                && label.chars().all(|c| c.is_ascii_alphanumeric() || c == '-')
+        })
+}
+
 /// A bad cell file: the file, the key and what was expected.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{}{}: {message}", file.display(), if key.is_empty() { String::new() } else { format!(": {key}") })]
@@ -457,6 +472,13 @@ impl CellFile {
                     key.to_string(),
                     "required: a host name or IP address".to_string(),
                 ))
+            } else if !is_host(value) {
+                Err((
+                    key.to_string(),
+                    format!(
+                        "`{value}`: expected a host name or IP address alone (the port is a key of its own)"
+                    ),
+                ))
             } else {
                 Ok(())
             }
@@ -502,6 +524,15 @@ impl CellFile {
         if let Some(Tracker::LeicaEmscon(s)) = &self.tracker {
             address("tracker.address", &s.address)?;
             port("tracker.port", s.port)?;
+            if s.reflector_id < 0 {
+                return Err((
+                    "tracker.reflector_id".into(),
+                    format!(
+                        "{}: expected a reflector id ≥ 0, as the tracker lists them",
+                        s.reflector_id
+                    ),
+                ));
+            }
             if !(1..=600_000).contains(&s.stationary_time_ms) {
                 return Err((
                     "tracker.stationary_time_ms".into(),
@@ -622,6 +653,16 @@ mod tests {
                 "port",
             ),
         ];
+        let cases = cases.into_iter().chain([
+            (
+                "[cell]\nname = \"c\"\n[cable_robot]\nkind = \"egcal_udp\"\naddress = \"10.0.0.2:30500\"\n",
+                "cable_robot.address",
+            ),
+            (
+                "[cell]\nname = \"c\"\n[force_sensor]\nkind = \"ati_netft\"\naddress = \"not an address\"\n",
+                "force_sensor.address",
+            ),
+        ]);
         for (text, expected) in cases {
             let message = load(text).unwrap_err().to_string();
             assert!(
