@@ -328,7 +328,7 @@ pub fn unprintable(program: &Program, motion: &MotionSettings) -> Option<String>
     }
     values
         .into_iter()
-        .find(|(_, v)| !(v.abs() < MAX_PRINTED))
+        .find(|(_, v)| !v.is_finite() || v.abs() >= MAX_PRINTED)
         .map(|(what, v)| {
             format!(
                 "{what} would be printed as {v:e}, beyond what a program may hold ({MAX_PRINTED:e})"
@@ -693,6 +693,34 @@ mod tests {
     use crate::robot::test_support::irb1600;
 
     const DEG: f64 = std::f64::consts::PI / 180.0;
+
+    #[test]
+    fn an_unprintable_number_is_found_wherever_it_is() {
+        let robot = irb1600();
+        let motion = test_support::motion(None, None);
+        let good = test_support::program(&robot, &[1, 2], None, None);
+        assert_eq!(unprintable(&good, &motion), None);
+        let mut bad = good.clone();
+        bad.commands[1].residual_mm = 1e300;
+        let problem = unprintable(&bad, &motion).unwrap();
+        assert!(
+            problem.contains("target_id 2: residual_mm") && problem.contains("1e300"),
+            "{problem}"
+        );
+        let mut bad = good.clone();
+        bad.stops[0].target.position_mm[2] = f64::NAN;
+        assert!(
+            unprintable(&bad, &motion)
+                .unwrap()
+                .contains("target_id 1: target")
+        );
+        let mut bad = good.clone();
+        bad.tools[0].flange_from_tool.origin_mm.x = f64::INFINITY;
+        assert!(unprintable(&bad, &motion).unwrap().contains("tool 1"));
+        let mut fast = test_support::motion(None, None);
+        fast.speed_mm_s = f64::NAN;
+        assert!(unprintable(&good, &fast).unwrap().contains("speed_mm_s"));
+    }
 
     #[test]
     fn zyx_angles_of_fixed_rotations() {

@@ -119,7 +119,7 @@ pub fn unprintable(robot: &Robot, p: &ParamValues) -> Option<String> {
     }
     values
         .into_iter()
-        .find(|(_, v)| !(v.abs() < super::MAX_PRINTED))
+        .find(|(_, v)| !v.is_finite() || v.abs() >= super::MAX_PRINTED)
         .map(|(what, v)| format!("{what} would be printed as {v:e}, beyond what a URDF may hold"))
 }
 

@@ -293,7 +293,10 @@ fn check(
             ));
         }
     }
-    for (key, texts) in [("expect.contains", &expect.contains), ("expect.stdout", &expect.stdout)] {
+    for (key, texts) in [
+        ("expect.contains", &expect.contains),
+        ("expect.stdout", &expect.stdout),
+    ] {
         if texts.iter().any(String::is_empty) {
             return Err(bad(
                 key,

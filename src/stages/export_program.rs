@@ -322,6 +322,13 @@ impl Stage for ExportProgramStage {
         let input = ctx.input("commands")?;
         let commands = read_commands(&input.df, &input.path)?;
         check_commands(ctx.robot, &commands, &input.path)?;
+        if !commands.iter().any(Command::is_ok) {
+            return Err(StageError::Invalid(format!(
+                "{}: {} row(s), none with status ok: the programs would move nowhere",
+                input.path.display(),
+                commands.len()
+            )));
+        }
         let failed: Vec<String> = commands
             .iter()
             .filter(|c| !c.is_ok())
@@ -741,8 +748,9 @@ pub fn check_commands(
                 format!("{problem}; a command with status ok must be one the robot can take"),
             ));
         }
-        let distance = nalgebra::Vector3::from(c.position_mm).norm();
-        if !(distance <= limit_mm) {
+        // hypot: 1e300 stays 1e300 in the message, not inf.
+        let distance = c.position_mm.iter().fold(0.0_f64, |n, v| n.hypot(*v));
+        if !(0.0..=limit_mm).contains(&distance) {
             return Err(bad(
                 "x_cmd_mm",
                 format!(
@@ -805,7 +813,7 @@ pub fn check_commands(
 fn check_parameters(set: &ParameterSet, path: &std::path::Path) -> Result<(), StageError> {
     for id in ParamId::all_with_targets(set.targets.len().max(1)) {
         let value = set.values.0[id.index()];
-        if !(value.abs() <= MAX_POSITION_MM) {
+        if !(-MAX_POSITION_MM..=MAX_POSITION_MM).contains(&value) {
             return Err(StageError::Invalid(format!(
                 "{}: model `{}`: parameter `{}` is {}, beyond {MAX_POSITION_MM} in magnitude; no robot has such a parameter",
                 path.display(),
@@ -854,7 +862,7 @@ pub fn read_commands(
         // hypot: a component of 1e300 gives a norm of 1e300, not inf.
         let norm = q.iter().fold(0.0_f64, |n, v| n.hypot(*v));
         // Written so that a NaN norm is refused too.
-        if !((norm - 1.0).abs() <= QUATERNION_NORM_TOLERANCE) {
+        if !(1.0 - QUATERNION_NORM_TOLERANCE..=1.0 + QUATERNION_NORM_TOLERANCE).contains(&norm) {
             return Err(TableError::BadValue {
                 file: path.to_path_buf(),
                 column: "qw_cmd".into(),
@@ -885,3 +893,86 @@ pub fn read_commands(
 /// How far from 1 a quaternion's norm may be: the table stores a unit
 /// quaternion, so more than rounding means a wrong column.
 const QUATERNION_NORM_TOLERANCE: f64 = 1e-6;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::test_support::irb1600;
+
+    fn row(target_id: i64, status: &str, q_deg: [f64; 6]) -> Command {
+        Command {
+            target_id,
+            q_deg,
+            status: status.into(),
+            residual_mm: 0.0,
+            correction_mm: 0.5,
+            elastic_mm: 0.1,
+            position_mm: [900.0, 0.0, 800.0],
+            quaternion_wxyz: [1.0, 0.0, 0.0, 0.0],
+            tool_id: None,
+            envelope_distance: Some(3.0),
+            u95_mm: Some(0.2),
+        }
+    }
+
+    fn problem(rows: &[Command]) -> String {
+        let robot = irb1600();
+        check_commands(&robot, rows, std::path::Path::new("c.parquet"))
+            .unwrap_err()
+            .to_string()
+    }
+
+    #[test]
+    fn commands_a_program_must_not_carry_are_named() {
+        let robot = irb1600();
+        let q = [10.0, 20.0, -30.0, 40.0, 50.0, 60.0];
+        let good = vec![
+            row(1, "ok", q),
+            row(2, "joint_limit", [0.0, 500.0, 0.0, 0.0, 0.0, 0.0]),
+        ];
+        // A row that is not ok may keep a last iterate beyond the limits.
+        assert!(check_commands(&robot, &good, std::path::Path::new("c.parquet")).is_ok());
+        let mut beyond = good.clone();
+        beyond[0].q_deg[1] = 500.0;
+        let p = problem(&beyond);
+        assert!(
+            p.contains("c.parquet: row 0 (target_id 1): column `q2_deg`")
+                && p.contains("q2_deg = 500")
+                && p.contains("[-90, 120]"),
+            "{p}"
+        );
+        let mut far = good.clone();
+        far[1].position_mm[0] = 1e300;
+        let p = problem(&far);
+        assert!(
+            p.contains("row 1 (target_id 2): column `x_cmd_mm`") && p.contains("1e300"),
+            "{p}"
+        );
+        let mut status = good.clone();
+        status[0].status = "OK".into();
+        assert!(problem(&status).contains("column `status`: \"OK\""));
+        let mut negative = good.clone();
+        negative[1].correction_mm = -1.0;
+        assert!(problem(&negative).contains("column `correction_mm`"));
+        let mut huge = good.clone();
+        huge[0].elastic_mm = 1e5;
+        assert!(problem(&huge).contains("column `elastic_mm`"));
+        let mut envelope = good.clone();
+        envelope[1].envelope_distance = Some(181.0);
+        assert!(problem(&envelope).contains("column `envelope_distance`"));
+        let mut u95 = good.clone();
+        u95[1].u95_mm = Some(1e300);
+        assert!(problem(&u95).contains("column `u95_mm`: 1e300"));
+        let mut tool = good;
+        tool[0].tool_id = Some(" ".into());
+        assert!(problem(&tool).contains("column `tool_id`"));
+    }
+
+    #[test]
+    fn the_reach_bound_is_the_arm_and_its_tool() {
+        // IRB 1600-1.45: a 150, 700, 115 (|a|) and d 486.5, 600, 65 (|d|) plus
+        // its tool; about 2 m, and at least the arm's 1.45 m reach.
+        let reach = reach_mm(&irb1600());
+        assert!((1450.0..3000.0).contains(&reach), "{reach}");
+    }
+}

@@ -152,6 +152,12 @@ impl Stage for Iso9283Stage {
                 joined_rows(targets, ctx.input("measurements")?)?
             }
         };
+        if rows.visits.is_empty() {
+            return Err(StageError::Invalid(format!(
+                "{}: no measured rows; the test has nothing to compute",
+                rows.file.display()
+            )));
+        }
         let by_point = rows.by_point()?;
 
         let mut points = PointColumns::default();
@@ -293,7 +299,7 @@ impl Rows {
     fn check_positions(&self, by_point: &[Vec<Visit>]) -> Result<(), StageError> {
         for visit in &self.visits {
             let attained = norm(&visit.attained_mm);
-            if !(attained <= MAX_POSITION_MM) {
+            if !(0.0..=MAX_POSITION_MM).contains(&attained) {
                 return Err(self.bad(
                     "x_mm",
                     visit.row,
@@ -305,7 +311,7 @@ impl Rows {
                 ));
             }
             let error = norm(&(visit.attained_mm - visit.commanded_mm));
-            if !(error <= MAX_POSE_ERROR_MM) {
+            if !(0.0..=MAX_POSE_ERROR_MM).contains(&error) {
                 return Err(self.bad(
                     "x_mm",
                     visit.row,
@@ -326,7 +332,7 @@ impl Rows {
             });
             for visit in visits {
                 let spread = norm(&(visit.attained_mm - median));
-                if !(spread <= MAX_SPREAD_MM) {
+                if !(0.0..=MAX_SPREAD_MM).contains(&spread) {
                     return Err(self.bad(
                         "x_mm",
                         visit.row,
