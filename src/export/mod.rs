@@ -266,6 +266,76 @@ fn one_line(text: &str) -> String {
         .collect()
 }
 
+/// The largest magnitude of a number a program may print (mm, deg, kg, mm/s):
+/// 10 km. Everything the files print is bounded far below it by the checks of
+/// the stage's inputs; [`unprintable`] makes sure, so that `inf`, `NaN` or a
+/// 301-digit number never reaches a controller.
+pub const MAX_PRINTED: f64 = 1e7;
+
+/// The first number the files of `program` would print that is not finite or
+/// beyond [`MAX_PRINTED`], described; `None` when every one is printable.
+pub fn unprintable(program: &Program, motion: &MotionSettings) -> Option<String> {
+    let mut values: Vec<(String, f64)> = vec![
+        ("setting `speed_mm_s`".into(), motion.speed_mm_s),
+        (
+            "setting `joint_speed_percent`".into(),
+            motion.joint_speed_percent,
+        ),
+        (
+            "setting `approach_mm`".into(),
+            motion.approach_mm.unwrap_or(0.0),
+        ),
+    ];
+    for c in &program.commands {
+        let row = |what: &str| format!("target_id {}: {what}", c.target_id);
+        if c.is_ok() {
+            values.extend(
+                c.q_deg
+                    .iter()
+                    .enumerate()
+                    .map(|(j, v)| (row(&format!("q{}_deg", j + 1)), *v)),
+            );
+            values.push((row("residual_mm"), c.residual_mm));
+            values.push((row("correction_mm"), c.correction_mm));
+            values.push((row("elastic_mm"), c.elastic_mm));
+        }
+        values.extend(c.envelope_distance.map(|v| (row("envelope_distance"), v)));
+        values.extend(c.u95_mm.map(|v| (row("u95_mm"), v)));
+    }
+    for stop in &program.stops {
+        let poses = std::iter::once(("target", &stop.target))
+            .chain(stop.approach.as_ref().map(|a| ("approach point", a)));
+        for (what, pose) in poses {
+            let name = format!("target_id {}: {what}", stop.target_id);
+            values.extend(pose.position_mm.iter().map(|v| (name.clone(), *v)));
+            values.extend(pose.quaternion_wxyz.iter().map(|v| (name.clone(), *v)));
+            values.extend(pose.q_deg.iter().map(|v| (name.clone(), *v)));
+        }
+    }
+    for (k, tool) in program.tools.iter().enumerate() {
+        let name = format!("tool {}", k + 1);
+        values.extend(tool.tcp_mm().iter().map(|v| (name.clone(), *v)));
+        values.extend(tool.quaternion_wxyz().iter().map(|v| (name.clone(), *v)));
+        if let Some(payload) = &program.payload {
+            values.push(("payload mass".into(), payload.mass_kg));
+            values.extend(
+                payload
+                    .cog_in_flange_mm(tool)
+                    .iter()
+                    .map(|v| ("payload centre of gravity".into(), *v)),
+            );
+        }
+    }
+    values
+        .into_iter()
+        .find(|(_, v)| !v.is_finite() || v.abs() >= MAX_PRINTED)
+        .map(|(what, v)| {
+            format!(
+                "{what} would be printed as {v:e}, beyond what a program may hold ({MAX_PRINTED:e})"
+            )
+        })
+}
+
 /// `value` with `decimals` decimals, never `-0.000`.
 pub fn fixed(value: f64, decimals: usize) -> String {
     let text = format!("{value:.decimals$}");
@@ -623,6 +693,34 @@ mod tests {
     use crate::robot::test_support::irb1600;
 
     const DEG: f64 = std::f64::consts::PI / 180.0;
+
+    #[test]
+    fn an_unprintable_number_is_found_wherever_it_is() {
+        let robot = irb1600();
+        let motion = test_support::motion(None, None);
+        let good = test_support::program(&robot, &[1, 2], None, None);
+        assert_eq!(unprintable(&good, &motion), None);
+        let mut bad = good.clone();
+        bad.commands[1].residual_mm = 1e300;
+        let problem = unprintable(&bad, &motion).unwrap();
+        assert!(
+            problem.contains("target_id 2: residual_mm") && problem.contains("1e300"),
+            "{problem}"
+        );
+        let mut bad = good.clone();
+        bad.stops[0].target.position_mm[2] = f64::NAN;
+        assert!(
+            unprintable(&bad, &motion)
+                .unwrap()
+                .contains("target_id 1: target")
+        );
+        let mut bad = good.clone();
+        bad.tools[0].flange_from_tool.origin_mm.x = f64::INFINITY;
+        assert!(unprintable(&bad, &motion).unwrap().contains("tool 1"));
+        let mut fast = test_support::motion(None, None);
+        fast.speed_mm_s = f64::NAN;
+        assert!(unprintable(&good, &fast).unwrap().contains("speed_mm_s"));
+    }
 
     #[test]
     fn zyx_angles_of_fixed_rotations() {

@@ -98,6 +98,31 @@ fn origin(frame: &Frame) -> String {
     )
 }
 
+/// The first value the URDF of `robot` at `p` would print that is not finite
+/// or beyond [`super::MAX_PRINTED`] (a parameter, a joint origin, a limit),
+/// described; `None` when every one is printable.
+pub fn unprintable(robot: &Robot, p: &ParamValues) -> Option<String> {
+    let mut values: Vec<(String, f64)> =
+        p.0.iter()
+            .enumerate()
+            .map(|(i, v)| (format!("parameter {i}"), *v))
+            .collect();
+    for i in 0..JOINTS {
+        let origin = joint_origin(robot, p, i);
+        values.extend(
+            origin
+                .origin_mm
+                .iter()
+                .chain(zyx_angles(&origin.rotation).iter())
+                .map(|v| (format!("the origin of joint {}", i + 1), *v)),
+        );
+    }
+    values
+        .into_iter()
+        .find(|(_, v)| !v.is_finite() || v.abs() >= super::MAX_PRINTED)
+        .map(|(what, v)| format!("{what} would be printed as {v:e}, beyond what a URDF may hold"))
+}
+
 /// The URDF text of `robot` at parameter set `p`.
 pub fn robot_urdf(robot: &Robot, p: &ParamValues, source: &UrdfSource) -> String {
     let spec = robot.spec();

@@ -213,6 +213,14 @@ fn check(
             ))
         }
     };
+    // An input is a file of the case: inside its folder (README: "a folder
+    // holding case.toml and the files it names"), so that the case, copied
+    // elsewhere, still tests what it tested. The robot and cable-robot files
+    // may be shared between cases (`../../robots/cell7.toml`) or absolute.
+    let inside = |key: &str, name: &str| -> Result<PathBuf, Malformed> {
+        inside_folder(Some(dir), name, "case folder").map_err(|message| bad(key, message))?;
+        existing(key, name)
+    };
     let robot_file = existing("robot", &raw.robot)?;
     let cable_robot_file = match &raw.cable_robot {
         Some(name) => Some(existing("cable_robot", name)?),
@@ -236,7 +244,7 @@ fn check(
                 ),
             ));
         }
-        inputs.push((name.clone(), existing(&key, file)?));
+        inputs.push((name.clone(), inside(&key, file)?));
     }
     let expect = raw.expect;
     // A misspelt setting in a case that must succeed is the case's mistake; in
@@ -285,6 +293,23 @@ fn check(
             ));
         }
     }
+    for (key, texts) in [
+        ("expect.contains", &expect.contains),
+        ("expect.stdout", &expect.stdout),
+    ] {
+        if texts.iter().any(String::is_empty) {
+            return Err(bad(
+                key,
+                "holds an empty text, which every output contains: the check proves nothing".into(),
+            ));
+        }
+    }
+    if let Some(file) = &expect.file {
+        // The stage's output folder is a fresh temporary folder; the file
+        // must be one the stage wrote there, not one that was there anyway.
+        inside_folder(None, file, "stage's output folder")
+            .map_err(|message| bad("expect.file", message))?;
+    }
     let (has_file, has_contains) = (expect.file.is_some(), !expect.contains.is_empty());
     if has_file != has_contains {
         let key = if has_file {
@@ -303,6 +328,16 @@ fn check(
                 format!("{tolerance} is not a relative tolerance ≥ 0"),
             ));
         }
+        if tolerance > MAX_TOLERANCE {
+            return Err(bad(
+                "expect.tolerance",
+                format!(
+                    "{tolerance:e} is a relative tolerance above {MAX_TOLERANCE} (100 %), which accepts almost any value: the comparison would prove nothing"
+                ),
+            ));
+        }
+        inside_folder(Some(dir), "expected", "case folder")
+            .map_err(|message| bad("expect.tolerance", message))?;
         expected_tables = expected_tables_in(&expected_dir)
             .map_err(|message| bad("expect.tolerance", message))?;
     } else if expected_dir.exists() {
@@ -329,6 +364,48 @@ fn check(
     })
 }
 
+/// The largest relative tolerance of a comparison: beyond 100 %, any value of
+/// the same sign passes.
+const MAX_TOLERANCE: f64 = 1.0;
+
+/// Why the path `name` of a case file does not stay inside `folder` (named
+/// `what` in the message): empty, absolute, with a `..` component, or (for a
+/// path that exists in a `folder` given) a symlink that resolves outside it.
+/// `Ok` when it stays.
+pub fn inside_folder(folder: Option<&Path>, name: &str, what: &str) -> Result<(), String> {
+    use std::path::Component;
+    let path = Path::new(name);
+    if name.trim().is_empty() {
+        return Err(format!("an empty path; name a file in the {what}"));
+    }
+    if path.is_absolute() || path.has_root() {
+        return Err(format!(
+            "`{name}` is an absolute path; a case may name only files in its {what}, relative to it"
+        ));
+    }
+    if path.components().any(|c| c == Component::ParentDir) {
+        return Err(format!(
+            "`{name}` leaves the {what} (`..`); a case may name only files in it"
+        ));
+    }
+    let Some(folder) = folder else {
+        return Ok(());
+    };
+    let full = folder.join(path);
+    if full.exists() {
+        let (Ok(resolved), Ok(root)) = (full.canonicalize(), folder.canonicalize()) else {
+            return Err(format!("`{name}` cannot be resolved in the {what}"));
+        };
+        if !resolved.starts_with(&root) {
+            return Err(format!(
+                "`{name}` resolves to {} outside the {what} (a symbolic link); a case may name only files in it",
+                resolved.display()
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// The `<table>.parquet` tables of `expected/`, read; anything else there is a
 /// mistake (a table saved under another name is a comparison silently not made).
 fn expected_tables_in(dir: &Path) -> Result<Vec<(String, polars::prelude::DataFrame)>, String> {
@@ -341,6 +418,9 @@ fn expected_tables_in(dir: &Path) -> Result<Vec<(String, polars::prelude::DataFr
         let name = entry.file_name().to_string_lossy().into_owned();
         if name.starts_with('.') {
             continue;
+        }
+        if std::fs::symlink_metadata(&path).is_ok_and(|m| m.file_type().is_symlink()) {
+            inside_folder(Some(dir), &name, "expected folder")?;
         }
         if !(path.is_file() && name.ends_with(".parquet")) {
             return Err(format!(
@@ -432,6 +512,38 @@ mod tests {
             let e = load(&dir).unwrap_err();
             assert_eq!((e.key.as_str(), e.line), (key, Some(line)), "{e}");
         }
+    }
+
+    #[test]
+    fn paths_that_leave_the_case_are_refused() {
+        let outside = tempfile::tempdir().unwrap();
+        std::fs::write(outside.path().join("x.parquet"), "").unwrap();
+        // An input that is a symbolic link to a file outside the case.
+        let (_root, dir) = case_dir(&GOOD.replace("m.parquet", "link.parquet"));
+        std::os::unix::fs::symlink(outside.path().join("x.parquet"), dir.join("link.parquet"))
+            .unwrap();
+        let e = load(&dir).unwrap_err();
+        assert_eq!(e.key, "inputs.measurements", "{e}");
+        assert!(e.message.contains("outside the case folder"), "{e}");
+        // An expected folder that is a link to another folder.
+        let (_root, dir) = case_dir(GOOD);
+        std::fs::remove_dir_all(dir.join("expected")).unwrap();
+        std::os::unix::fs::symlink(outside.path(), dir.join("expected")).unwrap();
+        let e = load(&dir).unwrap_err();
+        assert_eq!(e.key, "expect.tolerance", "{e}");
+        assert!(e.message.contains("outside the case folder"), "{e}");
+        // An output file outside the output folder, however written.
+        for file in ["/etc/passwd", "../x", "a/../../x", ""] {
+            let text = GOOD.replace(
+                "tolerance = 1e-6",
+                &format!("tolerance = 1e-6\nfile = \"{file}\"\ncontains = [\"x\"]"),
+            );
+            let (_root, dir) = case_dir(&text);
+            let e = load(&dir).unwrap_err();
+            assert_eq!(e.key, "expect.file", "{file}: {e}");
+        }
+        // Inside is fine, through a link too.
+        assert_eq!(inside_folder(None, "sub/report.html", "x"), Ok(()));
     }
 
     #[test]

@@ -92,6 +92,18 @@ impl Cube {
 pub enum IsoError {
     #[error("{n} cycle(s); a repeatability needs at least 2 (the n − 1 divisor)")]
     TooFewCycles { n: usize },
+    /// A result that is not a finite number (positions beyond what a float
+    /// squares without overflow): never written as a statistic.
+    #[error("{name} is {value}, not a finite number; the positions are not readings of a robot")]
+    NonFinite { name: &'static str, value: f64 },
+}
+
+/// `Ok(values)` when every named value is finite, else the first that is not.
+fn finite(values: &[(&'static str, f64)]) -> Result<(), IsoError> {
+    match values.iter().find(|(_, v)| !v.is_finite()) {
+        Some(&(name, value)) => Err(IsoError::NonFinite { name, value }),
+        None => Ok(()),
+    }
 }
 
 /// Pose accuracy and repeatability of one point (ISO 9283 §7.2.1, §7.2.2), positions only.
@@ -125,12 +137,20 @@ pub fn pose_characteristics(
         .map(|p| (p - barycentre).norm())
         .collect();
     let (mean, std) = mean_and_sample_std(&l);
-    Ok(PoseCharacteristics {
+    let c = PoseCharacteristics {
         n,
         ap_mm: ap_xyz_mm.norm(),
         ap_xyz_mm,
         rp_mm: mean + 3.0 * std,
-    })
+    };
+    finite(&[
+        ("AP", c.ap_mm),
+        ("APx", c.ap_xyz_mm.x),
+        ("APy", c.ap_xyz_mm.y),
+        ("APz", c.ap_xyz_mm.z),
+        ("RP", c.rp_mm),
+    ])?;
+    Ok(c)
 }
 
 /// Distance accuracy and repeatability between two points (ISO 9283 §7.3).
@@ -156,12 +176,18 @@ pub fn distance_characteristics(
         return Err(IsoError::TooFewCycles { n });
     }
     let (mean_mm, std) = mean_and_sample_std(attained_mm);
-    Ok(DistanceCharacteristics {
+    let c = DistanceCharacteristics {
         n,
         mean_mm,
         ad_mm: (mean_mm - commanded_mm).abs(),
         rd_mm: 3.0 * std,
-    })
+    };
+    finite(&[
+        ("mean distance", c.mean_mm),
+        ("AD", c.ad_mm),
+        ("RD", c.rd_mm),
+    ])?;
+    Ok(c)
 }
 
 /// Mean and standard deviation with the n − 1 divisor (n ≥ 2).
@@ -197,6 +223,19 @@ mod tests {
         let c = distance_characteristics(400.0, &[400.00, 400.02, 399.99]).unwrap();
         assert!((c.ad_mm - 0.003333).abs() < 5e-7, "{}", c.ad_mm);
         assert!((c.rd_mm - 0.045826).abs() < 5e-7, "{}", c.rd_mm);
+    }
+
+    #[test]
+    fn a_result_that_overflows_is_an_error_not_a_number() {
+        let attained = [Vector3::zeros(), Vector3::new(1e300, 0.0, 0.0)];
+        assert!(matches!(
+            pose_characteristics(&Vector3::zeros(), &attained),
+            Err(IsoError::NonFinite { .. })
+        ));
+        assert!(matches!(
+            distance_characteristics(0.0, &[f64::MAX, f64::MAX]),
+            Err(IsoError::NonFinite { .. })
+        ));
     }
 
     #[test]

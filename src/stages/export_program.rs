@@ -18,10 +18,13 @@ use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, model_name_problem, model_set,
 };
+use crate::calibration::row_checks::{MAX_POSITION_MM, compact, joints_problem};
+use crate::compensation::Status;
 use crate::export::cartesian::{self, Payload, ProgramTool};
 use crate::export::{
     self, Command, MotionSettings, Motions, Program, Provenance, krl, rapid, urdf,
 };
+use crate::robot::params::ParamId;
 use crate::robot::{Frame, Robot};
 use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
@@ -318,6 +321,14 @@ impl Stage for ExportProgramStage {
     ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("commands")?;
         let commands = read_commands(&input.df, &input.path)?;
+        check_commands(ctx.robot, &commands, &input.path)?;
+        if !commands.iter().any(Command::is_ok) {
+            return Err(StageError::Invalid(format!(
+                "{}: {} row(s), none with status ok: the programs would move nowhere",
+                input.path.display(),
+                commands.len()
+            )));
+        }
         let failed: Vec<String> = commands
             .iter()
             .filter(|c| !c.is_ok())
@@ -350,6 +361,9 @@ impl Stage for ExportProgramStage {
             Some(set) => Some((set, ctx.input("parameters")?.path.as_path())),
             None => None,
         };
+        if let Some((set, path)) = parameters {
+            check_parameters(set, path)?;
+        }
         let (tools, row_tools) = program_tools(
             ctx.robot,
             parameters,
@@ -382,6 +396,15 @@ impl Stage for ExportProgramStage {
                 robot: ctx.robot.spec().name.clone(),
             },
         };
+        // Every number a file prints, once more: the checks above bound them,
+        // so this only fails on a bug, never with `inf`, `NaN` or 301 digits
+        // in a program.
+        if let Some(problem) = export::unprintable(&program, &motion) {
+            return Err(StageError::Failed(format!(
+                "{}: {problem}; no file written",
+                input.path.display()
+            )));
+        }
         let mut outputs = StageOutputs::default();
         let name = &settings.module_name;
         for format in settings.formats(parameters.is_some()) {
@@ -431,6 +454,12 @@ impl Stage for ExportProgramStage {
                         model: set.model.to_string(),
                         targets: set.targets.clone(),
                     };
+                    if let Some(problem) = urdf::unprintable(ctx.robot, &set.values) {
+                        return Err(StageError::Failed(format!(
+                            "{}: {problem}; no file written",
+                            path.display()
+                        )));
+                    }
                     let text = urdf::robot_urdf(ctx.robot, &set.values, &source);
                     outputs.files.insert("robot.urdf".into(), text.into_bytes());
                 }
@@ -640,6 +669,163 @@ fn describe(path: &std::path::Path, df: &polars::prelude::DataFrame) -> String {
     format!("{file} (content hash {})", &tables::content_hash(df))
 }
 
+/// How far a Cartesian target of the table may lie from the robot base, as a
+/// multiple of [`reach_mm`]: compensate writes nominal poses of the arm, so a
+/// target beyond it was written for another robot, in other units, or is
+/// corrupt.
+const REACH_FACTOR: f64 = 2.0;
+
+/// The largest `envelope_distance` compensate writes: the largest per-joint
+/// difference, wrapped to ±180° (deg).
+const MAX_ENVELOPE_DISTANCE_DEG: f64 = 180.0;
+
+/// An upper bound of the distance from the robot base to the robot file's
+/// tool: the sum of the MDH lengths `|a| + |d|` and the tool translation (mm).
+pub fn reach_mm(robot: &Robot) -> f64 {
+    let spec = robot.spec();
+    let links: f64 = spec
+        .joints
+        .iter()
+        .map(|j| j.a_mm.abs() + j.d_mm.abs())
+        .sum();
+    let tool = &spec.tool;
+    links + nalgebra::Vector3::new(tool.x_mm, tool.y_mm, tool.z_mm).norm()
+}
+
+/// Refuses, naming the file, the row, its target_id, the column and what was
+/// expected, a `commands` row whose values are not what `compensate` writes
+/// for this robot:
+///
+/// * a status other than compensate's (`OK`, `ok ` would silently leave the
+///   row out of the motion);
+/// * a row with status `ok` whose joint command lies outside the robot file's
+///   joint limits (the check `compensate` applies to its branch hints,
+///   [`joints_problem`]): a program must never command it;
+/// * a Cartesian target (`x_cmd_mm` …) farther from the base than
+///   [`REACH_FACTOR`] × [`reach_mm`];
+/// * a negative distance (`residual_mm`, `correction_mm`, `elastic_mm`), and
+///   on an `ok` row one beyond that bound (the CSV prints them);
+/// * an `envelope_distance` outside [0, 180]°, a `u95_mm` negative or beyond
+///   [`MAX_POSITION_MM`];
+/// * an empty `tool_id`.
+///
+/// NaN and infinities were refused by the table's schema check; the
+/// quaternion's norm by [`read_commands`]. The joint values of rows that are
+/// not `ok` (the solver's last iterate, maybe beyond a limit: that is what
+/// `joint_limit` says) are not checked against the limits: no file prints them.
+pub fn check_commands(
+    robot: &Robot,
+    commands: &[Command],
+    path: &std::path::Path,
+) -> Result<(), StageError> {
+    let reach = reach_mm(robot);
+    let limit_mm = REACH_FACTOR * reach;
+    let statuses: Vec<&str> = Status::ALL.iter().map(|s| s.as_str()).collect();
+    for (row, c) in commands.iter().enumerate() {
+        let bad = |column: &str, message: String| {
+            StageError::Invalid(format!(
+                "{}: row {row} (target_id {}): column `{column}`: {message}",
+                path.display(),
+                c.target_id
+            ))
+        };
+        if !statuses.contains(&c.status.as_str()) {
+            return Err(bad(
+                "status",
+                format!(
+                    "{:?} is no status compensate writes; expected one of {}",
+                    c.status,
+                    statuses.join(", ")
+                ),
+            ));
+        }
+        if c.is_ok()
+            && let Some(problem) = joints_problem(robot, &c.q_deg)
+        {
+            let column = problem.split(' ').next().unwrap_or("q_deg").to_string();
+            return Err(bad(
+                &column,
+                format!("{problem}; a command with status ok must be one the robot can take"),
+            ));
+        }
+        // hypot: 1e300 stays 1e300 in the message, not inf.
+        let distance = c.position_mm.iter().fold(0.0_f64, |n, v| n.hypot(*v));
+        if !(0.0..=limit_mm).contains(&distance) {
+            return Err(bad(
+                "x_cmd_mm",
+                format!(
+                    "the Cartesian target (x_cmd_mm, y_cmd_mm, z_cmd_mm) is {} mm from the robot base, more than {limit_mm:.0} mm ({REACH_FACTOR} times the reach of the robot file's arm and tool, {reach:.0} mm)",
+                    compact(distance)
+                ),
+            ));
+        }
+        for (column, value) in [
+            ("residual_mm", c.residual_mm),
+            ("correction_mm", c.correction_mm),
+            ("elastic_mm", c.elastic_mm),
+        ] {
+            let max = if c.is_ok() { limit_mm } else { f64::MAX };
+            if !(value >= 0.0 && value <= max) {
+                return Err(bad(
+                    column,
+                    format!(
+                        "{} mm, expected a distance from 0 to {max:.0} mm ({REACH_FACTOR} times the arm's reach)",
+                        compact(value)
+                    ),
+                ));
+            }
+        }
+        if let Some(value) = c.envelope_distance
+            && !(0.0..=MAX_ENVELOPE_DISTANCE_DEG).contains(&value)
+        {
+            return Err(bad(
+                "envelope_distance",
+                format!(
+                    "{}, expected a joint-space distance from 0 to {MAX_ENVELOPE_DISTANCE_DEG} deg",
+                    compact(value)
+                ),
+            ));
+        }
+        if let Some(value) = c.u95_mm
+            && !(0.0..=MAX_POSITION_MM).contains(&value)
+        {
+            return Err(bad(
+                "u95_mm",
+                format!(
+                    "{} mm, expected an uncertainty radius from 0 to {MAX_POSITION_MM} mm",
+                    compact(value)
+                ),
+            ));
+        }
+        if c.tool_id.as_deref().is_some_and(|t| t.trim().is_empty()) {
+            return Err(bad(
+                "tool_id",
+                "empty; give the target (SMR) id of the parameters, or leave the column out".into(),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Refuses a parameter set whose values no program or URDF can print: any
+/// beyond [`MAX_POSITION_MM`] in magnitude (a length of 100 m, an angle of
+/// 10⁵ degrees) names the parameter and the file.
+fn check_parameters(set: &ParameterSet, path: &std::path::Path) -> Result<(), StageError> {
+    for id in ParamId::all_with_targets(set.targets.len().max(1)) {
+        let value = set.values.0[id.index()];
+        if !(-MAX_POSITION_MM..=MAX_POSITION_MM).contains(&value) {
+            return Err(StageError::Invalid(format!(
+                "{}: model `{}`: parameter `{}` is {}, beyond {MAX_POSITION_MM} in magnitude; no robot has such a parameter",
+                path.display(),
+                set.model,
+                set.name_of(id),
+                compact(value)
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// The rows of a checked `commands` table; a quaternion far from unit length is
 /// refused, naming its row.
 pub fn read_commands(
@@ -673,14 +859,17 @@ pub fn read_commands(
     let mut rows = Vec::with_capacity(ids.len());
     for (row, id) in ids.iter().enumerate() {
         let q: [f64; 4] = std::array::from_fn(|k| quaternion[k][row]);
-        let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if (norm - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
+        // hypot: a component of 1e300 gives a norm of 1e300, not inf.
+        let norm = q.iter().fold(0.0_f64, |n, v| n.hypot(*v));
+        // Written so that a NaN norm is refused too.
+        if !(1.0 - QUATERNION_NORM_TOLERANCE..=1.0 + QUATERNION_NORM_TOLERANCE).contains(&norm) {
             return Err(TableError::BadValue {
                 file: path.to_path_buf(),
                 column: "qw_cmd".into(),
                 row,
                 message: format!(
-                    "quaternion (qw_cmd, qx_cmd, qy_cmd, qz_cmd) has norm {norm}, expected a unit quaternion"
+                    "target_id {id}: quaternion (qw_cmd, qx_cmd, qy_cmd, qz_cmd) has norm {}, expected a unit quaternion",
+                    compact(norm)
                 ),
             });
         }
@@ -704,3 +893,86 @@ pub fn read_commands(
 /// How far from 1 a quaternion's norm may be: the table stores a unit
 /// quaternion, so more than rounding means a wrong column.
 const QUATERNION_NORM_TOLERANCE: f64 = 1e-6;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::robot::test_support::irb1600;
+
+    fn row(target_id: i64, status: &str, q_deg: [f64; 6]) -> Command {
+        Command {
+            target_id,
+            q_deg,
+            status: status.into(),
+            residual_mm: 0.0,
+            correction_mm: 0.5,
+            elastic_mm: 0.1,
+            position_mm: [900.0, 0.0, 800.0],
+            quaternion_wxyz: [1.0, 0.0, 0.0, 0.0],
+            tool_id: None,
+            envelope_distance: Some(3.0),
+            u95_mm: Some(0.2),
+        }
+    }
+
+    fn problem(rows: &[Command]) -> String {
+        let robot = irb1600();
+        check_commands(&robot, rows, std::path::Path::new("c.parquet"))
+            .unwrap_err()
+            .to_string()
+    }
+
+    #[test]
+    fn commands_a_program_must_not_carry_are_named() {
+        let robot = irb1600();
+        let q = [10.0, 20.0, -30.0, 40.0, 50.0, 60.0];
+        let good = vec![
+            row(1, "ok", q),
+            row(2, "joint_limit", [0.0, 500.0, 0.0, 0.0, 0.0, 0.0]),
+        ];
+        // A row that is not ok may keep a last iterate beyond the limits.
+        assert!(check_commands(&robot, &good, std::path::Path::new("c.parquet")).is_ok());
+        let mut beyond = good.clone();
+        beyond[0].q_deg[1] = 500.0;
+        let p = problem(&beyond);
+        assert!(
+            p.contains("c.parquet: row 0 (target_id 1): column `q2_deg`")
+                && p.contains("q2_deg = 500")
+                && p.contains("[-90, 120]"),
+            "{p}"
+        );
+        let mut far = good.clone();
+        far[1].position_mm[0] = 1e300;
+        let p = problem(&far);
+        assert!(
+            p.contains("row 1 (target_id 2): column `x_cmd_mm`") && p.contains("1e300"),
+            "{p}"
+        );
+        let mut status = good.clone();
+        status[0].status = "OK".into();
+        assert!(problem(&status).contains("column `status`: \"OK\""));
+        let mut negative = good.clone();
+        negative[1].correction_mm = -1.0;
+        assert!(problem(&negative).contains("column `correction_mm`"));
+        let mut huge = good.clone();
+        huge[0].elastic_mm = 1e5;
+        assert!(problem(&huge).contains("column `elastic_mm`"));
+        let mut envelope = good.clone();
+        envelope[1].envelope_distance = Some(181.0);
+        assert!(problem(&envelope).contains("column `envelope_distance`"));
+        let mut u95 = good.clone();
+        u95[1].u95_mm = Some(1e300);
+        assert!(problem(&u95).contains("column `u95_mm`: 1e300"));
+        let mut tool = good;
+        tool[0].tool_id = Some(" ".into());
+        assert!(problem(&tool).contains("column `tool_id`"));
+    }
+
+    #[test]
+    fn the_reach_bound_is_the_arm_and_its_tool() {
+        // IRB 1600-1.45: a 150, 700, 115 (|a|) and d 486.5, 600, 65 (|d|) plus
+        // its tool; about 2 m, and at least the arm's 1.45 m reach.
+        let reach = reach_mm(&irb1600());
+        assert!((1450.0..3000.0).contains(&reach), "{reach}");
+    }
+}

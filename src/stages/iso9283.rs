@@ -23,6 +23,7 @@ use super::{
     InputTable, SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo,
     StageOutputs, TableSlot,
 };
+use crate::calibration::row_checks::{MAX_POSITION_MM, compact};
 use crate::iso9283::{self, POINTS, point_index};
 use crate::table::schema::{
     self, COMMAND_POSITION_COLUMNS, POSITION_COLUMNS, f64_values, i64_values, str_values,
@@ -53,7 +54,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "ISO 9283 pose accuracy AP and repeatability RP per point, distance accuracy AD and repeatability RD per pair (positions only)",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "iso_measurements",
@@ -151,17 +152,28 @@ impl Stage for Iso9283Stage {
                 joined_rows(targets, ctx.input("measurements")?)?
             }
         };
+        if rows.visits.is_empty() {
+            return Err(StageError::Invalid(format!(
+                "{}: no measured rows; the test has nothing to compute",
+                rows.file.display()
+            )));
+        }
         let by_point = rows.by_point()?;
 
         let mut points = PointColumns::default();
+        let mut short = Vec::new();
+        let mut missing = Vec::new();
         for (k, visits) in by_point.iter().enumerate() {
             let Some(first) = visits.first() else {
+                missing.push(POINTS[k]);
                 continue;
             };
             let attained: Vec<Vector3<f64>> = visits.iter().map(|v| v.attained_mm).collect();
-            let c = iso9283::pose_characteristics(&first.commanded_mm, &attained).map_err(|e| {
-                StageError::Invalid(format!("{}: point {}: {e}", rows.file.display(), POINTS[k]))
-            })?;
+            let c = iso9283::pose_characteristics(&first.commanded_mm, &attained)
+                .map_err(|e| iso_error(&rows.file, &format!("point {}", POINTS[k]), e))?;
+            if c.n < STANDARD_CYCLES {
+                short.push(format!("{} ({})", POINTS[k], c.n));
+            }
             points.push(POINTS[k], &c);
         }
         let mut distances = DistanceColumns::default();
@@ -188,10 +200,13 @@ impl Stage for Iso9283Stage {
                 _ => f64::NAN,
             };
             let c = iso9283::distance_characteristics(commanded, &attained).map_err(|e| {
-                StageError::Invalid(format!(
-                    "{}: distance {from}–{to}: cycles measuring both points: {e}",
-                    rows.file.display()
-                ))
+                iso_error(
+                    &rows.file,
+                    &format!(
+                        "distance {from}–{to} (setting `distances`): cycles measuring both points"
+                    ),
+                    e,
+                )
             })?;
             distances.push(from, to, commanded, &c);
         }
@@ -205,6 +220,22 @@ impl Stage for Iso9283Stage {
         outputs
             .facts
             .insert("rows".into(), rows.visits.len().to_string());
+        let mut warnings = Vec::new();
+        if !missing.is_empty() {
+            warnings.push(format!(
+                "no rows for {} (the test has P1 … P5)",
+                missing.join(", ")
+            ));
+        }
+        if !short.is_empty() {
+            warnings.push(format!(
+                "fewer cycles than the {STANDARD_CYCLES} ISO 9283 asks for: {}",
+                short.join(", ")
+            ));
+        }
+        if !warnings.is_empty() {
+            outputs.facts.insert("warning".into(), warnings.join("; "));
+        }
         outputs.tables.insert("iso9283".into(), points.into_frame());
         outputs
             .tables
@@ -238,7 +269,87 @@ struct Rows {
 /// the rows belong to different tests.
 const COMMANDED_TOLERANCE_MM: f64 = 1e-6;
 
+/// The length of `v` without overflow: a component of 1e300 gives 1e300,
+/// not inf, so a message shows the value read.
+fn norm(v: &Vector3<f64>) -> f64 {
+    v.iter().fold(0.0_f64, |n, c| n.hypot(*c))
+}
+
+/// How far an attained position may lie from its commanded one (mm): a robot
+/// misses a pose by millimetres, uncalibrated by tens; a reading farther off is
+/// of another pose, in another frame or unit (metres, inches), or corrupt.
+const MAX_POSE_ERROR_MM: f64 = 500.0;
+
+/// How far one reading of a point may lie from the median of that point's
+/// readings (mm, with three or more): repeatability is a fraction of a
+/// millimetre, so a reading this far from the others is a tracker that locked
+/// onto something else, not a cycle of the test.
+const MAX_SPREAD_MM: f64 = 100.0;
+
+/// Fewer cycles than ISO 9283 §7.2.1 asks for (30): the statistics are still
+/// computed (at least 2 are needed, [`iso9283::IsoError::TooFewCycles`]), with
+/// a warning, since a shorter test is useful while setting a cell up.
+const STANDARD_CYCLES: usize = 30;
+
 impl Rows {
+    /// Refuses, naming the row and the column, a position that is not a
+    /// reading of its pose: farther than [`MAX_POSITION_MM`] from the frame's
+    /// origin, than [`MAX_POSE_ERROR_MM`] from its commanded position, or
+    /// than [`MAX_SPREAD_MM`] from the median of its point's readings.
+    fn check_positions(&self, by_point: &[Vec<Visit>]) -> Result<(), StageError> {
+        for visit in &self.visits {
+            let attained = norm(&visit.attained_mm);
+            if !(0.0..=MAX_POSITION_MM).contains(&attained) {
+                return Err(self.bad(
+                    "x_mm",
+                    visit.row,
+                    format!(
+                        "the attained position (x_mm, y_mm, z_mm) of {} is {} mm from the origin (more than {MAX_POSITION_MM} mm)",
+                        POINTS[visit.point],
+                        compact(attained)
+                    ),
+                ));
+            }
+            let error = norm(&(visit.attained_mm - visit.commanded_mm));
+            if !(0.0..=MAX_POSE_ERROR_MM).contains(&error) {
+                return Err(self.bad(
+                    "x_mm",
+                    visit.row,
+                    format!(
+                        "the attained position of {} (cycle {}) is {} mm from its commanded position (more than {MAX_POSE_ERROR_MM} mm): not a reading of this pose (another pose, frame or unit?)",
+                        POINTS[visit.point],
+                        visit.cycle,
+                        compact(error)
+                    ),
+                ));
+            }
+        }
+        for visits in by_point.iter().filter(|v| v.len() >= 3) {
+            let median = Vector3::from_fn(|axis, _| {
+                let mut values: Vec<f64> = visits.iter().map(|v| v.attained_mm[axis]).collect();
+                values.sort_by(f64::total_cmp);
+                values[values.len() / 2]
+            });
+            for visit in visits {
+                let spread = norm(&(visit.attained_mm - median));
+                if !(0.0..=MAX_SPREAD_MM).contains(&spread) {
+                    return Err(self.bad(
+                        "x_mm",
+                        visit.row,
+                        format!(
+                            "the attained position of {} (cycle {}) is {} mm from the median of its {} readings (more than {MAX_SPREAD_MM} mm): not a reading of this pose",
+                            POINTS[visit.point],
+                            visit.cycle,
+                            compact(spread),
+                            visits.len()
+                        ),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// The visits per point (index into [`POINTS`]), in row order. Refuses a
     /// (point, cycle) given twice and a commanded position that changes
     /// between cycles, naming the row.
@@ -272,6 +383,7 @@ impl Rows {
             }
             list.push(visit.clone());
         }
+        self.check_positions(&by_point)?;
         Ok(by_point)
     }
 
@@ -307,6 +419,17 @@ impl Rows {
     }
 }
 
+/// A statistic that cannot be computed: too few cycles is the input's fault
+/// (exit 2); a non-finite result, after the checks of the positions, is a
+/// failure of the stage (exit 3), never a number in the tables.
+fn iso_error(file: &Path, what: &str, e: iso9283::IsoError) -> StageError {
+    let message = format!("{}: {what}: {e}", file.display());
+    match e {
+        iso9283::IsoError::TooFewCycles { .. } => StageError::Invalid(message),
+        iso9283::IsoError::NonFinite { .. } => StageError::Failed(message),
+    }
+}
+
 fn bad_value(file: &Path, column: &str, row: usize, message: String) -> StageError {
     StageError::Table(TableError::BadValue {
         file: file.to_path_buf(),
@@ -335,14 +458,33 @@ fn point_indices(table: &InputTable) -> Result<Vec<usize>, StageError> {
         .collect()
 }
 
+/// The positions of columns `names`, each refused (naming its row and first
+/// column) when farther than [`MAX_POSITION_MM`] from the frame's origin.
 fn xyz(table: &InputTable, names: &[&str; 3]) -> Result<Vec<Vector3<f64>>, StageError> {
     let axes = names
         .iter()
         .map(|c| f64_values(&table.df, c, &table.path))
         .collect::<Result<Vec<_>, _>>()?;
-    Ok((0..table.df.height())
-        .map(|k| Vector3::new(axes[0][k], axes[1][k], axes[2][k]))
-        .collect())
+    (0..table.df.height())
+        .map(|k| {
+            let p = Vector3::new(axes[0][k], axes[1][k], axes[2][k]);
+            let distance = norm(&p);
+            if distance <= MAX_POSITION_MM {
+                Ok(p)
+            } else {
+                Err(bad_value(
+                    &table.path,
+                    names[0],
+                    k,
+                    format!(
+                        "the position ({}) is {} mm from the origin (more than {MAX_POSITION_MM} mm)",
+                        names.join(", "),
+                        compact(distance)
+                    ),
+                ))
+            }
+        })
+        .collect()
 }
 
 /// The rows of an `iso_measurements` table.
