@@ -24,7 +24,6 @@ use crate::export::cartesian::{self, Payload, ProgramTool};
 use crate::export::{
     self, Command, MotionSettings, Motions, Program, Provenance, krl, rapid, urdf,
 };
-use crate::robot::params::ParamId;
 use crate::robot::{Frame, Robot};
 use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
@@ -361,9 +360,6 @@ impl Stage for ExportProgramStage {
             Some(set) => Some((set, ctx.input("parameters")?.path.as_path())),
             None => None,
         };
-        if let Some((set, path)) = parameters {
-            check_parameters(set, path)?;
-        }
         let (tools, row_tools) = program_tools(
             ctx.robot,
             parameters,
@@ -802,25 +798,6 @@ pub fn check_commands(
                 "tool_id",
                 "empty; give the target (SMR) id of the parameters, or leave the column out".into(),
             ));
-        }
-    }
-    Ok(())
-}
-
-/// Refuses a parameter set whose values no program or URDF can print: any
-/// beyond [`MAX_POSITION_MM`] in magnitude (a length of 100 m, an angle of
-/// 10⁵ degrees) names the parameter and the file.
-fn check_parameters(set: &ParameterSet, path: &std::path::Path) -> Result<(), StageError> {
-    for id in ParamId::all_with_targets(set.targets.len().max(1)) {
-        let value = set.values.0[id.index()];
-        if !(-MAX_POSITION_MM..=MAX_POSITION_MM).contains(&value) {
-            return Err(StageError::Invalid(format!(
-                "{}: model `{}`: parameter `{}` is {}, beyond {MAX_POSITION_MM} in magnitude; no robot has such a parameter",
-                path.display(),
-                set.model,
-                set.name_of(id),
-                compact(value)
-            )));
         }
     }
     Ok(())
