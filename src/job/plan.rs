@@ -79,7 +79,23 @@ impl Plan {
             }])
         })?;
         let raw = raw::parse_with(&text, path, overrides)?;
-        build(raw, path)
+        build(raw, path, false)
+    }
+
+    /// [`Plan::load_with`] that also reads the files stages import
+    /// ([`crate::stages::Stage::check_sources`]), as `egcal check` does: a
+    /// missing or unreadable export is a problem of the setting naming it.
+    pub fn load_checked(path: &Path, overrides: &JobOverrides) -> Result<Plan, JobProblems> {
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            JobProblems(vec![JobProblem {
+                file: path.to_path_buf(),
+                line: None,
+                key: String::new(),
+                message: format!("cannot read job file: {e}"),
+            }])
+        })?;
+        let raw = raw::parse_with(&text, path, overrides)?;
+        build(raw, path, true)
     }
 
     pub fn stage_index(&self, id: &str) -> Option<usize> {
@@ -99,7 +115,8 @@ impl Plan {
     }
 }
 
-fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
+/// The plan of `raw`; with `read_sources`, the files stages import are read too.
+fn build(raw: RawJob, path: &Path, read_sources: bool) -> Result<Plan, JobProblems> {
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let mut problems = Vec::new();
     let at = |key: &str, message: String| JobProblem {
@@ -197,8 +214,15 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
                 job_dir: &dir,
                 bound_inputs: &bound,
             };
-            for p in kind.check_settings(settings, &ctx) {
+            let found = kind.check_settings(settings, &ctx);
+            let clean = found.is_empty();
+            for p in found {
                 problems.push(at(&settings_key(&stage.key, &p.key), p.message));
+            }
+            if read_sources && clean {
+                for p in kind.check_sources(settings, &ctx) {
+                    problems.push(at(&settings_key(&stage.key, &p.key), p.message));
+                }
             }
         }
         let mut inputs = BTreeMap::new();
