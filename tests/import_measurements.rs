@@ -410,7 +410,14 @@ columns = { q1_deg = "a1", q2_deg = "a2", q3_deg = "a3", q4_deg = "a4", q5_deg =
     let message = egcal::stages::import_measurements::import(&settings, dir.path())
         .unwrap_err()
         .to_string();
-    for word in ["e.csv", "line 2", "units row", "`m`", "column `x`", "length_unit = \"m\""] {
+    for word in [
+        "e.csv",
+        "line 2",
+        "units row",
+        "`m`",
+        "column `x`",
+        "length_unit = \"m\"",
+    ] {
         assert!(message.contains(word), "{word}: {message}");
     }
 }

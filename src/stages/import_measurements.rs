@@ -32,7 +32,8 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::import_source::{
-    CsvLayout, FileSettings, Kind, SourceUnits, Mapped, Source, cannot_read, column_map_problems, read_source,
+    CsvLayout, FileSettings, Kind, Mapped, Source, SourceUnits, cannot_read, column_map_problems,
+    read_source,
 };
 pub use super::import_source::{ForceUnit, JointUnit, LengthUnit, MomentUnit, SourceFormat};
 use super::{
@@ -179,7 +180,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "A tracker export (CSV or Parquet) as the measurements table, units converted",
-    code_version: 2,
+    code_version: 3,
     inputs: &[],
     outputs: &[TableSlot {
         name: "measurements",
@@ -504,8 +505,7 @@ fn check_units(
     let positions: Vec<nalgebra::Vector3<f64>> = (0..rows.len())
         .map(|k| nalgebra::Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]))
         .collect();
-    let Some(suspicion) =
-        crate::calibration::unit_checks::suspect_units(robot, &rows, &positions)
+    let Some(suspicion) = crate::calibration::unit_checks::suspect_units(robot, &rows, &positions)
     else {
         return Ok(());
     };

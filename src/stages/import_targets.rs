@@ -197,7 +197,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "A file of tool poses (CSV or Parquet) as the targets table for compensate, units converted",
-    code_version: 1,
+    code_version: 2,
     inputs: &[],
     outputs: &[TableSlot {
         name: "targets",
@@ -528,7 +528,8 @@ frame = "in"
              8;1;0;1;0;0;1,5707963267948966;;\r\n",
         )
         .unwrap();
-        let (df, _, _) = import(&settings(&format!("path = \"t.csv\"\n{POSE}")), dir.path()).unwrap();
+        let (df, _, _) =
+            import(&settings(&format!("path = \"t.csv\"\n{POSE}")), dir.path()).unwrap();
         let f = |c: &str| {
             df.column(c)
                 .unwrap()

@@ -30,7 +30,10 @@ pub struct Plain {
 }
 
 /// `bytes` as text: the encoding decided, or refused with the reason.
-pub fn decode<'b>(file: &Path, bytes: &'b [u8]) -> Result<(Cow<'b, str>, Option<String>), StageError> {
+pub fn decode<'b>(
+    file: &Path,
+    bytes: &'b [u8],
+) -> Result<(Cow<'b, str>, Option<String>), StageError> {
     let refuse = |why: String| StageError::Invalid(format!("{}: {why}", file.display()));
     if let Some(rest) = bytes.strip_prefix(b"\xEF\xBB\xBF") {
         return match std::str::from_utf8(rest) {
@@ -60,7 +63,10 @@ pub fn decode<'b>(file: &Path, bytes: &'b [u8]) -> Result<(Cow<'b, str>, Option<
             });
             let text: Result<String, _> = char::decode_utf16(units).collect();
             return match text {
-                Ok(text) => Ok((Cow::Owned(text), Some(format!("read as {name} (its byte-order mark)")))),
+                Ok(text) => Ok((
+                    Cow::Owned(text),
+                    Some(format!("read as {name} (its byte-order mark)")),
+                )),
                 Err(_) => Err(refuse(format!(
                     "starts with a {name} byte-order mark but is not valid {name}: save it as UTF-8"
                 ))),
@@ -74,7 +80,8 @@ pub fn decode<'b>(file: &Path, bytes: &'b [u8]) -> Result<(Cow<'b, str>, Option<
     }
     if bytes.starts_with(b"PK\x03\x04") {
         return Err(refuse(
-            "is a zip archive (an Excel workbook?), not delimited text: export the sheet as CSV".into(),
+            "is a zip archive (an Excel workbook?), not delimited text: export the sheet as CSV"
+                .into(),
         ));
     }
     if let Some(at) = bytes.iter().take(4096).position(|b| *b == 0) {
@@ -104,7 +111,12 @@ struct Record<'t> {
 
 /// The records of `text` (quote-aware: a quoted cell may hold line breaks),
 /// the first on line `first_line`. CRLF, LF and a lone CR end a line.
-fn records<'t>(file: &Path, text: &'t str, separator: char, first_line: usize) -> Result<Vec<Record<'t>>, StageError> {
+fn records<'t>(
+    file: &Path,
+    text: &'t str,
+    separator: char,
+    first_line: usize,
+) -> Result<Vec<Record<'t>>, StageError> {
     #[derive(PartialEq)]
     enum State {
         FieldStart,
@@ -256,7 +268,10 @@ fn unit_of(token: &str) -> Option<&'static str> {
 
 /// The unit a mapped numeric column's source values are in, and the setting
 /// that says so; `None` for columns without a unit.
-fn expected_unit(kind: Kind, layout: &CsvLayout) -> Option<(&'static str, &'static str, &'static [&'static str])> {
+fn expected_unit(
+    kind: Kind,
+    layout: &CsvLayout,
+) -> Option<(&'static str, &'static str, &'static [&'static str])> {
     let angle = |unit: JointUnit| match unit {
         JointUnit::Deg => "deg",
         JointUnit::Rad => "rad",
@@ -288,7 +303,13 @@ fn expected_unit(kind: Kind, layout: &CsvLayout) -> Option<(&'static str, &'stat
 }
 
 /// Why `unit` (read off the file `where`) does not fit mapped column `m`, if it does not.
-fn unit_conflict(unit: &str, m: &Mapped, layout: &CsvLayout, file: &Path, place: &str) -> Option<StageError> {
+fn unit_conflict(
+    unit: &str,
+    m: &Mapped,
+    layout: &CsvLayout,
+    file: &Path,
+    place: &str,
+) -> Option<StageError> {
     let (expected, setting, allowed) = expected_unit(m.kind, layout)?;
     if unit == expected {
         return None;
@@ -372,7 +393,7 @@ pub fn plain(
                 file.display(),
                 record.line,
                 other.to_string(),
-                if other != ',' && text.contains(|c: char| c == ',') {
+                if other != ',' && text.contains(',') {
                     " (and `decimal_comma = true` if its numbers are written like `1,5`)"
                 } else {
                     ""
@@ -386,8 +407,8 @@ pub fn plain(
         }
         // Duplicate names: refused when a setting reads the name, else noted.
         let mut seen: Vec<(String, usize)> = Vec::new();
-        for i in 0..names.len() {
-            let name = names[i].clone();
+        for (i, slot) in names.iter_mut().enumerate() {
+            let name = slot.clone();
             if let Some((_, first)) = seen.iter().find(|(n, _)| *n == name) {
                 if let Some(m) = mapped.iter().find(|m| m.source == name) {
                     return Err(StageError::Invalid(format!(
@@ -406,7 +427,7 @@ pub fn plain(
                     first + 1,
                     i + 1
                 ));
-                names[i] = format!("{name} (column {})", i + 1);
+                *slot = format!("{name} (column {})", i + 1);
             } else {
                 seen.push((name, i));
             }
@@ -510,7 +531,11 @@ pub fn plain(
         out.push('\n');
         lines.push(record.line);
     }
-    Ok(Plain { text: out, lines, notes })
+    Ok(Plain {
+        text: out,
+        lines,
+        notes,
+    })
 }
 
 #[cfg(test)]
@@ -560,7 +585,10 @@ mod tests {
         assert!(note.unwrap().starts_with("warning: not UTF-8"));
         // UTF-16 without a byte-order mark: refused, naming the encoding.
         let message = decode(file, b"x\0,\0y\0").unwrap_err().to_string();
-        assert!(message.contains("UTF-16") && message.contains("e.csv"), "{message}");
+        assert!(
+            message.contains("UTF-16") && message.contains("e.csv"),
+            "{message}"
+        );
         let message = decode(file, b"PAR1\0\0").unwrap_err().to_string();
         assert!(message.contains("format = \"parquet\""), "{message}");
     }
@@ -568,12 +596,19 @@ mod tests {
     #[test]
     fn blank_lines_units_rows_and_quotes_keep_the_file_lines() {
         let file = Path::new("e.csv");
-        let m = mapped(&[("x_mm", Kind::Position, "X [mm]"), ("q1_deg", Kind::Joint, "a1")]);
+        let m = mapped(&[
+            ("x_mm", Kind::Position, "X [mm]"),
+            ("q1_deg", Kind::Joint, "a1"),
+        ]);
         let text = "\"X [mm]\" , a1\r\n[mm],(°)\r\n\r\n 1.5 ,\"2\"\r\n  \"3\" ,\"4\nstill 4\"\r\n5,6\r\n\r\n,\r\n\r\n";
         let plain = plain(file, text, &layout(b','), &m).unwrap();
         assert_eq!(plain.text, "X [mm],a1\n1.5,2\n3,\"4\nstill 4\"\n5,6\n");
         assert_eq!(plain.lines, [4, 5, 7]);
-        assert!(plain.notes[0].contains("line 2 is a units row"), "{:?}", plain.notes);
+        assert!(
+            plain.notes[0].contains("line 2 is a units row"),
+            "{:?}",
+            plain.notes
+        );
         // A row of numbers is data, never a units row.
         let plain = plain_of(file, "X [mm],a1\n1,2\n", &m);
         assert_eq!(plain.lines, [2]);
@@ -587,25 +622,52 @@ mod tests {
     fn units_that_contradict_the_settings_and_duplicate_names_are_refused() {
         let file = Path::new("e.csv");
         let m = mapped(&[("x_mm", Kind::Position, "X"), ("q1_deg", Kind::Joint, "A1")]);
-        let refused = |text: &str| plain(file, text, &layout(b','), &m).err().unwrap().to_string();
+        let refused = |text: &str| {
+            plain(file, text, &layout(b','), &m)
+                .err()
+                .unwrap()
+                .to_string()
+        };
         let message = refused("X,A1\nm,deg\n1,2\n");
-        assert!(message.contains("line 2") && message.contains("length_unit = \"m\""), "{message}");
+        assert!(
+            message.contains("line 2") && message.contains("length_unit = \"m\""),
+            "{message}"
+        );
         let message = refused("X,A1\nmm,mm\n1,2\n");
-        assert!(message.contains("columns.q1_deg") && message.contains("deg or rad"), "{message}");
+        assert!(
+            message.contains("columns.q1_deg") && message.contains("deg or rad"),
+            "{message}"
+        );
         let m2 = mapped(&[("x_mm", Kind::Position, "X [m]")]);
-        let message = plain(file, "X [m]\n1\n", &layout(b','), &m2).err().unwrap().to_string();
-        assert!(message.contains("header name") && message.contains("length_unit"), "{message}");
+        let message = plain(file, "X [m]\n1\n", &layout(b','), &m2)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            message.contains("header name") && message.contains("length_unit"),
+            "{message}"
+        );
         let message = refused("X,A1,X\n1,2,3\n");
         assert!(
-            message.contains("columns 1 and 3") && message.contains("`X`") && message.contains("columns.x_mm"),
+            message.contains("columns 1 and 3")
+                && message.contains("`X`")
+                && message.contains("columns.x_mm"),
             "{message}"
         );
         // A duplicate no setting reads is a warning only.
         let plain = plain_of(file, "X,A1,t,t\n1,2,3,4\n", &m);
-        assert!(plain.notes[0].starts_with("warning:") && plain.notes[0].contains("columns 3 and 4"));
+        assert!(
+            plain.notes[0].starts_with("warning:") && plain.notes[0].contains("columns 3 and 4")
+        );
         let message = refused("X;A1\n1,5;2\n");
-        assert!(message.contains("separator = \";\"") && message.contains("decimal_comma"), "{message}");
+        assert!(
+            message.contains("separator = \";\"") && message.contains("decimal_comma"),
+            "{message}"
+        );
         let message = refused("X,A1\n1,\"2\n");
-        assert!(message.contains("line 2") && message.contains("never closed"), "{message}");
+        assert!(
+            message.contains("line 2") && message.contains("never closed"),
+            "{message}"
+        );
     }
 }
