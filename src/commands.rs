@@ -16,7 +16,7 @@ use crate::gate::Decision;
 use crate::job::{InputSource, JobOverrides, JobProblems, Plan};
 use crate::robot::{Robot, RobotSpec};
 use crate::runner::{self, RunError, RunOptions, progress::Reporter};
-use crate::stages::{self, InputTable, NoProgress, StageContext, StageError};
+use crate::stages::{self, InputTable, StageContext, StageError};
 use crate::table::{self, Provenance, TableError};
 
 /// A failed command, with the exit code the binary returns.
@@ -219,9 +219,10 @@ pub fn status(
     Ok(out)
 }
 
-/// `egcal check`: the plan, and each external input's data checked against its schema.
+/// `egcal check`: the plan, the files stages import read as `run` reads them
+/// ([`Plan::load_checked`]), and each external input's data checked against its schema.
 pub fn check(job: &Path, overrides: &JobOverrides) -> Result<String, CommandError> {
-    let plan = Plan::load_with(job, overrides)?;
+    let plan = Plan::load_checked(job, overrides)?;
     let mut out = format!(
         "{}: {} stage(s) ok; robot {}; output {}\n",
         plan.name,
@@ -623,7 +624,7 @@ fn run_on_files(
         work_dir,
         job_dir,
         run_date,
-        progress: &NoProgress,
+        progress: &WarningsToStderr { kind },
     };
     let outputs = stage_kind
         .run(&ctx, &settings)
@@ -645,6 +646,23 @@ fn run_on_files(
         extra: outputs.facts.clone(),
     };
     Ok((outputs, provenance))
+}
+
+/// The progress of a stage run on files: no bars or log lines, but each
+/// warning (rows dropped or left out, a guessed encoding) on stderr, so
+/// nothing is left out in silence.
+struct WarningsToStderr<'a> {
+    kind: &'a str,
+}
+
+impl stages::Progress for WarningsToStderr<'_> {
+    fn start(&self, _: u64, _: &str) {}
+    fn advance(&self, _: u64) {}
+    fn note(&self, message: &str) {
+        if message.starts_with("warning") {
+            eprintln!("{}: {message}", self.kind);
+        }
+    }
 }
 
 /// `egcal sim-driver`: serves the simulator over the driver protocol on

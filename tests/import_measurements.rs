@@ -286,3 +286,138 @@ fn the_readme_import_example_calibrates_as_it_says() {
         .unwrap();
     assert!((means[row] - 0.427).abs() < 0.0005, "{}", means[row]);
 }
+
+/// `clean` as tracker software writes it: a UTF-8 byte-order mark, CRLF line
+/// ends, `units` as a row under the header, and blank lines and a row of bare
+/// separators at the end.
+fn as_tracker_writes(clean: &str, units: &str, separator: char) -> String {
+    let mut lines = clean.lines();
+    let mut out = String::from("\u{FEFF}");
+    out.push_str(lines.next().unwrap());
+    out.push_str("\r\n");
+    out.push_str(units);
+    out.push_str("\r\n");
+    for line in lines {
+        out.push_str(line);
+        out.push_str("\r\n");
+    }
+    let width = clean.lines().next().unwrap().split(separator).count();
+    out.push_str("\r\n");
+    out.push_str(&separator.to_string().repeat(width - 1));
+    out.push_str("\r\n\r\n");
+    out
+}
+
+/// Imports `text` written as `name` in `dir` with `settings` (TOML, without `path`).
+fn import_text(dir: &Path, name: &str, text: &str, settings: &str) -> DataFrame {
+    std::fs::write(dir.join(name), text).unwrap();
+    let settings: egcal::stages::import_measurements::ImportMeasurementsSettings =
+        toml::from_str(&format!("path = \"{name}\"\n{settings}")).unwrap();
+    egcal::stages::import_measurements::import(&settings, dir)
+        .unwrap_or_else(|e| panic!("{name}: {e}"))
+        .measurements
+}
+
+/// A byte-order mark, CRLF line ends, a units row and blank trailing lines are
+/// what tracker software writes: the export imports to the very values of the
+/// clean file, row for row.
+#[test]
+fn a_tracker_written_export_imports_as_the_clean_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let clean = "id,A1,A2,A3,A4,A5,A6,X [mm],Y [mm],Z [mm],sigma\n\
+                 1,0,10,20,0,30,0,1000.5,-20.25,1200,0.01\n\
+                 2,5,15,25,-5,35,90,1010.5,-30.25,1190,0.02\n\
+                 3,-5,5,15,5,25,-90,990.125,-10.5,1210.75,0.015\n";
+    let units = ",[deg],[deg],[deg],[deg],[deg],[deg],mm,mm,mm,mm";
+    let settings = r#"
+[columns]
+cw_id = "id"
+q1_deg = "A1"
+q2_deg = "A2"
+q3_deg = "A3"
+q4_deg = "A4"
+q5_deg = "A5"
+q6_deg = "A6"
+x_mm = "X [mm]"
+y_mm = "Y [mm]"
+z_mm = "Z [mm]"
+sigma_x_mm = "sigma"
+sigma_y_mm = "sigma"
+sigma_z_mm = "sigma"
+"#;
+    let want = import_text(dir.path(), "clean.csv", clean, settings);
+    assert_eq!(want.height(), 3);
+    let messy = as_tracker_writes(clean, units, ',');
+    assert!(messy.ends_with(",,,,,,,,,,\r\n\r\n"), "{messy:?}");
+    let got = import_text(dir.path(), "messy.csv", &messy, settings);
+    assert!(got.equals(&want), "{got}\nvs the clean file's\n{want}");
+    assert_eq!(values(&got, "x_mm"), [1000.5, 1010.5, 990.125]);
+
+    // The same in the European layout of the UR10 export (`;`, decimal commas).
+    let Some(file) = series_c() else {
+        return;
+    };
+    let text = std::fs::read_to_string(&file).unwrap();
+    let head: Vec<&str> = text.lines().take(41).collect();
+    let clean = head.join("\n") + "\n";
+    let header: Vec<&str> = head[0].split(';').collect();
+    let units: Vec<&str> = header
+        .iter()
+        .map(|name| {
+            if name.ends_with("_joint") {
+                "[rad]"
+            } else if name.starts_with("measurement_x")
+                || name.starts_with("measurement_y")
+                || name.starts_with("measurement_z")
+                || name.starts_with("measurement_std_x")
+                || name.starts_with("measurement_std_y")
+                || name.starts_with("measurement_std_z")
+            {
+                "[mm]"
+            } else {
+                ""
+            }
+        })
+        .collect();
+    let series_c_settings = SERIES_C
+        .lines()
+        .filter(|l| !l.starts_with("path ="))
+        .collect::<Vec<_>>()
+        .join("\n");
+    let want = import_text(dir.path(), "c_clean.csv", &clean, &series_c_settings);
+    assert_eq!(want.height(), 40);
+    let messy = as_tracker_writes(&clean, &units.join(";"), ';');
+    let got = import_text(dir.path(), "c_messy.csv", &messy, &series_c_settings);
+    assert!(got.equals(&want), "{got}\nvs the clean file's\n{want}");
+}
+
+/// A units row that contradicts the unit settings is refused, naming the line,
+/// the column and the setting to change.
+#[test]
+fn a_units_row_that_contradicts_the_settings_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("e.csv"),
+        "a1,a2,a3,a4,a5,a6,x,y,z\ndeg,deg,deg,deg,deg,deg,m,m,m\n0,0,0,0,30,0,1,0,1\n",
+    )
+    .unwrap();
+    let settings: egcal::stages::import_measurements::ImportMeasurementsSettings =
+        toml::from_str(
+            r#"path = "e.csv"
+columns = { q1_deg = "a1", q2_deg = "a2", q3_deg = "a3", q4_deg = "a4", q5_deg = "a5", q6_deg = "a6", x_mm = "x", y_mm = "y", z_mm = "z" }"#,
+        )
+        .unwrap();
+    let message = egcal::stages::import_measurements::import(&settings, dir.path())
+        .unwrap_err()
+        .to_string();
+    for word in [
+        "e.csv",
+        "line 2",
+        "units row",
+        "`m`",
+        "column `x`",
+        "length_unit = \"m\"",
+    ] {
+        assert!(message.contains(word), "{word}: {message}");
+    }
+}

@@ -22,6 +22,9 @@ pub const MAX_FORCE_N: f64 = 1.0e5;
 pub const MAX_MOMENT_NM: f64 = 1.0e5;
 /// A tracker uncertainty above this is absurd (mm).
 pub const MAX_SIGMA_MM: f64 = 100.0;
+/// A tracker uncertainty below this (0.1 µm) is no tracker's: it weighs its row
+/// by 1/σ, and a σ of 1e-300 makes the fit diverge (mm).
+pub const MIN_SIGMA_MM: f64 = 1.0e-4;
 
 /// Why a measured row cannot be used; `None` when it can.
 pub fn row_problem(
@@ -45,9 +48,10 @@ pub fn row_problem(
     }
     if let Some(sigma) = sigma_mm {
         for (axis, s) in ["x", "y", "z"].iter().zip(sigma.iter()) {
-            if !(*s > 0.0 && *s <= MAX_SIGMA_MM) {
+            if !(*s >= MIN_SIGMA_MM && *s <= MAX_SIGMA_MM) {
                 return Some(format!(
-                    "sigma_{axis}_mm = {s} (expected > 0 and at most {MAX_SIGMA_MM} mm)"
+                    "sigma_{axis}_mm = {} (expected a tracker's 1-σ uncertainty, {MIN_SIGMA_MM} to {MAX_SIGMA_MM} mm)",
+                    compact(*s)
                 ));
             }
         }

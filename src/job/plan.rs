@@ -70,6 +70,21 @@ impl Plan {
     /// [`Plan::load`] with placeholder values and stage settings from outside the
     /// file (`egcal run --var`, a fleet's robots).
     pub fn load_with(path: &Path, overrides: &JobOverrides) -> Result<Plan, JobProblems> {
+        Plan::load_from(path, overrides, false)
+    }
+
+    /// [`Plan::load_with`] that also reads the files stages import
+    /// ([`crate::stages::Stage::check_sources`]), as `egcal check` does: a
+    /// missing or unreadable export is a problem of the setting naming it.
+    pub fn load_checked(path: &Path, overrides: &JobOverrides) -> Result<Plan, JobProblems> {
+        Plan::load_from(path, overrides, true)
+    }
+
+    fn load_from(
+        path: &Path,
+        overrides: &JobOverrides,
+        read_sources: bool,
+    ) -> Result<Plan, JobProblems> {
         let text = std::fs::read_to_string(path).map_err(|e| {
             JobProblems(vec![JobProblem {
                 file: path.to_path_buf(),
@@ -84,7 +99,7 @@ impl Plan {
             .iter()
             .map(|s| (s.key.clone(), s.id.clone()))
             .collect();
-        build(raw, path)
+        build(raw, path, read_sources)
             .map_err(|JobProblems(problems)| JobProblems(overrides.relocate(problems, &stages)))
     }
 
@@ -105,7 +120,8 @@ impl Plan {
     }
 }
 
-fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
+/// The plan of `raw`; with `read_sources`, the files stages import are read too.
+fn build(raw: RawJob, path: &Path, read_sources: bool) -> Result<Plan, JobProblems> {
     let dir = path.parent().unwrap_or(Path::new(".")).to_path_buf();
     let mut problems = Vec::new();
     let at = |key: &str, message: String| JobProblem {
@@ -224,8 +240,15 @@ fn build(raw: RawJob, path: &Path) -> Result<Plan, JobProblems> {
                 job_dir: &dir,
                 bound_inputs: &bound,
             };
-            for p in kind.check_settings(settings, &ctx) {
+            let found = kind.check_settings(settings, &ctx);
+            let clean = found.is_empty();
+            for p in found {
                 problems.push(at(&settings_key(&stage.key, &p.key), p.message));
+            }
+            if read_sources && clean {
+                for p in kind.check_sources(settings, &ctx) {
+                    problems.push(at(&settings_key(&stage.key, &p.key), p.message));
+                }
             }
         }
         let mut inputs = BTreeMap::new();

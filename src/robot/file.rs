@@ -93,6 +93,13 @@ pub struct RobotSpec {
     /// standing wherever it was put needs no values here (identity when absent).
     #[serde(default)]
     pub world: TransformSpec,
+    /// Whether the file has a `[world]` table (stages that place the tracker
+    /// from it need one); set by [`RobotSpec::parse`].
+    #[serde(skip)]
+    pub has_world: bool,
+    /// The file it was read from, for messages; set by [`RobotSpec::parse`].
+    #[serde(skip)]
+    pub path: PathBuf,
     /// Nominal flange → tool (SMR) transform; its translation is registered like
     /// the world frame (identity when absent).
     #[serde(default)]
@@ -153,6 +160,11 @@ impl RobotSpec {
                 message,
             },
         })?;
+        let mut spec = spec;
+        spec.path = path.to_path_buf();
+        spec.has_world = text
+            .parse::<toml::Table>()
+            .is_ok_and(|table| table.contains_key("world"));
         spec.validate(path)?;
         Ok(spec)
     }

@@ -279,7 +279,7 @@ impl Stage for GateStage {
         holdout.leave_out_bad_rows(ctx.robot, &measurements.path);
         let left_out = window.leave_out_bad_rows(ctx.robot, &measurements.path);
         if let Some(summary) = &left_out {
-            ctx.progress.note(summary);
+            ctx.progress.note(&format!("warning: {summary}"));
         }
         if holdout.ids.len() < settings.min_holdout_rows.max(2) {
             return Err(StageError::Invalid(format!(

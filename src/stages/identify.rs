@@ -752,6 +752,15 @@ impl Stage for IdentifyStage {
                         "{}: {model}: {e}",
                         measurements.path.display()
                     )),
+                    FitError::Diverged(_) => StageError::Failed(format!(
+                        "{}: {model}: {e}; look at {}the rows far from the others (`excluded_rows`, the row checks), and the `fixed` values and start model",
+                        measurements.path.display(),
+                        smallest_sigma(&data)
+                            .map(|(id, sigma)| format!(
+                                "the sigma columns (each row weighs 1/σ; the smallest is {sigma} mm at cw_id {id}), "
+                            ))
+                            .unwrap_or_default()
+                    )),
                     _ => StageError::Failed(format!("{model}: {e}")),
                 },
             )?;
@@ -809,6 +818,17 @@ impl Stage for IdentifyStage {
             for (key, value) in model_facts(model, &result, ids, settings) {
                 ctx.progress.note(&format!("{model}: {key} = {value}"));
                 outputs.facts.insert(format!("{model}_{key}"), value);
+            }
+            if let Some(summary) = &result.robust
+                && !summary.excluded.is_empty()
+            {
+                ctx.progress.note(&format!(
+                    "warning: {model}: {} of {} rows left out of the fit as outliers (residual beyond {:.4}, {} robust standard deviations; listed in the output table `excluded_rows`)",
+                    summary.excluded.len(),
+                    ids.len(),
+                    summary.threshold,
+                    settings.reject_sigmas
+                ));
             }
             if let Some(summary) = &result.robust {
                 for k in &summary.excluded {
@@ -963,6 +983,17 @@ fn implausible_parameter(
         })
 }
 
+/// The row with the smallest σ (cw_id and σ in mm), when the rows have sigmas.
+fn smallest_sigma(data: &MeasuredRows) -> Option<(i64, String)> {
+    let sigmas = data.sigma_mm.as_ref()?;
+    sigmas
+        .iter()
+        .enumerate()
+        .map(|(k, s)| (k, s.min()))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(k, s)| (data.ids[k], crate::calibration::row_checks::compact(s)))
+}
+
 /// Checks every row against the robot file's joint limits and for absurd values
 /// ([`row_checks`]): fails on the first bad row with `bad_rows = "fail"`, else
 /// drops the bad rows, records them, and says how many went (the returned fact).
@@ -1022,16 +1053,18 @@ fn check_rows(
         excluded.push(data.ids[*k], None, "row_check", reason);
     }
     let summary = format!(
-        "{} rows dropped by the row checks: {}{}",
+        "{} of {} rows of {} dropped by the row checks (setting `bad_rows = \"drop\"`; all listed in the output table `excluded_rows`): {}{}",
         bad.len(),
+        data.rows.len(),
+        table.path.display(),
         shown.join("; "),
         if bad.len() > shown.len() {
-            format!(" and {} more (see excluded_rows)", bad.len() - shown.len())
+            format!(" and {} more", bad.len() - shown.len())
         } else {
             String::new()
         }
     );
-    ctx.progress.note(&summary);
+    ctx.progress.note(&format!("warning: {summary}"));
     let wanted: Vec<bool> = problems.iter().map(Option::is_none).collect();
     data.retain(&wanted);
     Ok(summary)

@@ -32,13 +32,15 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::import_source::{
-    CsvLayout, FileSettings, Kind, Mapped, Source, cannot_read, column_map_problems, read_source,
+    CsvLayout, FileSettings, Kind, Mapped, Source, SourceUnits, cannot_read, column_map_problems,
+    read_source,
 };
 pub use super::import_source::{ForceUnit, JointUnit, LengthUnit, MomentUnit, SourceFormat};
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, settings_error,
 };
+use crate::calibration::row_checks::{MAX_SIGMA_MM, MIN_SIGMA_MM};
 use crate::table::schema;
 
 pub struct ImportMeasurementsStage;
@@ -178,7 +180,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "A tracker export (CSV or Parquet) as the measurements table, units converted",
-    code_version: 2,
+    code_version: 3,
     inputs: &[],
     outputs: &[TableSlot {
         name: "measurements",
@@ -272,12 +274,18 @@ impl ImportMeasurementsSettings {
             decimal_comma: self.decimal_comma,
             skip_rows: self.skip_rows,
             has_header: self.has_header,
+            units: SourceUnits {
+                joint: self.joint_unit,
+                angle: self.joint_unit,
+                length: self.length_unit,
+                moment: self.moment_unit,
+            },
         }
         .check(job_dir, &mut problems);
         column_map_problems(
             |key| self.columns.get(key),
             &REQUIRED,
-            CONTRACT.iter().map(|(key, _)| *key),
+            CONTRACT.iter().copied(),
             &mut problems,
         );
         let sigmas = schema::SIGMA_COLUMNS.map(|c| self.columns.get(c).is_some());
@@ -367,13 +375,32 @@ impl Stage for ImportMeasurementsStage {
         settings.check(ctx.job_dir).err().unwrap_or_default()
     }
 
+    /// The export read, converted and checked as `run` does it.
+    fn check_sources(
+        &self,
+        settings: &ImportMeasurementsSettings,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        let checked = import(settings, ctx.job_dir).and_then(|imported| {
+            let robot = crate::robot::Robot::new(ctx.robot.clone());
+            check_units(&robot, ctx.job_dir, settings, &imported.measurements)
+        });
+        match checked {
+            Ok(()) => Vec::new(),
+            Err(e) => vec![SettingsProblem::new("path", e.to_string())],
+        }
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
         settings: &ImportMeasurementsSettings,
     ) -> Result<StageOutputs, StageError> {
         let imported = import(settings, ctx.job_dir)?;
-        check_units(ctx, settings, &imported.measurements)?;
+        for note in &imported.notes {
+            ctx.progress.note(note);
+        }
+        check_units(ctx.robot, ctx.job_dir, settings, &imported.measurements)?;
         let mut outputs = StageOutputs::default();
         outputs
             .tables
@@ -388,6 +415,8 @@ impl Stage for ImportMeasurementsStage {
 pub struct Imported {
     pub measurements: DataFrame,
     pub facts: BTreeMap<String, String>,
+    /// Warnings about the file that did not stop the import, each naming the file.
+    pub notes: Vec<String>,
 }
 
 /// Reads, converts and checks the export the settings name (relative paths
@@ -418,6 +447,12 @@ pub fn import(
             )));
         }
     };
+    if rows.is_empty() {
+        return Err(StageError::Invalid(format!(
+            "{}: no data rows (a header only?): measurements need at least one row",
+            checked.file.display()
+        )));
+    }
     let measurements = build(&source, &checked.mapped, settings, rows.clone())?;
     schema::measurements().check(&measurements, &checked.file)?;
     let mut facts = BTreeMap::new();
@@ -444,6 +479,7 @@ pub fn import(
     Ok(Imported {
         measurements,
         facts,
+        notes: source.notes.clone(),
     })
 }
 
@@ -452,12 +488,13 @@ pub fn import(
 /// and the setting to change: a wrong unit would otherwise calibrate "perfectly"
 /// onto an arm 1000× too small.
 fn check_units(
-    ctx: &StageContext,
+    robot: &crate::robot::Robot,
+    job_dir: &Path,
     settings: &ImportMeasurementsSettings,
     measurements: &DataFrame,
 ) -> Result<(), StageError> {
     let table = super::InputTable {
-        path: ctx.job_dir.join(&settings.path),
+        path: job_dir.join(&settings.path),
         df: measurements.clone(),
     };
     let (_, rows) = super::conf_wrench_rows(&table)?;
@@ -468,8 +505,7 @@ fn check_units(
     let positions: Vec<nalgebra::Vector3<f64>> = (0..rows.len())
         .map(|k| nalgebra::Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]))
         .collect();
-    let Some(suspicion) =
-        crate::calibration::unit_checks::suspect_units(ctx.robot, &rows, &positions)
+    let Some(suspicion) = crate::calibration::unit_checks::suspect_units(robot, &rows, &positions)
     else {
         return Ok(());
     };
@@ -582,14 +618,16 @@ fn build(
                 let mut values = source.floats(m, rows.clone())?;
                 for (k, v) in values.iter_mut().enumerate() {
                     *v *= f;
-                    if m.kind == Kind::Sigma && *v <= 0.0 {
+                    if m.kind == Kind::Sigma && !(MIN_SIGMA_MM..=MAX_SIGMA_MM).contains(v) {
                         let row = rows.start + k;
                         let text = source.raw(&m.source, row).unwrap_or_default();
                         return Err(source.problem(
                             row,
                             m,
                             format!(
-                                "`{text}` is not a positive standard deviation (sigma must be > 0)"
+                                "`{text}` is not a tracker's 1-σ uncertainty: expected {MIN_SIGMA_MM} to {MAX_SIGMA_MM} mm ({} mm after `length_unit`){}",
+                                crate::calibration::row_checks::compact(*v),
+                                if *v <= 0.0 { "; sigma must be > 0" } else { "" }
                             ),
                         ));
                     }
@@ -820,9 +858,9 @@ z_mm = "z"
     }
 
     #[test]
-    fn a_blank_line_keeps_the_line_count() {
-        // polars reads a blank line as a row of nulls: it is a row without
-        // values (bad input), and the lines after it keep their numbers.
+    fn a_blank_line_is_skipped_and_keeps_the_line_count() {
+        // A blank line is no row (tracker software ends files with one), and
+        // the lines after it keep their numbers.
         let dir = tempfile::tempdir().unwrap();
         write(
             dir.path(),
@@ -831,7 +869,7 @@ z_mm = "z"
         );
         let err = error(&format!("path = \"e.csv\"\n{JOINTS_XYZ}"), dir.path());
         assert!(
-            err.contains("e.csv: line 3, column `a1` (setting `columns.q1_deg`): empty cell"),
+            err.contains("e.csv: line 4, column `z` (setting `columns.z_mm`): `x` is not a number"),
             "{err}"
         );
     }
@@ -877,7 +915,7 @@ z_mm = "z"
         );
         let err = error(&format!("path = \"s.csv\"\n{JOINTS_XYZ}"), dir.path());
         assert!(
-            err.contains("is `separator` right? (its header holds ';')"),
+            err.contains("the header reads as one column `a1;a2;a3;a4;a5;a6;x;y;z` with separator ',', and holds ';': set `separator = \";\"`"),
             "{err}"
         );
     }
@@ -987,7 +1025,7 @@ z_mm = "z"
         );
         let err = error(&base, dir.path());
         assert!(
-            err.contains("line 6, column `s` (setting `columns.sigma_x_mm`): `0` is not a positive standard deviation"),
+            err.contains("line 6, column `s` (setting `columns.sigma_x_mm`): `0` is not a tracker's 1-σ uncertainty: expected 0.0001 to 100 mm"),
             "{err}"
         );
         // Rows 1, 2, 3 only: the zero sigma of row 4 is not imported; cw_id keeps

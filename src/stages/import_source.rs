@@ -6,11 +6,12 @@
 //! 1-based, header and skipped lines counted) or row (Parquet, 0-based),
 //! source column, setting and what was expected.
 //!
-//! The CSV is parsed by polars' reader (its `decimal_comma` option for `1,5`),
-//! twice: once with every column as text (the names, and the raw cell for
-//! messages) and once with the mapped columns typed, bad cells read as null. A
-//! UTF-8 byte-order mark is dropped; CRLF line ends read as LF. Line numbers
-//! assume one line per row (no line breaks inside quoted fields).
+//! The CSV's text is first made plain ([`csv_text`]: encoding, line ends,
+//! preamble, blank lines, a units row, header names, cells trimmed), then
+//! parsed by polars' reader (its `decimal_comma` option for `1,5`), twice: once
+//! with every column as text (the names, and the raw cell for messages) and
+//! once with the mapped columns typed, bad cells read as null. Messages give
+//! the file line each row starts on.
 
 use std::borrow::Cow;
 use std::io::Cursor;
@@ -27,6 +28,8 @@ use serde::{Deserialize, Serialize};
 
 use super::{SettingsProblem, StageError};
 use crate::table::time::parse_rfc3339_us;
+
+mod csv_text;
 
 /// The export's file format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
@@ -154,17 +157,29 @@ pub struct CsvLayout {
     pub decimal_comma: bool,
     pub skip_rows: usize,
     pub has_header: bool,
+    /// The source units the settings declare, checked against a units row.
+    pub units: SourceUnits,
 }
 
-/// The file settings every import stage has, as written (see
-/// `import_measurements`' settings for their meaning).
+/// The unit settings of an import stage, as the file should agree with them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SourceUnits {
+    pub joint: JointUnit,
+    /// Orientation angles (`import_targets`' `angle_unit`).
+    pub angle: JointUnit,
+    pub length: LengthUnit,
+    pub moment: MomentUnit,
+}
+
 /// The problems every column map shares, added to `problems`: a `required`
-/// contract column left unmapped, a `contract` column mapped to an empty name.
+/// contract column left unmapped, a `contract` column mapped to an empty name,
+/// and two contract columns reading one source column (a copy-paste slip; only
+/// the three sigmas may share one, a tracker's single isotropic σ).
 /// `source_of` gives a contract column's source column.
 pub fn column_map_problems<'a>(
     source_of: impl Fn(&str) -> Option<&'a str>,
     required: &[&str],
-    contract: impl IntoIterator<Item = &'static str>,
+    contract: impl IntoIterator<Item = (&'static str, Kind)>,
     problems: &mut Vec<SettingsProblem>,
 ) {
     for key in required {
@@ -175,16 +190,35 @@ pub fn column_map_problems<'a>(
             ));
         }
     }
-    for key in contract {
-        if source_of(key).is_some_and(str::is_empty) {
+    let mut seen: Vec<(&str, &str, Kind)> = Vec::new();
+    for (key, kind) in contract {
+        let Some(source) = source_of(key) else {
+            continue;
+        };
+        if source.is_empty() {
             problems.push(SettingsProblem::new(
                 &format!("columns.{key}"),
                 "the source column name is empty",
             ));
+            continue;
         }
+        if let Some((first, _, _)) = seen
+            .iter()
+            .find(|(_, s, k)| *s == source && !(*k == Kind::Sigma && kind == Kind::Sigma))
+        {
+            problems.push(SettingsProblem::new(
+                &format!("columns.{key}"),
+                format!(
+                    "names source column `{source}`, which `columns.{first}` reads already: each contract column needs its own source column"
+                ),
+            ));
+        }
+        seen.push((key, source, kind));
     }
 }
 
+/// The file settings every import stage has, as written (see
+/// `import_measurements`' settings for their meaning).
 pub struct FileSettings<'s> {
     pub path: &'s str,
     pub format: Option<SourceFormat>,
@@ -192,6 +226,7 @@ pub struct FileSettings<'s> {
     pub decimal_comma: bool,
     pub skip_rows: usize,
     pub has_header: bool,
+    pub units: SourceUnits,
 }
 
 impl FileSettings<'_> {
@@ -252,6 +287,7 @@ impl FileSettings<'_> {
             decimal_comma: self.decimal_comma,
             skip_rows: self.skip_rows,
             has_header: self.has_header,
+            units: self.units,
         };
         (file, format, layout)
     }
@@ -286,13 +322,16 @@ pub struct Source<'a> {
     typed: DataFrame,
     /// CSV: every column as text, for the names and for messages.
     text: Option<DataFrame>,
-    /// CSV: the 1-based file line of data row 0; Parquet: none (rows are named).
-    first_line: Option<usize>,
+    /// CSV: the 1-based file line of each data row; Parquet: none (rows are named).
+    lines: Option<Vec<usize>>,
     decimal_comma: bool,
     separator: u8,
     /// Why an empty cell of a required column is bad, for messages
     /// ("measurements hold complete rows only").
     empty_note: &'static str,
+    /// Warnings about the file that did not stop the import (encoding guessed,
+    /// units row skipped, an unused duplicate column name), each naming the file.
+    pub notes: Vec<String>,
 }
 
 impl<'a> Source<'a> {
@@ -304,15 +343,23 @@ impl<'a> Source<'a> {
         bytes: &[u8],
         empty_note: &'static str,
     ) -> Result<Self, StageError> {
-        // A UTF-8 byte-order mark would become part of the first column's name.
-        let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+        let (text, encoding_note) = csv_text::decode(file, bytes)?;
+        let plain = csv_text::plain(file, &text, layout, mapped)?;
+        let mut notes: Vec<String> = encoding_note
+            .map(|n| match n.strip_prefix("warning: ") {
+                Some(w) => format!("warning: {}: {w}", file.display()),
+                None => format!("{}: {n}", file.display()),
+            })
+            .into_iter()
+            .collect();
+        notes.extend(plain.notes);
+        let bytes = plain.text.as_bytes();
         let options = |typed: Option<Schema>| {
             let projection: Option<Arc<[PlSmallStr]>> = typed
                 .as_ref()
                 .map(|s| s.iter_names().cloned().collect::<Vec<_>>().into());
             CsvReadOptions::default()
                 .with_has_header(layout.has_header)
-                .with_skip_lines(layout.skip_rows)
                 .with_infer_schema_length(Some(0))
                 .with_schema_overwrite(typed.map(Arc::new))
                 .with_columns(projection)
@@ -330,10 +377,14 @@ impl<'a> Source<'a> {
                 layout.separator as char
             ))
         };
-        let text = options(None)
-            .into_reader_with_file_handle(Cursor::new(bytes))
-            .finish()
-            .map_err(unreadable)?;
+        let text = if plain.lines.is_empty() && !layout.has_header {
+            DataFrame::empty()
+        } else {
+            options(None)
+                .into_reader_with_file_handle(Cursor::new(bytes))
+                .finish()
+                .map_err(unreadable)?
+        };
         let present: Vec<&str> = text.get_column_names().iter().map(|s| s.as_str()).collect();
         let typed_schema: Schema = mapped
             .iter()
@@ -364,14 +415,23 @@ impl<'a> Source<'a> {
             }
             typed
         };
+        if text.height() != plain.lines.len() {
+            return Err(StageError::Failed(format!(
+                "{}: read {} data rows, but the file has {} data lines",
+                file.display(),
+                text.height(),
+                plain.lines.len()
+            )));
+        }
         Ok(Source {
             file,
             typed,
             text: Some(text),
-            first_line: Some(layout.skip_rows + usize::from(layout.has_header) + 1),
+            lines: Some(plain.lines),
             decimal_comma: layout.decimal_comma,
             separator: layout.separator,
             empty_note,
+            notes,
         })
     }
 
@@ -393,10 +453,11 @@ impl<'a> Source<'a> {
             file,
             typed,
             text: None,
-            first_line: None,
+            lines: None,
             decimal_comma: false,
             separator: b',',
             empty_note,
+            notes: Vec::new(),
         })
     }
 
@@ -455,8 +516,8 @@ impl<'a> Source<'a> {
 
     /// "line 7" (CSV, 1-based file line) or "row 5" (Parquet, 0-based data row).
     pub fn at(&self, row: usize) -> String {
-        match self.first_line {
-            Some(first) => format!("line {}", first + row),
+        match self.lines.as_ref().and_then(|lines| lines.get(row)) {
+            Some(line) => format!("line {line}"),
             None => format!("row {row}"),
         }
     }

@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use super::import_source::{
     CsvLayout, FileSettings, ForceUnit, JointUnit, Kind, LengthUnit, Mapped, MomentUnit, Source,
-    SourceFormat, cannot_read, column_map_problems, read_source,
+    SourceFormat, SourceUnits, cannot_read, column_map_problems, read_source,
 };
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
@@ -197,7 +197,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "A file of tool poses (CSV or Parquet) as the targets table for compensate, units converted",
-    code_version: 1,
+    code_version: 2,
     inputs: &[],
     outputs: &[TableSlot {
         name: "targets",
@@ -254,12 +254,18 @@ impl ImportTargetsSettings {
             decimal_comma: self.decimal_comma,
             skip_rows: self.skip_rows,
             has_header: self.has_header,
+            units: SourceUnits {
+                joint: self.joint_unit,
+                angle: self.angle_unit,
+                length: self.length_unit,
+                moment: self.moment_unit,
+            },
         }
         .check(job_dir, &mut problems);
         column_map_problems(
             |key| self.columns.get(key),
             &REQUIRED,
-            CONTRACT.iter().map(|(key, _)| *key),
+            CONTRACT.iter().copied(),
             &mut problems,
         );
         let hints = schema::JOINT_COLUMNS.map(|c| self.columns.get(c).is_some());
@@ -356,12 +362,27 @@ impl Stage for ImportTargetsStage {
         settings.check(ctx.job_dir).err().unwrap_or_default()
     }
 
+    /// The file read, converted and checked as `run` does it.
+    fn check_sources(
+        &self,
+        settings: &ImportTargetsSettings,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        match import(settings, ctx.job_dir) {
+            Ok(_) => Vec::new(),
+            Err(e) => vec![SettingsProblem::new("path", e.to_string())],
+        }
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
         settings: &ImportTargetsSettings,
     ) -> Result<StageOutputs, StageError> {
-        let (targets, source_blake3) = import(settings, ctx.job_dir)?;
+        let (targets, source_blake3, notes) = import(settings, ctx.job_dir)?;
+        for note in &notes {
+            ctx.progress.note(note);
+        }
         let mut outputs = StageOutputs::default();
         outputs
             .facts
@@ -374,11 +395,12 @@ impl Stage for ImportTargetsStage {
 }
 
 /// Reads, converts and checks the file the settings name (relative paths
-/// against `job_dir`): the targets table and the file's content hash.
+/// against `job_dir`): the targets table, the file's content hash and the
+/// warnings about the file.
 fn import(
     settings: &ImportTargetsSettings,
     job_dir: &Path,
-) -> Result<(DataFrame, String), StageError> {
+) -> Result<(DataFrame, String, Vec<String>), StageError> {
     let checked = settings.check(job_dir).map_err(|p| settings_error(&p))?;
     let bytes = std::fs::read(&checked.file).map_err(|e| cannot_read(&checked.file, e))?;
     let source = read_source(
@@ -390,9 +412,19 @@ fn import(
         "every target needs one",
     )?;
     source.check_columns(&checked.mapped)?;
+    if source.height() == 0 {
+        return Err(StageError::Invalid(format!(
+            "{}: no data rows (a header only?): at least one target is needed",
+            checked.file.display()
+        )));
+    }
     let targets = build(&source, &checked.mapped, settings)?;
     schema::targets().check(&targets, &checked.file)?;
-    Ok((targets, blake3::hash(&bytes).to_hex().to_string()))
+    Ok((
+        targets,
+        blake3::hash(&bytes).to_hex().to_string(),
+        source.notes.clone(),
+    ))
 }
 
 /// The targets table from every row of the source, contract columns in order.
@@ -496,7 +528,8 @@ frame = "in"
              8;1;0;1;0;0;1,5707963267948966;;\r\n",
         )
         .unwrap();
-        let (df, _) = import(&settings(&format!("path = \"t.csv\"\n{POSE}")), dir.path()).unwrap();
+        let (df, _, _) =
+            import(&settings(&format!("path = \"t.csv\"\n{POSE}")), dir.path()).unwrap();
         let f = |c: &str| {
             df.column(c)
                 .unwrap()

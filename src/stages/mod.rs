@@ -175,6 +175,18 @@ pub trait Stage: Sync {
     ) -> Vec<SettingsProblem> {
         Vec::new()
     }
+
+    /// Checks of the user files the stage's settings name (an export to import),
+    /// for `egcal check`: each file read and parsed as [`Stage::run`] would, with
+    /// the same messages, under the setting that names it. `run` reads them
+    /// anyway, so only `check` calls this. Most stages read no such file.
+    fn check_sources(
+        &self,
+        _settings: &Self::Settings,
+        _ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        Vec::new()
+    }
 }
 
 /// What job-file validation knows when it checks a stage's settings: no tables yet.
@@ -234,6 +246,12 @@ pub trait StageKind: Sync {
     fn defaults(&self) -> serde_json::Value;
     /// See [`Stage::check_settings`]; `canonical` comes from [`StageKind::canonical_settings`].
     fn check_settings(
+        &self,
+        canonical: &serde_json::Value,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem>;
+    /// See [`Stage::check_sources`].
+    fn check_sources(
         &self,
         canonical: &serde_json::Value,
         ctx: &SettingsContext,
@@ -334,6 +352,17 @@ impl<S: Stage> StageKind for S {
     ) -> Vec<SettingsProblem> {
         match typed_settings::<S>(canonical) {
             Ok(settings) => Stage::check_settings(self, &settings, ctx),
+            Err(e) => vec![SettingsProblem::new("", e.to_string())],
+        }
+    }
+
+    fn check_sources(
+        &self,
+        canonical: &serde_json::Value,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        match typed_settings::<S>(canonical) {
+            Ok(settings) => Stage::check_sources(self, &settings, ctx),
             Err(e) => vec![SettingsProblem::new("", e.to_string())],
         }
     }

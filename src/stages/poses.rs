@@ -151,6 +151,27 @@ impl PosesSettings {
     }
 }
 
+/// The target points must fit in memory.
+fn budget_problems(settings: &PosesSettings) -> Vec<SettingsProblem> {
+    let (key, asked) = match settings.sampling {
+        SamplingKind::Grid => (
+            "points_per_axis",
+            format!("points_per_axis = {} (cubed)", settings.points_per_axis),
+        ),
+        SamplingKind::Random | SamplingKind::LatinHypercube => {
+            ("count", format!("count = {}", settings.count))
+        }
+    };
+    let points = settings.target_points() as f64;
+    budget::over_budget(
+        points * BYTES_PER_POINT,
+        &format!("{points:.0} target points"),
+    )
+    .map(|why| SettingsProblem::new(key, format!("{asked}: {why}")))
+    .into_iter()
+    .collect()
+}
+
 impl Stage for PosesStage {
     type Settings = PosesSettings;
 
@@ -158,29 +179,25 @@ impl Stage for PosesStage {
         &INFO
     }
 
-    /// The target points must fit in memory: checked before the grid is allocated.
+    /// The tracker must be placed, and the target points must fit in memory:
+    /// checked before the grid is allocated.
     fn check_settings(
         &self,
         settings: &PosesSettings,
-        _ctx: &SettingsContext,
+        ctx: &SettingsContext,
     ) -> Vec<SettingsProblem> {
-        let (key, asked) = match settings.sampling {
-            SamplingKind::Grid => (
-                "points_per_axis",
-                format!("points_per_axis = {} (cubed)", settings.points_per_axis),
-            ),
-            SamplingKind::Random | SamplingKind::LatinHypercube => {
-                ("count", format!("count = {}", settings.count))
-            }
-        };
-        let points = settings.target_points() as f64;
-        budget::over_budget(
-            points * BYTES_PER_POINT,
-            &format!("{points:.0} target points"),
-        )
-        .map(|why| SettingsProblem::new(key, format!("{asked}: {why}")))
-        .into_iter()
-        .collect()
+        let mut problems = Vec::new();
+        if settings.tracker_mm.is_none() && !ctx.robot.has_world {
+            problems.push(SettingsProblem::new(
+                "tracker_mm",
+                format!(
+                    "not set, and the robot file {} has no `[world]` table to place the tracker from: give `tracker_mm = [x, y, z]` (the tracker head in the base frame, mm), or add `[world]` (the nominal tracker ← base transform: x_mm, y_mm, z_mm, rx_deg, ry_deg, rz_deg) to the robot file",
+                    ctx.robot.path.display()
+                ),
+            ));
+        }
+        problems.extend(budget_problems(settings));
+        problems
     }
 
     fn run(

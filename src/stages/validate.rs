@@ -105,7 +105,7 @@ impl Stage for ValidateStage {
         let mut data = measured_rows(measurements, keep.as_ref())?;
         let left_out = data.leave_out_bad_rows(ctx.robot, &measurements.path);
         if let Some(summary) = &left_out {
-            ctx.progress.note(summary);
+            ctx.progress.note(&format!("warning: {summary}"));
         }
         let MeasuredRows {
             ids,
