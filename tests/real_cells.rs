@@ -473,7 +473,8 @@ fn rows_outside_the_joint_limits_or_absurd_are_dropped_and_named_or_fail() {
     let (code, _, stderr) = run_identify(dir.path(), &bad_input, "");
     assert_eq!(code, 0, "{stderr}");
     assert!(
-        stderr.contains("2 rows dropped by the row checks")
+        stderr.contains("2 of 200 rows of")
+            && stderr.contains("dropped by the row checks")
             && stderr.contains("cw_id 10: q2_deg = 130 is outside the joint limits [-90, 120]")
             && stderr.contains("cw_id 20: q1_deg = 1e300"),
         "{stderr}"
