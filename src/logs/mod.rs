@@ -533,22 +533,6 @@ fn walk(root: &Path, files: &mut Vec<PathBuf>) -> std::io::Result<()> {
     Ok(())
 }
 
-/// A `YYYY-MM-DD` date (four-digit year) as a day number; anything else `None`.
-pub fn parse_day(text: &str) -> Option<i64> {
-    let bytes = text.as_bytes();
-    let shape = bytes.len() == 10
-        && bytes.iter().enumerate().all(|(i, b)| {
-            if i == 4 || i == 7 {
-                *b == b'-'
-            } else {
-                b.is_ascii_digit()
-            }
-        });
-    shape
-        .then(|| crate::table::time::parse_date(text))
-        .flatten()
-}
-
 /// The robot of a `robot_id=` folder in `relative` (`/`-separated, below the root).
 fn partition_robot(relative: &str) -> Option<String> {
     relative
@@ -566,9 +550,8 @@ fn partition_matches(relative: &str, query: &LogQuery) -> bool {
 fn segment_matches(segment: &str, query: &LogQuery) -> bool {
     match segment.split_once('=') {
         Some(("robot_id", id)) => id == query.robot_id,
-        Some(("date", date)) => {
-            parse_day(date).is_none_or(|day| (query.first_day..=query.last_day).contains(&day))
-        }
+        Some(("date", date)) => crate::table::time::parse_date(date)
+            .is_none_or(|day| (query.first_day..=query.last_day).contains(&day)),
         _ => true,
     }
 }
@@ -904,7 +887,7 @@ mod tests {
 
     #[test]
     fn partition_dates_need_four_digit_years() {
-        assert!(parse_day("2026-11-10").is_some());
+        assert!(crate::table::time::parse_date("2026-11-10").is_some());
         for bad in [
             "99999999999-01-01",
             "2026-1-10",
@@ -912,7 +895,7 @@ mod tests {
             "+026-11-10",
             "",
         ] {
-            assert!(parse_day(bad).is_none(), "{bad}");
+            assert!(crate::table::time::parse_date(bad).is_none(), "{bad}");
         }
     }
 }

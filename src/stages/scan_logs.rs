@@ -21,7 +21,6 @@ use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, settings_error,
 };
-use crate::logs::parse_day;
 use crate::logs::s3::{S3Location, S3Settings};
 use crate::logs::{self, ContentKey, LogQuery, LogSource, ScanReport};
 use crate::table::schema;
@@ -143,7 +142,7 @@ impl ScanLogsSettings {
             problems.push(SettingsProblem::new(&key, message));
         }
         let mut date = |key: &str, text: &str| {
-            let day = parse_day(text);
+            let day = crate::table::time::parse_date(text);
             if day.is_none() {
                 problems.push(SettingsProblem::new(
                     key,

@@ -28,6 +28,20 @@ pub fn civil_from_days(days: i64) -> (i64, i64, i64) {
 
 /// Parses `YYYY-MM-DD` to a day number; `None` unless it is a real date.
 pub fn parse_date(text: &str) -> Option<i64> {
+    // Exactly `YYYY-MM-DD`: a 12-digit year would overflow the day arithmetic
+    // and name files no one can sort.
+    let bytes = text.as_bytes();
+    let shape = bytes.len() == 10
+        && bytes.iter().enumerate().all(|(i, b)| {
+            if i == 4 || i == 7 {
+                *b == b'-'
+            } else {
+                b.is_ascii_digit()
+            }
+        });
+    if !shape {
+        return None;
+    }
     let mut parts = text.splitn(3, '-').map(|p| p.parse::<i64>().ok());
     let (year, month, day) = (parts.next()??, parts.next()??, parts.next()??);
     let days = days_from_civil(year, month, day);
