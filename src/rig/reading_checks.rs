@@ -106,6 +106,28 @@ pub enum ReadingFault {
         distance_mm: f64,
         bound_mm: f64,
     },
+    #[error(
+        "implausible reading: the tracker reports {column} = {}, expected a 1-σ uncertainty from {} to {} mm",
+        compact(*value),
+        crate::calibration::row_checks::MIN_SIGMA_MM,
+        crate::calibration::row_checks::MAX_SIGMA_MM
+    )]
+    SigmaOutOfRange { column: &'static str, value: f64 },
+}
+
+/// A tracker's reported 1-σ outside what any tracker reports (the bounds the
+/// measurements table holds σ to): the weights 1/σ² of such a row would
+/// decide the fit alone, or drop it.
+pub fn sigma_fault(sigma_mm: &[f64; 3]) -> Option<ReadingFault> {
+    use crate::calibration::row_checks::{MAX_SIGMA_MM, MIN_SIGMA_MM};
+    ["sigma_x_mm", "sigma_y_mm", "sigma_z_mm"]
+        .into_iter()
+        .zip(sigma_mm)
+        .find(|(_, s)| !(**s >= MIN_SIGMA_MM && **s <= MAX_SIGMA_MM))
+        .map(|(column, value)| ReadingFault::SigmaOutOfRange {
+            column,
+            value: *value,
+        })
 }
 
 /// A reading fault is worth retrying: the next attempt may read correctly (a
@@ -238,6 +260,18 @@ mod tests {
 
     fn message(q: [f64; JOINTS], w: [f64; 6], p: [f64; 3], b: &ReadingBounds) -> String {
         b.check(&Q, &W, &q, &w, &p).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn a_reported_sigma_outside_a_trackers_range_is_a_fault() {
+        assert_eq!(sigma_fault(&[0.01, 0.02, 0.015]), None);
+        let fault = sigma_fault(&[0.01, 1e-300, 0.015]).unwrap().to_string();
+        assert!(
+            fault.contains("sigma_y_mm") && fault.contains("1e-300"),
+            "{fault}"
+        );
+        assert!(sigma_fault(&[f64::NAN, 0.01, 0.01]).is_some());
+        assert!(sigma_fault(&[0.01, 0.01, 1e6]).is_some());
     }
 
     #[test]

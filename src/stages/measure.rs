@@ -26,7 +26,7 @@ use super::{
 use crate::calibration::row_checks::JOINT_LIMIT_TOLERANCE_DEG;
 use crate::journal::Journal;
 use crate::rig::driver::ExternalDriver;
-use crate::rig::reading_checks::ReadingBounds;
+use crate::rig::reading_checks::{ReadingBounds, sigma_fault};
 use crate::rig::simulator::{Simulator, SimulatorSettings};
 use crate::rig::{Disposition, Rig, RigError, timeout_from_seconds};
 use crate::robot::ConfWrench;
@@ -341,6 +341,9 @@ impl Stage for MeasureStage {
                         &reading.wrench,
                         &reading.position_mm,
                     )?;
+                    if let Some(fault) = reading.sigma_mm.as_ref().and_then(sigma_fault) {
+                        return Err(fault.into());
+                    }
                     Ok(reading)
                 });
                 match checked {

@@ -5,6 +5,7 @@ Arguments are faults, NAME=VALUE:
   joints=[...]                   what `read_joints` returns (JSON)
   wrench=[...]                   what `read_wrench` returns (JSON)
   position=[...]                 what `measure` returns (JSON)
+  sigma=[...]                    the 1-σ (mm) `measure` reports with it (JSON)
   measure=exit3|kill9|wrong_id|silent   how to fail at the first `measure`
 Without faults it reads back the commanded joints, a zero wrench and a fixed
 position.
@@ -44,6 +45,8 @@ for line in sys.stdin:
         if fault == "wrong_id":
             rid += 7
         result = {"position_mm": json.loads(faults.get("position", "[1000.0, 0.0, 1000.0]"))}
+        if "sigma" in faults:
+            result["sigma_mm"] = json.loads(faults["sigma"])
     elif method == "shutdown":
         print(json.dumps({"id": rid, "result": {}}), flush=True)
         break
