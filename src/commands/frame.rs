@@ -127,11 +127,7 @@ pub fn frame_command(
                 return Err(CommandError::Usage(format!(
                     "--origin-in-tracker: value {} ({name}) is {}, expected {expected}",
                     k + 1,
-                    if value.abs() >= 1e9 {
-                        format!("{value:e}")
-                    } else {
-                        format!("{value}")
-                    }
+                    crate::calibration::row_checks::compact(value)
                 )));
             }
         }

@@ -199,7 +199,7 @@ fn target_points(table: &InputTable) -> Result<TargetPoints, StageError> {
                 "{}: row {k} (target_id {id}): {} = {} lies beyond ±{MAX_POSITION_MM} mm; expected a point of the robot's cell in mm",
                 table.path.display(),
                 POSITION_COLUMNS[axis],
-                crate::table::readable_number(point[axis])
+                crate::calibration::row_checks::compact(point[axis])
             )));
         }
         if points.insert(*id, point).is_some() {
@@ -238,7 +238,7 @@ fn run_errors(
                 table.path.display(),
                 rows.file_rows[k],
                 POSITION_COLUMNS[axis],
-                crate::table::readable_number(rows.positions[k][axis])
+                crate::calibration::row_checks::compact(rows.positions[k][axis])
             )));
         }
         let error = rows.positions[k] - target;
@@ -247,7 +247,7 @@ fn run_errors(
                 "{}: row {} (cw_id {id}): the measured point lies {} mm from its target, more than max_error_mm = {max_error_mm}: another target, frame or unit? (raise the setting if the robot really missed by that much)",
                 table.path.display(),
                 rows.file_rows[k],
-                crate::table::readable_number(error.norm())
+                crate::calibration::row_checks::compact(error.norm())
             )));
         }
         if norms.insert(*id, error.norm()).is_some() {

@@ -186,15 +186,6 @@ fn hash_option(hasher: &mut blake3::Hasher, value: Option<u64>) {
     }
 }
 
-/// A number as an error message shows it: `1e300`, not its 301 digits.
-pub fn readable_number(value: f64) -> String {
-    if value != 0.0 && !(1e-4..1e9).contains(&value.abs()) {
-        format!("{value:e}")
-    } else {
-        format!("{value}")
-    }
-}
-
 /// Builds a data frame from named f64/i64/str columns of equal length.
 pub fn frame(columns: Vec<Column>) -> DataFrame {
     let height = columns.first().map_or(0, |c| c.len());
@@ -204,15 +195,6 @@ pub fn frame(columns: Vec<Column>) -> DataFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn a_readable_number_is_short_at_any_magnitude() {
-        assert_eq!(readable_number(1e300), "1e300");
-        assert_eq!(readable_number(-2.5e-300), "-2.5e-300");
-        assert_eq!(readable_number(4000.25), "4000.25");
-        assert_eq!(readable_number(0.0), "0");
-        assert_eq!(readable_number(f64::NAN), "NaN");
-    }
 
     #[test]
     fn provenance_round_trips_through_the_footer() {

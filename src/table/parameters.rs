@@ -277,7 +277,7 @@ pub fn implausible_row(
                     row,
                     message: format!(
                         "model {model}, `{name}` = {} {unit} lies beyond ±{bound} {unit}",
-                        super::readable_number(value)
+                        crate::calibration::row_checks::compact(value)
                     ),
                 }));
             }
