@@ -322,10 +322,19 @@ impl Stage for ExportProgramStage {
         let commands = read_commands(&input.df, &input.path)?;
         check_commands(ctx.robot, &commands, &input.path)?;
         if !commands.iter().any(Command::is_ok) {
+            let mut statuses = std::collections::BTreeMap::<&str, usize>::new();
+            for command in &commands {
+                *statuses.entry(command.status.as_str()).or_default() += 1;
+            }
+            let statuses: Vec<String> = statuses
+                .iter()
+                .map(|(status, n)| format!("{n} {status}"))
+                .collect();
             return Err(StageError::Invalid(format!(
-                "{}: {} row(s), none with status ok: the programs would move nowhere",
+                "{}: {} row(s), none with status ok ({}): the programs would move nowhere; compensate's table says why each row is not ok",
                 input.path.display(),
-                commands.len()
+                commands.len(),
+                statuses.join(", ")
             )));
         }
         let failed: Vec<String> = commands
