@@ -8,11 +8,13 @@
 pub mod accuracy_map;
 mod dense;
 pub mod fit;
+pub mod groups;
 pub mod held;
 pub mod rank;
 pub mod registration;
 pub mod robust;
 pub mod row_checks;
+pub mod selection;
 pub mod stream;
 pub mod uncertainty;
 pub mod unit_checks;
@@ -43,6 +45,10 @@ pub struct CalibrationOptions {
     /// Bounds beyond which an identifiable parameter is held at its start value
     /// (spec §8 `held`); `None`: every identifiable parameter is fitted.
     pub hold: Option<HoldOptions>,
+    /// Folds of the rows for choosing the free parameters by held-out error
+    /// ([`selection`]); `None`: every identifiable parameter within the
+    /// `hold` bounds is fitted.
+    pub selection: Option<selection::FoldAssignment>,
 }
 
 impl CalibrationOptions {
@@ -57,6 +63,7 @@ impl CalibrationOptions {
             fixed: Vec::new(),
             targets: 1,
             hold: Some(HoldOptions::default()),
+            selection: None,
         }
     }
 }
@@ -194,6 +201,7 @@ pub fn calibrate(
     let mut held: Vec<Hold> = Vec::new();
     let mut trace: Vec<Iteration> = Vec::new();
     let mut least_squares = least_squares;
+    let mut selected = false;
     // Each round holds at least one parameter, so this ends within `m` rounds;
     // without holds it is the one fit it always was.
     let (fit, robust) = loop {
@@ -205,11 +213,35 @@ pub fn calibrate(
             }
             None => (least_squares, None),
         };
-        let new_holds = options.hold.as_ref().map_or_else(Vec::new, |bounds| {
+        let mut new_holds = options.hold.as_ref().map_or_else(Vec::new, |bounds| {
             held::parameters_to_hold(&fit.free, &fit.covariance, bounds, |id| {
                 id.name().to_string()
             })
         });
+        // Once the standard errors are within bounds, the held-out rows
+        // decide (once: the refit only drops what they did not support).
+        if new_holds.is_empty()
+            && !selected
+            && let (Some(folds), Some(bounds)) = (&options.selection, &options.hold)
+        {
+            selected = true;
+            new_holds = selection::choose_parameters(
+                robot,
+                data,
+                &fit.values,
+                &start,
+                &fit.weights,
+                &fit.free,
+                folds,
+                bounds,
+            )
+            .into_iter()
+            .map(|u| Hold {
+                id: u.id,
+                reason: u.reason,
+            })
+            .collect();
+        }
         if new_holds.is_empty() {
             break (fit, robust);
         }

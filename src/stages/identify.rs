@@ -22,6 +22,7 @@ use super::{
     StageOutputs, TableSlot, conf_wrench_rows, model_name_problem, settings_error,
 };
 use crate::calibration::fit::{Algorithm, FitError, FitOptions, Loss, Observations};
+use crate::calibration::groups::Grouping;
 use crate::calibration::held::HoldOptions;
 use crate::calibration::robust::RobustOptions;
 use crate::calibration::{
@@ -168,6 +169,30 @@ pub struct IdentifySettings {
     /// Accept a fit that stops at `max_iterations` (a warning in the log, the
     /// facts and the report's first screen) instead of failing the stage.
     pub accept_not_converged: bool,
+    /// How the free parameters are chosen. `standard_errors` (default): every
+    /// identifiable parameter within the standard-error and variance-inflation
+    /// bounds. `held_out`: of those, only the ones whose freeing lowers the
+    /// error on whole groups of rows left out (grouped cross-validation); the
+    /// others are `held` with the figures in `reason`. Not the default: the
+    /// choice varies with the folds (README, held-out validation).
+    pub parameter_choice: ParameterChoice,
+    /// parameter_choice = held_out: how the rows are grouped: configuration
+    /// (clusters in joint space, default), region (of the workspace), load,
+    /// time (`measured_at`) or random.
+    pub held_out_grouping: Grouping,
+    /// parameter_choice = held_out: groups left out in turn (folds).
+    #[schemars(range(min = 2, max = 50))]
+    pub held_out_folds: usize,
+}
+
+/// How `identify` chooses the free parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ParameterChoice {
+    /// By grouped cross-validation (issue #28).
+    HeldOut,
+    /// By the standard-error and variance-inflation bounds alone.
+    StandardErrors,
 }
 
 impl Default for IdentifySettings {
@@ -199,6 +224,9 @@ impl Default for IdentifySettings {
             plausible_angle_deg: 2.0,
             max_registration_rms_mm: 25.0,
             accept_not_converged: false,
+            parameter_choice: ParameterChoice::StandardErrors,
+            held_out_grouping: Grouping::Configuration,
+            held_out_folds: 5,
         }
     }
 }
@@ -358,6 +386,9 @@ pub struct MeasuredRows {
     pub target_ids: Option<Vec<Option<String>>>,
     /// `sigma_x_mm, sigma_y_mm, sigma_z_mm` of each row, when the table has them.
     pub sigma_mm: Option<Vec<Vector3<f64>>>,
+    /// `measured_at` of each row (µs since the epoch, `None` where null), when
+    /// the table has it.
+    pub measured_at_us: Option<Vec<Option<i64>>>,
 }
 
 impl MeasuredRows {
@@ -372,6 +403,9 @@ impl MeasuredRows {
         }
         if let Some(sigma) = self.sigma_mm.as_mut() {
             retain_wanted(sigma, wanted);
+        }
+        if let Some(times) = self.measured_at_us.as_mut() {
+            retain_wanted(times, wanted);
         }
     }
 
@@ -485,6 +519,19 @@ pub fn measured_rows(
     } else {
         None
     };
+    let measured_at_us = match table.df.column("measured_at") {
+        Ok(column) => Some(
+            column
+                .cast(&polars::prelude::DataType::Int64)
+                .and_then(|c| c.i64().cloned())
+                .map_err(|e| {
+                    StageError::Invalid(format!("{}: measured_at: {e}", table.path.display()))
+                })?
+                .iter()
+                .collect(),
+        ),
+        Err(_) => None,
+    };
     let mut out = MeasuredRows {
         file_rows: (0..ids.len()).collect(),
         ids,
@@ -492,6 +539,7 @@ pub fn measured_rows(
         positions,
         target_ids,
         sigma_mm,
+        measured_at_us,
     };
     if let Some(keep) = keep {
         let wanted: Vec<bool> = out.ids.iter().map(|id| keep.contains(id)).collect();
@@ -682,6 +730,24 @@ impl Stage for IdentifyStage {
             fixed,
             targets: targets.len().max(1),
             hold: Some(settings.hold_options()),
+            selection: match settings.parameter_choice {
+                ParameterChoice::StandardErrors => None,
+                ParameterChoice::HeldOut => Some(
+                    super::held_out::fold_assignment(
+                        &data,
+                        settings.held_out_grouping,
+                        settings.held_out_folds,
+                        ctx.seed,
+                    )
+                    .map_err(|e| {
+                        StageError::Invalid(format!(
+                            "{}: setting `held_out_grouping` = {}: {e}",
+                            measurements.path.display(),
+                            settings.held_out_grouping
+                        ))
+                    })?,
+                ),
+            },
         };
         let scales: Option<Vec<Vector3<f64>>> = data
             .sigma_mm

@@ -10,8 +10,10 @@ pub mod accuracy;
 pub mod accuracy_map;
 pub mod budget;
 pub mod compensate;
+pub mod crossvalidate;
 pub mod export_program;
 pub mod gate;
+pub mod held_out;
 pub mod identifiability;
 pub mod identify;
 pub mod import_measurements;
@@ -424,6 +426,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &import_targets::ImportTargetsStage,
         &split::SplitStage,
         &identify::IdentifyStage,
+        &crossvalidate::CrossvalidateStage,
         &validate::ValidateStage,
         &gate::GateStage,
         &predict::PredictStage,

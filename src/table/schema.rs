@@ -910,6 +910,134 @@ pub fn tests() -> TableSchema {
     }
 }
 
+/// Columns shared by the crossvalidate tables: the protocol (grouping) and model.
+fn protocol_and_model() -> Vec<ColumnSpec> {
+    vec![
+        col(
+            "protocol",
+            ColumnType::Utf8,
+            "",
+            true,
+            "how the folds were made: configuration, region, load, time or random",
+        ),
+        col("model", ColumnType::Utf8, "", true, "model identified on the other folds"),
+    ]
+}
+
+/// The four error figures of a set of held-out rows.
+fn error_figures() -> Vec<ColumnSpec> {
+    vec![
+        col("mean_mm", ColumnType::Float64, "mm", true, "mean error norm"),
+        col("rms_mm", ColumnType::Float64, "mm", true, "root mean square error norm"),
+        col(
+            "p997_mm",
+            ColumnType::Float64,
+            "mm",
+            true,
+            "99.7th percentile of the error norms (the 3σ figure vendors quote)",
+        ),
+        col("max_mm", ColumnType::Float64, "mm", true, "largest error norm"),
+    ]
+}
+
+/// `crossvalidate`'s figures per fold.
+pub fn crossvalidation_folds() -> TableSchema {
+    let mut columns = vec![protocol_and_model().remove(0)];
+    columns.push(col("fold", ColumnType::Int64, "", true, "the fold validated (0-based)"));
+    columns.push(protocol_and_model().remove(1));
+    columns.push(col(
+        "calibration_rows",
+        ColumnType::Int64,
+        "",
+        true,
+        "rows of the other folds, identified on",
+    ));
+    columns.push(col(
+        "validation_rows",
+        ColumnType::Int64,
+        "",
+        true,
+        "rows of this fold with an error",
+    ));
+    columns.extend(error_figures());
+    TableSchema {
+        kind: "crossvalidation_folds",
+        description: "Held-out errors of each fold: the fold validated on a calibration of the other folds.",
+        columns,
+        unique: None,
+    }
+}
+
+/// `crossvalidate`'s figures pooled over the folds.
+pub fn crossvalidation_stats() -> TableSchema {
+    let mut columns = protocol_and_model();
+    columns.push(col(
+        "rows",
+        ColumnType::Int64,
+        "",
+        true,
+        "held-out rows pooled over the folds",
+    ));
+    columns.extend(error_figures());
+    TableSchema {
+        kind: "crossvalidation_stats",
+        description: "Held-out errors pooled over the folds, per protocol and model.",
+        columns,
+        unique: None,
+    }
+}
+
+/// `crossvalidate`'s error of every held-out row.
+pub fn crossvalidation_errors() -> TableSchema {
+    let mut columns = vec![protocol_and_model().remove(0)];
+    columns.push(col("cw_id", ColumnType::Int64, "", true, "conf-wrench combination id"));
+    columns.push(col("fold", ColumnType::Int64, "", true, "the row's fold (0-based)"));
+    columns.push(protocol_and_model().remove(1));
+    columns.push(col(
+        "error_mm",
+        ColumnType::Float64,
+        "mm",
+        true,
+        "norm of measured − predicted, the model identified without the row's fold",
+    ));
+    TableSchema {
+        kind: "crossvalidation_errors",
+        description: "Held-out error of every row and model.",
+        columns,
+        unique: None,
+    }
+}
+
+/// `crossvalidate`'s paired comparisons of models on the same held-out rows.
+pub fn crossvalidation_tests() -> TableSchema {
+    TableSchema {
+        kind: "crossvalidation_tests",
+        description: "Paired two-sided tests between each pair of models on the same held-out rows.",
+        columns: vec![
+            protocol_and_model().remove(0),
+            col("model_a", ColumnType::Utf8, "", true, "first model"),
+            col("model_b", ColumnType::Utf8, "", true, "second model"),
+            col("rows", ColumnType::Int64, "", true, "rows both models predicted"),
+            col(
+                "mean_difference_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "mean of model_a's error minus model_b's, row by row",
+            ),
+            col("paired_t_p", ColumnType::Float64, "", true, "paired t-test p-value"),
+            col(
+                "wilcoxon_p",
+                ColumnType::Float64,
+                "",
+                true,
+                "Wilcoxon signed-rank p-value",
+            ),
+        ],
+        unique: None,
+    }
+}
+
 /// Generated robot configurations (paper §IV.A (a)–(b)).
 pub fn poses() -> TableSchema {
     let mut columns = vec![col(
@@ -1790,6 +1918,10 @@ pub fn all() -> Vec<TableSchema> {
         errors(),
         stats(),
         tests(),
+        crossvalidation_folds(),
+        crossvalidation_stats(),
+        crossvalidation_errors(),
+        crossvalidation_tests(),
         poses(),
         candidates(),
         gate_decision(),
