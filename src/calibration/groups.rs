@@ -82,7 +82,9 @@ pub enum GroupError {
     NoTimes,
     #[error("grouping by load needs rows with different wrenches; every row carries the same one")]
     OneLoad,
-    #[error("the rows fall in only {found} distinct group(s) by {grouping}; {wanted} folds need at least {wanted}")]
+    #[error(
+        "the rows fall in only {found} distinct group(s) by {grouping}; {wanted} folds need at least {wanted}"
+    )]
     TooFewGroups {
         grouping: Grouping,
         found: usize,
@@ -151,9 +153,8 @@ pub fn group_rows(
             Ok(kmeans(&points, groups, seed))
         }
         Grouping::Load => {
-            let largest = |f: &dyn Fn(&ConfWrench) -> f64| {
-                input.rows.iter().map(f).fold(0.0_f64, f64::max)
-            };
+            let largest =
+                |f: &dyn Fn(&ConfWrench) -> f64| input.rows.iter().map(f).fold(0.0_f64, f64::max);
             let force_scale = largest(&|r| r.wrench.force_n.norm());
             let moment_scale = largest(&|r| r.wrench.moment_nm.norm());
             let first = input.rows[0].wrench;
@@ -409,7 +410,10 @@ mod tests {
     fn folds_keep_groups_whole_balance_rows_and_repeat_with_the_seed() {
         let groups: Vec<usize> = (0..100).map(|k| (k * k) % 9).collect();
         let a = folds_of_groups(&groups, 3, Grouping::Region, 11).unwrap();
-        assert_eq!(a, folds_of_groups(&groups, 3, Grouping::Region, 11).unwrap());
+        assert_eq!(
+            a,
+            folds_of_groups(&groups, 3, Grouping::Region, 11).unwrap()
+        );
         for g in 0..9 {
             let folds: std::collections::BTreeSet<usize> = groups
                 .iter()

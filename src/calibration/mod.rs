@@ -225,22 +225,13 @@ pub fn calibrate(
             && let (Some(folds), Some(bounds)) = (&options.selection, &options.hold)
         {
             selected = true;
-            new_holds = selection::choose_parameters(
-                robot,
-                data,
-                &fit.values,
-                &start,
-                &fit.weights,
-                &fit.free,
-                folds,
-                bounds,
-            )
-            .into_iter()
-            .map(|u| Hold {
-                id: u.id,
-                reason: u.reason,
-            })
-            .collect();
+            new_holds = selection::choose_parameters(robot, data, &fit, &start, folds, bounds)
+                .into_iter()
+                .map(|u| Hold {
+                    id: u.id,
+                    reason: u.reason,
+                })
+                .collect();
         }
         if new_holds.is_empty() {
             break (fit, robust);

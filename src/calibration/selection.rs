@@ -43,7 +43,7 @@ use std::ops::Range;
 use faer::Mat;
 use nalgebra::{DMatrix, DVector, Vector3};
 
-use super::fit::Observations;
+use super::fit::{Fit, Observations};
 use super::held::HoldOptions;
 use super::{dense, stream};
 use crate::robot::{ParamId, ParamValues, Robot};
@@ -117,16 +117,15 @@ fn fold_grams(
         (factors, counts)
     };
     let combine = |a: (Vec<Mat<f64>>, Vec<usize>), b: (Vec<Mat<f64>>, Vec<usize>)| {
-        let factors = a
-            .0
-            .iter()
-            .zip(&b.0)
-            .map(|(x, y)| match (x.nrows(), y.nrows()) {
-                (0, _) => y.clone(),
-                (_, 0) => x.clone(),
-                _ => stream::stack(x, y),
-            })
-            .collect();
+        let factors =
+            a.0.iter()
+                .zip(&b.0)
+                .map(|(x, y)| match (x.nrows(), y.nrows()) {
+                    (0, _) => y.clone(),
+                    (_, 0) => x.clone(),
+                    _ => stream::stack(x, y),
+                })
+                .collect();
         let counts = a.1.iter().zip(&b.1).map(|(x, y)| x + y).collect();
         (factors, counts)
     };
@@ -153,7 +152,10 @@ fn fold_grams(
 /// where a fold's leave-out system is singular.
 fn held_out_squares(grams: &FoldGrams, kept: &[usize], shift: &DVector<f64>) -> Option<Vec<f64>> {
     let m = shift.len();
-    let total: DMatrix<f64> = grams.grams.iter().fold(DMatrix::zeros(m + 1, m + 1), |a, g| a + g);
+    let total: DMatrix<f64> = grams
+        .grams
+        .iter()
+        .fold(DMatrix::zeros(m + 1, m + 1), |a, g| a + g);
     let held: Vec<usize> = (0..m).filter(|j| !kept.contains(j)).collect();
     grams
         .grams
@@ -168,9 +170,15 @@ fn held_out_squares(grams: &FoldGrams, kept: &[usize], shift: &DVector<f64>) -> 
                 for (j, kj) in kept.iter().enumerate() {
                     a[(i, j)] = rest[(*ki, *kj)];
                 }
-                b[i] = rest[(*ki, m)] - held.iter().map(|h| rest[(*ki, *h)] * shift[*h]).sum::<f64>();
+                b[i] = rest[(*ki, m)]
+                    - held
+                        .iter()
+                        .map(|h| rest[(*ki, *h)] * shift[*h])
+                        .sum::<f64>();
             }
-            let d: Vec<f64> = (0..n).map(|i| a[(i, i)].max(f64::MIN_POSITIVE).sqrt()).collect();
+            let d: Vec<f64> = (0..n)
+                .map(|i| a[(i, i)].max(f64::MIN_POSITIVE).sqrt())
+                .collect();
             for i in 0..n {
                 b[i] /= d[i];
                 for j in 0..n {
@@ -185,7 +193,8 @@ fn held_out_squares(grams: &FoldGrams, kept: &[usize], shift: &DVector<f64>) -> 
             // ‖r − Jδ‖² on the fold = rᵀr − 2δᵀJᵀr + δᵀJᵀJδ.
             let jtj = fold.view((0, 0), (m, m));
             let jtr = fold.view((0, m), (m, 1));
-            let squares = fold[(m, m)] - 2.0 * delta.dot(&jtr.column(0)) + (jtj * &delta).dot(&delta);
+            let squares =
+                fold[(m, m)] - 2.0 * delta.dot(&jtr.column(0)) + (jtj * &delta).dot(&delta);
             Some(squares.max(0.0))
         })
         .collect()
@@ -198,25 +207,24 @@ pub struct Unsupported {
     pub reason: String,
 }
 
-/// The free parameters of the fit at `fitted` (`free`, with its loss `weights`)
-/// that grouped cross-validation does not support, in the order they were held
-/// (see the module doc). `start` gives the values a held parameter returns to.
+/// The free parameters of `fit` that grouped cross-validation does not
+/// support, in the order they were held (see the module doc). `start` gives
+/// the values a held parameter returns to.
 pub fn choose_parameters(
     robot: &Robot,
     data: &Observations<'_>,
-    fitted: &ParamValues,
+    fit: &Fit,
     start: &ParamValues,
-    weights: &[f64],
-    free: &[ParamId],
     folds: &FoldAssignment,
     bounds: &HoldOptions,
 ) -> Vec<Unsupported> {
+    let (fitted, weights, free) = (&fit.values, &fit.weights, &fit.free[..]);
     let m = free.len();
     if folds.folds < 2 || !free.iter().any(|id| bounds.bound(*id).is_some()) {
         return Vec::new();
     }
     let grams = fold_grams(robot, fitted, data, weights, free, folds);
-    if grams.rows.iter().any(|r| *r == 0) {
+    if grams.rows.contains(&0) {
         return Vec::new();
     }
     let total_rows: usize = grams.rows.iter().sum();
@@ -236,9 +244,10 @@ pub fn choose_parameters(
                 held_out_squares(&grams, &fewer, &shift).map(|s| (*j, s))
             })
             .collect();
-        let Some((j, squares)) = trials.into_iter().min_by(|a, b| {
-            a.1.iter().sum::<f64>().total_cmp(&b.1.iter().sum::<f64>())
-        }) else {
+        let Some((j, squares)) = trials
+            .into_iter()
+            .min_by(|a, b| a.1.iter().sum::<f64>().total_cmp(&b.1.iter().sum::<f64>()))
+        else {
             break;
         };
         // The rise of the held-out mean squared error per row.

@@ -271,12 +271,7 @@ impl Stage for CrossvalidateStage {
                 message: p.message,
             })
             .collect();
-        if settings
-            .identify
-            .models
-            .iter()
-            .any(|m| m == "reregistered")
-        {
+        if settings.identify.models.iter().any(|m| m == "reregistered") {
             problems.push(SettingsProblem::new(
                 "identify.models",
                 "model `reregistered` needs an earlier calibration; crossvalidate identifies from the rows alone",
@@ -297,8 +292,8 @@ impl Stage for CrossvalidateStage {
         let measurements = ctx.input("measurements")?;
         let data = measured_rows(measurements, keep.as_ref())?;
         let mut protocols: Vec<(Grouping, Vec<usize>)> = Vec::new();
-        let grouped = fold_assignment(&data, settings.grouping, settings.folds, ctx.seed)
-            .map_err(|e| {
+        let grouped =
+            fold_assignment(&data, settings.grouping, settings.folds, ctx.seed).map_err(|e| {
                 StageError::Invalid(format!(
                     "{}: setting `grouping` = {}: {e}",
                     measurements.path.display(),
@@ -309,7 +304,10 @@ impl Stage for CrossvalidateStage {
         if settings.compare_random && settings.grouping != Grouping::Random {
             let random = fold_assignment(&data, Grouping::Random, settings.folds, ctx.seed)
                 .map_err(|e| {
-                    StageError::Invalid(format!("{}: random folds: {e}", measurements.path.display()))
+                    StageError::Invalid(format!(
+                        "{}: random folds: {e}",
+                        measurements.path.display()
+                    ))
                 })?;
             protocols.push((Grouping::Random, random.fold_of_row));
         }
@@ -324,7 +322,13 @@ impl Stage for CrossvalidateStage {
                 settings.folds,
                 data.ids.len()
             ));
-            let errors = run_protocol(ctx, &settings.identify, &data.ids, fold_of_row, settings.folds)?;
+            let errors = run_protocol(
+                ctx,
+                &settings.identify,
+                &data.ids,
+                fold_of_row,
+                settings.folds,
+            )?;
             for (model, rows) in &errors {
                 for fold in 0..settings.folds {
                     let values: Vec<f64> = rows
@@ -366,7 +370,9 @@ impl Stage for CrossvalidateStage {
         outputs
             .tables
             .insert("stats".into(), stats_table.into_frame(false));
-        outputs.tables.insert("errors".into(), error_rows.into_frame());
+        outputs
+            .tables
+            .insert("errors".into(), error_rows.into_frame());
         outputs.tables.insert("tests".into(), tests.into_frame());
         outputs
             .facts
@@ -506,9 +512,8 @@ impl TestColumns {
         self.model_a.push(a.to_string());
         self.model_b.push(b.to_string());
         self.rows.push(xs.len() as i64);
-        self.mean_difference.push(
-            xs.iter().zip(&ys).map(|(x, y)| x - y).sum::<f64>() / xs.len() as f64,
-        );
+        self.mean_difference
+            .push(xs.iter().zip(&ys).map(|(x, y)| x - y).sum::<f64>() / xs.len() as f64);
         self.paired_t_p.push(t.p_value);
         self.wilcoxon_p.push(w.p_value);
         Ok(())

@@ -4,12 +4,24 @@
 //!
 //! Deterministic by construction: `alternate` and `halves` depend only on the
 //! row order, so the same export always splits the same way.
+//!
+//! The grouped methods (issue #28) validate on whole groups of rows instead:
+//! a block of the workspace (`region`), a cluster of joint configurations
+//! (`configuration`), a bin of loads (`load`) or a stretch of time (`time`),
+//! the calibration never having seen anything like them
+//! ([`crate::calibration::groups`]); reproducible from the job's seed.
 
 use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::held_out::fold_assignment;
+use super::identify::measured_rows;
+use super::{
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot,
+};
+use crate::calibration::groups::Grouping;
 use crate::table::frame;
 use crate::table::schema::{self, i64_values};
 
@@ -25,17 +37,45 @@ pub enum SplitMethod {
     /// The first rows calibrate, the rest validate: a harder test when the robot
     /// or the cell drifts during the session.
     Halves,
+    /// Whole blocks of the workspace validate (k-means on the measured positions).
+    Region,
+    /// Whole clusters of joint configurations validate (k-means in joint space).
+    Configuration,
+    /// Whole bins of the wrench validate.
+    Load,
+    /// Whole stretches of `measured_at` validate.
+    Time,
+}
+
+impl SplitMethod {
+    /// The grouping of a grouped method.
+    fn grouping(self) -> Option<Grouping> {
+        match self {
+            SplitMethod::Alternate | SplitMethod::Halves => None,
+            SplitMethod::Region => Some(Grouping::Region),
+            SplitMethod::Configuration => Some(Grouping::Configuration),
+            SplitMethod::Load => Some(Grouping::Load),
+            SplitMethod::Time => Some(Grouping::Time),
+        }
+    }
 }
 
 /// Settings of `split`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SplitSettings {
-    /// alternate (default) or halves.
+    /// alternate (default) or halves; or, validating on whole groups of rows:
+    /// region, configuration, load or time.
     pub method: SplitMethod,
-    /// Fraction of the rows that calibrate, in (0, 1).
+    /// alternate, halves: fraction of the rows that calibrate, in (0, 1).
     #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 1.0))]
     pub calibration_fraction: f64,
+    /// Grouped methods: groups the rows fall into.
+    #[schemars(range(min = 2, max = 50))]
+    pub groups: usize,
+    /// Grouped methods: how many of the groups validate (the rest calibrate).
+    #[schemars(range(min = 1, max = 49))]
+    pub validation_groups: usize,
 }
 
 impl Default for SplitSettings {
@@ -43,6 +83,8 @@ impl Default for SplitSettings {
         SplitSettings {
             method: SplitMethod::Alternate,
             calibration_fraction: 0.5,
+            groups: 5,
+            validation_groups: 1,
         }
     }
 }
@@ -51,8 +93,8 @@ static INFO: StageInfo = StageInfo {
     kind: "split",
     uses_cable_robot: false,
     updates_input: None,
-    summary: "Calibration and validation rows of measured data (alternate rows or halves)",
-    code_version: 1,
+    summary: "Calibration and validation rows of measured data (alternate rows, halves, or whole groups by region, configuration, load or time)",
+    code_version: 2,
     inputs: &[TableSlot {
         name: "measurements",
         schema: schema::measurements,
@@ -76,6 +118,11 @@ fn calibrates(method: SplitMethod, fraction: f64, k: usize, n: usize) -> bool {
             ((k + 1) as f64 * fraction).floor() > (k as f64 * fraction).floor()
         }
         SplitMethod::Halves => (k as f64) < (fraction * n as f64).round(),
+        // Grouped methods split by group, not by row position.
+        SplitMethod::Region
+        | SplitMethod::Configuration
+        | SplitMethod::Load
+        | SplitMethod::Time => false,
     }
 }
 
@@ -86,6 +133,23 @@ impl Stage for SplitStage {
         &INFO
     }
 
+    fn check_settings(
+        &self,
+        settings: &SplitSettings,
+        _: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        if settings.method.grouping().is_some() && settings.validation_groups >= settings.groups {
+            return vec![SettingsProblem::new(
+                "validation_groups",
+                format!(
+                    "`validation_groups` ({}) must be fewer than `groups` ({}): some groups must calibrate",
+                    settings.validation_groups, settings.groups
+                ),
+            )];
+        }
+        Vec::new()
+    }
+
     fn run(
         &self,
         ctx: &StageContext,
@@ -93,17 +157,48 @@ impl Stage for SplitStage {
     ) -> Result<StageOutputs, StageError> {
         let fraction = settings.calibration_fraction;
         let input = ctx.input("measurements")?;
-        let ids = i64_values(&input.df, "cw_id", &input.path)?;
+        let (ids, roles, groups) = match settings.method.grouping() {
+            None => {
+                let ids = i64_values(&input.df, "cw_id", &input.path)?;
+                let n = ids.len();
+                let roles: Vec<&str> = (0..n)
+                    .map(|k| {
+                        if calibrates(settings.method, fraction, k, n) {
+                            "calibration"
+                        } else {
+                            "validation"
+                        }
+                    })
+                    .collect();
+                (ids, roles, None)
+            }
+            Some(grouping) => {
+                let data = measured_rows(input, None)?;
+                // One group per fold: fold g is group g, dealt by size.
+                let folds =
+                    fold_assignment(&data, grouping, settings.groups, ctx.seed).map_err(|e| {
+                        StageError::Invalid(format!(
+                            "{}: setting `method` = {}: {e}",
+                            input.path.display(),
+                            grouping
+                        ))
+                    })?;
+                let roles = folds
+                    .fold_of_row
+                    .iter()
+                    .map(|g| {
+                        if *g < settings.validation_groups {
+                            "validation"
+                        } else {
+                            "calibration"
+                        }
+                    })
+                    .collect();
+                let groups: Vec<i64> = folds.fold_of_row.iter().map(|g| *g as i64).collect();
+                (data.ids, roles, Some(groups))
+            }
+        };
         let n = ids.len();
-        let roles: Vec<&str> = (0..n)
-            .map(|k| {
-                if calibrates(settings.method, fraction, k, n) {
-                    "calibration"
-                } else {
-                    "validation"
-                }
-            })
-            .collect();
         let calibration = roles.iter().filter(|r| **r == "calibration").count();
         if calibration == 0 || calibration == n {
             return Err(StageError::Invalid(format!(
@@ -118,13 +213,14 @@ impl Stage for SplitStage {
         outputs
             .facts
             .insert("validation_rows".into(), (n - calibration).to_string());
-        outputs.tables.insert(
-            "selection".into(),
-            frame(vec![
-                Column::new("cw_id".into(), ids),
-                Column::new("role".into(), roles),
-            ]),
-        );
+        let mut columns = vec![
+            Column::new("cw_id".into(), ids),
+            Column::new("role".into(), roles),
+        ];
+        if let Some(groups) = groups {
+            columns.push(Column::new("group".into(), groups));
+        }
+        outputs.tables.insert("selection".into(), frame(columns));
         Ok(outputs)
     }
 }

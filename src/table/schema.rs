@@ -920,15 +920,33 @@ fn protocol_and_model() -> Vec<ColumnSpec> {
             true,
             "how the folds were made: configuration, region, load, time or random",
         ),
-        col("model", ColumnType::Utf8, "", true, "model identified on the other folds"),
+        col(
+            "model",
+            ColumnType::Utf8,
+            "",
+            true,
+            "model identified on the other folds",
+        ),
     ]
 }
 
 /// The four error figures of a set of held-out rows.
 fn error_figures() -> Vec<ColumnSpec> {
     vec![
-        col("mean_mm", ColumnType::Float64, "mm", true, "mean error norm"),
-        col("rms_mm", ColumnType::Float64, "mm", true, "root mean square error norm"),
+        col(
+            "mean_mm",
+            ColumnType::Float64,
+            "mm",
+            true,
+            "mean error norm",
+        ),
+        col(
+            "rms_mm",
+            ColumnType::Float64,
+            "mm",
+            true,
+            "root mean square error norm",
+        ),
         col(
             "p997_mm",
             ColumnType::Float64,
@@ -936,14 +954,26 @@ fn error_figures() -> Vec<ColumnSpec> {
             true,
             "99.7th percentile of the error norms (the 3σ figure vendors quote)",
         ),
-        col("max_mm", ColumnType::Float64, "mm", true, "largest error norm"),
+        col(
+            "max_mm",
+            ColumnType::Float64,
+            "mm",
+            true,
+            "largest error norm",
+        ),
     ]
 }
 
 /// `crossvalidate`'s figures per fold.
 pub fn crossvalidation_folds() -> TableSchema {
     let mut columns = vec![protocol_and_model().remove(0)];
-    columns.push(col("fold", ColumnType::Int64, "", true, "the fold validated (0-based)"));
+    columns.push(col(
+        "fold",
+        ColumnType::Int64,
+        "",
+        true,
+        "the fold validated (0-based)",
+    ));
     columns.push(protocol_and_model().remove(1));
     columns.push(col(
         "calibration_rows",
@@ -990,8 +1020,20 @@ pub fn crossvalidation_stats() -> TableSchema {
 /// `crossvalidate`'s error of every held-out row.
 pub fn crossvalidation_errors() -> TableSchema {
     let mut columns = vec![protocol_and_model().remove(0)];
-    columns.push(col("cw_id", ColumnType::Int64, "", true, "conf-wrench combination id"));
-    columns.push(col("fold", ColumnType::Int64, "", true, "the row's fold (0-based)"));
+    columns.push(col(
+        "cw_id",
+        ColumnType::Int64,
+        "",
+        true,
+        "conf-wrench combination id",
+    ));
+    columns.push(col(
+        "fold",
+        ColumnType::Int64,
+        "",
+        true,
+        "the row's fold (0-based)",
+    ));
     columns.push(protocol_and_model().remove(1));
     columns.push(col(
         "error_mm",
@@ -1017,7 +1059,13 @@ pub fn crossvalidation_tests() -> TableSchema {
             protocol_and_model().remove(0),
             col("model_a", ColumnType::Utf8, "", true, "first model"),
             col("model_b", ColumnType::Utf8, "", true, "second model"),
-            col("rows", ColumnType::Int64, "", true, "rows both models predicted"),
+            col(
+                "rows",
+                ColumnType::Int64,
+                "",
+                true,
+                "rows both models predicted",
+            ),
             col(
                 "mean_difference_mm",
                 ColumnType::Float64,
@@ -1025,7 +1073,13 @@ pub fn crossvalidation_tests() -> TableSchema {
                 true,
                 "mean of model_a's error minus model_b's, row by row",
             ),
-            col("paired_t_p", ColumnType::Float64, "", true, "paired t-test p-value"),
+            col(
+                "paired_t_p",
+                ColumnType::Float64,
+                "",
+                true,
+                "paired t-test p-value",
+            ),
             col(
                 "wilcoxon_p",
                 ColumnType::Float64,
