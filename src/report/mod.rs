@@ -5,6 +5,7 @@
 //! bytes, so the runner's content-addressed cache holds. The only times in the
 //! page are those recorded in the inputs' provenance.
 
+pub mod held_out;
 pub mod plots;
 pub mod verdict;
 
@@ -292,6 +293,8 @@ pub struct ReportData {
     pub identification_trace: Option<Vec<TraceRow>>,
     /// Rows the identification left out, when its `excluded_rows` is bound.
     pub excluded_rows: Option<Vec<ExcludedRow>>,
+    /// Held-out figures per protocol and model, when `crossvalidation` is bound.
+    pub held_out: Option<Vec<held_out::HeldOutRow>>,
     /// The predicted uncertainty over the workspace, when `accuracy_map` is bound.
     pub accuracy_map: Option<AccuracyMap>,
     /// The ISO 9283 test of the compensated commands, when `iso9283` is bound.
@@ -328,7 +331,7 @@ fn model_rank(model: &str) -> usize {
 }
 
 /// Distinct model names: known ones in canonical order, then the others in order of appearance.
-fn ordered_models<'a>(names: impl IntoIterator<Item = &'a str>) -> Vec<String> {
+pub(crate) fn ordered_models<'a>(names: impl IntoIterator<Item = &'a str>) -> Vec<String> {
     let mut seen: Vec<String> = Vec::new();
     for name in names {
         if !seen.iter().any(|s| s == name) {
@@ -366,7 +369,7 @@ fn colors(models: &[String]) -> BTreeMap<String, RGBColor> {
         .collect()
 }
 
-fn mm(value: f64) -> String {
+pub(crate) fn mm(value: f64) -> String {
     format!("{value:.3}")
 }
 
@@ -549,6 +552,7 @@ pub fn render(data: &ReportData) -> String {
 
     section(&mut out, 1, paper);
     stats_section(&mut out, data);
+    held_out::render(&mut out, data.held_out.as_deref());
     section(&mut out, 2, paper);
     histogram_section(&mut out, data, &models, &colors);
     section(&mut out, 3, paper);
@@ -1805,6 +1809,7 @@ mod tests {
                 },
             ]),
             o1_scaling: DEFAULT_O1_SCALING.into(),
+            held_out: None,
             excluded_rows: Some(vec![ExcludedRow {
                 cw_id: 17,
                 model: None,

@@ -18,6 +18,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use crate::report::held_out::HeldOutRow;
 use crate::report::{
     self, AccuracyMap, CommandRow, Criterion, DetmaxStep, ExcludedRow, InputSource, IsoDistance,
     IsoPoint, IsoTest, MapPoint, ParamRow, Pose, ReportData, StatsRow, TestRow, TraceRow, Truth,
@@ -136,7 +137,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Self-contained HTML report (report.html): verdict (PASS/FAIL against tolerance_mm, warnings), error statistics (Table III with compare_with_paper), histograms, poses, accuracy map, ISO 9283, parameters, traces, tests, provenance",
-    code_version: 4,
+    code_version: 5,
     inputs: &[
         TableSlot {
             name: "stats",
@@ -185,6 +186,12 @@ static INFO: StageInfo = StageInfo {
             schema: schema::excluded_rows,
             required: false,
             meaning: "rows the identification left out and why (identify)",
+        },
+        TableSlot {
+            name: "crossvalidation",
+            schema: schema::crossvalidation_stats,
+            required: false,
+            meaning: "held-out figures of grouped and random folds (crossvalidate's stats), shown beside the validation statistics",
         },
         TableSlot {
             name: "accuracy_map",
@@ -291,6 +298,11 @@ impl Stage for ReportStage {
                 .inputs
                 .get("excluded_rows")
                 .map(read_excluded)
+                .transpose()?,
+            held_out: ctx
+                .inputs
+                .get("crossvalidation")
+                .map(read_held_out)
                 .transpose()?,
             accuracy_map: ctx
                 .inputs
@@ -567,6 +579,24 @@ fn read_excluded(table: &InputTable) -> Result<Vec<ExcludedRow>, TableError> {
             model: model[k].clone(),
             check: check[k].clone(),
             reason: reason[k].clone(),
+        })
+        .collect())
+}
+
+fn read_held_out(table: &InputTable) -> Result<Vec<HeldOutRow>, TableError> {
+    let protocol = strings(table, "protocol")?;
+    let model = strings(table, "model")?;
+    let rows = ints(table, "rows")?;
+    let [mean, p997, max] = ["mean_mm", "p997_mm", "max_mm"].map(|c| floats(table, c));
+    let (mean, p997, max) = (mean?, p997?, max?);
+    Ok((0..rows.len())
+        .map(|k| HeldOutRow {
+            protocol: protocol[k].clone(),
+            model: model[k].clone(),
+            rows: rows[k],
+            mean_mm: mean[k],
+            p997_mm: p997[k],
+            max_mm: max[k],
         })
         .collect())
 }
