@@ -301,7 +301,7 @@ pub struct Fit {
     /// `measured − predicted` per row at the solution (mm).
     pub residuals_mm: Vec<Vector3<f64>>,
     /// Per row, a 6-D row's rotation residual ([`orientation_residual_deg`]) at
-    /// the solution; `None` for position-only and excluded rows.
+    /// the solution; `None` for position-only rows.
     pub residuals_deg: Vec<Option<Vector3<f64>>>,
     /// The loss's weight of each row at the solution (all 1 for least squares).
     pub weights: Vec<f64>,
@@ -497,8 +497,14 @@ impl Point {
         let m = free.len();
         let prepared = robot.prepare(&values);
         let leaf = |range: Range<usize>, out: &mut [RowFit]| {
-            // Three equations a row, three more for a 6-D row's rotation.
+            // Three equations a row, three more for a 6-D row's rotation (zero
+            // for an excluded row, whose residuals are still reported).
+            let raw_orientation = |k: usize| data.orientations.and_then(|o| o[k].as_ref());
             let six_d = range
+                .clone()
+                .filter(|k| raw_orientation(*k).is_some())
+                .count();
+            let six_d_taking_part = range
                 .clone()
                 .filter(|k| data.orientation_of(*k).is_some())
                 .count();
@@ -516,8 +522,7 @@ impl Point {
                 .zip(&measured[range.clone()])
                 .enumerate()
             {
-                let orientation = data.orientation_of(range.start + k);
-                let (prediction, residual_deg) = match orientation {
+                let (prediction, residual_deg) = match raw_orientation(range.start + k) {
                     None => (prepared.jacobian_row(row, free, &mut columns), None),
                     Some(o) => {
                         let (prediction, model) = prepared.jacobian_row_with_orientation(
@@ -527,7 +532,11 @@ impl Point {
                             &mut angular,
                         );
                         let residual = orientation_residual_deg(&o.world_from_tool, &model);
-                        (prediction, Some((residual, o.scale_per_deg)))
+                        let scale = match data.orientation_of(range.start + k) {
+                            Some(_) => o.scale_per_deg,
+                            None => 0.0,
+                        };
+                        (prediction, Some((residual, scale)))
                     }
                 };
                 let residual_mm = meas - prediction.position_mm;
@@ -609,7 +618,7 @@ impl Point {
                 weighted_rss,
                 rss,
                 included,
-                included_orientations: six_d,
+                included_orientations: six_d_taking_part,
                 max_mm,
                 step_mm,
             }

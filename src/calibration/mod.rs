@@ -74,7 +74,7 @@ pub struct ModelResult {
     /// `measured − predicted` per row with the model's values (mm).
     pub residuals_mm: Vec<Vector3<f64>>,
     /// Per row, a 6-D row's rotation residual (deg, [`fit::orientation_residual_deg`]);
-    /// `None` for position-only rows and rows left out of the fit.
+    /// `None` for position-only rows.
     pub residuals_deg: Vec<Option<Vector3<f64>>>,
     /// The loss's weight of each row (1 where nothing is fitted, 0 for an excluded row).
     pub weights: Vec<f64>,

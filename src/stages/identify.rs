@@ -104,7 +104,8 @@ pub struct IdentifySettings {
     #[schemars(range(min = 1, max = 100_000))]
     pub max_iterations: usize,
     /// Stop when a step changes no predicted position by more than this (mm). The
-    /// paper used 0.05 mm.
+    /// paper used 0.05 mm. A 6-D row's turn counts as the displacement it makes
+    /// at `orientation_lever_mm` (or at its σ ratio).
     #[schemars(range(min = 0.0, max = 100.0))]
     pub stop_step_mm: f64,
     /// Levenberg–Marquardt: stop when an accepted step lowers the cost by less than
@@ -973,8 +974,15 @@ impl Stage for IdentifyStage {
                         Some(model.as_str()),
                         "robust_fit",
                         format!(
-                            "residual {:.4} mm{} beyond {:.4} ({} robust standard deviations)",
+                            "residual {:.4} mm{}{} beyond {:.4} ({} robust standard deviations)",
                             result.residuals_mm[*k].norm(),
+                            result
+                                .residuals_deg
+                                .get(*k)
+                                .copied()
+                                .flatten()
+                                .map(|r| format!(" and {:.4} deg", r.norm()))
+                                .unwrap_or_default(),
                             if scales.is_some() {
                                 format!(" ({:.2} σ-scaled)", scaled.norm())
                             } else {
