@@ -132,9 +132,8 @@ fn a_weighted_fit_equals_a_hand_weighted_least_squares_solution() {
         ..FitOptions::default()
     };
     let data = Observations {
-        rows: &rows,
-        measured_mm: &measured,
         row_scale: Some(&scales),
+        ..Observations::new(&rows, &measured)
     };
     let streamed = fit::fit(&robot, &nominal, &data, free.ids(), &options).unwrap();
     assert!(streamed.converged, "{:?}", streamed.trace);

@@ -49,15 +49,26 @@
 //! robust fit ([`super::robust`]). Each equation is multiplied by its scale, the
 //! loss acts on the scaled residual's norm, and the statistics count only rows
 //! with a non-zero scale.
+//!
+//! A 6-D row (spec §8: the tool's orientation measured as well,
+//! [`Observations::orientations`]) adds three equations: the rotation from the
+//! model's tool orientation to the measured one as a world-frame rotation
+//! vector in degrees ([`orientation_residual_deg`]), times the row's
+//! orientation scale. It stays one row: one loss weight from the norm of its
+//! six scaled residuals, excluded whole, and its predicted change in
+//! `step_mm` counts the rotation as the position change it is worth (degrees
+//! times the orientation scale over the position scale). Position-only rows
+//! give exactly the equations, factors and bits they always did.
 
 use std::ops::Range;
 
 use faer::Mat;
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::rank::{self, RankAnalysis};
 use super::{dense, stream};
+use crate::robot::frame::rotation_vector;
 use crate::robot::{ConfWrench, PARAM_COUNT, ParamId, ParamValues, Robot};
 
 /// How each step is taken and accepted.
@@ -171,6 +182,29 @@ impl Stop {
     }
 }
 
+/// A 6-D row's measured tool orientation (spec §8) and the weight of its three
+/// rotation equations.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeasuredOrientation {
+    /// World ← tool rotation as measured (the tool's axes in the tracker frame).
+    pub world_from_tool: Matrix3<f64>,
+    /// The factor each rotation-residual component (deg) is multiplied by: `1/σ`
+    /// (1/deg) with a per-point σ, else what the lever arm makes of a degree
+    /// against the row's position scale (`identify`'s `orientation_lever_mm`).
+    pub scale_per_deg: f64,
+}
+
+/// The rotation (deg, world frame, as a rotation vector) that takes the model's
+/// tool orientation to the measured one: `log(R_measured·R_modelᵀ)`. It is
+/// "measured − predicted" for orientations: `R_measured = exp([r]×)·R_model`.
+pub fn orientation_residual_deg(
+    measured_world_from_tool: &Matrix3<f64>,
+    model_world_from_tool: &Matrix3<f64>,
+) -> Vector3<f64> {
+    rotation_vector(&(measured_world_from_tool * model_world_from_tool.transpose()))
+        .map(f64::to_degrees)
+}
+
 /// What is fitted to: the rows, their measured positions and fixed per-row scales.
 #[derive(Debug, Clone, Copy)]
 pub struct Observations<'a> {
@@ -179,6 +213,9 @@ pub struct Observations<'a> {
     /// Per row and axis, the factor each equation is multiplied by: `1/σ` (1/mm)
     /// for weighted rows, 0 for an excluded row; `None`: 1 everywhere.
     pub row_scale: Option<&'a [Vector3<f64>]>,
+    /// Per row, the measured tool orientation of a 6-D row (`None` for a
+    /// position-only row); `None` overall: no row has one.
+    pub orientations: Option<&'a [Option<MeasuredOrientation>]>,
 }
 
 impl<'a> Observations<'a> {
@@ -188,6 +225,50 @@ impl<'a> Observations<'a> {
             rows,
             measured_mm,
             row_scale: None,
+            orientations: None,
+        }
+    }
+
+    /// The measured orientation of row `k` where it is a 6-D row that takes
+    /// part (an excluded row is excluded whole).
+    pub fn orientation_of(&self, k: usize) -> Option<&MeasuredOrientation> {
+        let orientation = self.orientations?[k].as_ref()?;
+        match self.row_scale {
+            Some(scales) if scales[k].iter().all(|s| *s == 0.0) => None,
+            _ => Some(orientation),
+        }
+    }
+
+    /// Whether some row carries an orientation.
+    pub fn has_orientations(&self) -> bool {
+        self.orientations
+            .is_some_and(|o| o.iter().any(Option::is_some))
+    }
+
+    /// Row `k`'s scaled residual norm (positions and, for a 6-D row, the
+    /// rotation), the quantity the loss and the robust fit judge a row by.
+    pub fn scaled_norm(
+        &self,
+        k: usize,
+        residual_mm: &Vector3<f64>,
+        residual_deg: Option<&Vector3<f64>>,
+    ) -> f64 {
+        let scaled = residual_mm.component_mul(&self.scale_of(k));
+        match (self.orientation_of(k), residual_deg) {
+            (Some(o), Some(r)) => {
+                (scaled.norm_squared() + (r * o.scale_per_deg).norm_squared()).sqrt()
+            }
+            _ => scaled.norm(),
+        }
+    }
+
+    /// 6-D rows that take part.
+    pub fn included_orientation_rows(&self) -> usize {
+        match self.orientations {
+            None => 0,
+            Some(o) => (0..o.len())
+                .filter(|k| self.orientation_of(*k).is_some())
+                .count(),
         }
     }
 
@@ -219,6 +300,9 @@ pub struct Fit {
     pub residual_rms_mm: f64,
     /// `measured − predicted` per row at the solution (mm).
     pub residuals_mm: Vec<Vector3<f64>>,
+    /// Per row, a 6-D row's rotation residual ([`orientation_residual_deg`]) at
+    /// the solution; `None` for position-only rows.
+    pub residuals_deg: Vec<Option<Vector3<f64>>>,
     /// The loss's weight of each row at the solution (all 1 for least squares).
     pub weights: Vec<f64>,
     pub stop: Stop,
@@ -232,7 +316,7 @@ pub struct Fit {
     /// Covariance of the estimates in the parameters' units, row-major `m × m`.
     pub covariance: Vec<f64>,
     /// σ² of the covariance: the residual variance of a unit-weight equation,
-    /// `Σ w_k‖s_k∘r_k‖² / (3n − m)` (mm² without per-point σ; dimensionless with,
+    /// `Σ w_k‖s_k∘r_k‖² / (3n + 3n₆ − m)` (n₆ the 6-D rows; mm² without per-point σ; dimensionless with,
     /// a row's noise then being σ²·σ_row²). Kept so that a prediction's error can
     /// be judged against measurement noise as well as parameter uncertainty.
     pub variance_factor: f64,
@@ -293,10 +377,39 @@ pub fn residuals(
         .collect()
 }
 
-/// One row's residual `measured − predicted` (mm) and loss weight at a point.
+/// Rotation residuals (deg) of each row with its orientation, `None` for the
+/// rows without one: what [`residuals`] is for positions.
+pub fn orientation_residuals(
+    robot: &Robot,
+    p: &ParamValues,
+    data: &Observations<'_>,
+) -> Vec<Option<Vector3<f64>>> {
+    let Some(orientations) = data.orientations else {
+        return vec![None; data.rows.len()];
+    };
+    let prepared = robot.prepare(p);
+    data.rows
+        .par_iter()
+        .zip(orientations)
+        .with_min_len(stream::CHUNK_ROWS)
+        .map(|(row, orientation)| {
+            let orientation = orientation.as_ref()?;
+            let chains = prepared.loaded_chains(&row.q_deg, &row.wrench, row.target);
+            let model = prepared.world_from_base.rotation * chains.deflected.tool.rotation;
+            Some(orientation_residual_deg(
+                &orientation.world_from_tool,
+                &model,
+            ))
+        })
+        .collect()
+}
+
+/// One row's residual `measured − predicted` (mm; deg for a 6-D row's rotation)
+/// and loss weight at a point.
 #[derive(Debug, Clone, Copy, Default)]
 struct RowFit {
     residual_mm: Vector3<f64>,
+    residual_deg: Option<Vector3<f64>>,
     weight: f64,
 }
 
@@ -324,6 +437,8 @@ struct Sums {
     rss: f64,
     /// Rows with a non-zero scale.
     included: usize,
+    /// Of those, 6-D rows (three more equations each).
+    included_orientations: usize,
     /// Largest ‖r‖ (mm).
     max_mm: f64,
     /// Largest change of a predicted position from the previous point (mm; 0
@@ -347,6 +462,7 @@ impl Sums {
             weighted_rss: self.weighted_rss + other.weighted_rss,
             rss: self.rss + other.rss,
             included: self.included + other.included,
+            included_orientations: self.included_orientations + other.included_orientations,
             max_mm: max_or_nan(self.max_mm, other.max_mm),
             step_mm: max_or_nan(self.step_mm, other.step_mm),
         }
@@ -381,26 +497,59 @@ impl Point {
         let m = free.len();
         let prepared = robot.prepare(&values);
         let leaf = |range: Range<usize>, out: &mut [RowFit]| {
-            let mut block = Mat::<f64>::zeros(3 * range.len(), m + 1);
-            let mut plain = unweighted.then(|| Mat::<f64>::zeros(3 * range.len(), m + 1));
+            // Three equations a row, three more for a 6-D row's rotation (zero
+            // for an excluded row, whose residuals are still reported).
+            let raw_orientation = |k: usize| data.orientations.and_then(|o| o[k].as_ref());
+            let six_d = range
+                .clone()
+                .filter(|k| raw_orientation(*k).is_some())
+                .count();
+            let six_d_taking_part = range
+                .clone()
+                .filter(|k| data.orientation_of(*k).is_some())
+                .count();
+            let equations = 3 * (range.len() + six_d);
+            let mut block = Mat::<f64>::zeros(equations, m + 1);
+            let mut plain = unweighted.then(|| Mat::<f64>::zeros(equations, m + 1));
             let mut columns = vec![Vector3::zeros(); m];
+            let mut angular = vec![Vector3::zeros(); if six_d > 0 { m } else { 0 }];
             let (mut cost, mut weighted_rss, mut rss, mut max_mm, mut step_mm) =
                 (0.0, 0.0, 0.0, 0.0, 0.0);
             let (mut included, mut all_weights_one) = (0, true);
+            let mut first_equation = 0;
             for (k, (row, meas)) in rows[range.clone()]
                 .iter()
                 .zip(&measured[range.clone()])
                 .enumerate()
             {
-                let prediction = prepared.jacobian_row(row, free, &mut columns);
+                let (prediction, residual_deg) = match raw_orientation(range.start + k) {
+                    None => (prepared.jacobian_row(row, free, &mut columns), None),
+                    Some(o) => {
+                        let (prediction, model) = prepared.jacobian_row_with_orientation(
+                            row,
+                            free,
+                            &mut columns,
+                            &mut angular,
+                        );
+                        let residual = orientation_residual_deg(&o.world_from_tool, &model);
+                        let scale = match data.orientation_of(range.start + k) {
+                            Some(_) => o.scale_per_deg,
+                            None => 0.0,
+                        };
+                        (prediction, Some((residual, scale)))
+                    }
+                };
                 let residual_mm = meas - prediction.position_mm;
                 let scale = data.scale_of(range.start + k);
                 let scaled = residual_mm.component_mul(&scale);
-                let norm = scaled.norm();
+                let norm = match residual_deg {
+                    None => scaled.norm(),
+                    Some((r, s)) => (scaled.norm_squared() + (r * s).norm_squared()).sqrt(),
+                };
                 let weight = options.loss.weight(norm);
                 let root_weight = weight.sqrt();
                 for axis in 0..3 {
-                    let equation = 3 * k + axis;
+                    let equation = first_equation + axis;
                     for (j, column) in columns.iter().enumerate() {
                         block[(equation, j)] = root_weight * scale[axis] * column[axis];
                     }
@@ -411,6 +560,23 @@ impl Point {
                         }
                         plain[(equation, m)] = scaled[axis];
                     }
+                }
+                first_equation += 3;
+                if let Some((r, s)) = residual_deg {
+                    for axis in 0..3 {
+                        let equation = first_equation + axis;
+                        for (j, column) in angular.iter().enumerate() {
+                            block[(equation, j)] = root_weight * s * column[axis];
+                        }
+                        block[(equation, m)] = root_weight * s * r[axis];
+                        if let Some(plain) = plain.as_mut() {
+                            for (j, column) in angular.iter().enumerate() {
+                                plain[(equation, j)] = s * column[axis];
+                            }
+                            plain[(equation, m)] = s * r[axis];
+                        }
+                    }
+                    first_equation += 3;
                 }
                 let taking_part = scale.iter().any(|v| *v != 0.0);
                 if taking_part {
@@ -423,12 +589,23 @@ impl Point {
                     max_mm = max_or_nan(max_mm, norm_mm);
                     if let Some(previous) = previous {
                         // r = measured − predicted: the prediction moved by r_before − r_now.
-                        let before = previous[range.start + k].residual_mm;
-                        step_mm = max_or_nan(step_mm, (before - residual_mm).norm());
+                        let before = &previous[range.start + k];
+                        let moved_mm = (before.residual_mm - residual_mm).norm();
+                        let moved = match (residual_deg, before.residual_deg) {
+                            // The turn as the position change it is worth at this row's scales.
+                            (Some((r, s)), Some(r_before)) => {
+                                let position_scale = scale.norm() / 3f64.sqrt();
+                                let turned_mm = (r_before - r).norm() * s / position_scale;
+                                moved_mm.hypot(turned_mm)
+                            }
+                            _ => moved_mm,
+                        };
+                        step_mm = max_or_nan(step_mm, moved);
                     }
                 }
                 out[k] = RowFit {
                     residual_mm,
+                    residual_deg: residual_deg.map(|(r, _)| r),
                     weight: if taking_part { weight } else { 0.0 },
                 };
             }
@@ -441,6 +618,7 @@ impl Point {
                 weighted_rss,
                 rss,
                 included,
+                included_orientations: six_d_taking_part,
                 max_mm,
                 step_mm,
             }
@@ -454,6 +632,7 @@ impl Point {
                 weighted_rss: 0.0,
                 rss: 0.0,
                 included: 0,
+                included_orientations: 0,
                 max_mm: 0.0,
                 step_mm: 0.0,
             });
@@ -619,7 +798,7 @@ pub fn fit_identifiable(
     options: &FitOptions,
 ) -> Result<(RankAnalysis, Fit), FitError> {
     check_sizes(data, 0)?;
-    let ordered = rank::priority_order(candidates);
+    let ordered = rank::priority_order(candidates, data.has_orientations());
     let all = Problem {
         robot,
         data,
@@ -655,8 +834,16 @@ fn check_sizes(data: &Observations<'_>, parameters: usize) -> Result<(), FitErro
             });
         }
     }
+    if let Some(orientations) = data.orientations
+        && orientations.len() != rows
+    {
+        return Err(FitError::LengthMismatch {
+            rows,
+            measured: orientations.len(),
+        });
+    }
     let included = data.included_rows();
-    let equations = 3 * included;
+    let equations = 3 * (included + data.included_orientation_rows());
     if equations <= parameters {
         return Err(FitError::TooFewRows {
             rows: included,
@@ -758,12 +945,14 @@ fn iterate(problem: &Problem<'_>, mut point: Point) -> Result<Fit, FitError> {
         .iter()
         .map(|row| (row.residual_mm, row.weight))
         .unzip();
+    let residuals_deg = point.rows.iter().map(|row| row.residual_deg).collect();
     Ok(Fit {
         values: point.values,
         std_errors: statistics.std_errors,
         trace,
         residual_rms_mm,
         residuals_mm,
+        residuals_deg,
         weights,
         stop,
         converged: stop != Stop::MaxIterations,
@@ -783,7 +972,7 @@ struct Statistics {
     variance_factor: f64,
 }
 
-/// Covariance `σ²·(JᵀWJ)⁻¹` at the solution with `σ² = Σ w_k‖r_k‖² / (3n − m)`
+/// Covariance `σ²·(JᵀWJ)⁻¹` at the solution with `σ² = Σ w_k‖r_k‖² / (3n + 3n₆ − m)`
 /// (scaled residuals, included rows; with per-point σ, σ² is the variance factor),
 /// from the SVD of the scaled factor `R·D = U·S·Vᵀ` (the same singular values and
 /// `V` as the scaled, weighted Jacobian's): `Cov ∝ V·S⁻²·Vᵀ`, which stays accurate
@@ -791,7 +980,7 @@ struct Statistics {
 /// the usual IRLS approximation.
 fn statistics(point: &Point, system: &System, free: &[ParamId]) -> Result<Statistics, FitError> {
     let m = free.len();
-    let equations = 3 * point.sums.included;
+    let equations = 3 * (point.sums.included + point.sums.included_orientations);
     let sigma2 = point.sums.weighted_rss / (equations - m) as f64;
     let scale = &system.scale;
     let (s, v) = dense::svd(system.scaled.as_ref(), true).map_err(|_| FitError::Singular)?;

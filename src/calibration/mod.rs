@@ -80,6 +80,9 @@ pub struct ModelResult {
     pub converged: bool,
     /// `measured − predicted` per row with the model's values (mm).
     pub residuals_mm: Vec<Vector3<f64>>,
+    /// Per row, a 6-D row's rotation residual (deg, [`fit::orientation_residual_deg`]);
+    /// `None` for position-only rows.
+    pub residuals_deg: Vec<Option<Vector3<f64>>>,
     /// The loss's weight of each row (1 where nothing is fitted, 0 for an excluded row).
     pub weights: Vec<f64>,
     /// Fit diagnostics; `None` where nothing is fitted (the nominal model).
@@ -127,7 +130,9 @@ pub struct Diagnostics {
 ///
 /// * `nominal`: nothing is fitted; the robot file's values.
 /// * `registered`, `reregistered`: the world frame and tool translation(s) only
-///   (spec §7); every other parameter keeps its `start` value.
+///   (spec §7), and the tool rotation where rows carry orientations (spec §8:
+///   a probe's mounting is a frame like its translation); every other
+///   parameter keeps its `start` value.
 /// * `kinematic`: every identifiable candidate except compliances (held at zero).
 /// * `elastogeometric`: every identifiable candidate.
 ///
@@ -152,12 +157,13 @@ pub fn calibrate(
         };
         options.candidates.contains(&base) && !options.fixed.iter().any(|(f, _)| f == id)
     };
+    let six_d = data.has_orientations();
     let candidates: Vec<ParamId> = ParamId::all_with_targets(targets)
         .filter(allowed)
         .filter(|p| match model {
             ModelName::Nominal => false,
             ModelName::Registered | ModelName::Reregistered => {
-                p.is_world() || p.is_tool_translation()
+                p.is_world() || p.is_tool_translation() || (six_d && p.is_tool_rotation())
             }
             ModelName::Kinematic => !p.is_compliance(),
             ModelName::Elastogeometric => true,
@@ -166,7 +172,9 @@ pub fn calibrate(
     if candidates.is_empty() {
         let set = ParameterSet::fixed(model, nominal);
         let residuals_mm = fit::residuals(robot, &nominal, data.rows, data.measured_mm);
+        let residuals_deg = fit::orientation_residuals(robot, &nominal, data);
         return Ok(ModelResult {
+            residuals_deg,
             set,
             trace: Vec::new(),
             rank: None,
@@ -296,6 +304,7 @@ pub fn calibrate(
         rank: Some(rank),
         converged: fit.converged,
         residuals_mm: fit.residuals_mm,
+        residuals_deg: fit.residuals_deg,
         weights: fit.weights,
         diagnostics: Some(diagnostics),
         robust,
@@ -312,21 +321,34 @@ fn robust_refit(
     robust: &RobustOptions,
     options: &CalibrationOptions,
 ) -> Result<(fit::Fit, RobustSummary), FitError> {
-    let sigma_least_squares = robust::robust_sigma(&least_squares.residuals_mm, data.row_scale);
-    let beyond = |residuals: &[Vector3<f64>], threshold: f64| -> Vec<usize> {
-        residuals
-            .iter()
-            .enumerate()
-            .filter(|(k, r)| {
-                let scaled = r.component_mul(&data.scale_of(*k));
-                data.scale_of(*k).iter().any(|s| *s != 0.0)
-                    && (scaled.norm().is_nan() || scaled.norm() > threshold)
+    let taking_part = |k: &usize| data.scale_of(*k).iter().any(|s| *s != 0.0);
+    // A 6-D row is one row: the norm of its six scaled residuals.
+    let scaled_norm = |fit: &fit::Fit, k: usize| {
+        data.scaled_norm(k, &fit.residuals_mm[k], fit.residuals_deg[k].as_ref())
+    };
+    let sigma_of = |fit: &fit::Fit| {
+        if data.has_orientations() {
+            robust::robust_sigma_of_rows(
+                (0..data.rows.len())
+                    .filter(taking_part)
+                    .map(|k| (scaled_norm(fit, k), data.orientation_of(k).is_some())),
+            )
+        } else {
+            robust::robust_sigma(&fit.residuals_mm, data.row_scale)
+        }
+    };
+    let beyond = |fit: &fit::Fit, threshold: f64| -> Vec<usize> {
+        (0..data.rows.len())
+            .filter(taking_part)
+            .filter(|k| {
+                let norm = scaled_norm(fit, *k);
+                norm.is_nan() || norm > threshold
             })
-            .map(|(k, _)| k)
             .collect()
     };
+    let sigma_least_squares = sigma_of(&least_squares);
     let threshold = robust.reject_sigmas * sigma_least_squares;
-    if beyond(&least_squares.residuals_mm, threshold).is_empty() {
+    if beyond(&least_squares, threshold).is_empty() {
         return Ok((
             least_squares,
             RobustSummary {
@@ -346,9 +368,9 @@ fn robust_refit(
     };
     let huber = fit::fit(robot, &least_squares.values, data, free, &huber_options)?;
     trace.extend(huber.trace.iter().copied());
-    let sigma = robust::robust_sigma(&huber.residuals_mm, data.row_scale);
+    let sigma = sigma_of(&huber);
     let threshold = robust.reject_sigmas * sigma;
-    let excluded = beyond(&huber.residuals_mm, threshold);
+    let excluded = beyond(&huber, threshold);
     let included_before = data.included_rows();
     if excluded.len() as f64 > robust.max_excluded_fraction * included_before as f64 {
         return Err(FitError::Untrustworthy(format!(
@@ -391,6 +413,12 @@ const REGISTRATION_ROWS: usize = 10_000;
 /// the measured positions ([`registration`], spec §7). So a robot file without
 /// `[world]`, or with one metres and degrees off, calibrates the same; and
 /// `reregistered` starts from its calibration's robot in the new frames.
+///
+/// Where rows carry orientations (spec §8) the tool rotation is registered
+/// too, after the world frame: the world rotation from the positions (their
+/// metre-wide spread fixes it to hundredths of a degree), then the tool
+/// rotation that best maps each row's flange onto its measured tool axes
+/// ([`registration::tool_rotation`]), which positions cannot see.
 ///
 /// The flange frames are those of `values`' robot under each row's load.
 pub fn registered_start(
@@ -438,7 +466,7 @@ pub fn registered_start(
     let initial: Vec<Vector3<f64>> = (0..targets)
         .map(|t| tool_rotation * target_translation(t))
         .collect();
-    let found = registration::register_world_and_tools(
+    let mut found = registration::register_world_and_tools(
         &flange,
         &measured,
         &target_of_row,
@@ -455,6 +483,31 @@ pub fn registered_start(
     for (slot, value) in world.iter().enumerate() {
         start.0[slot] = *value;
     }
+    let oriented: Vec<(usize, &fit::MeasuredOrientation)> = used
+        .iter()
+        .enumerate()
+        .filter_map(|(i, k)| data.orientation_of(*k).map(|o| (i, o)))
+        .collect();
+    let tool_rotation = if oriented.is_empty() {
+        tool_rotation
+    } else {
+        let flange_rotations: Vec<_> = oriented.iter().map(|(i, _)| flange[*i].rotation).collect();
+        let measured_rotations: Vec<_> = oriented.iter().map(|(_, o)| o.world_from_tool).collect();
+        let weights: Vec<f64> = oriented
+            .iter()
+            .map(|(_, o)| o.scale_per_deg * o.scale_per_deg)
+            .collect();
+        let (rotation, rms_deg) = registration::tool_rotation(
+            &flange_rotations,
+            &measured_rotations,
+            &found.rotation,
+            &weights,
+        )?;
+        let angles = registration::xyz_euler_nearest(&rotation, [v[9], v[10], v[11]]);
+        start.0[9..12].copy_from_slice(&angles);
+        found.orientation_rms_deg = Some(rms_deg);
+        rotation
+    };
     for (target, in_flange) in found.tool_translations_mm.iter().enumerate() {
         let t = tool_rotation.transpose() * in_flange;
         for axis in 0..3 {

@@ -7,7 +7,12 @@
 //! component orthogonal to the kept ones exceeds `tolerance` (sequential QR
 //! without pivoting, i.e. Gram–Schmidt, reorthogonalised). The order decides
 //! *which* member of a dependent group is held at nominal; it reproduces the
-//! spec's choice (dtheta1 goes with gamma_w, dd3 with dd2, ...). A column with no
+//! spec's choice (dtheta1 goes with gamma_w, dd3 with dd2, ...). With 6-D rows
+//! (measured orientations, spec §8) the tool angles come right after the tool
+//! translation instead: a probe's mounting is a frame, so of the exactly
+//! dependent dtheta6 and tool rotation it is dtheta6 that is held, and the
+//! calibrated arm does not turn the next tool by the probe's mounting angle.
+//! A column with no
 //! effect at all (norm below `tolerance` times the largest) is unidentifiable on
 //! its own and combined with nothing: scaling its rounding noise to unit norm
 //! would make it look like a mix of everything. The numerical rank is
@@ -40,9 +45,11 @@ pub struct RankAnalysis {
     pub tolerance: f64,
 }
 
-/// Priority of a parameter when choosing which of a dependent group to keep.
-fn priority(id: ParamId) -> usize {
+/// Priority of a parameter when choosing which of a dependent group to keep;
+/// `tool_rotation_first` for rows with measured orientations (module doc).
+fn priority(id: ParamId, tool_rotation_first: bool) -> usize {
     match id.kind() {
+        ParamKind::ToolRotation(i) if tool_rotation_first => 9 + i,
         ParamKind::WorldTranslation(i) => i,
         ParamKind::WorldRotation(i) => 3 + i,
         ParamKind::ToolTranslation { axis, .. } => 6 + axis,
@@ -67,15 +74,16 @@ pub fn analyse(
     tolerance: f64,
     chunk_rows: usize,
 ) -> RankAnalysis {
-    let ordered = priority_order(candidates);
+    let ordered = priority_order(candidates, false);
     let factor = stream::jacobian_factor(robot, at, rows, &ordered, chunk_rows);
     analyse_factor(factor.as_ref(), &ordered, tolerance)
 }
 
-/// The candidates in the order the analysis takes them.
-pub(crate) fn priority_order(candidates: &[ParamId]) -> Vec<ParamId> {
+/// The candidates in the order the analysis takes them (`tool_rotation_first`:
+/// rows with measured orientations).
+pub(crate) fn priority_order(candidates: &[ParamId], tool_rotation_first: bool) -> Vec<ParamId> {
     let mut ordered: Vec<ParamId> = candidates.to_vec();
-    ordered.sort_by_key(|id| priority(*id));
+    ordered.sort_by_key(|id| priority(*id, tool_rotation_first));
     ordered
 }
 

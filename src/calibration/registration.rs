@@ -90,6 +90,9 @@ pub struct Registration {
     pub iterations: usize,
     /// Whether the RMS settled within [`MAX_ITERATIONS`].
     pub converged: bool,
+    /// With orientations registered ([`tool_rotation`]): the RMS angle (deg)
+    /// between measured and registered tool orientations; `None` without.
+    pub orientation_rms_deg: Option<f64>,
 }
 
 impl Registration {
@@ -276,7 +279,62 @@ fn register(
         rms_mm: current,
         iterations,
         converged,
+        orientation_rms_deg: None,
     })
+}
+
+/// The flange → tool rotation `T` that best explains measured tool
+/// orientations (spec §8) given the world rotation: the least-squares
+/// `argmin Σ w_k‖W·F_k·T − R_k‖²_F` over rotations (the chordal mean of the
+/// `T_k = F_kᵀ·Wᵀ·R_k`, closed form: the rotation nearest `Σ w_k·T_k`, by SVD with
+/// the reflection fix). `F_k` are the flange rotations in the base frame, `R_k`
+/// the measured world ← tool rotations, `W` world ← base. Also the weighted
+/// RMS angle (deg) between `W·F_k·T` and `R_k`.
+pub fn tool_rotation(
+    flange_in_base: &[Matrix3<f64>],
+    measured_world_from_tool: &[Matrix3<f64>],
+    world_from_base: &Matrix3<f64>,
+    weights: &[f64],
+) -> Result<(Matrix3<f64>, f64), RegistrationError> {
+    let n = flange_in_base.len();
+    check_len("measured orientations", n, measured_world_from_tool.len())?;
+    let w = checked_weights(Some(weights), n)?;
+    if n == 0 {
+        return Err(RegistrationError::TooFewPoints(0));
+    }
+    for (index, r) in measured_world_from_tool.iter().enumerate() {
+        if !r.iter().all(|x| x.is_finite()) {
+            return Err(RegistrationError::NonFinite {
+                what: "measured orientation",
+                index,
+            });
+        }
+    }
+    let each: Vec<Matrix3<f64>> = flange_in_base
+        .iter()
+        .zip(measured_world_from_tool)
+        .map(|(f, r)| f.transpose() * world_from_base.transpose() * r)
+        .collect();
+    let sum: Matrix3<f64> = each.iter().zip(&w).map(|(t, wk)| t * *wk).sum();
+    let total: f64 = w.iter().sum();
+    if total.is_nan() || total <= 0.0 {
+        return Err(RegistrationError::Degenerate);
+    }
+    let svd = sum.svd(true, true);
+    let (u, v_t) = (svd.u.expect("requested"), svd.v_t.expect("requested"));
+    let mut s = Matrix3::identity();
+    if u.determinant() * v_t.determinant() < 0.0 {
+        s[(2, 2)] = -1.0;
+    }
+    let rotation = u * s * v_t;
+    let squared: f64 = each
+        .iter()
+        .zip(&w)
+        .map(|(t, wk)| {
+            wk * crate::robot::frame::rotation_vector(&(rotation.transpose() * t)).norm_squared()
+        })
+        .sum();
+    Ok((rotation, (squared / total).sqrt().to_degrees()))
 }
 
 /// Pseudo-inverse of step (b)'s weighted `(3n) × (3T+3)` matrix: row block `k` is
@@ -352,7 +410,7 @@ pub fn world_params_from_frame(
 }
 
 /// `[α, β, γ]` (deg) with `rotation = Rot(x,α)·Rot(y,β)·Rot(z,γ)`, nearest `nominal_deg`.
-fn xyz_euler_nearest(rotation: &Matrix3<f64>, nominal_deg: [f64; 3]) -> [f64; 3] {
+pub fn xyz_euler_nearest(rotation: &Matrix3<f64>, nominal_deg: [f64; 3]) -> [f64; 3] {
     let r = rotation;
     let nominal = nominal_deg.map(f64::to_radians);
     let candidates = if r[(1, 2)].hypot(r[(2, 2)]) > GIMBAL_LOCK_COS {

@@ -19,12 +19,20 @@
 //! it ignores up to half the rows being bad, and being estimated per model it
 //! grows with a kinematic model's systematic load errors, so those are not taken
 //! for outliers. Clean data stop after stage 1 at no extra cost.
+//!
+//! A 6-D row (position and orientation, spec §8) is one row: its scaled norm
+//! is that of its six scaled residuals, compared with the median of χ with 6
+//! degrees of freedom for σ̂, and it is down-weighted or excluded whole.
 
 use nalgebra::Vector3;
 
 /// Median of the χ distribution with 3 degrees of freedom (√ of the χ²₃ median
 /// 2.365974): `median(‖r‖) = 1.538172·σ` for `r ~ N(0, σ²I₃)`.
 pub const CHI3_MEDIAN: f64 = 1.538_172;
+
+/// Median of the χ distribution with 6 degrees of freedom (√ of the χ²₆ median
+/// 5.348121): a 6-D row's scaled norm.
+pub const CHI6_MEDIAN: f64 = 2.312_600;
 
 /// Settings of the robust fit, in robust standard deviations σ̂.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -65,6 +73,16 @@ pub fn robust_sigma(residuals_mm: &[Vector3<f64>], row_scale: Option<&[Vector3<f
     median(&mut norms) / CHI3_MEDIAN
 }
 
+/// [`robust_sigma`] over rows some of which are 6-D: the median of each
+/// included row's scaled norm over the χ median of its degrees of freedom
+/// (`(norm, six_d)` per included row).
+pub fn robust_sigma_of_rows(rows: impl Iterator<Item = (f64, bool)>) -> f64 {
+    let mut normalised: Vec<f64> = rows
+        .map(|(norm, six_d)| norm / if six_d { CHI6_MEDIAN } else { CHI3_MEDIAN })
+        .collect();
+    median(&mut normalised)
+}
+
 /// Median of finite values (NaN sorts last); 0 for none.
 fn median(values: &mut [f64]) -> f64 {
     if values.is_empty() {
@@ -90,6 +108,34 @@ mod tests {
     fn chi3_median_matches_scipy() {
         // scipy.stats.chi(3).median() = 1.5381722...
         assert!((CHI3_MEDIAN - 1.538_172_2).abs() < 1e-6);
+    }
+
+    #[test]
+    fn chi6_median_matches_scipy_and_six_d_rows_give_their_sigma() {
+        // scipy.stats.chi(6).median() = 2.3126004...
+        assert!((CHI6_MEDIAN - 2.312_600_4).abs() < 1e-6);
+        let mut rng = StdRng::seed_from_u64(5);
+        let noise = Normal::new(0.0, 0.03).unwrap();
+        // Half the rows 6-D, half 3-D, all with per-axis σ 0.03.
+        let rows: Vec<(f64, bool)> = (0..20_000)
+            .map(|k| {
+                let six_d = k % 2 == 0;
+                let axes = if six_d { 6 } else { 3 };
+                let norm = (0..axes)
+                    .map(|_| {
+                        let x: f64 = noise.sample(&mut rng);
+                        x * x
+                    })
+                    .sum::<f64>()
+                    .sqrt();
+                (norm, six_d)
+            })
+            .collect();
+        let sigma = robust_sigma_of_rows(rows.iter().copied());
+        assert!((sigma - 0.03).abs() < 0.0006, "{sigma}");
+        // Taking every row for a 3-D one overstates σ by χ₆/χ₃ on the 6-D half.
+        let naive = robust_sigma_of_rows(rows.iter().map(|(n, _)| (*n, false)));
+        assert!(naive > 0.036, "{naive}");
     }
 
     #[test]

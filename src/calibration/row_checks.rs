@@ -59,6 +59,42 @@ pub fn row_problem(
     None
 }
 
+/// An orientation angle beyond this is no Euler angle (deg): a unit slip
+/// (radians declared, degrees given) or a corrupt cell.
+pub const MAX_ANGLE_DEG: f64 = 360.0;
+/// A 6-D probe's orientation uncertainty above this is absurd (deg).
+pub const MAX_SIGMA_DEG: f64 = 10.0;
+/// An orientation uncertainty below this (0.04 arc seconds) is no probe's: it
+/// weighs its row by 1/σ (deg).
+pub const MIN_SIGMA_DEG: f64 = 1.0e-5;
+
+/// Why a 6-D row's measured orientation (`rx_deg, ry_deg, rz_deg`) or its σ
+/// cannot be used; `None` when it can.
+pub fn orientation_problem(
+    angles_deg: &Vector3<f64>,
+    sigma_deg: Option<&Vector3<f64>>,
+) -> Option<String> {
+    for (axis, a) in ["x", "y", "z"].iter().zip(angles_deg.iter()) {
+        if a.is_nan() || a.abs() > MAX_ANGLE_DEG {
+            return Some(format!(
+                "r{axis}_deg = {} (expected an orientation angle within ±{MAX_ANGLE_DEG} deg)",
+                compact(*a)
+            ));
+        }
+    }
+    if let Some(sigma) = sigma_deg {
+        for (axis, s) in ["x", "y", "z"].iter().zip(sigma.iter()) {
+            if !(*s >= MIN_SIGMA_DEG && *s <= MAX_SIGMA_DEG) {
+                return Some(format!(
+                    "sigma_r{axis}_deg = {} (expected a probe's 1-σ orientation uncertainty, {MIN_SIGMA_DEG} to {MAX_SIGMA_DEG} deg)",
+                    compact(*s)
+                ));
+            }
+        }
+    }
+    None
+}
+
 /// Why a commanded row (joints and wrench, nothing measured) is not one this
 /// robot can take: what the model would predict for it is meaningless.
 pub fn conf_wrench_problem(robot: &Robot, row: &ConfWrench) -> Option<String> {
@@ -134,6 +170,25 @@ mod tests {
         q[0] = 1e300;
         let row = ConfWrench::new(q, Wrench::zero());
         assert!(row_problem(&robot, &row, &Vector3::zeros(), None).is_some());
+    }
+
+    #[test]
+    fn absurd_orientations_and_their_sigmas_are_named() {
+        let ok = Vector3::new(-90.2, -20.1, 179.9);
+        assert_eq!(
+            orientation_problem(&ok, Some(&Vector3::repeat(0.003))),
+            None
+        );
+        assert_eq!(orientation_problem(&ok, None), None);
+        let nan = orientation_problem(&Vector3::new(0.0, f64::NAN, 0.0), None).unwrap();
+        assert!(nan.starts_with("ry_deg = NaN"), "{nan}");
+        // Degrees declared as radians: 180 rad.
+        let slip = orientation_problem(&Vector3::new(0.0, 0.0, 10313.0), None).unwrap();
+        assert!(slip.starts_with("rz_deg = 10313"), "{slip}");
+        let zero = orientation_problem(&ok, Some(&Vector3::new(0.003, 0.0, 0.003))).unwrap();
+        assert!(zero.starts_with("sigma_ry_deg = 0 "), "{zero}");
+        let absurd = orientation_problem(&ok, Some(&Vector3::new(0.003, 0.003, 45.0))).unwrap();
+        assert!(absurd.starts_with("sigma_rz_deg = 45"), "{absurd}");
     }
 
     #[test]

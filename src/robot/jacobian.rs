@@ -224,6 +224,32 @@ impl PreparedRobot<'_> {
         selected: &[ParamId],
         columns: &mut [Vector3<f64>],
     ) -> Prediction {
+        self.jacobian_row_inner(row, selected, columns, None).0
+    }
+
+    /// [`Self::jacobian_row`] for a 6-D row (spec §8): also the tool's
+    /// orientation in the world (world ← tool rotation, deflected chain) and,
+    /// in `angular[j]`, the rotation it makes per parameter unit as a world-frame
+    /// rotation vector in degrees (`R(p + δ) ≈ exp([ω·δ]×)·R(p)`, ω in deg per unit).
+    pub fn jacobian_row_with_orientation(
+        &self,
+        row: &ConfWrench,
+        selected: &[ParamId],
+        columns: &mut [Vector3<f64>],
+        angular: &mut [Vector3<f64>],
+    ) -> (Prediction, Matrix3<f64>) {
+        self.jacobian_row_inner(row, selected, columns, Some(angular))
+    }
+
+    // Inlined so that the position-only caller compiles to the loop it always was.
+    #[inline(always)]
+    fn jacobian_row_inner(
+        &self,
+        row: &ConfWrench,
+        selected: &[ParamId],
+        columns: &mut [Vector3<f64>],
+        mut angular: Option<&mut [Vector3<f64>]>,
+    ) -> (Prediction, Matrix3<f64>) {
         let ConfWrench {
             q_deg,
             wrench,
@@ -234,6 +260,9 @@ impl PreparedRobot<'_> {
             columns.len(),
             "one column per selected parameter"
         );
+        if let Some(angular) = angular.as_ref() {
+            assert_eq!(selected.len(), angular.len(), "one angular column each");
+        }
         let LoadedChains {
             undeflected,
             loads,
@@ -253,14 +282,27 @@ impl PreparedRobot<'_> {
             std::array::from_fn(|i| joint_rates[i] * self.compliance(i));
         let gravity = Vector3::from(self.robot().spec().gravity_mps2);
         let maps = DeflectionMaps::new(&undeflected, &loads, &gravity, &deflection_rates);
+        // The same maps for the tool's rotation: joint i turns it about its axis,
+        // one degree per degree.
+        let angular_maps = angular.is_some().then(|| {
+            let rates: [Vector3<f64>; JOINTS] =
+                std::array::from_fn(|i| deflected.joints[i + 1].axis(2) * self.compliance(i));
+            DeflectionMaps::new(&undeflected, &loads, &gravity, &rates)
+        });
 
-        for (column, &id) in columns.iter_mut().zip(selected) {
+        for (j, (column, &id)) in columns.iter_mut().zip(selected).enumerate() {
+            let mut rotation_deg = Vector3::zeros();
             *column = match id.kind() {
                 ParamKind::WorldTranslation(t) => world.axis(t),
                 ParamKind::WorldRotation(r) => {
+                    rotation_deg = self.world_rotation_axes[r];
                     self.world_rotation_axes[r].cross(&position_mm) * DEG
                 }
-                ParamKind::Compliance(i) => world.rotation * joint_rates[i] * loads.torques_nm[i],
+                ParamKind::Compliance(i) => {
+                    rotation_deg =
+                        world.rotation * deflected.joints[i + 1].axis(2) * loads.torques_nm[i];
+                    world.rotation * joint_rates[i] * loads.torques_nm[i]
+                }
                 ParamKind::ToolTranslation { target: other, .. } if other != *target => {
                     Vector3::zeros()
                 }
@@ -271,17 +313,32 @@ impl PreparedRobot<'_> {
                     let (torque_screw, first_body) = self
                         .chain_screw(id, &undeflected)
                         .expect("geometric parameter has a screw");
+                    let twist = torque_screw.twist_si();
+                    if let Some(angular_maps) = angular_maps.as_ref() {
+                        let own = match screw {
+                            Screw::Rotation { axis, .. } => axis,
+                            Screw::Translation { .. } => Vector3::zeros(),
+                        };
+                        rotation_deg =
+                            world.rotation * (own + angular_maps.velocity(first_body, &twist));
+                    }
                     let rate = screw.velocity_at(&tool_base) * screw.per_unit()
-                        + maps.velocity(first_body, &torque_screw.twist_si());
+                        + maps.velocity(first_body, &twist);
                     world.rotation * rate
                 }
             };
+            if let Some(angular) = angular.as_mut() {
+                angular[j] = rotation_deg;
+            }
         }
-        Prediction {
-            position_mm,
-            torques_nm: loads.torques_nm,
-            deflections_deg,
-        }
+        (
+            Prediction {
+                position_mm,
+                torques_nm: loads.torques_nm,
+                deflections_deg,
+            },
+            world.rotation * deflected.tool.rotation,
+        )
     }
 }
 
@@ -453,6 +510,81 @@ mod tests {
                     (fd - analytic).norm() <= 1e-6 * scale + 1e-9,
                     "trial {trial} {id}: analytic {analytic:?} fd {fd:?}"
                 );
+            }
+        }
+    }
+
+    /// The orientation columns of 6-D rows against central differences of the
+    /// tool rotation (`Robot::tool_in_world`, an independent path through the
+    /// model): `log(R(p + h)·R(p − h)ᵀ)/2h`, in degrees, for every slot, loaded
+    /// rows, several targets and parameters away from the truth. The position
+    /// columns are those of `jacobian_row`, bit for bit.
+    #[test]
+    fn orientation_columns_match_central_differences_for_every_slot() {
+        let robot = irb1600();
+        let all: Vec<ParamId> = ParamId::all_with_targets(MAX_TARGETS).collect();
+        let mut rng = StdRng::seed_from_u64(8);
+        for trial in 0..40 {
+            let mut p = truth_params(&robot);
+            for id in &all {
+                if !id.is_compliance() && !id.is_world() && trial % 2 == 1 {
+                    p.0[id.index()] += rng.random_range(-0.5..0.5);
+                }
+                if id.index() >= BASE_PARAM_COUNT {
+                    p.0[id.index()] += rng.random_range(-80.0..80.0);
+                }
+            }
+            // Tool and world rotations far from zero, so their axes are not the
+            // coordinate axes.
+            for (name, value) in [("alpha_t", 20.0), ("beta_t", -35.0), ("gamma_t", 80.0)] {
+                p.set(ParamId::from_name(name).unwrap(), value);
+            }
+            let row = ConfWrench {
+                q_deg: random_q(&robot, &mut rng),
+                wrench: random_wrench(&mut rng),
+                target: trial % MAX_TARGETS,
+            };
+            let (q, w) = (row.q_deg, row.wrench);
+            let mut columns = vec![Vector3::zeros(); PARAM_COUNT];
+            let mut angular = vec![Vector3::zeros(); PARAM_COUNT];
+            let prepared = robot.prepare(&p);
+            let (prediction, rotation) =
+                prepared.jacobian_row_with_orientation(&row, &all, &mut columns, &mut angular);
+            let mut position_only = vec![Vector3::zeros(); PARAM_COUNT];
+            assert_eq!(
+                prepared.jacobian_row(&row, &all, &mut position_only),
+                prediction
+            );
+            assert_eq!(position_only, columns);
+            let tool = robot.tool_in_world(&p.aimed_at(row.target), &q, &w);
+            assert!((tool.rotation - rotation).norm() < 1e-13);
+            for id in &all {
+                let h = step(*id);
+                let mut plus = p;
+                plus.0[id.index()] += h;
+                let mut minus = p;
+                minus.0[id.index()] -= h;
+                let at = |v: &ParamValues| robot.tool_in_world(&v.aimed_at(row.target), &q, &w);
+                let turn = at(&plus).rotation * at(&minus).rotation.transpose();
+                let fd =
+                    super::super::frame::rotation_vector(&turn).map(f64::to_degrees) / (2.0 * h);
+                let analytic = angular[id.index()];
+                let scale = analytic.norm().max(fd.norm());
+                assert!(
+                    (fd - analytic).norm() <= 1e-6 * scale + 1e-9,
+                    "trial {trial} {id}: analytic {analytic:?} fd {fd:?}"
+                );
+            }
+            // Every kind of parameter turns the tool somewhere, except translations.
+            for name in ["alpha_w", "gamma_t", "dtheta6", "dalpha3", "k2"] {
+                let id = ParamId::from_name(name).unwrap();
+                assert!(angular[id.index()].norm() > 1e-6, "{name}");
+            }
+            for name in ["x_w", "z_t"] {
+                let id = ParamId::from_name(name).unwrap();
+                // A translation turns nothing rigidly; under load it changes the
+                // torques, and so the deflections, a little.
+                assert!(angular[id.index()].norm() < 1e-2, "{name}");
             }
         }
     }

@@ -160,6 +160,10 @@ impl ParamId {
         matches!(self.kind(), ParamKind::Compliance(_))
     }
 
+    pub fn is_tool_rotation(self) -> bool {
+        matches!(self.kind(), ParamKind::ToolRotation(_))
+    }
+
     pub fn is_tool_translation(self) -> bool {
         matches!(self.kind(), ParamKind::ToolTranslation { .. })
     }

@@ -21,7 +21,9 @@ use super::{
     InputTable, SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo,
     StageOutputs, TableSlot, conf_wrench_rows, model_name_problem, settings_error,
 };
-use crate::calibration::fit::{Algorithm, FitError, FitOptions, Loss, Observations};
+use crate::calibration::fit::{
+    Algorithm, FitError, FitOptions, Loss, MeasuredOrientation, Observations,
+};
 use crate::calibration::groups::Grouping;
 use crate::calibration::held::HoldOptions;
 use crate::calibration::robust::RobustOptions;
@@ -103,7 +105,8 @@ pub struct IdentifySettings {
     #[schemars(range(min = 1, max = 100_000))]
     pub max_iterations: usize,
     /// Stop when a step changes no predicted position by more than this (mm). The
-    /// paper used 0.05 mm.
+    /// paper used 0.05 mm. A 6-D row's turn counts as the displacement it makes
+    /// at `orientation_lever_mm` (or at its σ ratio).
     #[schemars(range(min = 0.0, max = 100.0))]
     pub stop_step_mm: f64,
     /// Levenberg–Marquardt: stop when an accepted step lowers the cost by less than
@@ -169,6 +172,20 @@ pub struct IdentifySettings {
     /// Accept a fit that stops at `max_iterations` (a warning in the log, the
     /// facts and the report's first screen) instead of failing the stage.
     pub accept_not_converged: bool,
+    /// 6-D rows (spec §8: `rx_deg, ry_deg, rz_deg`): fit their measured tool
+    /// orientation as well (three more equations a row); false: positions only.
+    pub use_orientation: bool,
+    /// 6-D rows without `sigma_rx_deg …`: a rotation residual of θ weighs as
+    /// the position residual θ·lever it makes at this distance from the tool
+    /// (mm). 100 mm is a typical tool's length (the T-Mac's centre sits 93 mm
+    /// from the UR10's flange), and less than the 200–270 mm at which the
+    /// IPA tracker data's own position and orientation σ are equal: orientations
+    /// count, without letting what the model cannot explain of them outweigh
+    /// the positions. With position σ columns, the orientation σ is
+    /// σ_position/lever (σ_position the RMS of the three).
+    #[schemars(range(max = 100_000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub orientation_lever_mm: f64,
     /// How the free parameters are chosen. `standard_errors` (default): every
     /// identifiable parameter within the standard-error and variance-inflation
     /// bounds. `held_out`: of those, only the ones whose freeing lowers the
@@ -227,9 +244,14 @@ impl Default for IdentifySettings {
             parameter_choice: ParameterChoice::StandardErrors,
             held_out_grouping: Grouping::Configuration,
             held_out_folds: 5,
+            use_orientation: true,
+            orientation_lever_mm: DEFAULT_ORIENTATION_LEVER_MM,
         }
     }
 }
+
+/// Default of `orientation_lever_mm` (see there for why).
+pub const DEFAULT_ORIENTATION_LEVER_MM: f64 = 100.0;
 
 impl IdentifySettings {
     /// The fit options these settings describe (their ranges are checked in phase 2).
@@ -317,7 +339,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 6,
+    code_version: 7,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -389,6 +411,10 @@ pub struct MeasuredRows {
     /// `measured_at` of each row (µs since the epoch, `None` where null), when
     /// the table has it.
     pub measured_at_us: Option<Vec<Option<i64>>>,
+    /// `rx_deg, ry_deg, rz_deg` of each row (6-D rows, spec §8), when the table has them.
+    pub orientation_deg: Option<Vec<Vector3<f64>>>,
+    /// `sigma_rx_deg, sigma_ry_deg, sigma_rz_deg`, when the table has them.
+    pub sigma_orientation_deg: Option<Vec<Vector3<f64>>>,
 }
 
 impl MeasuredRows {
@@ -407,6 +433,79 @@ impl MeasuredRows {
         if let Some(times) = self.measured_at_us.as_mut() {
             retain_wanted(times, wanted);
         }
+        if let Some(angles) = self.orientation_deg.as_mut() {
+            retain_wanted(angles, wanted);
+        }
+        if let Some(sigma) = self.sigma_orientation_deg.as_mut() {
+            retain_wanted(sigma, wanted);
+        }
+    }
+
+    /// Why row `k` cannot be used ([`row_checks::row_problem`], and its
+    /// orientation's [`row_checks::orientation_problem`]); `None` when it can.
+    pub fn row_problem(&self, robot: &crate::robot::Robot, k: usize) -> Option<String> {
+        row_checks::row_problem(
+            robot,
+            &self.rows[k],
+            &self.positions[k],
+            self.sigma_mm.as_ref().map(|s| &s[k]),
+        )
+        .or_else(|| {
+            let angles = self.orientation_deg.as_ref()?;
+            row_checks::orientation_problem(
+                &angles[k],
+                self.sigma_orientation_deg.as_ref().map(|s| &s[k]),
+            )
+        })
+    }
+
+    /// Each row's measured world ← tool rotation (spec §8: Rot(x, rx)·Rot(y,
+    /// ry)·Rot(z, rz)), when the table has the orientation columns.
+    pub fn measured_rotations(&self) -> Option<Vec<nalgebra::Matrix3<f64>>> {
+        let angles = self.orientation_deg.as_ref()?;
+        Some(
+            angles
+                .iter()
+                .map(|a| {
+                    crate::robot::Frame::from_xyz_euler_then_translation(
+                        [a.x.to_radians(), a.y.to_radians(), a.z.to_radians()],
+                        Vector3::zeros(),
+                    )
+                    .rotation
+                })
+                .collect(),
+        )
+    }
+
+    /// The 6-D rows' orientations with their weights for the fit (spec §8):
+    /// `1/σ` (σ the RMS of the three angle σ, which keeps their total variance:
+    /// the Euler-rate axes are unit vectors) where the table has
+    /// `sigma_rx_deg …`; else the weight `lever_mm` gives a degree against the
+    /// row's position σ (1 mm without position σ). `None` without orientation
+    /// columns.
+    pub fn orientations_for_fit(&self, lever_mm: f64) -> Option<Vec<Option<MeasuredOrientation>>> {
+        let rotations = self.measured_rotations()?;
+        Some(
+            rotations
+                .into_iter()
+                .enumerate()
+                .map(|(k, world_from_tool)| {
+                    let rms = |s: &Vector3<f64>| (s.norm_squared() / 3.0).sqrt();
+                    let scale_per_deg = match &self.sigma_orientation_deg {
+                        Some(sigma) => 1.0 / rms(&sigma[k]),
+                        None => {
+                            let sigma_position_mm =
+                                self.sigma_mm.as_ref().map_or(1.0, |s| rms(&s[k]));
+                            lever_mm.to_radians() / sigma_position_mm
+                        }
+                    };
+                    Some(MeasuredOrientation {
+                        world_from_tool,
+                        scale_per_deg,
+                    })
+                })
+                .collect(),
+        )
     }
 
     /// Leaves out the rows that fail the row checks ([`row_checks::row_problem`]):
@@ -418,14 +517,7 @@ impl MeasuredRows {
         file: &std::path::Path,
     ) -> Option<String> {
         let problems: Vec<Option<String>> = (0..self.rows.len())
-            .map(|k| {
-                row_checks::row_problem(
-                    robot,
-                    &self.rows[k],
-                    &self.positions[k],
-                    self.sigma_mm.as_ref().map(|s| &s[k]),
-                )
-            })
+            .map(|k| self.row_problem(robot, k))
             .collect();
         let first = problems.iter().position(Option::is_some)?;
         let count = problems.iter().filter(|p| p.is_some()).count();
@@ -496,29 +588,18 @@ pub fn measured_rows(
             message,
         }));
     }
-    let sigma_present: Vec<bool> = schema::SIGMA_COLUMNS
-        .iter()
-        .map(|c| table.df.column(c).is_ok())
-        .collect();
-    let sigma_mm = if sigma_present.iter().all(|p| *p) {
-        let columns = schema::SIGMA_COLUMNS
-            .iter()
-            .map(|c| f64_values(&table.df, c, &table.path))
-            .collect::<Result<Vec<_>, _>>()?;
-        Some(
-            (0..ids.len())
-                .map(|k| Vector3::new(columns[0][k], columns[1][k], columns[2][k]))
-                .collect(),
-        )
-    } else if sigma_present.iter().any(|p| *p) {
+    let sigma_mm = optional_triple(table, &schema::SIGMA_COLUMNS, ids.len())?;
+    let orientation_deg = optional_triple(table, &schema::ORIENTATION_COLUMNS, ids.len())?;
+    let sigma_orientation_deg =
+        optional_triple(table, &schema::ORIENTATION_SIGMA_COLUMNS, ids.len())?;
+    if sigma_orientation_deg.is_some() && orientation_deg.is_none() {
         return Err(StageError::Invalid(format!(
-            "{}: has some of {} but not all three; give all or none",
+            "{}: has {} but not the orientation they are the uncertainty of ({})",
             table.path.display(),
-            schema::SIGMA_COLUMNS.join(", ")
+            schema::ORIENTATION_SIGMA_COLUMNS.join(", "),
+            schema::ORIENTATION_COLUMNS.join(", ")
         )));
-    } else {
-        None
-    };
+    }
     let measured_at_us = match table.df.column("measured_at") {
         Ok(column) => Some(
             column
@@ -540,12 +621,42 @@ pub fn measured_rows(
         target_ids,
         sigma_mm,
         measured_at_us,
+        orientation_deg,
+        sigma_orientation_deg,
     };
     if let Some(keep) = keep {
         let wanted: Vec<bool> = out.ids.iter().map(|id| keep.contains(id)).collect();
         out.retain(&wanted);
     }
     Ok(out)
+}
+
+/// Three optional float columns of a table read together: all three or none.
+fn optional_triple(
+    table: &InputTable,
+    names: &[&str; 3],
+    rows: usize,
+) -> Result<Option<Vec<Vector3<f64>>>, StageError> {
+    let present: Vec<bool> = names.iter().map(|c| table.df.column(c).is_ok()).collect();
+    if present.iter().all(|p| !*p) {
+        return Ok(None);
+    }
+    if !present.iter().all(|p| *p) {
+        return Err(StageError::Invalid(format!(
+            "{}: has some of {} but not all three; give all or none",
+            table.path.display(),
+            names.join(", ")
+        )));
+    }
+    let columns = names
+        .iter()
+        .map(|c| f64_values(&table.df, c, &table.path))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Some(
+        (0..rows)
+            .map(|k| Vector3::new(columns[0][k], columns[1][k], columns[2][k]))
+            .collect(),
+    ))
 }
 
 /// Keeps the elements whose flag in `wanted` (one per element) is set.
@@ -753,10 +864,30 @@ impl Stage for IdentifyStage {
             .sigma_mm
             .as_ref()
             .map(|sigma| sigma.iter().map(|s| s.map(|v| 1.0 / v)).collect());
+        let orientations = if settings.use_orientation {
+            if data.sigma_orientation_deg.is_some() && data.sigma_mm.is_none() {
+                return Err(StageError::Invalid(format!(
+                    "{}: has {} but not {}: the orientations would weigh 1/σ against positions weighed as if σ were 1 mm; give both or neither (`orientation_lever_mm` weighs orientations without σ)",
+                    measurements.path.display(),
+                    schema::ORIENTATION_SIGMA_COLUMNS.join(", "),
+                    schema::SIGMA_COLUMNS.join(", ")
+                )));
+            }
+            data.orientations_for_fit(settings.orientation_lever_mm)
+        } else {
+            None
+        };
+        if let Some(orientations) = &orientations {
+            outputs.facts.insert(
+                "orientation_rows".into(),
+                orientations.iter().flatten().count().to_string(),
+            );
+        }
         let observations = Observations {
             rows: &data.rows,
             measured_mm: &data.positions,
             row_scale: scales.as_deref(),
+            orientations: orientations.as_deref(),
         };
         if let Some(suspicion) = unit_checks::suspect_units(ctx.robot, &data.rows, &data.positions)
         {
@@ -874,7 +1005,12 @@ impl Stage for IdentifyStage {
                     .note(&format!("{model}: held at nominal: {held}"));
                 outputs.facts.insert(format!("{model}_held"), held);
             }
-            if let Some(problem) = implausible_parameter(&result.set, &nominal, settings) {
+            if let Some(problem) = implausible_parameter(
+                &result.set,
+                &nominal,
+                settings,
+                observations.has_orientations(),
+            ) {
                 failures.push(format!(
                     "{}: {model}: {problem}",
                     measurements.path.display()
@@ -904,8 +1040,15 @@ impl Stage for IdentifyStage {
                         Some(model.as_str()),
                         "robust_fit",
                         format!(
-                            "residual {:.4} mm{} beyond {:.4} ({} robust standard deviations)",
+                            "residual {:.4} mm{}{} beyond {:.4} ({} robust standard deviations)",
                             result.residuals_mm[*k].norm(),
+                            result
+                                .residuals_deg
+                                .get(*k)
+                                .copied()
+                                .flatten()
+                                .map(|r| format!(" and {:.4} deg", r.norm()))
+                                .unwrap_or_default(),
                             if scales.is_some() {
                                 format!(" ({:.2} σ-scaled)", scaled.norm())
                             } else {
@@ -992,8 +1135,13 @@ fn register(
     match registered_start(ctx.robot, values, data, options.targets) {
         Ok((start, found)) => {
             let fact = format!(
-                "frames of the {what} registered in closed form: rms {:.3} mm after {} rounds",
-                found.rms_mm, found.iterations
+                "frames of the {what} registered in closed form: rms {:.3} mm after {} rounds{}",
+                found.rms_mm,
+                found.iterations,
+                found
+                    .orientation_rms_deg
+                    .map(|deg| format!("; tool rotation from the orientations: rms {deg:.4} deg"))
+                    .unwrap_or_default()
             );
             ctx.progress.note(&fact);
             outputs.facts.insert(key.into(), fact);
@@ -1012,10 +1160,14 @@ fn register(
 /// (da, dd) or an angle error (dtheta, dalpha, tool rotation) beyond the
 /// plausibility bounds, or a compliance significantly below zero. Frames are
 /// not bounded: a tracker stands anywhere.
+///
+/// With 6-D rows the tool rotation is a frame too (a probe's mounting,
+/// registered from the measured orientations) and is not bounded either.
 fn implausible_parameter(
     set: &crate::table::parameters::ParameterSet,
     nominal: &ParamValues,
     settings: &IdentifySettings,
+    tool_rotation_is_a_frame: bool,
 ) -> Option<String> {
     use crate::robot::params::ParamKind;
     use crate::table::parameters::ParamStatus;
@@ -1037,6 +1189,7 @@ fn implausible_parameter(
                 ParamKind::A(_) | ParamKind::D(_) => {
                     beyond(settings.plausible_length_mm, "plausible_length_mm", "mm")
                 }
+                ParamKind::ToolRotation(_) if tool_rotation_is_a_frame => None,
                 ParamKind::Theta(_) | ParamKind::Alpha(_) | ParamKind::ToolRotation(_) => {
                     beyond(settings.plausible_angle_deg, "plausible_angle_deg", "deg")
                 }
@@ -1071,14 +1224,7 @@ fn check_rows(
     excluded: &mut ExcludedColumns,
 ) -> Result<String, StageError> {
     let problems: Vec<Option<String>> = (0..data.rows.len())
-        .map(|k| {
-            row_checks::row_problem(
-                ctx.robot,
-                &data.rows[k],
-                &data.positions[k],
-                data.sigma_mm.as_ref().map(|s| &s[k]),
-            )
-        })
+        .map(|k| data.row_problem(ctx.robot, k))
         .collect();
     let bad: Vec<usize> = (0..problems.len())
         .filter(|k| problems[*k].is_some())
@@ -1380,6 +1526,76 @@ impl ExcludedColumns {
 mod tests {
     use super::*;
     use crate::robot::test_support::irb1600;
+
+    /// The orientation convention of 6-D rows (spec §8: Rot(x, rx)·Rot(y,
+    /// ry)·Rot(z, rz), scipy's intrinsic "XYZ") and the rotation residual
+    /// (scipy's `(R_meas * R_model.inv()).as_rotvec()`), against the numbers of
+    /// fixtures/tools/orientation_fixtures.py (pasted); the weights the fit
+    /// gives the rows, with and without σ columns.
+    #[test]
+    #[allow(clippy::excessive_precision)]
+    fn orientation_convention_and_residual_match_scipy() {
+        use crate::calibration::fit::orientation_residual_deg;
+        let measured = Vector3::new(-90.179563, -20.112975, -90.157388);
+        let model = Vector3::new(-90.1, -20.25, -89.9);
+        let rows = MeasuredRows {
+            orientation_deg: Some(vec![measured, model]),
+            ..Default::default()
+        };
+        let rotations = rows.measured_rotations().unwrap();
+        let scipy = nalgebra::Matrix3::new(
+            -0.002579417353162,
+            0.939012861301302,
+            -0.343872349741674,
+            0.002189358136570,
+            0.343877972450392,
+            0.939011792670549,
+            0.999994276642156,
+            0.001669243585990,
+            -0.002942840257742,
+        );
+        assert!((rotations[0] - scipy).norm() < 1e-14, "{}", rotations[0]);
+        let residual = orientation_residual_deg(&rotations[0], &rotations[1]);
+        let scipy = Vector3::new(0.009234737164374, -0.241919152077053, -0.136434965174114);
+        assert!((residual - scipy).norm() < 1e-12, "{residual}");
+        assert!((residual.norm() - 0.277893246111231).abs() < 1e-12);
+        // A hand case: 10° more about z is the residual (0, 0, 10).
+        let turned = MeasuredRows {
+            orientation_deg: Some(vec![Vector3::new(0.0, 0.0, 10.0), Vector3::zeros()]),
+            ..Default::default()
+        }
+        .measured_rotations()
+        .unwrap();
+        let r = orientation_residual_deg(&turned[0], &turned[1]);
+        assert!((r - Vector3::new(0.0, 0.0, 10.0)).norm() < 1e-13, "{r}");
+
+        // Weights: the lever arm's radian per degree without σ (1 mm positions),
+        // σ_position/lever with position σ, 1/σ_rms with orientation σ.
+        let weights = |rows: &MeasuredRows| -> Vec<f64> {
+            rows.orientations_for_fit(100.0)
+                .unwrap()
+                .iter()
+                .map(|o| o.unwrap().scale_per_deg)
+                .collect()
+        };
+        let mut rows = rows;
+        let lever = 100.0_f64.to_radians();
+        assert_eq!(weights(&rows), [lever, lever]);
+        rows.sigma_mm = Some(vec![Vector3::repeat(0.02), Vector3::new(0.01, 0.02, 0.02)]);
+        let w = weights(&rows);
+        assert!(
+            (w[0] - lever / 0.02).abs() < 1e-9 && (w[1] - lever / 0.3e-3f64.sqrt()).abs() < 1e-9
+        );
+        rows.sigma_orientation_deg = Some(vec![
+            Vector3::repeat(0.004),
+            Vector3::new(0.001, 0.002, 0.002),
+        ]);
+        let w = weights(&rows);
+        assert!(
+            (w[0] - 250.0).abs() < 1e-9 && (w[1] - 1.0 / 3e-6f64.sqrt()).abs() < 1e-9,
+            "{w:?}"
+        );
+    }
 
     #[test]
     fn fixed_values_take_numbers_or_nominal_and_name_bad_keys() {

@@ -6,7 +6,8 @@
 //! contract column to a source column (`columns.q1_deg = "shoulder_pan_joint"`);
 //! `constant` gives fixed values (`constant.target_id = "nest1"`). Source units
 //! are converted here, at this one boundary: joints rad → deg, lengths and
-//! sigmas m → mm, moments N·mm → N·m. Wrench columns that are not mapped are 0
+//! sigmas m → mm, moments N·mm → N·m, orientation angles and their sigmas
+//! (6-D rows, spec §8) rad → deg. Wrench columns that are not mapped are 0
 //! (no load). Extra source columns are not carried.
 //!
 //! The CSV is parsed by polars' reader (its `decimal_comma` option for `1,5`),
@@ -16,7 +17,8 @@
 //! the line (data row + header + skipped lines, 1-based), the source column, the
 //! setting and what was expected. Measurements hold complete rows only, so an
 //! empty, non-numeric or non-finite cell in a mapped column is bad input, as are
-//! a repeated `cw_id` and a sigma that is not positive. Line numbers assume one
+//! a repeated `cw_id`, a sigma that is not positive or absurd, and an
+//! orientation angle beyond ±360°. Line numbers assume one
 //! line per row (no line breaks inside quoted fields).
 //!
 //! The stage has no input tables: the file's content hash is part of its cache
@@ -40,7 +42,9 @@ use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, settings_error,
 };
-use crate::calibration::row_checks::{MAX_SIGMA_MM, MIN_SIGMA_MM};
+use crate::calibration::row_checks::{
+    MAX_ANGLE_DEG, MAX_SIGMA_DEG, MAX_SIGMA_MM, MIN_SIGMA_DEG, MIN_SIGMA_MM,
+};
 use crate::table::schema;
 
 pub struct ImportMeasurementsStage;
@@ -93,6 +97,21 @@ pub struct ColumnMap {
     pub sigma_y_mm: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sigma_z_mm: Option<String>,
+    /// A 6-D probe's tool orientation (spec §8), tracker frame:
+    /// world←tool = Rot(x, rx)·Rot(y, ry)·Rot(z, rz) (`angle_unit`); all three or none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rx_deg: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ry_deg: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rz_deg: Option<String>,
+    /// Their 1-σ uncertainties (> 0, `angle_unit`): all three or none, and only with the angles.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sigma_rx_deg: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sigma_ry_deg: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sigma_rz_deg: Option<String>,
     /// Which SMR (nest) each row measured: a long table, one row per target reading.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_id: Option<String>,
@@ -149,6 +168,8 @@ pub struct ImportMeasurementsSettings {
     pub force_unit: ForceUnit,
     /// Unit of the moment columns in the source: N·m (also N*m, Nm) or N·mm (also N*mm, Nmm).
     pub moment_unit: MomentUnit,
+    /// Unit of the orientation columns and their sigmas in the source: deg or rad.
+    pub angle_unit: JointUnit,
     /// Import only data rows start ≤ row < end (0-based, half-open), e.g. half of a
     /// series; the default cw_id stays the row's number in the whole file.
     #[schemars(inner(range(min = 0, max = 1_000_000_000)))]
@@ -170,6 +191,7 @@ impl Default for ImportMeasurementsSettings {
             length_unit: LengthUnit::Mm,
             force_unit: ForceUnit::Newton,
             moment_unit: MomentUnit::NewtonMetre,
+            angle_unit: JointUnit::Deg,
             row_range: None,
         }
     }
@@ -180,7 +202,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "A tracker export (CSV or Parquet) as the measurements table, units converted",
-    code_version: 3,
+    code_version: 4,
     inputs: &[],
     outputs: &[TableSlot {
         name: "measurements",
@@ -191,7 +213,7 @@ static INFO: StageInfo = StageInfo {
 };
 
 /// Every contract column a source column can be mapped to, in output order.
-const CONTRACT: [(&str, Kind); 23] = [
+const CONTRACT: [(&str, Kind); 29] = [
     ("cw_id", Kind::Integer),
     ("q1_deg", Kind::Joint),
     ("q2_deg", Kind::Joint),
@@ -211,6 +233,12 @@ const CONTRACT: [(&str, Kind); 23] = [
     ("sigma_x_mm", Kind::Sigma),
     ("sigma_y_mm", Kind::Sigma),
     ("sigma_z_mm", Kind::Sigma),
+    ("rx_deg", Kind::Angle),
+    ("ry_deg", Kind::Angle),
+    ("rz_deg", Kind::Angle),
+    ("sigma_rx_deg", Kind::AngleSigma),
+    ("sigma_ry_deg", Kind::AngleSigma),
+    ("sigma_rz_deg", Kind::AngleSigma),
     ("target_id", Kind::Text),
     ("config_id", Kind::Integer),
     ("robot_id", Kind::Text),
@@ -243,6 +271,12 @@ impl ColumnMap {
             "sigma_x_mm" => &self.sigma_x_mm,
             "sigma_y_mm" => &self.sigma_y_mm,
             "sigma_z_mm" => &self.sigma_z_mm,
+            "rx_deg" => &self.rx_deg,
+            "ry_deg" => &self.ry_deg,
+            "rz_deg" => &self.rz_deg,
+            "sigma_rx_deg" => &self.sigma_rx_deg,
+            "sigma_ry_deg" => &self.sigma_ry_deg,
+            "sigma_rz_deg" => &self.sigma_rz_deg,
             "target_id" => &self.target_id,
             "config_id" => &self.config_id,
             "robot_id" => &self.robot_id,
@@ -276,7 +310,7 @@ impl ImportMeasurementsSettings {
             has_header: self.has_header,
             units: SourceUnits {
                 joint: self.joint_unit,
-                angle: self.joint_unit,
+                angle: self.angle_unit,
                 length: self.length_unit,
                 moment: self.moment_unit,
             },
@@ -288,11 +322,26 @@ impl ImportMeasurementsSettings {
             CONTRACT.iter().copied(),
             &mut problems,
         );
-        let sigmas = schema::SIGMA_COLUMNS.map(|c| self.columns.get(c).is_some());
-        if sigmas.contains(&true) && sigmas.contains(&false) {
+        for triple in [
+            &schema::SIGMA_COLUMNS,
+            &schema::ORIENTATION_COLUMNS,
+            &schema::ORIENTATION_SIGMA_COLUMNS,
+        ] {
+            let mapped = triple.map(|c| self.columns.get(c).is_some());
+            if mapped.contains(&true) && mapped.contains(&false) {
+                problems.push(SettingsProblem::new(
+                    &format!("columns.{}", triple[0]),
+                    format!(
+                        "`columns.{}`, `columns.{}`, `columns.{}`: map all three or none",
+                        triple[0], triple[1], triple[2]
+                    ),
+                ));
+            }
+        }
+        if self.columns.get("sigma_rx_deg").is_some() && self.columns.get("rx_deg").is_none() {
             problems.push(SettingsProblem::new(
-                "columns.sigma_x_mm",
-                "`columns.sigma_x_mm`, `columns.sigma_y_mm`, `columns.sigma_z_mm`: map all three or none",
+                "columns.sigma_rx_deg",
+                "orientation sigmas without the orientation: map `columns.rx_deg`, `columns.ry_deg`, `columns.rz_deg` too",
             ));
         }
         for (key, constant) in [
@@ -569,7 +618,11 @@ fn factor(kind: Kind, settings: &ImportMeasurementsSettings) -> f64 {
             MomentUnit::NewtonMetre => 1.0,
             MomentUnit::NewtonMillimetre => 1e-3,
         },
-        Kind::Force | Kind::Integer | Kind::Text | Kind::Time | Kind::Angle => 1.0,
+        Kind::Angle | Kind::AngleSigma => match settings.angle_unit {
+            JointUnit::Deg => 1.0,
+            JointUnit::Rad => 180.0 / std::f64::consts::PI,
+        },
+        Kind::Force | Kind::Integer | Kind::Text | Kind::Time => 1.0,
     }
 }
 
@@ -610,7 +663,9 @@ fn build(
         .iter()
         .chain(&schema::WRENCH_COLUMNS)
         .chain(&schema::POSITION_COLUMNS)
-        .chain(&schema::SIGMA_COLUMNS);
+        .chain(&schema::SIGMA_COLUMNS)
+        .chain(&schema::ORIENTATION_COLUMNS)
+        .chain(&schema::ORIENTATION_SIGMA_COLUMNS);
     for name in float_names {
         let values = match find(name) {
             Some(m) => {
@@ -618,6 +673,31 @@ fn build(
                 let mut values = source.floats(m, rows.clone())?;
                 for (k, v) in values.iter_mut().enumerate() {
                     *v *= f;
+                    if m.kind == Kind::AngleSigma && !(MIN_SIGMA_DEG..=MAX_SIGMA_DEG).contains(v) {
+                        let row = rows.start + k;
+                        let text = source.raw(&m.source, row).unwrap_or_default();
+                        return Err(source.problem(
+                            row,
+                            m,
+                            format!(
+                                "`{text}` is not a probe's 1-σ orientation uncertainty: expected {MIN_SIGMA_DEG} to {MAX_SIGMA_DEG} deg ({} deg after `angle_unit`){}",
+                                crate::calibration::row_checks::compact(*v),
+                                if *v <= 0.0 { "; sigma must be > 0" } else { "" }
+                            ),
+                        ));
+                    }
+                    if m.kind == Kind::Angle && v.abs() > MAX_ANGLE_DEG {
+                        let row = rows.start + k;
+                        let text = source.raw(&m.source, row).unwrap_or_default();
+                        return Err(source.problem(
+                            row,
+                            m,
+                            format!(
+                                "`{text}` is not an orientation angle: expected within ±{MAX_ANGLE_DEG} deg ({} deg after `angle_unit`; degrees read as radians?)",
+                                crate::calibration::row_checks::compact(*v)
+                            ),
+                        ));
+                    }
                     if m.kind == Kind::Sigma && !(MIN_SIGMA_MM..=MAX_SIGMA_MM).contains(v) {
                         let row = rows.start + k;
                         let text = source.raw(&m.source, row).unwrap_or_default();
@@ -634,7 +714,8 @@ fn build(
                 }
                 values
             }
-            // Optional columns: a wrench not given is no load; sigmas are all or none.
+            // Optional columns: a wrench not given is no load; sigmas and
+            // orientations are all or none.
             None if schema::WRENCH_COLUMNS.contains(name) => vec![0.0; n],
             None => continue,
         };
@@ -1008,6 +1089,110 @@ z_mm = "z"
                 "line 4, column `id` (setting `columns.cw_id`): cw_id 10 repeats the one on line 2"
             ),
             "{err}"
+        );
+    }
+
+    /// 6-D rows (spec §8): the orientation columns and their sigmas, in the
+    /// UR10 files' layout (`;`, decimal comma, joints in rad, angles in deg);
+    /// radians converted; and every bad cell or half-mapped triple named.
+    #[test]
+    fn orientation_columns_import_and_bad_ones_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let header = "a1;a2;a3;a4;a5;a6;x;y;z;rx;srx;ry;sry;rz;srz\n";
+        let row = |rx: &str, srx: &str| {
+            format!(
+                "0;-1,5;1;0,5;0,25;0;383,97;-3240,75;201,72;{rx};{srx};-20,112975;0,0065397;-90,157388;0,008348\n"
+            )
+        };
+        let good = format!(
+            "{header}{}{}",
+            row("-90,179563", "0,0024569"),
+            row("-84,2", "0,001")
+        );
+        write(dir.path(), "e.csv", &good);
+        let base = format!(
+            "path = \"e.csv\"\nseparator = \";\"\ndecimal_comma = true\njoint_unit = \"rad\"\n{JOINTS_XYZ}rx_deg = \"rx\"\nry_deg = \"ry\"\nrz_deg = \"rz\"\nsigma_rx_deg = \"srx\"\nsigma_ry_deg = \"sry\"\nsigma_rz_deg = \"srz\"\n"
+        );
+        let df = import(&settings(&base), dir.path()).unwrap().measurements;
+        schema::measurements().check(&df, Path::new("t")).unwrap();
+        assert_eq!(f64s(&df, "rx_deg"), [-90.179563, -84.2]);
+        assert_eq!(f64s(&df, "rz_deg"), [-90.157388, -90.157388]);
+        assert_eq!(f64s(&df, "sigma_ry_deg"), [0.0065397, 0.0065397]);
+        // Joints in rad, angles in deg: the units are independent.
+        assert!((f64s(&df, "q2_deg")[0] + 85.943_669_6).abs() < 1e-6);
+        // Angles and their sigmas in radians.
+        write(
+            dir.path(),
+            "r.csv",
+            &format!(
+                "{header}0;-1,5;1;0,5;0,25;0;383,97;-3240,75;201,72;-1,5;0,0001;0,25;0,0001;3;0,0001\n"
+            ),
+        );
+        let radians = base
+            .replace("e.csv", "r.csv")
+            .replace("[columns]", "angle_unit = \"rad\"\n[columns]");
+        let df = import(&settings(&radians), dir.path())
+            .unwrap()
+            .measurements;
+        assert!((f64s(&df, "rx_deg")[0] + 1.5f64.to_degrees()).abs() < 1e-12);
+        assert!((f64s(&df, "sigma_rx_deg")[0] - 1e-4f64.to_degrees()).abs() < 1e-15);
+
+        for (rx, srx, expected) in [
+            (
+                "",
+                "0,001",
+                "line 2, column `rx` (setting `columns.rx_deg`)",
+            ),
+            (
+                "NaN",
+                "0,001",
+                "line 2, column `rx` (setting `columns.rx_deg`): `NaN` is not a finite number",
+            ),
+            (
+                "5000",
+                "0,001",
+                "line 2, column `rx` (setting `columns.rx_deg`): `5000` is not an orientation angle: expected within ±360 deg",
+            ),
+            (
+                "-90",
+                "0",
+                "line 2, column `srx` (setting `columns.sigma_rx_deg`): `0` is not a probe's 1-σ orientation uncertainty: expected 0.00001 to 10 deg",
+            ),
+            ("-90", "-0,01", "sigma must be > 0"),
+            (
+                "-90",
+                "45",
+                "`45` is not a probe's 1-σ orientation uncertainty",
+            ),
+        ] {
+            write(dir.path(), "e.csv", &format!("{header}{}", row(rx, srx)));
+            let err = error(&base, dir.path());
+            assert!(
+                err.contains("e.csv") && err.contains(expected),
+                "{rx} {srx}: {err}"
+            );
+        }
+        // Half a triple, and sigmas without their angles, are settings problems.
+        let half = base.replace("rz_deg = \"rz\"\n", "");
+        let problems = settings(&half).check(dir.path()).unwrap_err();
+        assert!(
+            problems
+                .iter()
+                .any(|p| p.key == "columns.rx_deg" && p.message.contains("map all three or none")),
+            "{problems:?}"
+        );
+        let orphan = base.replace("rx_deg = \"rx\"\nry_deg = \"ry\"\nrz_deg = \"rz\"\n", "");
+        let problems = settings(&orphan).check(dir.path()).unwrap_err();
+        assert!(
+            problems.iter().any(|p| p.key == "columns.sigma_rx_deg"
+                && p.message.contains("without the orientation")),
+            "{problems:?}"
+        );
+        let half_sigma = base.replace("sigma_ry_deg = \"sry\"\n", "");
+        let problems = settings(&half_sigma).check(dir.path()).unwrap_err();
+        assert!(
+            problems.iter().any(|p| p.key == "columns.sigma_rx_deg"),
+            "{problems:?}"
         );
     }
 

@@ -138,8 +138,10 @@ pub enum Kind {
     Integer,
     Text,
     Time,
-    /// An orientation angle (targets' rx_deg … rz_deg).
+    /// An orientation angle (targets' and 6-D measurements' rx_deg … rz_deg).
     Angle,
+    /// The 1-σ uncertainty of an orientation angle (6-D measurements).
+    AngleSigma,
 }
 
 /// A contract column and the source column it comes from.
@@ -165,7 +167,7 @@ pub struct CsvLayout {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct SourceUnits {
     pub joint: JointUnit,
-    /// Orientation angles (`import_targets`' `angle_unit`).
+    /// Orientation angles and their sigmas (`angle_unit`).
     pub angle: JointUnit,
     pub length: LengthUnit,
     pub moment: MomentUnit,
@@ -174,7 +176,8 @@ pub struct SourceUnits {
 /// The problems every column map shares, added to `problems`: a `required`
 /// contract column left unmapped, a `contract` column mapped to an empty name,
 /// and two contract columns reading one source column (a copy-paste slip; only
-/// the three sigmas may share one, a tracker's single isotropic σ).
+/// the three position sigmas, or the three angle sigmas, may share one: a
+/// tracker's single isotropic σ).
 /// `source_of` gives a contract column's source column.
 pub fn column_map_problems<'a>(
     source_of: impl Fn(&str) -> Option<&'a str>,
@@ -202,10 +205,9 @@ pub fn column_map_problems<'a>(
             ));
             continue;
         }
-        if let Some((first, _, _)) = seen
-            .iter()
-            .find(|(_, s, k)| *s == source && !(*k == Kind::Sigma && kind == Kind::Sigma))
-        {
+        if let Some((first, _, _)) = seen.iter().find(|(_, s, k)| {
+            *s == source && !(*k == kind && matches!(kind, Kind::Sigma | Kind::AngleSigma))
+        }) {
             problems.push(SettingsProblem::new(
                 &format!("columns.{key}"),
                 format!(

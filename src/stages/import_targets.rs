@@ -320,7 +320,7 @@ impl ImportTargetsSettings {
             JointUnit::Rad => 180.0 / std::f64::consts::PI,
         };
         match kind {
-            Kind::Angle => angle(self.angle_unit),
+            Kind::Angle | Kind::AngleSigma => angle(self.angle_unit),
             Kind::Joint => angle(self.joint_unit),
             Kind::Position | Kind::Sigma => match self.length_unit {
                 LengthUnit::Mm => 1.0,

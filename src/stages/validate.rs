@@ -13,6 +13,11 @@
 //! is honest, below when the model misses effects the noise does not explain.
 //! Without the input those columns are left out; for a model without a
 //! covariance (nominal) they are null.
+//!
+//! Rows with a measured tool orientation (6-D rows, spec §8) also get their
+//! orientation error, the angle between the model's and the measured tool
+//! orientation (`errors.error_deg`; `stats.mean_deg`, `rms_deg`, `max_deg`).
+//! The hypothesis tests compare position errors only.
 
 use nalgebra::Matrix3;
 use polars::prelude::Column;
@@ -24,6 +29,7 @@ use super::{
     Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, bound_covariance,
     covariance_columns, row_covariances,
 };
+use crate::calibration::fit::{MeasuredOrientation, Observations, orientation_residuals};
 use crate::calibration::uncertainty::{chi_squared_3_quantile, within_ellipsoid};
 use crate::robot::{ParamValues, batch_predict};
 use crate::stats::{self, TestResult};
@@ -45,7 +51,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Validation errors per model, statistics (Table III) and pairwise hypothesis tests",
-    code_version: 4,
+    code_version: 5,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -107,6 +113,18 @@ impl Stage for ValidateStage {
         if let Some(summary) = &left_out {
             ctx.progress.note(&format!("warning: {summary}"));
         }
+        let measured_rotations: Option<Vec<Option<MeasuredOrientation>>> =
+            data.measured_rotations().map(|rotations| {
+                rotations
+                    .into_iter()
+                    .map(|world_from_tool| {
+                        Some(MeasuredOrientation {
+                            world_from_tool,
+                            scale_per_deg: 1.0,
+                        })
+                    })
+                    .collect()
+            });
         let MeasuredRows {
             ids,
             rows,
@@ -128,6 +146,7 @@ impl Stage for ValidateStage {
 
         let mut e = ErrorColumns::default();
         let mut norms: Vec<(ModelName, Vec<f64>)> = Vec::new();
+        let mut angles: Vec<Vec<f64>> = Vec::new();
         let mut coverages: Vec<Option<f64>> = Vec::new();
         let radius_squared = chi_squared_3_quantile(COVERAGE_PROBABILITY);
         for set in &sets {
@@ -142,6 +161,19 @@ impl Stage for ValidateStage {
                 row.target = *target;
             }
             let predictions = batch_predict(ctx.robot, &set.values, &rows);
+            if let Some(orientations) = &measured_rotations {
+                let observations = Observations {
+                    orientations: Some(orientations),
+                    ..Observations::new(&rows, &measured)
+                };
+                let residuals = orientation_residuals(ctx.robot, &set.values, &observations);
+                let model_angles: Vec<f64> = residuals
+                    .iter()
+                    .map(|r| r.map_or(f64::NAN, |r| r.norm()))
+                    .collect();
+                e.angle.extend(model_angles.iter().copied());
+                angles.push(model_angles);
+            }
             let covariance = bound_covariance(ctx, set)?;
             let mut model_norms = Vec::with_capacity(rows.len());
             let mut covered = Vec::with_capacity(rows.len());
@@ -179,6 +211,13 @@ impl Stage for ValidateStage {
         let with_covariance = ctx.inputs.contains_key(super::COVARIANCE_INPUT.name);
 
         let mut s = StatsColumns::default();
+        for model_angles in &angles {
+            let summary = stats::summary(model_angles)
+                .map_err(|err| StageError::Failed(format!("orientation errors: {err}")))?;
+            s.mean_deg.push(summary.mean);
+            s.rms_deg.push(summary.rms);
+            s.max_deg.push(summary.max);
+        }
         for ((model, values), coverage) in norms.iter().zip(&coverages) {
             s.coverage_95.push(*coverage);
             let summary = stats::summary(values)
@@ -220,11 +259,17 @@ impl Stage for ValidateStage {
         if let Some(summary) = left_out {
             outputs.facts.insert("rows_left_out".into(), summary);
         }
-        for ((model, values), coverage) in norms.iter().zip(&coverages) {
+        for (k, ((model, values), coverage)) in norms.iter().zip(&coverages).enumerate() {
             let max = values.iter().cloned().fold(0.0, f64::max);
             outputs
                 .facts
                 .insert(format!("{model}_max_mm"), format!("{max:.3}"));
+            if let Some(model_angles) = angles.get(k) {
+                let max_deg = model_angles.iter().cloned().fold(0.0, f64::max);
+                outputs
+                    .facts
+                    .insert(format!("{model}_max_deg"), format!("{max_deg:.4}"));
+            }
             if let Some(coverage) = coverage {
                 outputs
                     .facts
@@ -250,6 +295,8 @@ struct ErrorColumns {
     ey: Vec<f64>,
     ez: Vec<f64>,
     norm: Vec<f64>,
+    /// Orientation error (deg) per row, filled only for 6-D rows.
+    angle: Vec<f64>,
     /// J·Σ·Jᵀ per row, filled only with a covariance input.
     covariances: Vec<Option<Matrix3<f64>>>,
     covered: Vec<Option<bool>>,
@@ -266,6 +313,9 @@ impl ErrorColumns {
             Column::new("ez_mm".into(), self.ez),
             Column::new("error_mm".into(), self.norm),
         ];
+        if !self.angle.is_empty() {
+            columns.push(Column::new("error_deg".into(), self.angle));
+        }
         if with_covariance {
             columns.extend(covariance_columns(&self.covariances));
             columns.push(Column::new("covered_95".into(), self.covered));
@@ -287,6 +337,10 @@ struct StatsColumns {
     rms: Vec<f64>,
     p95: Vec<f64>,
     max: Vec<f64>,
+    /// Orientation error statistics, filled only for 6-D rows.
+    mean_deg: Vec<f64>,
+    rms_deg: Vec<f64>,
+    max_deg: Vec<f64>,
     coverage_95: Vec<Option<f64>>,
 }
 
@@ -303,6 +357,11 @@ impl StatsColumns {
             Column::new("p95_mm".into(), self.p95),
             Column::new("max_mm".into(), self.max),
         ];
+        if !self.mean_deg.is_empty() {
+            columns.push(Column::new("mean_deg".into(), self.mean_deg));
+            columns.push(Column::new("rms_deg".into(), self.rms_deg));
+            columns.push(Column::new("max_deg".into(), self.max_deg));
+        }
         if with_covariance {
             columns.push(Column::new("coverage_95".into(), self.coverage_95));
         }

@@ -263,6 +263,9 @@ pub const POSITION_COLUMNS: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
 /// Per-point tracker uncertainty columns of `measurements` (spec §7), mm.
 pub const SIGMA_COLUMNS: [&str; 3] = ["sigma_x_mm", "sigma_y_mm", "sigma_z_mm"];
 
+/// The 1-σ uncertainty of a 6-D row's orientation angles (spec §8), deg.
+pub const ORIENTATION_SIGMA_COLUMNS: [&str; 3] = ["sigma_rx_deg", "sigma_ry_deg", "sigma_rz_deg"];
+
 fn wrench_columns(columns: &mut Vec<ColumnSpec>) {
     for name in WRENCH_COLUMNS {
         let unit = if name.starts_with('f') { "N" } else { "N·m" };
@@ -350,6 +353,24 @@ pub fn measurements() -> TableSchema {
             "mm",
             false,
             "the tracker's 1-σ uncertainty of the point along this axis, > 0; rows are weighted by 1/σ² (spec §7)",
+        ));
+    }
+    for name in ORIENTATION_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "deg",
+            false,
+            "tool orientation measured by a 6-D probe, tracker (world) frame: world←tool = Rot(x, rx)·Rot(y, ry)·Rot(z, rz); all three or none (spec §8)",
+        ));
+    }
+    for name in ORIENTATION_SIGMA_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "deg",
+            false,
+            "1-σ uncertainty of that orientation angle, > 0; with them the rotation residual is weighted by 1/σ² (σ the RMS of the three), else by `identify`'s `orientation_lever_mm` (spec §8)",
         ));
     }
     TableSchema {
@@ -762,6 +783,13 @@ pub fn errors() -> TableSchema {
         ],
         unique: None,
     };
+    schema.columns.push(col(
+        "error_deg",
+        ColumnType::Float64,
+        "deg",
+        false,
+        "angle between the predicted and the measured tool orientation; present when the validation rows carry orientations (spec §8)",
+    ));
     position_covariance_columns(&mut schema.columns);
     schema.columns.push(col(
         "covered_95",
@@ -788,6 +816,16 @@ pub fn stats() -> TableSchema {
         ("max_mm", "maximum"),
     ] {
         columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
+    }
+    for (name, meaning) in [
+        (
+            "mean_deg",
+            "mean orientation error (angle between predicted and measured tool orientation); present when the validation rows carry orientations (spec §8)",
+        ),
+        ("rms_deg", "root mean square orientation error (6-D rows)"),
+        ("max_deg", "largest orientation error (6-D rows)"),
+    ] {
+        columns.push(col(name, ColumnType::Float64, "deg", false, meaning));
     }
     columns.push(col(
         "coverage_95",

@@ -280,7 +280,7 @@ fn expected_unit(
     const LENGTHS: &[&str] = &["mm", "m"];
     Some(match kind {
         Kind::Joint => (angle(layout.units.joint), "joint_unit", ANGLES),
-        Kind::Angle => (angle(layout.units.angle), "angle_unit", ANGLES),
+        Kind::Angle | Kind::AngleSigma => (angle(layout.units.angle), "angle_unit", ANGLES),
         Kind::Position | Kind::Sigma => (
             match layout.units.length {
                 LengthUnit::Mm => "mm",
