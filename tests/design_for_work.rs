@@ -80,7 +80,10 @@ fn the_design_for_the_work_beats_o1_at_the_work_targets() {
     };
     let (work, o1) = (achieved("work"), achieved("o1"));
     let noise_floor = 0.02 * (8.0 / std::f64::consts::PI).sqrt();
-    assert!(work < 0.6 * o1, "achieved mean: work {work:.4} mm, O1 {o1:.4} mm");
+    assert!(
+        work < 0.6 * o1,
+        "achieved mean: work {work:.4} mm, O1 {o1:.4} mm"
+    );
     assert!(
         work <= 1.5 * noise_floor,
         "work {work:.4} mm against the tracker-noise floor {noise_floor:.4} mm"

@@ -439,6 +439,9 @@ impl Stage for CompensateStage {
     }
 }
 
+/// Target ids, the targets in the world frame, and their nominal commands.
+pub(super) type NominalTargets = (Vec<i64>, Vec<Target>, Vec<Command>);
+
 /// The joint configuration of every target on the nominal model, as
 /// `compensate` with `model = "nominal"` finds it (loaded IK seeded by the
 /// branch hint, else the nominal solution nearest the previous target's), in
@@ -449,7 +452,7 @@ pub(super) fn nominal_target_commands(
     frame: &str,
     frames: &BTreeMap<String, [f64; 6]>,
     input: &InputTable,
-) -> Result<(Vec<i64>, Vec<Target>, Vec<Command>), StageError> {
+) -> Result<NominalTargets, StageError> {
     let settings = CompensateSettings {
         model: ModelName::Nominal.as_str().to_string(),
         frame: frame.to_string(),

@@ -690,7 +690,15 @@ fn report_work(
                 settings.n,
                 prediction.max_u95_mm(),
                 match reached {
-                    Some(p) => format!("; the curve reaches it at n = {}", p.n),
+                    Some(p) => format!(
+                        "; a design for the targets (u95_curve, criterion {}) reaches it at n = {}",
+                        if options.criterion == WorkCriterion::Max {
+                            "V"
+                        } else {
+                            "I"
+                        },
+                        p.n
+                    ),
                     None => format!("; no n up to {to} reaches it"),
                 }
             );
