@@ -1,7 +1,9 @@
 //! Experiment design (paper §IV): pose generation with collision and visibility
-//! filters, and DETMAX selection by observability.
+//! filters, DETMAX selection by observability, and selection by the predicted
+//! uncertainty at the work targets (`work_criterion`).
 
 pub mod collision;
 pub mod detmax;
 pub mod observability;
 pub mod poses;
+pub mod work_criterion;

@@ -575,9 +575,17 @@ fn check_outputs(
     tables: &BTreeMap<String, polars::prelude::DataFrame>,
 ) -> Result<(), StageError> {
     for slot in stage.kind.info().outputs {
-        let df = tables
-            .get(slot.name)
-            .ok_or_else(|| StageError::Failed(format!("produced no `{}` table", slot.name)))?;
+        // An optional output is written only when the stage's inputs ask for it
+        // (e.g. `select`'s `work_targets`, with a `targets` input).
+        let Some(df) = tables.get(slot.name) else {
+            if slot.required {
+                return Err(StageError::Failed(format!(
+                    "produced no `{}` table",
+                    slot.name
+                )));
+            }
+            continue;
+        };
         (slot.schema)().check(df, Path::new(&format!("<output {}>", slot.name)))?;
     }
     Ok(())

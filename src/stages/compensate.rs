@@ -439,6 +439,65 @@ impl Stage for CompensateStage {
     }
 }
 
+/// Target ids, the targets in the world frame, and their nominal commands.
+pub(super) type NominalTargets = (Vec<i64>, Vec<Target>, Vec<Command>);
+
+/// The joint configuration of every target on the nominal model, as
+/// `compensate` with `model = "nominal"` finds it (loaded IK seeded by the
+/// branch hint, else the nominal solution nearest the previous target's), in
+/// the frames `frame` and `frames` name: where a design for the work predicts
+/// its uncertainty. The targets' `tool_id` plays no part (one nominal tool).
+pub(super) fn nominal_target_commands(
+    robot: &Robot,
+    frame: &str,
+    frames: &BTreeMap<String, [f64; 6]>,
+    input: &InputTable,
+) -> Result<NominalTargets, StageError> {
+    let settings = CompensateSettings {
+        model: ModelName::Nominal.as_str().to_string(),
+        frame: frame.to_string(),
+        frames: frames.clone(),
+        ..CompensateSettings::default()
+    };
+    let rows = target_rows(robot, &settings, &input.df, &input.path)?;
+    let values = ParamValues::nominal(robot.spec());
+    let world_from_base = robot.world_from_base(&values);
+    let targets: Vec<Target> = (0..rows.ids.len())
+        .map(|k| Target {
+            tool_in_world: world_from(&settings, &world_from_base, &rows.frames[k])
+                .compose(&rows.poses[k]),
+            wrench: rows.wrenches[k],
+            hint_deg: rows.hints[k],
+            tool: 0,
+        })
+        .collect();
+    let options = Options {
+        solver: NumericOptions {
+            max_iterations: settings.max_iterations,
+            position_tolerance_mm: settings.position_tolerance_mm,
+            orientation_tolerance_rad: settings.orientation_tolerance_rad,
+            ..NumericOptions::default()
+        },
+        singular_sigma_min_mm_per_rad: settings.singular_sigma_min_mm_per_rad,
+    };
+    let commands = compensation::compensate(robot, &values, &targets, &options);
+    Ok((rows.ids, targets, commands))
+}
+
+/// Problems of a `frame` setting and its user `frames`, as `compensate` judges
+/// them, for a stage that reads `targets` the same way.
+pub(super) fn target_frame_problems(
+    frame: &str,
+    frames: &BTreeMap<String, [f64; 6]>,
+) -> Vec<SettingsProblem> {
+    CompensateSettings {
+        frame: frame.to_string(),
+        frames: frames.clone(),
+        ..CompensateSettings::default()
+    }
+    .frame_problems()
+}
+
 /// world ← frame of a row's frame name (already checked to be known).
 fn world_from(settings: &CompensateSettings, world_from_base: &Frame, name: &str) -> Frame {
     match name {

@@ -1709,6 +1709,80 @@ pub fn calibration_positions() -> TableSchema {
     }
 }
 
+/// Output of `select` with the `targets` input: the predicted uncertainty of
+/// the selected rows at each work target.
+pub fn work_targets() -> TableSchema {
+    let mut columns = vec![
+        col(
+            "target_id",
+            ColumnType::Int64,
+            "",
+            true,
+            "target of the `targets` input",
+        ),
+        col(
+            "status",
+            ColumnType::Utf8,
+            "",
+            true,
+            "status of the target's nominal loaded IK (as `compensate` with model = nominal); only `ok` targets are designed for",
+        ),
+    ];
+    joint_columns(
+        &mut columns,
+        "the target's configuration: nominal loaded IK, seeded by its branch hint or the previous target's solution",
+    );
+    position_covariance_columns(&mut columns);
+    for column in columns
+        .iter_mut()
+        .filter(|c| c.name.starts_with("cov_") || c.name.starts_with('q'))
+    {
+        column.required = false;
+    }
+    for column in columns.iter_mut().filter(|c| c.name.starts_with("cov_")) {
+        column.meaning = "predicted covariance of the position after identification on the selected rows, σ²·J_t·(JᵀJ)⁻¹·J_tᵀ with σ the setting tracker_sigma_mm (world frame, nominal model, the target's wrench); null when the target is not ok";
+    }
+    columns.push(col(
+        "u95_mm",
+        ColumnType::Float64,
+        "mm",
+        false,
+        "sqrt(χ²₃(0.95)·λ_max) of that covariance, the longest semi-axis of the 95 % ellipsoid; null when the target is not ok",
+    ));
+    TableSchema {
+        kind: "work_targets",
+        description: "Predicted 95 % position uncertainty at each work target after identification on the selected rows.",
+        columns,
+        unique: Some("target_id"),
+    }
+}
+
+/// Output of `select` with the `targets` input: the stopping rule's curve.
+pub fn u95_curve() -> TableSchema {
+    TableSchema {
+        kind: "u95_curve",
+        description: "Predicted u95 at the work targets of the best n rows found, against n (the stopping rule).",
+        columns: vec![
+            col("n", ColumnType::Int64, "", true, "rows selected"),
+            col(
+                "mean_u95_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "mean over the ok targets of the predicted u95",
+            ),
+            col(
+                "max_u95_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "largest predicted u95 over the ok targets",
+            ),
+        ],
+        unique: Some("n"),
+    }
+}
+
 pub const TORQUE_COLUMNS: [&str; 6] = [
     "tau1_nm", "tau2_nm", "tau3_nm", "tau4_nm", "tau5_nm", "tau6_nm",
 ];
@@ -1998,6 +2072,8 @@ pub fn all() -> Vec<TableSchema> {
         iso9283_distances(),
         accuracy_map(),
         calibration_positions(),
+        work_targets(),
+        u95_curve(),
         target_errors(),
         target_stats(),
         selection(),

@@ -158,7 +158,7 @@ impl Candidates {
     }
 
     /// The 3×m block of candidate k, row-major.
-    fn block(&self, k: usize) -> &[f64] {
+    pub(crate) fn block(&self, k: usize) -> &[f64] {
         &self.rows[3 * k * self.m..3 * (k + 1) * self.m]
     }
 
@@ -180,7 +180,7 @@ impl Candidates {
 }
 
 /// info += sign·BᵀB for a 3×m row-major block.
-fn add_block(info: &mut DMatrix<f64>, block: &[f64], sign: f64) {
+pub(crate) fn add_block(info: &mut DMatrix<f64>, block: &[f64], sign: f64) {
     let m = info.nrows();
     for r in 0..3 {
         let row = &block[r * m..(r + 1) * m];
@@ -219,7 +219,7 @@ trait Engine {
 }
 
 /// The candidate kept among scored trials: highest score, lowest index on ties.
-fn best_of(scored: impl Iterator<Item = (usize, f64)>) -> Option<usize> {
+pub(crate) fn best_of(scored: impl Iterator<Item = (usize, f64)>) -> Option<usize> {
     scored
         .max_by(|(ka, a), (kb, b)| a.total_cmp(b).then(kb.cmp(ka)))
         .map(|(k, _)| k)
@@ -227,7 +227,7 @@ fn best_of(scored: impl Iterator<Item = (usize, f64)>) -> Option<usize> {
 
 /// The member to remove: the best removal score, but `added` when it is within
 /// rounding of the best, so that a converged exchange is recognised.
-fn removal_choice(scores: &[(usize, f64)], added: usize) -> usize {
+pub(crate) fn removal_choice(scores: &[(usize, f64)], added: usize) -> usize {
     let best = best_of(scores.iter().copied()).expect("the set is not empty");
     let best_score = scores.iter().find(|(k, _)| *k == best).map_or(0.0, |s| s.1);
     match scores.iter().find(|(k, _)| *k == added) {
@@ -237,7 +237,7 @@ fn removal_choice(scores: &[(usize, f64)], added: usize) -> usize {
 }
 
 /// A random start of `n` (ascending); redrawn a few times when its M is singular.
-fn random_start(c: &Candidates, n: usize, seed: u64) -> Vec<usize> {
+pub(crate) fn random_start(c: &Candidates, n: usize, seed: u64) -> Vec<usize> {
     let mut rng = StdRng::seed_from_u64(seed);
     let mut start: Vec<usize> = sample(&mut rng, c.count, n).into_vec();
     for _ in 0..20 {
