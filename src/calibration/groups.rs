@@ -109,14 +109,11 @@ pub fn group_rows(
     seed: u64,
 ) -> Result<Vec<usize>, GroupError> {
     let n = input.rows.len();
-    if grouping == Grouping::Random {
-        return Ok((0..n).collect());
-    }
-    if n < groups || groups == 0 {
+    if grouping != Grouping::Random && (n < groups || groups == 0) {
         return Err(GroupError::TooFewRows { rows: n, groups });
     }
     match grouping {
-        Grouping::Random => unreachable!("handled above"),
+        Grouping::Random => Ok((0..n).collect()),
         Grouping::Time => {
             let times = input.measured_at_us.ok_or(GroupError::NoTimes)?;
             let mut order: Vec<usize> = (0..n).collect();
