@@ -32,8 +32,8 @@ use nalgebra::{DMatrix, Dyn, Matrix3, OMatrix, SMatrix, U3};
 use rayon::prelude::*;
 
 use super::detmax::{
-    Candidates, DetmaxError, Method, REFACTOR_EVERY, add_block, best_of, observability_index,
-    random_start, removal_choice,
+    Candidates, DetmaxError, Method, REFACTOR_EVERY, add_block, best_of, naive_best_addition,
+    naive_exchange, observability_index, random_start, removal_choice, ridged_cholesky,
 };
 use crate::calibration::accuracy_map::u95_mm;
 
@@ -470,21 +470,8 @@ impl<'a> Fast<'a> {
     /// M, M⁻¹, trace(M⁻¹·W) and every Q_k, P_k afresh: O(N·m²). A singular M (a
     /// degenerate start) gets a ridge raised until it factorises, as in DETMAX.
     fn refactor(&mut self) {
-        let m = self.c.parameters();
-        let exact = self.c.information(&self.members);
-        self.ridge = 0.0;
-        let mut info = exact.clone();
-        let chol = loop {
-            if let Some(chol) = info.clone().cholesky() {
-                break chol;
-            }
-            self.ridge = if self.ridge == 0.0 {
-                1e-9 * (exact.trace() / m as f64).max(1e-300)
-            } else {
-                self.ridge * 1e3
-            };
-            info = &exact + DMatrix::identity(m, m) * self.ridge;
-        };
+        let (chol, ridge, info) = ridged_cholesky(&self.c.information(&self.members));
+        self.ridge = ridge;
         self.inv = chol.inverse();
         self.info = info;
         self.phi = self.inv.component_mul(&self.w).sum();
@@ -733,39 +720,32 @@ impl<'a> Naive<'a> {
 
     /// The criterion of a set; +∞ when singular.
     fn evaluate(&self, set: &[usize]) -> f64 {
-        predict(self.c, self.targets, set, self.sigma_mm)
-            .map_or(f64::INFINITY, |p| p.value(self.criterion))
+        set_value(self.c, self.targets, set, self.sigma_mm, self.criterion)
     }
+}
+
+/// The criterion of `set` from a fresh factorisation (∞ where M is singular).
+fn set_value(
+    c: &Candidates,
+    targets: &WorkTargets,
+    set: &[usize],
+    sigma_mm: f64,
+    criterion: WorkCriterion,
+) -> f64 {
+    predict(c, targets, set, sigma_mm).map_or(f64::INFINITY, |p| p.value(criterion))
 }
 
 impl WorkEngine for Naive<'_> {
     fn best_addition(&self) -> Option<usize> {
-        let scores: Vec<(usize, f64)> = (0..self.c.len())
-            .into_par_iter()
-            .filter(|&k| !self.in_set[k])
-            .map(|k| {
-                let trial = [self.members.as_slice(), &[k]].concat();
-                (k, -self.evaluate(&trial))
-            })
-            .collect();
-        best_of(scores.into_iter())
+        naive_best_addition(&self.in_set, &self.members, |set| -self.evaluate(set))
     }
 
     fn exchange(&mut self, added: usize) -> usize {
-        self.members.push(added);
-        let scores: Vec<(usize, f64)> = (0..self.members.len())
-            .into_par_iter()
-            .map(|position| {
-                let mut trial = self.members.clone();
-                let k = trial.remove(position);
-                (k, -self.evaluate(&trial))
-            })
-            .collect();
-        let removed = removal_choice(&scores, added);
-        self.members.retain(|&k| k != removed);
-        self.in_set[added] = true;
-        self.in_set[removed] = false;
-        removed
+        let (c, targets, sigma_mm, criterion) =
+            (self.c, self.targets, self.sigma_mm, self.criterion);
+        naive_exchange(&mut self.members, &mut self.in_set, added, |set| {
+            -set_value(c, targets, set, sigma_mm, criterion)
+        })
     }
 
     fn members(&self) -> &[usize] {

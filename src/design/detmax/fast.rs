@@ -12,6 +12,7 @@ use rayon::prelude::*;
 
 use super::{
     Candidates, Criterion, Engine, Options, REFACTOR_EVERY, add_block, best_of, removal_choice,
+    ridged_cholesky,
 };
 use crate::design::observability::o1_from_log_det;
 
@@ -69,21 +70,8 @@ impl<'a> Fast<'a> {
     /// of 1e-9 of its mean diagonal, raised until it factorises, so the exchange can
     /// climb out; it is dropped at the next refactorisation where M is regular.
     fn refactor(&mut self) {
-        let m = self.c.parameters();
-        let exact = self.c.information(&self.members);
-        self.ridge = 0.0;
-        let mut info = exact.clone();
-        let chol = loop {
-            if let Some(chol) = info.clone().cholesky() {
-                break chol;
-            }
-            self.ridge = if self.ridge == 0.0 {
-                1e-9 * (exact.trace() / m as f64).max(1e-300)
-            } else {
-                self.ridge * 1e3
-            };
-            info = &exact + DMatrix::identity(m, m) * self.ridge;
-        };
+        let (chol, ridge, info) = ridged_cholesky(&self.c.information(&self.members));
+        self.ridge = ridge;
         self.log_det = chol.l().diagonal().iter().map(|d| 2.0 * d.ln()).sum();
         self.inv = chol.inverse();
         self.info = info;

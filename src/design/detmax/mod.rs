@@ -32,6 +32,7 @@ use nalgebra::DMatrix;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand::seq::index::sample;
+use rayon::prelude::*;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
@@ -223,6 +224,71 @@ pub(crate) fn best_of(scored: impl Iterator<Item = (usize, f64)>) -> Option<usiz
     scored
         .max_by(|(ka, a), (kb, b)| a.total_cmp(b).then(kb.cmp(ka)))
         .map(|(k, _)| k)
+}
+
+/// The Cholesky factor of `exact` (an information matrix M), with a ridge of
+/// 1e-9 of its mean diagonal, raised ×1000 until it factorises, where M is
+/// singular (a degenerate start), so an exchange can climb out. Returns the
+/// factor, the ridge (0 for a regular M) and the matrix factorised.
+pub(crate) fn ridged_cholesky(
+    exact: &DMatrix<f64>,
+) -> (nalgebra::Cholesky<f64, nalgebra::Dyn>, f64, DMatrix<f64>) {
+    let m = exact.nrows();
+    let mut ridge = 0.0;
+    let mut info = exact.clone();
+    loop {
+        if let Some(chol) = info.clone().cholesky() {
+            return (chol, ridge, info);
+        }
+        ridge = if ridge == 0.0 {
+            1e-9 * (exact.trace() / m as f64).max(1e-300)
+        } else {
+            ridge * 1e3
+        };
+        info = exact + DMatrix::identity(m, m) * ridge;
+    }
+}
+
+/// The naive engines' addition: every outsider (not in `in_set`) tried with
+/// `members`, the one whose set `score`s highest.
+pub(crate) fn naive_best_addition(
+    in_set: &[bool],
+    members: &[usize],
+    score: impl Fn(&[usize]) -> f64 + Sync,
+) -> Option<usize> {
+    let scores: Vec<(usize, f64)> = (0..in_set.len())
+        .into_par_iter()
+        .filter(|&k| !in_set[k])
+        .map(|k| {
+            let trial = [members, &[k]].concat();
+            (k, score(&trial))
+        })
+        .collect();
+    best_of(scores.into_iter())
+}
+
+/// The naive engines' exchange: adds `added`, removes the member whose
+/// removal leaves the highest `score` ([`removal_choice`]); returns it.
+pub(crate) fn naive_exchange(
+    members: &mut Vec<usize>,
+    in_set: &mut [bool],
+    added: usize,
+    score: impl Fn(&[usize]) -> f64 + Sync,
+) -> usize {
+    members.push(added);
+    let scores: Vec<(usize, f64)> = (0..members.len())
+        .into_par_iter()
+        .map(|position| {
+            let mut trial = members.clone();
+            let k = trial.remove(position);
+            (k, score(&trial))
+        })
+        .collect();
+    let removed = removal_choice(&scores, added);
+    members.retain(|&k| k != removed);
+    in_set[added] = true;
+    in_set[removed] = false;
+    removed
 }
 
 /// The member to remove: the best removal score, but `added` when it is within

@@ -2,9 +2,7 @@
 //! Kept to verify the fast engine and to measure what it saves; trials run in
 //! parallel like the fast engine's, so the comparison is of the maths only.
 
-use rayon::prelude::*;
-
-use super::{Candidates, Criterion, Engine, best_of, removal_choice};
+use super::{Candidates, Criterion, Engine, naive_best_addition, naive_exchange};
 
 pub(super) struct Naive<'a> {
     c: &'a Candidates,
@@ -28,39 +26,28 @@ impl<'a> Naive<'a> {
 
     /// The criterion of a set, by the SVD of its stacked Jacobian.
     fn evaluate(&self, set: &[usize], criterion: Criterion) -> f64 {
-        let sv = self.c.jacobian(set).singular_values_unordered();
-        criterion.evaluate(sv.as_slice(), set.len())
+        set_value(self.c, set, criterion)
     }
+}
+
+/// `criterion` of `set` from a fresh SVD.
+fn set_value(c: &Candidates, set: &[usize], criterion: Criterion) -> f64 {
+    let sv = c.jacobian(set).singular_values_unordered();
+    criterion.evaluate(sv.as_slice(), set.len())
 }
 
 impl Engine for Naive<'_> {
     fn best_addition(&self) -> Option<usize> {
-        let scores: Vec<(usize, f64)> = (0..self.c.len())
-            .into_par_iter()
-            .filter(|&k| !self.in_set[k])
-            .map(|k| {
-                let trial = [self.members.as_slice(), &[k]].concat();
-                (k, self.evaluate(&trial, self.criterion))
-            })
-            .collect();
-        best_of(scores.into_iter())
+        naive_best_addition(&self.in_set, &self.members, |set| {
+            self.evaluate(set, self.criterion)
+        })
     }
 
     fn exchange(&mut self, added: usize) -> usize {
-        self.members.push(added);
-        let scores: Vec<(usize, f64)> = (0..self.members.len())
-            .into_par_iter()
-            .map(|position| {
-                let mut trial = self.members.clone();
-                let k = trial.remove(position);
-                (k, self.evaluate(&trial, self.criterion))
-            })
-            .collect();
-        let removed = removal_choice(&scores, added);
-        self.members.retain(|&k| k != removed);
-        self.in_set[added] = true;
-        self.in_set[removed] = false;
-        removed
+        let (c, criterion) = (self.c, self.criterion);
+        naive_exchange(&mut self.members, &mut self.in_set, added, |set| {
+            set_value(c, set, criterion)
+        })
     }
 
     fn members(&self) -> &[usize] {
