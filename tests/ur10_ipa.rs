@@ -11,43 +11,14 @@ use egcal::table::{self, schema};
 
 /// Mean validation error (mm) of `model` in a validate stage's `stats`.
 fn mean_mm(out: &Path, stage: &str, model: &str) -> f64 {
-    let path = out.join(stage).join("stats.parquet");
-    let stats = table::read_parquet(&path).unwrap();
-    let models = schema::str_values(&stats, "model", &path).unwrap();
-    let means = schema::f64_values(&stats, "mean_mm", &path).unwrap();
-    let row = models
-        .iter()
-        .position(|m| m.as_deref() == Some(model))
-        .unwrap_or_else(|| panic!("{stage}: no model {model}"));
-    means[row]
+    common::ur10::stat(out, stage, model, "mean_mm")
 }
 
 #[test]
 fn the_ur10_job_calibrates_series_c_and_carries_it_to_b_and_d() {
-    let root = common::root();
-    let data = root.join("../shared/realdata/ur10-ipa");
-    if !data.join("Series_C").is_dir() {
-        eprintln!(
-            "SKIPPED: the UR10 data are not at {}; the job needs ../shared beside the checkout",
-            data.display()
-        );
+    let Some((_dir, out)) = common::ur10::run_job("ur10_ipa") else {
         return;
-    }
-    let dir = tempfile::tempdir().unwrap();
-    let jobs = root.join("jobs");
-    let text = std::fs::read_to_string(jobs.join("ur10_ipa.toml")).unwrap();
-    // Same job, run from a temporary folder: make its relative paths absolute.
-    let text = text
-        .replace("\"robots/", &format!("\"{}/robots/", jobs.display()))
-        .replace(
-            "\"../../shared/",
-            &format!("\"{}/../../shared/", jobs.display()),
-        );
-    let job = dir.path().join("ur10_ipa.toml");
-    std::fs::write(&job, text).unwrap();
-    let (code, stdout, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
-    assert_eq!(code, 0, "{stdout}\n{stderr}");
-    let out = dir.path().join("out/ur10_ipa");
+    };
 
     // Series C, half fitted and half validated (independent fit: 0.90, 0.44, 0.44).
     let registered = mean_mm(&out, "validate_c", "registered");

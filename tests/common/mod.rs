@@ -5,6 +5,7 @@
 
 pub mod measured;
 pub mod sample;
+pub mod ur10;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
