@@ -471,6 +471,26 @@ mod tests {
         if id.is_compliance() { 1e-6 } else { 1e-4 }
     }
 
+    /// The truth, and on odd trials random errors away from it; the targets
+    /// 1.. with translations of their own.
+    fn params_for_trial(
+        robot: &Robot,
+        all: &[ParamId],
+        trial: usize,
+        rng: &mut StdRng,
+    ) -> ParamValues {
+        let mut p = truth_params(robot);
+        for id in all {
+            if !id.is_compliance() && !id.is_world() && trial % 2 == 1 {
+                p.0[id.index()] += rng.random_range(-0.5..0.5);
+            }
+            if id.index() >= BASE_PARAM_COUNT {
+                p.0[id.index()] += rng.random_range(-80.0..80.0);
+            }
+        }
+        p
+    }
+
     #[test]
     fn analytic_jacobian_matches_central_differences_for_every_slot() {
         let robot = irb1600();
@@ -478,16 +498,7 @@ mod tests {
         assert_eq!(all.len(), PARAM_COUNT);
         let mut rng = StdRng::seed_from_u64(7);
         for trial in 0..40 {
-            let mut p = truth_params(&robot);
-            // Also away from the truth: random errors, and targets of their own.
-            for id in &all {
-                if !id.is_compliance() && !id.is_world() && trial % 2 == 1 {
-                    p.0[id.index()] += rng.random_range(-0.5..0.5);
-                }
-                if id.index() >= BASE_PARAM_COUNT {
-                    p.0[id.index()] += rng.random_range(-80.0..80.0);
-                }
-            }
+            let p = params_for_trial(&robot, &all, trial, &mut rng);
             let row = ConfWrench {
                 q_deg: random_q(&robot, &mut rng),
                 wrench: random_wrench(&mut rng),
@@ -525,15 +536,7 @@ mod tests {
         let all: Vec<ParamId> = ParamId::all_with_targets(MAX_TARGETS).collect();
         let mut rng = StdRng::seed_from_u64(8);
         for trial in 0..40 {
-            let mut p = truth_params(&robot);
-            for id in &all {
-                if !id.is_compliance() && !id.is_world() && trial % 2 == 1 {
-                    p.0[id.index()] += rng.random_range(-0.5..0.5);
-                }
-                if id.index() >= BASE_PARAM_COUNT {
-                    p.0[id.index()] += rng.random_range(-80.0..80.0);
-                }
-            }
+            let mut p = params_for_trial(&robot, &all, trial, &mut rng);
             // Tool and world rotations far from zero, so their axes are not the
             // coordinate axes.
             for (name, value) in [("alpha_t", 20.0), ("beta_t", -35.0), ("gamma_t", 80.0)] {
