@@ -304,25 +304,9 @@ impl Stage for CompensateStage {
         let rows = target_rows(ctx.robot, settings, &input.df, &input.path)?;
         let tools = tool_indices(set.as_ref(), settings, &rows, &input.path)?;
         let world_from_base = ctx.robot.world_from_base(&values);
-        let targets: Vec<Target> = (0..rows.ids.len())
-            .map(|k| Target {
-                tool_in_world: world_from(settings, &world_from_base, &rows.frames[k])
-                    .compose(&rows.poses[k]),
-                wrench: rows.wrenches[k],
-                hint_deg: rows.hints[k],
-                tool: tools[k],
-            })
-            .collect();
-        let options = Options {
-            solver: NumericOptions {
-                max_iterations: settings.max_iterations,
-                position_tolerance_mm: settings.position_tolerance_mm,
-                orientation_tolerance_rad: settings.orientation_tolerance_rad,
-                ..NumericOptions::default()
-            },
-            singular_sigma_min_mm_per_rad: settings.singular_sigma_min_mm_per_rad,
-        };
-        let commands = compensation::compensate(ctx.robot, &values, &targets, &options);
+        let targets = world_targets(settings, &world_from_base, &rows, &tools);
+        let commands =
+            compensation::compensate(ctx.robot, &values, &targets, &settings.solver_options());
         refuse_mostly_unreachable(
             settings,
             &input.path,
@@ -462,26 +446,43 @@ pub(super) fn nominal_target_commands(
     let rows = target_rows(robot, &settings, &input.df, &input.path)?;
     let values = ParamValues::nominal(robot.spec());
     let world_from_base = robot.world_from_base(&values);
-    let targets: Vec<Target> = (0..rows.ids.len())
+    let targets = world_targets(&settings, &world_from_base, &rows, &vec![0; rows.ids.len()]);
+    let commands = compensation::compensate(robot, &values, &targets, &settings.solver_options());
+    Ok((rows.ids, targets, commands))
+}
+
+/// The targets of `rows` in the world frame, each with its row's load,
+/// branch hint and tool (`tools`, one per row).
+fn world_targets(
+    settings: &CompensateSettings,
+    world_from_base: &Frame,
+    rows: &TargetRows,
+    tools: &[usize],
+) -> Vec<Target> {
+    (0..rows.ids.len())
         .map(|k| Target {
-            tool_in_world: world_from(&settings, &world_from_base, &rows.frames[k])
+            tool_in_world: world_from(settings, world_from_base, &rows.frames[k])
                 .compose(&rows.poses[k]),
             wrench: rows.wrenches[k],
             hint_deg: rows.hints[k],
-            tool: 0,
+            tool: tools[k],
         })
-        .collect();
-    let options = Options {
-        solver: NumericOptions {
-            max_iterations: settings.max_iterations,
-            position_tolerance_mm: settings.position_tolerance_mm,
-            orientation_tolerance_rad: settings.orientation_tolerance_rad,
-            ..NumericOptions::default()
-        },
-        singular_sigma_min_mm_per_rad: settings.singular_sigma_min_mm_per_rad,
-    };
-    let commands = compensation::compensate(robot, &values, &targets, &options);
-    Ok((rows.ids, targets, commands))
+        .collect()
+}
+
+impl CompensateSettings {
+    /// The loaded IK's options these settings describe.
+    fn solver_options(&self) -> Options {
+        Options {
+            solver: NumericOptions {
+                max_iterations: self.max_iterations,
+                position_tolerance_mm: self.position_tolerance_mm,
+                orientation_tolerance_rad: self.orientation_tolerance_rad,
+                ..NumericOptions::default()
+            },
+            singular_sigma_min_mm_per_rad: self.singular_sigma_min_mm_per_rad,
+        }
+    }
 }
 
 /// Problems of a `frame` setting and its user `frames`, as `compensate` judges
