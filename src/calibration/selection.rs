@@ -62,6 +62,8 @@ pub struct FoldAssignment {
 /// (`m + 1` square, the residual last) and the rows that took part.
 struct FoldGrams {
     grams: Vec<DMatrix<f64>>,
+    /// The sum of `grams`: all folds' equations.
+    total: DMatrix<f64>,
     rows: Vec<usize>,
 }
 
@@ -136,14 +138,17 @@ fn fold_grams(
         &combine,
     )
     .unwrap_or_else(|| (vec![Mat::zeros(0, m + 1); k], vec![0; k]));
-    let grams = factors
+    let grams: Vec<DMatrix<f64>> = factors
         .iter()
         .map(|r| {
             let r = DMatrix::from_fn(r.nrows(), m + 1, |i, j| r[(i, j)]);
             r.transpose() * r
         })
         .collect();
-    FoldGrams { grams, rows }
+    let total = grams
+        .iter()
+        .fold(DMatrix::zeros(m + 1, m + 1), |a, g| a + g);
+    FoldGrams { grams, total, rows }
 }
 
 /// Held-out squared error (summed over the axes of the left-out rows) of
@@ -152,16 +157,12 @@ fn fold_grams(
 /// where a fold's leave-out system is singular.
 fn held_out_squares(grams: &FoldGrams, kept: &[usize], shift: &DVector<f64>) -> Option<Vec<f64>> {
     let m = shift.len();
-    let total: DMatrix<f64> = grams
-        .grams
-        .iter()
-        .fold(DMatrix::zeros(m + 1, m + 1), |a, g| a + g);
     let held: Vec<usize> = (0..m).filter(|j| !kept.contains(j)).collect();
     grams
         .grams
         .iter()
         .map(|fold| {
-            let rest = &total - fold;
+            let rest = &grams.total - fold;
             // Normal equations of the kept columns, scaled to a unit diagonal.
             let n = kept.len();
             let mut a = DMatrix::zeros(n, n);

@@ -343,8 +343,8 @@ impl Stage for CrossvalidateStage {
                     folds_table.push(grouping, Some(fold), model, calibration_rows, &values)?;
                 }
                 let all: Vec<f64> = rows.iter().map(|(_, _, e)| *e).collect();
-                stats_table.push(grouping, None, model, data.ids.len(), &all)?;
-                let [mean, _, p997, max] = figures(&all)?;
+                let [mean, _, p997, max] =
+                    stats_table.push(grouping, None, model, data.ids.len(), &all)?;
                 let key = format!("{grouping}_{model}");
                 outputs.facts.insert(
                     key.clone(),
@@ -403,7 +403,7 @@ impl FoldColumns {
         model: &str,
         calibration_rows: usize,
         errors: &[f64],
-    ) -> Result<(), StageError> {
+    ) -> Result<[f64; 4], StageError> {
         let [mean, rms, p997, max] = figures(errors)?;
         self.protocol.push(grouping.as_str().to_string());
         self.fold.push(fold.map_or(-1, |f| f as i64));
@@ -414,7 +414,7 @@ impl FoldColumns {
         self.rms.push(rms);
         self.p997.push(p997);
         self.max.push(max);
-        Ok(())
+        Ok([mean, rms, p997, max])
     }
 
     /// `per_fold`: the `folds` table (fold, calibration and validation rows);
