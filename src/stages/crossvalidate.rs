@@ -263,8 +263,14 @@ impl Stage for CrossvalidateStage {
         settings: &CrossvalidateSettings,
         ctx: &SettingsContext,
     ) -> Vec<SettingsProblem> {
+        // `reregistered` is refused below with crossvalidate's own reason,
+        // not identify's (which would ask for an input crossvalidate lacks).
+        let identify_ctx = SettingsContext {
+            bound_inputs: &["measurements", "selection", "start"],
+            ..*ctx
+        };
         let mut problems: Vec<SettingsProblem> = IdentifyStage
-            .check_settings(&settings.identify, ctx)
+            .check_settings(&settings.identify, &identify_ctx)
             .into_iter()
             .map(|p| SettingsProblem {
                 key: format!("identify.{}", p.key),
