@@ -27,6 +27,7 @@ use fit::{FitError, FitOptions, Iteration, Loss, Observations, Stop};
 use held::{Hold, HoldOptions};
 use rank::RankAnalysis;
 use robust::RobustOptions;
+use selection::SelectionRule;
 
 /// Options of a whole calibration.
 #[derive(Debug, Clone)]
@@ -45,10 +46,10 @@ pub struct CalibrationOptions {
     /// Bounds beyond which an identifiable parameter is held at its start value
     /// (spec §8 `held`); `None`: every identifiable parameter is fitted.
     pub hold: Option<HoldOptions>,
-    /// Folds of the rows for choosing the free parameters by held-out error
-    /// ([`selection`]); `None`: every identifiable parameter within the
-    /// `hold` bounds is fitted.
-    pub selection: Option<selection::FoldAssignment>,
+    /// Folds of the rows and the rule for choosing the free parameters by
+    /// held-out rows ([`selection`]); `None`: every identifiable parameter
+    /// within the `hold` bounds is fitted.
+    pub selection: Option<selection::ParameterSelection>,
 }
 
 impl CalibrationOptions {
@@ -227,13 +228,25 @@ pub fn calibrate(
             })
         });
         // Once the standard errors are within bounds, the held-out rows
-        // decide (once: the refit only drops what they did not support).
+        // decide: elimination once (the refit only drops what they did not
+        // support), the jackknife one parameter per round.
         if new_holds.is_empty()
             && !selected
-            && let (Some(folds), Some(bounds)) = (&options.selection, &options.hold)
+            && let (Some(selection), Some(bounds)) = (&options.selection, &options.hold)
         {
-            selected = true;
-            new_holds = selection::choose_parameters(robot, data, &fit, &start, folds, bounds)
+            let folds = &selection.folds;
+            let unsupported = match selection.rule {
+                SelectionRule::Elimination => {
+                    selected = true;
+                    selection::choose_parameters(robot, data, &fit, &start, folds, bounds)
+                }
+                SelectionRule::Jackknife { min_t } => {
+                    selection::least_significant(robot, data, &fit, &start, folds, bounds, min_t)
+                        .into_iter()
+                        .collect()
+                }
+            };
+            new_holds = unsupported
                 .into_iter()
                 .map(|u| Hold {
                     id: u.id,

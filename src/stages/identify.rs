@@ -27,6 +27,7 @@ use crate::calibration::fit::{
 use crate::calibration::groups::Grouping;
 use crate::calibration::held::HoldOptions;
 use crate::calibration::robust::RobustOptions;
+use crate::calibration::selection::{ParameterSelection, SelectionRule};
 use crate::calibration::{
     CalibrationOptions, ModelResult, calibrate, registered_start, row_checks, stream, unit_checks,
 };
@@ -188,26 +189,37 @@ pub struct IdentifySettings {
     pub orientation_lever_mm: f64,
     /// How the free parameters are chosen. `standard_errors` (default): every
     /// identifiable parameter within the standard-error and variance-inflation
-    /// bounds. `held_out`: of those, only the ones whose freeing lowers the
-    /// error on whole groups of rows left out (grouped cross-validation); the
-    /// others are `held` with the figures in `reason`. Not the default: the
-    /// choice varies with the folds (README, held-out validation).
+    /// bounds. Of those, by whole groups of rows left out in turn (the others
+    /// are `held` with the figures in `reason`): `grouped_jackknife` holds,
+    /// one at a time, a parameter whose leave-group-out estimates do not tell
+    /// it from nominal (`held_out_min_t`); `held_out` keeps a parameter only
+    /// if freeing it lowers the error on the groups left out (backward
+    /// elimination). Neither is the default: README, held-out validation.
     pub parameter_choice: ParameterChoice,
-    /// parameter_choice = held_out: how the rows are grouped: configuration
-    /// (clusters in joint space, default), region (of the workspace), load,
-    /// time (`measured_at`) or random.
+    /// parameter_choice = held_out or grouped_jackknife: how the rows are
+    /// grouped: configuration (clusters in joint space, default), region (of
+    /// the workspace), load, time (`measured_at`) or random.
     pub held_out_grouping: Grouping,
-    /// parameter_choice = held_out: groups left out in turn (folds).
+    /// parameter_choice = held_out or grouped_jackknife: groups left out in
+    /// turn (folds).
     #[schemars(range(min = 2, max = 50))]
     pub held_out_folds: usize,
+    /// parameter_choice = grouped_jackknife: a parameter is held while
+    /// |value − nominal| is below this many grouped-jackknife standard errors
+    /// (2: the usual two-sided 95 % test).
+    #[schemars(range(max = 10.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub held_out_min_t: f64,
 }
 
 /// How `identify` chooses the free parameters.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ParameterChoice {
-    /// By grouped cross-validation (issue #28).
+    /// Backward elimination on the grouped cross-validation error (issue #28).
     HeldOut,
+    /// The grouped-jackknife significance of each parameter (issue #28).
+    GroupedJackknife,
     /// By the standard-error and variance-inflation bounds alone.
     StandardErrors,
 }
@@ -244,6 +256,7 @@ impl Default for IdentifySettings {
             parameter_choice: ParameterChoice::StandardErrors,
             held_out_grouping: Grouping::Configuration,
             held_out_folds: 5,
+            held_out_min_t: 2.0,
             use_orientation: true,
             orientation_lever_mm: DEFAULT_ORIENTATION_LEVER_MM,
         }
@@ -339,7 +352,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 7,
+    code_version: 8,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -843,8 +856,8 @@ impl Stage for IdentifyStage {
             hold: Some(settings.hold_options()),
             selection: match settings.parameter_choice {
                 ParameterChoice::StandardErrors => None,
-                ParameterChoice::HeldOut => Some(
-                    super::held_out::fold_assignment(
+                ParameterChoice::HeldOut | ParameterChoice::GroupedJackknife => {
+                    let folds = super::held_out::fold_assignment(
                         &data,
                         settings.held_out_grouping,
                         settings.held_out_folds,
@@ -856,8 +869,16 @@ impl Stage for IdentifyStage {
                             measurements.path.display(),
                             settings.held_out_grouping
                         ))
-                    })?,
-                ),
+                    })?;
+                    let rule = if settings.parameter_choice == ParameterChoice::HeldOut {
+                        SelectionRule::Elimination
+                    } else {
+                        SelectionRule::Jackknife {
+                            min_t: settings.held_out_min_t,
+                        }
+                    };
+                    Some(ParameterSelection { folds, rule })
+                }
             },
         };
         let scales: Option<Vec<Vector3<f64>>> = data
