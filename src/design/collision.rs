@@ -25,6 +25,9 @@ pub enum Rejection {
     FrameCollision,
     CableCollision,
     LineOfSight,
+    /// A point near a work target whose configurations all lie in other IK
+    /// branches than the target's.
+    OtherBranch,
 }
 
 impl Rejection {
@@ -38,6 +41,7 @@ impl Rejection {
             Rejection::FrameCollision => "frame_collision",
             Rejection::CableCollision => "cable_collision",
             Rejection::LineOfSight => "line_of_sight",
+            Rejection::OtherBranch => "other_branch",
         }
     }
 }

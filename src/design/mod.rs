@@ -2,6 +2,7 @@
 //! filters, DETMAX selection by observability, and selection by the predicted
 //! uncertainty at the work targets (`work_criterion`).
 
+pub mod branch_coverage;
 pub mod collision;
 pub mod detmax;
 pub mod observability;

@@ -204,24 +204,39 @@ pub fn singularity_margins(joints: &[Frame; JOINTS + 1]) -> (f64, f64, f64) {
     (wrist, shoulder, elbow)
 }
 
-/// Generates one configuration per target point (or drops the point), calling
-/// `on_point` after each point (from any thread) so a caller can show progress.
+/// A point near a work target (base frame, mm) and the IK branch the work
+/// uses there: its configurations are accepted in that branch only.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BranchPoint {
+    pub position_mm: Vector3<f64>,
+    pub branch: u8,
+}
+
+/// Generates one configuration per target point of the box, then per point
+/// of `near_work` (or drops the point), calling `on_point` after each point
+/// (from any thread) so a caller can show progress.
 pub fn generate(
     robot: &Robot,
     nominal: &ParamValues,
     problem: &PoseProblem,
+    near_work: &[BranchPoint],
     seed: u64,
     on_point: &(dyn Fn() + Sync),
 ) -> PoseOutcome {
     let mut rng = StdRng::seed_from_u64(seed);
-    let points = targets(problem, &mut rng);
+    let points: Vec<(Vector3<f64>, Option<u8>)> = targets(problem, &mut rng)
+        .into_iter()
+        .map(|p| (p, None))
+        .chain(near_work.iter().map(|p| (p.position_mm, Some(p.branch))))
+        .collect();
     let per_point: Vec<(Option<GeneratedPose>, BTreeMap<&'static str, usize>)> = points
         .par_iter()
         .enumerate()
-        .map(|(index, target)| {
+        .map(|(index, (target, branch))| {
             let mut rng =
                 StdRng::seed_from_u64(seed ^ (index as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
-            let result = generate_one(robot, nominal, problem, index as i64 + 1, target, &mut rng);
+            let id = index as i64 + 1;
+            let result = generate_one(robot, nominal, problem, id, target, *branch, &mut rng);
             on_point();
             result
         })
@@ -248,6 +263,7 @@ fn generate_one(
     problem: &PoseProblem,
     config_id: i64,
     target: &Vector3<f64>,
+    branch: Option<u8>,
     rng: &mut StdRng,
 ) -> (Option<GeneratedPose>, BTreeMap<&'static str, usize>) {
     let mut rejections: BTreeMap<&'static str, usize> = BTreeMap::new();
@@ -277,6 +293,10 @@ fn generate_one(
         let mut checked: Vec<([f64; JOINTS], Result<f64, Rejection>)> = Vec::new();
         let mut survivors = Vec::new();
         for solution in solutions {
+            if branch.is_some_and(|b| b != solution.branch) {
+                reject(Rejection::OtherBranch);
+                continue;
+            }
             if !robot.within_limits(&solution.q_deg) {
                 reject(Rejection::JointLimits);
                 continue;
@@ -436,7 +456,7 @@ mod tests {
                 safety_margin_mm: 5.0,
             },
         };
-        let outcome = generate(&robot, &nominal, &problem, 7, &|| {});
+        let outcome = generate(&robot, &nominal, &problem, &[], 7, &|| {});
         assert_eq!(outcome.targets, 27);
         assert_eq!(outcome.poses.len(), 27, "{:?}", outcome.rejections);
         for pose in &outcome.poses {
@@ -462,7 +482,7 @@ mod tests {
                 crate::robot::ik::branch_of(&robot, &pose.q_deg)
             );
         }
-        let again = generate(&robot, &nominal, &problem, 7, &|| {});
+        let again = generate(&robot, &nominal, &problem, &[], 7, &|| {});
         assert_eq!(again.poses, outcome.poses);
         assert_eq!(again.rejections, outcome.rejections);
     }

@@ -5,20 +5,27 @@
 //! by joint limits, singularity distance, collisions (links, pulleys, cables,
 //! platform, floor) and line of sight; one survivor per point drawn at random.
 
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use nalgebra::Vector3;
 use polars::prelude::Column;
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+use super::compensate::{WORLD_FRAME, nominal_target_commands, target_frame_problems};
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, budget,
 };
+use crate::compensation::Status;
 use crate::design::collision::{CapsuleMm, Cell};
-use crate::design::poses::{PoseProblem, Sampling, SingularityLimits, generate, xyz_euler_deg};
-use crate::robot::ParamValues;
+use crate::design::poses::{
+    BranchPoint, PoseProblem, Sampling, SingularityLimits, generate, xyz_euler_deg,
+};
+use crate::robot::{JOINTS, ParamValues, ik};
 use crate::table::frame;
 use crate::table::schema::{self, JOINT_COLUMNS};
 
@@ -91,6 +98,21 @@ pub struct PosesSettings {
     /// Cable radius (mm).
     #[schemars(range(min = 0.0, max = 100.0))]
     pub cable_radius_mm: f64,
+    /// With `targets`: points added around each work target's tool position
+    /// (nominal IK), whose configurations must be in the target's IK branch,
+    /// so that the campaign can measure the arm where and how it works.
+    #[schemars(range(min = 0, max = 10_000))]
+    pub near_work_points: usize,
+    /// With `targets`: radius (mm) of the ball around each target's tool
+    /// position the added points are drawn from.
+    #[schemars(range(max = 10_000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub near_work_radius_mm: f64,
+    /// With `targets`: the frame of targets whose `frame` column is null or
+    /// absent, as `compensate` reads it (`world`, `base` or a name of `frames`).
+    pub frame: String,
+    /// With `targets`: user frames, as `compensate`'s setting `frames`.
+    pub frames: BTreeMap<String, [f64; 6]>,
 }
 
 impl Default for PosesSettings {
@@ -112,6 +134,10 @@ impl Default for PosesSettings {
             safety_margin_mm: 5.0,
             pulley_radius_mm: 40.0,
             cable_radius_mm: 3.0,
+            near_work_points: 4,
+            near_work_radius_mm: 100.0,
+            frame: WORLD_FRAME.to_string(),
+            frames: BTreeMap::new(),
         }
     }
 }
@@ -122,7 +148,12 @@ static INFO: StageInfo = StageInfo {
     updates_input: None,
     summary: "Robot configurations in the workspace box, SMR facing the tracker, collision-free",
     code_version: 4,
-    inputs: &[],
+    inputs: &[TableSlot {
+        name: "targets",
+        schema: schema::targets,
+        required: false,
+        meaning: "the work (spec §7 targets): `near_work_points` points are added around each target's tool position, in its IK branch",
+    }],
     outputs: &[TableSlot {
         name: "poses",
         schema: schema::poses,
@@ -197,6 +228,9 @@ impl Stage for PosesStage {
             ));
         }
         problems.extend(budget_problems(settings));
+        if ctx.bound_inputs.contains(&"targets") {
+            problems.extend(target_frame_problems(&settings.frame, &settings.frames));
+        }
         problems
     }
 
@@ -274,7 +308,11 @@ impl Stage for PosesStage {
             },
             cell,
         };
-        let points = settings.target_points();
+        let near_work = match ctx.inputs.get("targets") {
+            Some(input) => near_work_points(ctx, settings, input, &nominal)?,
+            None => Vec::new(),
+        };
+        let points = settings.target_points() + near_work.len();
         if points >= LONG_RUN_POINTS {
             ctx.progress.note(&format!(
                 "{points} target points with up to {} orientation attempts each: this takes a while",
@@ -287,7 +325,9 @@ impl Stage for PosesStage {
             ctx.progress
                 .advance(done.fetch_add(1, Ordering::Relaxed) + 1)
         };
-        let outcome = generate(ctx.robot, &nominal, &problem, ctx.seed, &on_point);
+        let outcome = generate(
+            ctx.robot, &nominal, &problem, &near_work, ctx.seed, &on_point,
+        );
         if outcome.poses.is_empty() {
             // The settings put the box where this robot cannot work: bad input.
             return Err(StageError::Invalid(format!(
@@ -355,6 +395,11 @@ impl Stage for PosesStage {
         outputs
             .facts
             .insert("dropped_points".into(), outcome.dropped_points.to_string());
+        if !near_work.is_empty() {
+            outputs
+                .facts
+                .insert("near_work_points".into(), near_work.len().to_string());
+        }
         for (reason, count) in &outcome.rejections {
             outputs
                 .facts
@@ -368,4 +413,63 @@ impl Stage for PosesStage {
         }
         Ok(outputs)
     }
+}
+
+/// Seed offset of the points drawn around the work targets, apart from the box's.
+const NEAR_WORK_SEED: u64 = 0x6e65_6172_776f_726b;
+
+/// `near_work_points` points in a ball of `near_work_radius_mm` around each
+/// `ok` target's tool position (base frame, nominal loaded IK as `compensate`
+/// with `model = "nominal"`), each wanting that configuration's IK branch.
+fn near_work_points(
+    ctx: &StageContext,
+    settings: &PosesSettings,
+    input: &super::InputTable,
+    nominal: &ParamValues,
+) -> Result<Vec<BranchPoint>, StageError> {
+    let (ids, _, commands) =
+        nominal_target_commands(ctx.robot, &settings.frame, &settings.frames, input)?;
+    let ok: Vec<&[f64; JOINTS]> = commands
+        .iter()
+        .filter(|c| c.status == Status::Ok)
+        .map(|c| &c.q_deg)
+        .collect();
+    if ok.is_empty() {
+        return Err(StageError::Invalid(format!(
+            "{}: none of the {} targets has a configuration on the nominal robot; no point to add near the work",
+            input.path.display(),
+            ids.len()
+        )));
+    }
+    if ok.len() < ids.len() {
+        ctx.progress.note(&format!(
+            "{} of {} targets have no configuration on the nominal robot; points are added near the other {}",
+            ids.len() - ok.len(),
+            ids.len(),
+            ok.len()
+        ));
+    }
+    let mut rng = StdRng::seed_from_u64(ctx.seed ^ NEAR_WORK_SEED);
+    let radius = settings.near_work_radius_mm;
+    let mut points = Vec::with_capacity(ok.len() * settings.near_work_points);
+    for q in ok {
+        let (_, tool) = ctx.robot.frames_in_base(nominal, q);
+        let branch = ik::branch_of(ctx.robot, q);
+        for _ in 0..settings.near_work_points {
+            // Uniform in the ball: a uniform direction, radius ∝ u^(1/3).
+            let direction = loop {
+                let v = Vector3::from_fn(|_, _| rng.random_range(-1.0..=1.0));
+                let norm: f64 = v.norm();
+                if norm > 1e-9 && norm <= 1.0 {
+                    break v / norm;
+                }
+            };
+            let distance = radius * rng.random_range(0.0..=1.0f64).cbrt();
+            points.push(BranchPoint {
+                position_mm: tool.origin_mm + direction * distance,
+                branch,
+            });
+        }
+    }
+    Ok(points)
 }

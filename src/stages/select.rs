@@ -27,13 +27,14 @@ use super::{
 };
 use crate::calibration::{rank, stream};
 use crate::compensation::Status;
+use crate::design::branch_coverage::{branch_coverage, describe};
 use crate::design::detmax::{
     Candidates, Criterion, DetmaxError, Method, Options, detmax, observability_index,
 };
 use crate::design::work_criterion::{
     self, WorkCriterion, WorkOptions, WorkSelection, WorkTargets, work_detmax,
 };
-use crate::robot::{ConfWrench, JOINTS, ParamId, ParamValues, batch_jacobian};
+use crate::robot::{ConfWrench, JOINTS, ParamId, ParamValues, batch_jacobian, ik};
 use crate::table::frame;
 use crate::table::schema::{self, str_values};
 
@@ -164,7 +165,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "DETMAX selection of calibration rows by an observability index (O1 by default)",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "candidates",
@@ -466,7 +467,9 @@ impl Stage for SelectStage {
         }
         if let Some(work) = &work {
             let curve_criterion = settings.criterion.work().unwrap_or(WorkCriterion::Mean);
-            report_work(
+            let mut warnings =
+                branch_warnings(ctx, work, &rows, &result.chosen, &mut outputs.facts);
+            warnings.extend(report_work(
                 ctx,
                 settings,
                 work,
@@ -474,7 +477,13 @@ impl Stage for SelectStage {
                 &result.chosen,
                 &work_options(curve_criterion, seed_of(0)),
                 &mut outputs,
-            )?;
+            )?);
+            for warning in &warnings {
+                ctx.progress.note(&format!("warning: {warning}"));
+            }
+            if !warnings.is_empty() {
+                outputs.facts.insert("warning".into(), warnings.join("; "));
+            }
         }
         Ok(outputs)
     }
@@ -583,7 +592,7 @@ fn statuses(status: &[Status]) -> String {
         .join(", ")
 }
 
-/// `work_targets`, `u95_curve` and the stopping rule's facts.
+/// `work_targets`, `u95_curve` and the stopping rule's facts; its warning.
 fn report_work(
     ctx: &StageContext,
     settings: &SelectSettings,
@@ -592,7 +601,7 @@ fn report_work(
     chosen: &[usize],
     options: &WorkOptions,
     outputs: &mut StageOutputs,
-) -> Result<(), StageError> {
+) -> Result<Vec<String>, StageError> {
     let prediction = work_criterion::predict(candidates, &work.targets, chosen, options.sigma_mm)
         .ok_or_else(|| {
         StageError::Invalid("the selected rows cannot identify the parameters".into())
@@ -617,6 +626,12 @@ fn report_work(
                 .collect::<Vec<_>>(),
         ));
     }
+    columns.push(Column::new(
+        "branch".into(),
+        (0..work.ids.len())
+            .map(|k| ok(k).then(|| i64::from(ik::branch_of(ctx.robot, &work.q_deg[k]))))
+            .collect::<Vec<_>>(),
+    ));
     columns.extend(super::covariance_columns(&covariances));
     columns.push(Column::new(
         "u95_mm".into(),
@@ -671,6 +686,7 @@ fn report_work(
         "tracker_sigma_mm".into(),
         format!("{}", settings.tracker_sigma_mm),
     );
+    let mut warnings = Vec::new();
     if let Some(required) = settings.required_u95_mm {
         let reached = curve.iter().find(|p| p.max_u95_mm <= required);
         let (key, value) = match reached {
@@ -702,9 +718,53 @@ fn report_work(
                     None => format!("; no n up to {to} reaches it"),
                 }
             );
-            ctx.progress.note(&format!("warning: {warning}"));
-            facts.insert("warning".into(), warning);
+            warnings.push(warning);
         }
     }
-    Ok(())
+    Ok(warnings)
+}
+
+/// The `work_branches` fact (per IK branch of the `ok` targets: targets,
+/// candidates, selected rows) and a warning for each branch no candidate, or
+/// no selected row, shares ([`branch_coverage`]).
+fn branch_warnings(
+    ctx: &StageContext,
+    work: &Work,
+    rows: &[ConfWrench],
+    chosen: &[usize],
+    facts: &mut BTreeMap<String, String>,
+) -> Vec<String> {
+    let targets_q: Vec<[f64; JOINTS]> = work.ok.iter().map(|&k| work.q_deg[k]).collect();
+    let candidates_q: Vec<[f64; JOINTS]> = rows.iter().map(|r| r.q_deg).collect();
+    let coverage = branch_coverage(ctx.robot, &targets_q, &candidates_q, chosen);
+    facts.insert(
+        "work_branches".into(),
+        coverage
+            .iter()
+            .map(|c| {
+                format!(
+                    "branch {}: {} targets, {} candidates, {} selected",
+                    c.branch, c.targets, c.candidates, c.selected
+                )
+            })
+            .collect::<Vec<_>>()
+            .join("; "),
+    );
+    coverage
+        .iter()
+        .filter(|c| c.selected == 0)
+        .map(|c| {
+            let whose = if c.candidates == 0 {
+                "no candidate is in it (poses: another box, tool orientation or acceptance angle)"
+            } else {
+                "no selected row is in it (raise n, or design for the targets: criterion I or V)"
+            };
+            format!(
+                "{} work targets are reached in IK branch {} ({}), and {whose}: the calibration is extrapolated there, whatever u95 predicts",
+                c.targets,
+                c.branch,
+                describe(c.branch),
+            )
+        })
+        .collect()
 }

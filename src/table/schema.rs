@@ -1732,6 +1732,13 @@ pub fn work_targets() -> TableSchema {
         &mut columns,
         "the target's configuration: nominal loaded IK, seeded by its branch hint or the previous target's solution",
     );
+    columns.push(col(
+        "branch",
+        ColumnType::Int64,
+        "",
+        false,
+        "IK branch of that configuration: bit 0 shoulder back, bit 1 elbow down, bit 2 wrist flipped; null when the target is not ok",
+    ));
     position_covariance_columns(&mut columns);
     for column in columns
         .iter_mut()
