@@ -39,6 +39,21 @@ fn the_ur10_job_calibrates_series_c_and_carries_it_to_b_and_d() {
         );
     }
 
+    // Issue #28: series C carried to the other halves of B and D (only the
+    // frames refitted on their first halves): measured 0.556 and 0.551 mm
+    // mean with the job's settings (the issue's targets, 0.48 and 0.40, are
+    // not met: README, held-out validation).
+    let carried_b = mean_mm(&out, "validate_b_eg", "reregistered");
+    let carried_d = mean_mm(&out, "validate_d_eg", "reregistered");
+    assert!(
+        (carried_b - 0.556).abs() < 0.03,
+        "C carried to B: {carried_b}"
+    );
+    assert!(
+        (carried_d - 0.551).abs() < 0.03,
+        "C carried to D: {carried_d}"
+    );
+
     // Issue #28: held-out accuracy by configuration beside random folds
     // (measured: elasto-geometric 0.468 and 0.432 mm mean, p99.7 1.25 and
     // 1.20 mm). Away from the calibration rows the error grows.
