@@ -38,6 +38,55 @@ fn external_driver_gives_the_same_rows_as_the_in_process_simulator() {
     assert_eq!(table::content_hash(&a), table::content_hash(&b));
 }
 
+/// With backlash, transmission errors and a smooth residual, the external
+/// simulator (which takes each row's approach from its own previous move)
+/// measures what the in-process one (given the campaign's planned approach)
+/// does, and the effects move the rows.
+#[test]
+fn the_unmodelled_effects_are_the_same_robot_in_process_and_behind_a_driver() {
+    let effects = "backlash_deg = 0.01\ntransmission_error_1_deg = 0.01\nresidual_mm = 0.05\n";
+    let inproc = tempfile::tempdir().unwrap();
+    let job = common::measure_job(
+        inproc.path(),
+        &format!("seed = 42\n[stages.simulator]\n{effects}"),
+    );
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], inproc.path());
+    assert_eq!(code, 0, "{stderr}");
+    let plain = tempfile::tempdir().unwrap();
+    let job = common::measure_job(plain.path(), "seed = 42");
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], plain.path());
+    assert_eq!(code, 0, "{stderr}");
+
+    let external = tempfile::tempdir().unwrap();
+    let settings = external.path().join("simulator.toml");
+    std::fs::write(&settings, effects).unwrap();
+    let driver = format!(
+        "driver = \"external\"\ncommand = [\"{}\", \"sim-driver\", \"--robot\", \"{}\", \"--truth\", \"{}\", \"--seed\", \"42\", \"--settings\", \"{}\"]",
+        env!("CARGO_BIN_EXE_egcal"),
+        common::root()
+            .join("jobs/robots/irb1600_145.toml")
+            .display(),
+        common::root()
+            .join("jobs/truth/irb1600_paper.parquet")
+            .display(),
+        settings.display(),
+    );
+    let job = common::measure_job(external.path(), &driver);
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], external.path());
+    assert_eq!(code, 0, "{stderr}");
+    let (a, b) = (measurements(inproc.path()), measurements(external.path()));
+    assert_eq!(table::content_hash(&a), table::content_hash(&b));
+    let x = |df: &polars::prelude::DataFrame| {
+        table::schema::f64_values(df, "x_mm", Path::new("m")).unwrap()
+    };
+    let moved = x(&a)
+        .iter()
+        .zip(x(&measurements(plain.path())))
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(moved > 0.01, "the effects move x by at most {moved} mm");
+}
+
 /// A driver that answers like a rig and dies after a number of `measure` calls,
 /// standing in for a crashed lab driver.
 const DYING_DRIVER: &str = r#"

@@ -5,6 +5,7 @@
 //!
 //! A stage drives a rig row by row; the rig never sees tables or journals.
 
+pub mod approach;
 pub mod driver;
 pub mod protocol;
 pub mod reading_checks;

@@ -7,8 +7,11 @@
 //! * the cable robot's force-tracking error: the applied wrench differs from the
 //!   commanded one, and the force/torque sensor reads the applied one with noise
 //!   (the row records the sensor reading);
-//! * unmodelled errors, so validation is not trivially perfect: a transmission
-//!   error periodic in each joint angle, and a quadratic (hardening) compliance;
+//! * unmodelled errors, so validation is not trivially perfect: transmission
+//!   errors periodic in each joint angle (once and twice per turn), gear
+//!   backlash (a half dead band on the side the joint approached from, see
+//!   [`super::approach`]), a quadratic (hardening) compliance, and a smooth
+//!   position residual no joint-space term expresses;
 //! * transient failures (the tracker losing the beam) with a given probability.
 //!
 //! Each row draws from its own stream seeded by (seed, cw_id), so a resumed or
@@ -20,6 +23,9 @@ use rand_distr::{Distribution, Normal};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+use std::collections::HashMap;
+
+use super::approach::step_direction;
 use super::{Rig, RigError};
 use crate::robot::params::{ParamId, ParamKind};
 use crate::robot::{JOINTS, ParamValues, Robot, Wrench};
@@ -55,6 +61,25 @@ pub struct SimulatorSettings {
     /// Amplitude of an unmodelled transmission error `A·sin(2q + φ_i)` per joint (deg).
     #[schemars(range(min = 0.0, max = 10.0))]
     pub transmission_error_deg: f64,
+    /// Amplitude of a once-per-turn transmission error `A·sin(q + ψ_i)` per
+    /// joint (deg): an eccentric output bearing or gear. Reducers' published
+    /// angular transmission errors are 0.3–1 arcmin (0.005–0.017°).
+    #[schemars(range(min = 0.0, max = 10.0))]
+    pub transmission_error_1_deg: f64,
+    /// Gear backlash of every joint, half its dead band (deg): the joint sits
+    /// this far past its command in the direction it approached from. Cycloidal
+    /// and RV reducers are specified at ≤ 1 arcmin lost motion, so 0.005–0.01°.
+    #[schemars(range(min = 0.0, max = 10.0))]
+    pub backlash_deg: f64,
+    /// RMS per axis of a smooth position residual of joint space (mm), a
+    /// random draw from a Gaussian process (random Fourier features) fixed by
+    /// the truth: what whatever else a robot does looks like to a model.
+    #[schemars(range(min = 0.0, max = 100.0))]
+    pub residual_mm: f64,
+    /// Length scale of that residual in every joint (deg).
+    #[schemars(range(max = 3600.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub residual_length_deg: f64,
     /// Unmodelled hardening of joints 2 and 3: extra deflection `c·τ·|τ|` (deg/(N·m)²).
     #[schemars(range(min = 0.0, max = 1.0))]
     pub quadratic_compliance: f64,
@@ -94,6 +119,10 @@ impl Default for SimulatorSettings {
             sensor_noise_n: 0.1,
             sensor_noise_nm: 0.01,
             transmission_error_deg: 0.003,
+            transmission_error_1_deg: 0.0,
+            backlash_deg: 0.0,
+            residual_mm: 0.0,
+            residual_length_deg: 60.0,
             quadratic_compliance: 0.0,
             beam_loss_probability: 0.0,
             clock_start: "2026-01-01T00:00:00Z".into(),
@@ -110,10 +139,77 @@ pub struct Simulator {
     seed: u64,
     clock_start_us: i64,
     phases_rad: [f64; JOINTS],
+    once_phases_rad: [f64; JOINTS],
+    residual: SmoothResidual,
     rng: StdRng,
     cw_id: i64,
     commanded_q: Option<[f64; JOINTS]>,
+    /// Where each joint approached its command from ([`super::approach`]).
+    approach: [i8; JOINTS],
+    /// The campaign's own approach directions by cw_id, so a resumed campaign
+    /// meets the backlash of an uninterrupted one; rows not in it take the
+    /// direction of the move from the previous command.
+    planned_approach: HashMap<i64, [i8; JOINTS]>,
     applied: [f64; 6],
+}
+
+/// Random Fourier features of joint space, per axis: `Σ_k a_k·cos(ω_k·q + b_k)`,
+/// a draw from a Gaussian process with a squared-exponential kernel of variance
+/// `residual_mm²` and length scale `residual_length_deg`.
+struct SmoothResidual {
+    frequencies_per_rad: Vec<[f64; JOINTS]>,
+    offsets_rad: Vec<f64>,
+    /// Per feature, the weight on x, y and z (mm).
+    weights_mm: Vec<[f64; 3]>,
+}
+
+/// Features of the smooth residual: enough for a draw that looks like a GP's.
+const RESIDUAL_FEATURES: usize = 64;
+
+impl SmoothResidual {
+    fn new(truth: &ParamValues, settings: &SimulatorSettings) -> Self {
+        let mut rng = StdRng::seed_from_u64(truth_seed(truth) ^ 0x7265_7369_6475_616c);
+        let length_rad = settings.residual_length_deg.to_radians();
+        let amplitude = settings.residual_mm * (2.0 / RESIDUAL_FEATURES as f64).sqrt();
+        let normal = Normal::new(0.0, 1.0).expect("unit normal");
+        let mut frequencies_per_rad = Vec::with_capacity(RESIDUAL_FEATURES);
+        let mut offsets_rad = Vec::with_capacity(RESIDUAL_FEATURES);
+        let mut weights_mm = Vec::with_capacity(RESIDUAL_FEATURES);
+        for _ in 0..RESIDUAL_FEATURES {
+            frequencies_per_rad.push(std::array::from_fn(|_| {
+                normal.sample(&mut rng) / length_rad
+            }));
+            offsets_rad.push(rng.random_range(0.0..std::f64::consts::TAU));
+            weights_mm.push(std::array::from_fn(|_| amplitude * normal.sample(&mut rng)));
+        }
+        SmoothResidual {
+            frequencies_per_rad,
+            offsets_rad,
+            weights_mm,
+        }
+    }
+
+    fn at(&self, q_deg: &[f64; JOINTS]) -> [f64; 3] {
+        let mut residual = [0.0; 3];
+        for ((omega, offset), weight) in self
+            .frequencies_per_rad
+            .iter()
+            .zip(&self.offsets_rad)
+            .zip(&self.weights_mm)
+        {
+            let phase: f64 = omega
+                .iter()
+                .zip(q_deg)
+                .map(|(w, q)| w * q.to_radians())
+                .sum::<f64>()
+                + offset;
+            let c = phase.cos();
+            for axis in 0..3 {
+                residual[axis] += weight[axis] * c;
+            }
+        }
+        residual
+    }
 }
 
 impl Simulator {
@@ -124,7 +220,8 @@ impl Simulator {
         seed: u64,
     ) -> Result<Self, String> {
         let clock_start_us = settings.clock_start_us()?;
-        let phases_rad = transmission_phases_rad(&truth);
+        let (phases_rad, once_phases_rad) = transmission_phases_rad(&truth);
+        let residual = SmoothResidual::new(&truth, &settings);
         Ok(Simulator {
             robot,
             truth,
@@ -132,11 +229,21 @@ impl Simulator {
             seed,
             clock_start_us,
             phases_rad,
+            once_phases_rad,
+            residual,
             rng: StdRng::seed_from_u64(seed),
             cw_id: 0,
             commanded_q: None,
+            approach: [0; JOINTS],
+            planned_approach: HashMap::new(),
             applied: [0.0; 6],
         })
+    }
+
+    /// The campaign's approach directions by cw_id (see `planned_approach`).
+    pub fn with_planned_approach(mut self, planned: HashMap<i64, [i8; JOINTS]>) -> Self {
+        self.planned_approach = planned;
+        self
     }
 
     fn gauss(&mut self, sigma: f64) -> f64 {
@@ -151,8 +258,11 @@ impl Simulator {
         let (torques, _) = self.robot.deflections(&self.truth, q, &wrench);
         let mut actual = *q;
         for i in 0..JOINTS {
+            let angle = q[i].to_radians();
             actual[i] += self.settings.transmission_error_deg
-                * (2.0 * q[i].to_radians() + self.phases_rad[i]).sin();
+                * (2.0 * angle + self.phases_rad[i]).sin()
+                + self.settings.transmission_error_1_deg * (angle + self.once_phases_rad[i]).sin()
+                + self.settings.backlash_deg * f64::from(self.approach[i]);
         }
         for i in [1, 2] {
             actual[i] += self.settings.quadratic_compliance * torques[i] * torques[i].abs();
@@ -161,16 +271,30 @@ impl Simulator {
             .robot
             .predict(&self.truth, &actual, &wrench)
             .position_mm;
-        [p.x, p.y, p.z]
+        let residual = if self.settings.residual_mm > 0.0 {
+            self.residual.at(q)
+        } else {
+            [0.0; 3]
+        };
+        [p.x + residual[0], p.y + residual[1], p.z + residual[2]]
     }
 }
 
-/// The phases of the unmodelled transmission error. They belong to the simulated
-/// robot, not to the stage that measures it: every measure stage over the same
-/// truth (the calibration campaign, then the compensated commands) meets the same
-/// gearboxes. So they are drawn from a hash of the truth's arm parameters, without
-/// the world and tool frames (moving the tracker does not change the gearboxes).
-fn transmission_phases_rad(truth: &ParamValues) -> [f64; JOINTS] {
+/// The phases of the unmodelled transmission errors, twice- and once-per-turn
+/// in that order. They belong to the simulated robot, not to the stage that
+/// measures it: every measure stage over the same truth (the calibration
+/// campaign, then the compensated commands) meets the same gearboxes, so they
+/// are drawn from [`truth_seed`].
+fn transmission_phases_rad(truth: &ParamValues) -> ([f64; JOINTS], [f64; JOINTS]) {
+    let mut phase_rng = StdRng::seed_from_u64(truth_seed(truth));
+    let twice = std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU));
+    let once = std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU));
+    (twice, once)
+}
+
+/// A seed from the truth's arm parameters (not its frames: moving the tracker
+/// does not change the gearboxes).
+fn truth_seed(truth: &ParamValues) -> u64 {
     let mut hasher = blake3::Hasher::new();
     for id in ParamId::all() {
         if !matches!(
@@ -186,8 +310,7 @@ fn transmission_phases_rad(truth: &ParamValues) -> [f64; JOINTS] {
     let bytes = hasher.finalize();
     let mut seed = [0u8; 8];
     seed.copy_from_slice(&bytes.as_bytes()[..8]);
-    let mut phase_rng = StdRng::seed_from_u64(u64::from_le_bytes(seed));
-    std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU))
+    u64::from_le_bytes(seed)
 }
 
 impl Rig for Simulator {
@@ -200,6 +323,10 @@ impl Rig for Simulator {
             bytes.as_bytes()[..8].try_into().expect("8 bytes"),
         ));
         self.cw_id = cw_id;
+        self.approach = match self.planned_approach.get(&cw_id) {
+            Some(planned) => *planned,
+            None => step_direction(self.commanded_q.as_ref(), &q_deg, self.approach),
+        };
         self.commanded_q = Some(q_deg);
         self.applied = [0.0; 6];
         Ok(())
@@ -326,5 +453,102 @@ mod tests {
         b.move_joints(99, [0.0; 6]).unwrap();
         b.measure().unwrap();
         assert_eq!(row(&mut a), row(&mut b));
+    }
+
+    /// The position the truth model gives at joint angles `q` without load.
+    fn truth_at(robot: &Robot, truth: &ParamValues, q: &[f64; JOINTS]) -> [f64; 3] {
+        let p = robot.predict(truth, q, &Wrench::zero()).position_mm;
+        [p.x, p.y, p.z]
+    }
+
+    fn close(a: [f64; 3], b: [f64; 3], tolerance_mm: f64) -> bool {
+        a.iter().zip(&b).all(|(x, y)| (x - y).abs() < tolerance_mm)
+    }
+
+    /// Backlash: the joints sit a half dead band past their command, on the
+    /// side they came from; a planned direction overrides the move's own.
+    #[test]
+    fn backlash_puts_each_joint_past_its_command_on_the_side_it_came_from() {
+        let robot = irb1600();
+        let truth = truth_params(&robot);
+        let settings = SimulatorSettings {
+            backlash_deg: 0.01,
+            ..quiet()
+        };
+        let q = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0];
+        let below = q.map(|v| v - 1.0);
+        let above = q.map(|v| v + 1.0);
+        let mut sim = Simulator::new(robot.clone(), truth, settings.clone(), 1).unwrap();
+        sim.move_joints(1, below).unwrap();
+        sim.move_joints(2, q).unwrap();
+        let from_below = sim.measure().unwrap();
+        assert!(close(
+            from_below,
+            truth_at(&robot, &truth, &q.map(|v| v + 0.01)),
+            1e-9
+        ));
+        sim.move_joints(3, above).unwrap();
+        sim.move_joints(4, q).unwrap();
+        let from_above = sim.measure().unwrap();
+        assert!(close(
+            from_above,
+            truth_at(&robot, &truth, &q.map(|v| v - 0.01)),
+            1e-9
+        ));
+        // A 0.01° half band moves this tool by a few hundredths of a mm.
+        let moved: f64 = (0..3)
+            .map(|k| (from_below[k] - from_above[k]).powi(2))
+            .sum();
+        assert!(moved.sqrt() > 0.05, "{}", moved.sqrt());
+        // A fresh simulator with the campaign's plan meets the same backlash.
+        let mut resumed = Simulator::new(robot.clone(), truth, settings, 1)
+            .unwrap()
+            .with_planned_approach(HashMap::from([(4, [-1; JOINTS])]));
+        resumed.move_joints(4, q).unwrap();
+        assert!(close(resumed.measure().unwrap(), from_above, 1e-12));
+    }
+
+    /// The smooth residual has the RMS asked for, is smooth (a 0.1° move
+    /// changes it by far less than its size) and is the same robot's in every
+    /// simulator of the same truth.
+    #[test]
+    fn the_smooth_residual_has_its_rms_and_is_smooth() {
+        let robot = irb1600();
+        let truth = truth_params(&robot);
+        let settings = SimulatorSettings {
+            residual_mm: 0.05,
+            ..quiet()
+        };
+        let mut sim = Simulator::new(robot.clone(), truth, settings.clone(), 1).unwrap();
+        let mut again = Simulator::new(robot.clone(), truth, settings, 2).unwrap();
+        let mut rng = StdRng::seed_from_u64(5);
+        let (mut squares, mut steps, rows) = (0.0, 0.0f64, 2000);
+        for k in 0..rows {
+            let q: [f64; JOINTS] = std::array::from_fn(|_| rng.random_range(-150.0..150.0));
+            sim.move_joints(k, q).unwrap();
+            let measured = sim.measure().unwrap();
+            let model = truth_at(&robot, &truth, &q);
+            squares += (0..3)
+                .map(|a| (measured[a] - model[a]).powi(2))
+                .sum::<f64>();
+            again.move_joints(k, q).unwrap();
+            assert_eq!(again.measure().unwrap(), measured);
+            let nudged = q.map(|v| v + 0.1);
+            sim.move_joints(k, nudged).unwrap();
+            let step = sim.measure().unwrap();
+            let model_step = truth_at(&robot, &truth, &nudged);
+            steps = steps.max(
+                (0..3)
+                    .map(|a| ((step[a] - model_step[a]) - (measured[a] - model[a])).powi(2))
+                    .sum::<f64>()
+                    .sqrt(),
+            );
+        }
+        let rms_per_axis = (squares / (3.0 * rows as f64)).sqrt();
+        assert!(
+            (rms_per_axis - 0.05).abs() < 0.015,
+            "RMS per axis {rms_per_axis}"
+        );
+        assert!(steps < 0.005, "largest change over 0.1° {steps}");
     }
 }

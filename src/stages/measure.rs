@@ -25,11 +25,12 @@ use super::{
 };
 use crate::calibration::row_checks::JOINT_LIMIT_TOLERANCE_DEG;
 use crate::journal::Journal;
+use crate::rig::approach::approach_directions;
 use crate::rig::driver::ExternalDriver;
 use crate::rig::reading_checks::{ReadingBounds, sigma_fault};
 use crate::rig::simulator::{Simulator, SimulatorSettings};
 use crate::rig::{Disposition, Rig, RigError, timeout_from_seconds};
-use crate::robot::ConfWrench;
+use crate::robot::{ConfWrench, JOINTS};
 use crate::table::parameters::ModelName;
 use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS, SIGMA_COLUMNS, WRENCH_COLUMNS};
 use crate::table::{content_hash, frame};
@@ -310,12 +311,23 @@ impl Stage for MeasureStage {
         };
 
         let mut rig: Box<dyn Rig> = match settings.driver {
-            DriverKind::Simulator => Box::new(
-                Simulator::new(ctx.robot.clone(), truth, settings.simulator.clone(), seed)
-                    .map_err(|m| {
-                        StageError::Invalid(format!("setting `simulator.clock_start`: {m}"))
-                    })?,
-            ),
+            DriverKind::Simulator => {
+                // The rows are measured in input order: that order's approach
+                // directions, whatever a resume skips.
+                let q_deg: Vec<[f64; JOINTS]> = rows.iter().map(|r| r.q_deg).collect();
+                let planned = ids
+                    .iter()
+                    .copied()
+                    .zip(approach_directions(&q_deg))
+                    .collect();
+                Box::new(
+                    Simulator::new(ctx.robot.clone(), truth, settings.simulator.clone(), seed)
+                        .map_err(|m| {
+                            StageError::Invalid(format!("setting `simulator.clock_start`: {m}"))
+                        })?
+                        .with_planned_approach(planned),
+                )
+            }
             DriverKind::External => Box::new(
                 ExternalDriver::start(
                     &settings.command,
