@@ -85,6 +85,37 @@ fn the_unmodelled_effects_are_the_same_robot_in_process_and_behind_a_driver() {
         .map(|(a, b)| (a - b).abs())
         .fold(0.0, f64::max);
     assert!(moved > 0.01, "the effects move x by at most {moved} mm");
+
+    // Each row carries its approach direction (spec §8), from the commands in
+    // input order.
+    let commands_file =
+        common::root().join("fixtures/measure/noiseless_simulator/conf_wrenches.parquet");
+    let commands = table::read_parquet(&commands_file).unwrap();
+    let joint = |df: &polars::prelude::DataFrame, name: &str| {
+        table::schema::f64_values(df, name, Path::new("c")).unwrap()
+    };
+    let columns: Vec<Vec<f64>> = table::schema::JOINT_COLUMNS
+        .iter()
+        .map(|name| joint(&commands, name))
+        .collect();
+    let q: Vec<[f64; 6]> = (0..commands.height())
+        .map(|k| std::array::from_fn(|j| columns[j][k]))
+        .collect();
+    let expected = egcal::rig::approach::approach_directions(&q);
+    for (j, name) in table::schema::APPROACH_COLUMNS.iter().enumerate() {
+        let written: Vec<i64> = a
+            .column(name)
+            .unwrap()
+            .cast(&polars::prelude::DataType::Int64)
+            .unwrap()
+            .i64()
+            .unwrap()
+            .iter()
+            .map(|v| v.unwrap())
+            .collect();
+        let wanted: Vec<i64> = expected.iter().map(|d| i64::from(d[j])).collect();
+        assert_eq!(written, wanted, "{name}");
+    }
 }
 
 /// A driver that answers like a rig and dies after a number of `measure` calls,

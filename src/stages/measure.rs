@@ -310,22 +310,24 @@ impl Stage for MeasureStage {
             max_tracker_distance_mm: settings.max_tracker_distance_mm,
         };
 
+        // The rows are measured in input order: each row's approach direction
+        // follows from the commands before it.
+        let q_deg: Vec<[f64; JOINTS]> = rows.iter().map(|r| r.q_deg).collect();
+        let approach: HashMap<i64, [i8; JOINTS]> = ids
+            .iter()
+            .copied()
+            .zip(approach_directions(&q_deg))
+            .collect();
         let mut rig: Box<dyn Rig> = match settings.driver {
             DriverKind::Simulator => {
-                // The rows are measured in input order: that order's approach
-                // directions, whatever a resume skips.
-                let q_deg: Vec<[f64; JOINTS]> = rows.iter().map(|r| r.q_deg).collect();
-                let planned = ids
-                    .iter()
-                    .copied()
-                    .zip(approach_directions(&q_deg))
-                    .collect();
+                // The in-process simulator meets the campaign's directions,
+                // whatever a resume skips.
                 Box::new(
                     Simulator::new(ctx.robot.clone(), truth, settings.simulator.clone(), seed)
                         .map_err(|m| {
                             StageError::Invalid(format!("setting `simulator.clock_start`: {m}"))
                         })?
-                        .with_planned_approach(planned),
+                        .with_planned_approach(approach.clone()),
                 )
             }
             DriverKind::External => Box::new(
@@ -411,6 +413,7 @@ impl Stage for MeasureStage {
             config_ids.as_deref(),
             &latest,
             settings.robot_id.as_deref(),
+            &approach,
         );
         outputs.facts.insert("rows".into(), ids.len().to_string());
         outputs.facts.insert("failed".into(), failures.to_string());
@@ -512,12 +515,14 @@ fn timestamps(name: &str, values: Vec<i64>) -> Column {
         .expect("i64 casts to datetime")
 }
 
-/// The two output tables, rows in input order.
+/// The two output tables, rows in input order; the measurements with the
+/// campaign's approach directions (`approach`, by cw_id).
 fn tables(
     ids: &[i64],
     config_ids: Option<&[Option<i64>]>,
     latest: &HashMap<i64, Entry>,
     robot_id: Option<&str>,
+    approach: &HashMap<i64, [i8; JOINTS]>,
 ) -> StageOutputs {
     let mut measured: Vec<(&Reading, Option<i64>)> = Vec::new();
     let mut failed: Vec<&Entry> = Vec::new();
@@ -530,7 +535,16 @@ fn tables(
             None => {}
         }
     }
-    let measurements = measurements_frame(&measured, config_ids.is_some(), robot_id);
+    let mut measurements = measurements_frame(&measured, config_ids.is_some(), robot_id);
+    for (joint, name) in schema::APPROACH_COLUMNS.iter().enumerate() {
+        let directions: Vec<i8> = measured
+            .iter()
+            .map(|(r, _)| approach.get(&r.cw_id).map_or(0, |d| d[joint]))
+            .collect();
+        measurements
+            .with_column(Column::new((*name).into(), directions))
+            .expect("one direction per measured row");
+    }
 
     let mut f_id = Vec::new();
     let mut f_attempts = Vec::new();

@@ -16,6 +16,8 @@ use serde::Serialize;
 #[serde(rename_all = "snake_case")]
 pub enum ColumnType {
     Int64,
+    /// Small integers (spec §8 `dir1 … dir6`); any integer type reads.
+    Int8,
     Float64,
     Utf8,
     Boolean,
@@ -27,6 +29,7 @@ impl ColumnType {
     pub fn polars(self) -> DataType {
         match self {
             ColumnType::Int64 => DataType::Int64,
+            ColumnType::Int8 => DataType::Int8,
             ColumnType::Float64 => DataType::Float64,
             ColumnType::Utf8 => DataType::String,
             ColumnType::Boolean => DataType::Boolean,
@@ -42,6 +45,14 @@ impl ColumnType {
             // pandas and pyarrow write an all-null column as type null (spec §7).
             ColumnType::Float64 => matches!(dtype, DataType::Float64 | DataType::Null),
             ColumnType::Utf8 => matches!(dtype, DataType::String | DataType::Null),
+            ColumnType::Int8 => matches!(
+                dtype,
+                DataType::Int8
+                    | DataType::Int16
+                    | DataType::Int32
+                    | DataType::Int64
+                    | DataType::Null
+            ),
             other => &other.polars() == dtype,
         }
     }
@@ -371,6 +382,15 @@ pub fn measurements() -> TableSchema {
             "deg",
             false,
             "1-σ uncertainty of that orientation angle, > 0; with them the rotation residual is weighted by 1/σ² (σ the RMS of the three), else by `identify`'s `orientation_lever_mm` (spec §8)",
+        ));
+    }
+    for name in APPROACH_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Int8,
+            "",
+            false,
+            "direction in which this joint last moved before the reading: -1, 0 (not known) or +1; a campaign's from its previous command (spec §8)",
         ));
     }
     TableSchema {
@@ -1294,6 +1314,9 @@ pub fn predictions() -> TableSchema {
 
 /// Orientation columns of `targets` (spec §7): world←tool = Rot(x, rx)·Rot(y, ry)·Rot(z, rz).
 pub const ORIENTATION_COLUMNS: [&str; 3] = ["rx_deg", "ry_deg", "rz_deg"];
+
+/// Approach direction of each joint (spec §8).
+pub const APPROACH_COLUMNS: [&str; 6] = ["dir1", "dir2", "dir3", "dir4", "dir5", "dir6"];
 /// The corrected Cartesian target of `commands` (spec §7), robot base frame.
 pub const COMMAND_POSITION_COLUMNS: [&str; 3] = ["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"];
 /// Its orientation as a unit quaternion (w, x, y, z), base←tool.
