@@ -112,6 +112,20 @@ pub struct ColumnMap {
     pub sigma_ry_deg: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sigma_rz_deg: Option<String>,
+    /// The direction each joint last moved before the reading (spec §8):
+    /// −1, 0 (not known) or +1; for models with backlash.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dir1: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dir2: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dir3: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dir4: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dir5: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dir6: Option<String>,
     /// Which SMR (nest) each row measured: a long table, one row per target reading.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_id: Option<String>,
@@ -213,7 +227,7 @@ static INFO: StageInfo = StageInfo {
 };
 
 /// Every contract column a source column can be mapped to, in output order.
-const CONTRACT: [(&str, Kind); 29] = [
+const CONTRACT: [(&str, Kind); 35] = [
     ("cw_id", Kind::Integer),
     ("q1_deg", Kind::Joint),
     ("q2_deg", Kind::Joint),
@@ -239,6 +253,12 @@ const CONTRACT: [(&str, Kind); 29] = [
     ("sigma_rx_deg", Kind::AngleSigma),
     ("sigma_ry_deg", Kind::AngleSigma),
     ("sigma_rz_deg", Kind::AngleSigma),
+    ("dir1", Kind::Integer),
+    ("dir2", Kind::Integer),
+    ("dir3", Kind::Integer),
+    ("dir4", Kind::Integer),
+    ("dir5", Kind::Integer),
+    ("dir6", Kind::Integer),
     ("target_id", Kind::Text),
     ("config_id", Kind::Integer),
     ("robot_id", Kind::Text),
@@ -277,6 +297,12 @@ impl ColumnMap {
             "sigma_rx_deg" => &self.sigma_rx_deg,
             "sigma_ry_deg" => &self.sigma_ry_deg,
             "sigma_rz_deg" => &self.sigma_rz_deg,
+            "dir1" => &self.dir1,
+            "dir2" => &self.dir2,
+            "dir3" => &self.dir3,
+            "dir4" => &self.dir4,
+            "dir5" => &self.dir5,
+            "dir6" => &self.dir6,
             "target_id" => &self.target_id,
             "config_id" => &self.config_id,
             "robot_id" => &self.robot_id,
@@ -722,6 +748,25 @@ fn build(
         columns.push(Column::new((*name).into(), values));
     }
 
+    for name in schema::APPROACH_COLUMNS {
+        let Some(m) = find(name) else { continue };
+        let mut directions = Vec::with_capacity(n);
+        for (k, value) in source.integers(m, rows.clone())?.into_iter().enumerate() {
+            let direction = i8::try_from(value)
+                .ok()
+                .filter(|d| (-1..=1).contains(d))
+                .ok_or_else(|| {
+                    source.problem(
+                        rows.start + k,
+                        m,
+                        format!("`{value}` is not an approach direction: expected -1, 0 or 1"),
+                    )
+                })?;
+            directions.push(direction);
+        }
+        columns.push(Column::new(name.into(), directions));
+    }
+
     for (name, constant) in [
         ("target_id", settings.constant.target_id.as_ref()),
         ("robot_id", settings.constant.robot_id.as_ref()),
@@ -1090,6 +1135,39 @@ z_mm = "z"
             ),
             "{err}"
         );
+    }
+
+    /// Approach directions (spec §8): −1, 0 and 1 import as int8; any other
+    /// number, or a fraction, is named with its line and column.
+    #[test]
+    fn approach_directions_import_and_bad_ones_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let header = "a1,a2,a3,a4,a5,a6,x,y,z,d1,d2\n";
+        let row = |d1: &str| format!("0,1,2,3,4,5,1000,0,500,{d1},-1\n");
+        write(
+            dir.path(),
+            "e.csv",
+            &format!("{header}{}{}", row("1"), row("0")),
+        );
+        let base = format!("path = \"e.csv\"\n{JOINTS_XYZ}dir1 = \"d1\"\ndir2 = \"d2\"\n");
+        let df = import(&settings(&base), dir.path()).unwrap().measurements;
+        schema::measurements().check(&df, Path::new("t")).unwrap();
+        let dir1: Vec<Option<i8>> = df.column("dir1").unwrap().i8().unwrap().iter().collect();
+        assert_eq!(dir1, [Some(1), Some(0)]);
+        assert_eq!(df.column("dir2").unwrap().dtype(), &DataType::Int8);
+        for (bad, expected) in [
+            (
+                "2",
+                "line 2, column `d1` (setting `columns.dir1`): `2` is not an approach direction: expected -1, 0 or 1",
+            ),
+            ("0.5", "column `d1` (setting `columns.dir1`)"),
+        ] {
+            write(dir.path(), "e.csv", &format!("{header}{}", row(bad)));
+            let error = import(&settings(&base), dir.path())
+                .unwrap_err()
+                .to_string();
+            assert!(error.contains(expected), "{bad}: {error}");
+        }
     }
 
     /// 6-D rows (spec §8): the orientation columns and their sigmas, in the
