@@ -12,6 +12,27 @@ fn measurements(dir: &Path) -> polars::prelude::DataFrame {
     table::read_parquet(&dir.join("out/measure/measurements.parquet")).unwrap()
 }
 
+/// The measure stage's settings for `egcal sim-driver` over the paper's
+/// robot and truth, seed 42, with `extra` arguments.
+fn sim_driver(extra: &[&str]) -> String {
+    let root = common::root();
+    let robot = root.join("jobs/robots/irb1600_145.toml");
+    let truth = root.join("jobs/truth/irb1600_paper.parquet");
+    let mut command = vec![
+        env!("CARGO_BIN_EXE_egcal"),
+        "sim-driver",
+        "--robot",
+        robot.to_str().unwrap(),
+        "--truth",
+        truth.to_str().unwrap(),
+        "--seed",
+        "42",
+    ];
+    command.extend(extra);
+    let quoted: Vec<String> = command.iter().map(|a| format!("{a:?}")).collect();
+    format!("driver = \"external\"\ncommand = [{}]", quoted.join(", "))
+}
+
 #[test]
 fn external_driver_gives_the_same_rows_as_the_in_process_simulator() {
     let inproc = tempfile::tempdir().unwrap();
@@ -20,17 +41,7 @@ fn external_driver_gives_the_same_rows_as_the_in_process_simulator() {
     assert_eq!(code, 0, "{stderr}");
 
     let external = tempfile::tempdir().unwrap();
-    let driver = format!(
-        "driver = \"external\"\ncommand = [\"{}\", \"sim-driver\", \"--robot\", \"{}\", \"--truth\", \"{}\", \"--seed\", \"42\"]",
-        env!("CARGO_BIN_EXE_egcal"),
-        common::root()
-            .join("jobs/robots/irb1600_145.toml")
-            .display(),
-        common::root()
-            .join("jobs/truth/irb1600_paper.parquet")
-            .display(),
-    );
-    let job = common::measure_job(external.path(), &driver);
+    let job = common::measure_job(external.path(), &sim_driver(&[]));
     let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], external.path());
     assert_eq!(code, 0, "{stderr}");
     let (a, b) = (measurements(inproc.path()), measurements(external.path()));
@@ -60,18 +71,10 @@ fn the_unmodelled_effects_are_the_same_robot_in_process_and_behind_a_driver() {
     let external = tempfile::tempdir().unwrap();
     let settings = external.path().join("simulator.toml");
     std::fs::write(&settings, effects).unwrap();
-    let driver = format!(
-        "driver = \"external\"\ncommand = [\"{}\", \"sim-driver\", \"--robot\", \"{}\", \"--truth\", \"{}\", \"--seed\", \"42\", \"--settings\", \"{}\"]",
-        env!("CARGO_BIN_EXE_egcal"),
-        common::root()
-            .join("jobs/robots/irb1600_145.toml")
-            .display(),
-        common::root()
-            .join("jobs/truth/irb1600_paper.parquet")
-            .display(),
-        settings.display(),
+    let job = common::measure_job(
+        external.path(),
+        &sim_driver(&["--settings", settings.to_str().unwrap()]),
     );
-    let job = common::measure_job(external.path(), &driver);
     let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], external.path());
     assert_eq!(code, 0, "{stderr}");
     let (a, b) = (measurements(inproc.path()), measurements(external.path()));
