@@ -4,6 +4,11 @@
 //! orientation the cable robot is designed for), all inverse-kinematics solutions filtered
 //! by joint limits, singularity distance, collisions (links, pulleys, cables,
 //! platform, floor) and line of sight; one survivor per point drawn at random.
+//!
+//! With the optional input `targets` (the work, spec §7), points are added
+//! around each target's tool position whose configurations must be in the IK
+//! branch the work uses there (issue #28): a campaign designed for the work
+//! can then measure the arm where and how it works, not only in the box.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
