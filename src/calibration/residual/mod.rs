@@ -272,7 +272,7 @@ pub struct ResidualModel {
 }
 
 fn check_rows(what: &'static str, values: &[f64], columns: usize) -> Result<usize, ResidualError> {
-    if values.len() % columns != 0 {
+    if !values.len().is_multiple_of(columns) {
         return Err(ResidualError::RaggedFeatures {
             what,
             values: values.len(),

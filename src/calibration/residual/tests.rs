@@ -143,12 +143,11 @@ fn matches_numpy_exact_and_sparse() {
         let means = triples(&expected["mean_mm"]);
         let variances = numbers(&expected["latent_variance_mm2"]);
         for (k, p) in predicted.iter().enumerate() {
-            for a in 0..3 {
+            for (a, expected) in means[k].iter().enumerate() {
                 assert!(
-                    close(p.mean_mm[a], means[k][a]),
-                    "{name} row {k} axis {a}: mean {} against {}",
-                    p.mean_mm[a],
-                    means[k][a]
+                    close(p.mean_mm[a], *expected),
+                    "{name} row {k} axis {a}: mean {} against {expected}",
+                    p.mean_mm[a]
                 );
             }
             assert!(
