@@ -12,6 +12,12 @@ const MEMORY: usize = 8;
 const ARMIJO: f64 = 1e-4;
 /// Halvings of a step before the search gives up.
 const BACKTRACKS: usize = 40;
+/// An iteration that lowers `f` by less than this (relative) ends the search.
+/// The residual model's `f` is the negative log likelihood per value, about 1
+/// in size: 1e-7 of it over 2000 rows × 3 axes is 6e-4 nats, far below what
+/// changes a prediction; at 1e-10 the 10 000-row fit took 9.7 s, mostly in
+/// iterations that changed nothing.
+const RELATIVE_DECREASE: f64 = 1e-7;
 
 /// Lower and upper bound of each coordinate.
 #[derive(Debug, Clone)]
@@ -46,7 +52,7 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 /// Minimises `f` (value and gradient, `None` where it cannot be evaluated)
 /// from `start` within `bounds`. Stops when the projected gradient's largest
 /// component is below `gradient_tolerance`, when an iteration lowers `f` by
-/// less than `1e-10·(1 + |f|)`, after `max_iterations`, or when no step along
+/// less than `RELATIVE_DECREASE·(1 + |f|)`, after `max_iterations`, or when no step along
 /// the direction lowers `f`. `None` if `f` cannot be evaluated at the start.
 pub(super) fn minimise(
     mut f: impl FnMut(&[f64]) -> Option<(f64, Vec<f64>)>,
@@ -130,7 +136,7 @@ pub(super) fn minimise(
         x = trial;
         fx = ft;
         g = gt;
-        if decrease < 1e-10 * (1.0 + fx.abs()) {
+        if decrease < RELATIVE_DECREASE * (1.0 + fx.abs()) {
             break;
         }
     }
