@@ -12,6 +12,7 @@ pub mod groups;
 pub mod held;
 pub mod rank;
 pub mod registration;
+pub mod residual;
 pub mod robust;
 pub mod row_checks;
 pub mod selection;
