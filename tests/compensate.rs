@@ -41,6 +41,7 @@ fn options() -> Options {
             ..NumericOptions::default()
         },
         singular_sigma_min_mm_per_rad: 3.5,
+        approach: [0; 6],
     }
 }
 
@@ -120,7 +121,7 @@ fn with_nominal_parameters_and_no_load_the_command_is_nominal_ik() {
         .map(|_| {
             let q = well_conditioned_q(&mut rng);
             target(
-                robot.tool_in_world(&nominal, &q, &Wrench::zero()),
+                robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; 6]),
                 Wrench::zero(),
             )
         })
@@ -167,7 +168,7 @@ fn the_calibrated_loaded_model_puts_every_ok_command_on_its_target() {
         .map(|_| {
             let q = well_conditioned_q(&mut rng);
             target(
-                robot.tool_in_world(&nominal, &q, &Wrench::zero()),
+                robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; 6]),
                 random_wrench(&mut rng),
             )
         })
@@ -181,7 +182,7 @@ fn the_calibrated_loaded_model_puts_every_ok_command_on_its_target() {
             continue;
         }
         // The forward model `predict` uses, loaded with the target's wrench.
-        let reached = robot.tool_in_world(&truth, &c.q_deg, &t.wrench);
+        let reached = robot.tool_in_world(&truth, &c.q_deg, &t.wrench, &[0; 6]);
         let predicted = robot.predict(&truth, &c.q_deg, &t.wrench).position_mm;
         assert!((reached.origin_mm - predicted).norm() < 1e-9);
         assert!(
@@ -196,7 +197,7 @@ fn the_calibrated_loaded_model_puts_every_ok_command_on_its_target() {
         // The correction: where the nominal controller (truth world frame) goes.
         let mut controller = nominal;
         controller.0[..6].copy_from_slice(&truth.0[..6]);
-        let nominal_goes = robot.tool_in_world(&controller, &c.q_deg, &t.wrench);
+        let nominal_goes = robot.tool_in_world(&controller, &c.q_deg, &t.wrench, &[0; 6]);
         assert!(
             (c.correction_mm - (nominal_goes.origin_mm - t.tool_in_world.origin_mm).norm()).abs()
                 < 1e-9
@@ -217,7 +218,7 @@ fn unreachable_out_of_limit_and_singular_targets_get_their_status_and_spare_the_
         .map(|_| {
             let q = well_conditioned_q(&mut rng);
             Target {
-                tool_in_world: robot.tool_in_world(&nominal, &q, &Wrench::zero()),
+                tool_in_world: robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; 6]),
                 wrench: random_wrench(&mut rng),
                 hint_deg: Some(q),
                 tool: 0,
@@ -228,16 +229,16 @@ fn unreachable_out_of_limit_and_singular_targets_get_their_status_and_spare_the_
     assert!(alone.iter().all(|c| c.status == Status::Ok));
 
     let base_q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
-    let mut far = robot.tool_in_world(&nominal, &base_q, &Wrench::zero());
+    let mut far = robot.tool_in_world(&nominal, &base_q, &Wrench::zero(), &[0; 6]);
     far.origin_mm += Vector3::new(4000.0, 0.0, 0.0);
     // The calibrated arm's straight wrist (q5 = 0; the nominal one's lies about
     // 2° away on this calibrated arm, where the measure is 15 mm/rad).
     let straight_wrist = [10.0, 20.0, -10.0, 30.0, 0.0, 50.0];
-    let singular = robot.tool_in_world(&truth, &straight_wrist, &Wrench::zero());
+    let singular = robot.tool_in_world(&truth, &straight_wrist, &Wrench::zero(), &[0; 6]);
     // q5 = 120 lies beyond the file's ±115°; the hint asks for that branch.
     let beyond = [10.0, 20.0, -10.0, 30.0, 120.0, 50.0];
     let out_of_limit = Target {
-        tool_in_world: robot.tool_in_world(&nominal, &beyond, &Wrench::zero()),
+        tool_in_world: robot.tool_in_world(&nominal, &beyond, &Wrench::zero(), &[0; 6]),
         wrench: Wrench::zero(),
         hint_deg: Some([11.0, 19.0, -9.0, 31.0, 119.0, 49.0]),
         tool: 0,
@@ -278,6 +279,7 @@ fn a_line_path_keeps_its_branch() {
         &nominal,
         &[20.0, 10.0, -20.0, 40.0, 60.0, -30.0],
         &Wrench::zero(),
+        &[0; 6],
     );
     let thrust = Wrench::from_array([0.0, 0.0, -100.0, 0.0, 0.0, 0.0]);
     let targets: Vec<Target> = (0..60)
@@ -314,6 +316,7 @@ fn the_stage_writes_commands_and_conf_wrenches() {
             &nominal,
             &[10.0, 20.0, -10.0, 30.0, 40.0, 50.0],
             &Wrench::zero(),
+            &[0; 6],
         ),
         {
             let mut far = Frame::identity();
@@ -324,6 +327,7 @@ fn the_stage_writes_commands_and_conf_wrenches() {
             &nominal,
             &[-30.0, 10.0, -30.0, -20.0, 60.0, 10.0],
             &Wrench::zero(),
+            &[0; 6],
         ),
     ];
     let ids = vec![30_i64, 10, 20];
@@ -505,7 +509,7 @@ fn timing_of_10000_targets() {
         .map(|_| {
             let q = well_conditioned_q(&mut rng);
             target(
-                robot.tool_in_world(&nominal, &q, &Wrench::zero()),
+                robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; 6]),
                 random_wrench(&mut rng),
             )
         })
@@ -640,7 +644,7 @@ fn base_and_user_frame_targets_give_the_world_frame_commands() {
     ];
     let world: Vec<Frame> = generators
         .iter()
-        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero()))
+        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero(), &[0; 6]))
         .collect();
     let base_from_world = world_from_base_by_hand(&truth).inverse();
     let base: Vec<Frame> = world.iter().map(|w| base_from_world.compose(w)).collect();
@@ -718,7 +722,7 @@ fn a_table_in_the_other_frame_is_refused_naming_the_frame_assumed() {
     let base: Vec<Frame> = (0..20)
         .map(|_| {
             let q = well_conditioned_q(&mut rng);
-            base_from_world.compose(&robot.tool_in_world(&truth, &q, &Wrench::zero()))
+            base_from_world.compose(&robot.tool_in_world(&truth, &q, &Wrench::zero(), &[0; 6]))
         })
         .collect();
     let path = dir.path().join("targets.parquet");
@@ -794,8 +798,13 @@ fn several_targets_each_row_aims_its_own_tool() {
         .iter()
         .zip(&aims)
         .map(|(q, k)| {
-            let frame = robot.tool_in_world(&values.aimed_at(*k), q, &wrench);
-            let position = prepared.predict_target(q, &wrench, *k).position_mm;
+            let frame = robot.tool_in_world(&values.aimed_at(*k), q, &wrench, &[0; 6]);
+            let position = prepared
+                .predict_row(&egcal::robot::ConfWrench {
+                    target: *k,
+                    ..egcal::robot::ConfWrench::new(*q, wrench)
+                })
+                .position_mm;
             assert!((frame.origin_mm - position).norm() < 1e-9, "nest {k}");
             frame
         })
@@ -822,7 +831,12 @@ fn several_targets_each_row_aims_its_own_tool() {
     let written: Vec<Option<String>> = tool_ids.iter().map(|s| Some(s.to_string())).collect();
     assert_eq!(column_str(&df, "tool_id"), written);
     for (k, q) in commands_q(&df).iter().enumerate() {
-        let reached = prepared.predict_target(q, &wrench, aims[k]).position_mm;
+        let reached = prepared
+            .predict_row(&egcal::robot::ConfWrench {
+                target: aims[k],
+                ..egcal::robot::ConfWrench::new(*q, wrench)
+            })
+            .position_mm;
         assert!(
             (reached - poses[k].origin_mm).norm() < 1e-6,
             "row {k}: {reached} vs {}",
@@ -933,7 +947,7 @@ fn commands_far_from_the_calibration_rows_are_outside_the_envelope() {
     ];
     let poses: Vec<Frame> = generators
         .iter()
-        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero()))
+        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero(), &[0; 6]))
         .collect();
     let targets = dir.path().join("targets.parquet");
     write_targets(&targets, &poses, Vec::new());
@@ -989,7 +1003,7 @@ fn csv_targets_compensate_like_parquet_ones() {
     ];
     let poses: Vec<Frame> = generators
         .iter()
-        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero()))
+        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero(), &[0; 6]))
         .collect();
     let mut csv = String::from("\u{feff}Punkt;X [m];Y [m];Z [m];A;B;C;Kraft\r\n");
     for (k, pose) in poses.iter().enumerate() {

@@ -604,7 +604,7 @@ fn the_ur10_gets_poses_from_the_numeric_inverse_kinematics() {
     for k in 0..poses.height() {
         let q_deg: [f64; 6] = std::array::from_fn(|i| q[i][k]);
         assert!(robot.within_limits(&q_deg), "row {k}: {q_deg:?}");
-        let smr = robot.tool_in_world(&nominal, &q_deg, &egcal::robot::Wrench::zero());
+        let smr = robot.tool_in_world(&nominal, &q_deg, &egcal::robot::Wrench::zero(), &[0; 6]);
         let target = Vector3::new(tx[k], ty[k], tz[k]);
         assert!((smr.origin_mm - target).norm() < 1e-6, "row {k}");
     }

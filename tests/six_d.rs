@@ -56,7 +56,9 @@ fn orientations(
     let normal = Normal::new(0.0, sigma_rad).unwrap();
     rows.iter()
         .map(|row| {
-            let exact = robot.tool_in_world(p, &row.q_deg, &row.wrench).rotation;
+            let exact = robot
+                .tool_in_world(p, &row.q_deg, &row.wrench, &row.approach)
+                .rotation;
             let noise = Vector3::from_fn(|_, _| normal.sample(&mut rng));
             Rotation3::new(noise).matrix() * exact
         })

@@ -110,7 +110,7 @@ pub fn calibration_poses(
         .iter()
         .map(|q| CalibrationPose {
             q_deg: *q,
-            tool_in_world: robot.tool_in_world(values, q, &Wrench::zero()),
+            tool_in_world: robot.tool_in_world(values, q, &Wrench::zero(), &[0; JOINTS]),
         })
         .collect()
 }
@@ -342,7 +342,7 @@ mod tests {
         )[0];
         let c = point.covariance_mm2.expect("covariance");
         assert!((c - direct).abs().max() < 1e-15, "{c} vs {direct}");
-        let tool = robot.tool_in_world(&values, &q, &Wrench::zero());
+        let tool = robot.tool_in_world(&values, &q, &Wrench::zero(), &[0; JOINTS]);
         assert!(
             (tool.origin_mm - point.position_mm).norm() < 20.0,
             "tool {} vs grid point {}",

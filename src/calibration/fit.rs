@@ -369,11 +369,7 @@ pub fn residuals(
     rows.par_iter()
         .zip(measured)
         .with_min_len(stream::CHUNK_ROWS)
-        .map(|(row, meas)| {
-            meas - prepared
-                .predict_target(&row.q_deg, &row.wrench, row.target)
-                .position_mm
-        })
+        .map(|(row, meas)| meas - prepared.predict_row(row).position_mm)
         .collect()
 }
 
@@ -394,7 +390,7 @@ pub fn orientation_residuals(
         .with_min_len(stream::CHUNK_ROWS)
         .map(|(row, orientation)| {
             let orientation = orientation.as_ref()?;
-            let chains = prepared.loaded_chains(&row.q_deg, &row.wrench, row.target);
+            let chains = prepared.loaded_chains(row);
             let model = prepared.world_from_base.rotation * chains.deflected.tool.rotation;
             Some(orientation_residual_deg(
                 &orientation.world_from_tool,
@@ -1039,6 +1035,7 @@ mod tests {
                 q_deg: random_q(robot, &mut rng),
                 wrench: random_wrench(&mut rng),
                 target: 0,
+                approach: [0; 6],
             })
             .collect()
     }

@@ -61,9 +61,11 @@ impl HoldOptions {
             | ParamKind::WorldRotation(_)
             | ParamKind::ToolTranslation { .. } => None,
             ParamKind::A(_) | ParamKind::D(_) => Some((self.max_std_error_mm, "mm")),
-            ParamKind::ToolRotation(_) | ParamKind::Theta(_) | ParamKind::Alpha(_) => {
-                Some((self.max_std_error_deg, "deg"))
-            }
+            ParamKind::ToolRotation(_)
+            | ParamKind::Theta(_)
+            | ParamKind::Alpha(_)
+            | ParamKind::Backlash(_)
+            | ParamKind::Harmonic { .. } => Some((self.max_std_error_deg, "deg")),
             ParamKind::Compliance(_) => Some((self.max_std_error_compliance, "deg/(N·m)")),
         }
     }

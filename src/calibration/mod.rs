@@ -51,6 +51,9 @@ pub struct CalibrationOptions {
     /// held-out rows ([`selection`]); `None`: every identifiable parameter
     /// within the `hold` bounds is fitted.
     pub selection: Option<selection::ParameterSelection>,
+    /// Orders of the transmission-error harmonics the `eg_harmonic` model
+    /// fits per joint (1: once per output turn).
+    pub harmonic_orders: Vec<usize>,
 }
 
 impl CalibrationOptions {
@@ -66,6 +69,7 @@ impl CalibrationOptions {
             targets: 1,
             hold: Some(HoldOptions::default()),
             selection: None,
+            harmonic_orders: vec![1, 2],
         }
     }
 }
@@ -160,6 +164,13 @@ pub fn calibrate(
         options.candidates.contains(&base) && !options.fixed.iter().any(|(f, _)| f == id)
     };
     let six_d = data.has_orientations();
+    let joint_terms: Vec<ParamId> = match model {
+        ModelName::EgBacklash => ParamId::backlashes().collect(),
+        ModelName::EgHarmonic => ParamId::backlashes()
+            .chain(ParamId::harmonics(&options.harmonic_orders))
+            .collect(),
+        _ => Vec::new(),
+    };
     let candidates: Vec<ParamId> = ParamId::all_with_targets(targets)
         .filter(allowed)
         .filter(|p| match model {
@@ -168,8 +179,13 @@ pub fn calibrate(
                 p.is_world() || p.is_tool_translation() || (six_d && p.is_tool_rotation())
             }
             ModelName::Kinematic => !p.is_compliance(),
-            ModelName::Elastogeometric => true,
+            ModelName::Elastogeometric | ModelName::EgBacklash | ModelName::EgHarmonic => true,
         })
+        .chain(
+            joint_terms
+                .into_iter()
+                .filter(|id| !options.fixed.iter().any(|(f, _)| f == id)),
+        )
         .collect();
     if candidates.is_empty() {
         let set = ParameterSet::fixed(model, nominal);
@@ -451,10 +467,7 @@ pub fn registered_start(
         .iter()
         .map(|k| {
             let row = &data.rows[*k];
-            prepared
-                .loaded_chains(&row.q_deg, &row.wrench, row.target)
-                .deflected
-                .joints[JOINTS]
+            prepared.loaded_chains(row).deflected.joints[JOINTS]
         })
         .collect();
     let measured: Vec<Vector3<f64>> = used.iter().map(|k| data.measured_mm[*k]).collect();

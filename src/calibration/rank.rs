@@ -28,7 +28,8 @@
 use faer::{Mat, MatRef};
 
 use super::{dense, stream};
-use crate::robot::{ConfWrench, ParamId, ParamValues, Robot, params::ParamKind};
+use crate::robot::params::{MAX_HARMONIC_ORDER, ParamKind};
+use crate::robot::{ConfWrench, ParamId, ParamValues, Robot};
 
 /// Result of a rank analysis.
 #[derive(Debug, Clone, PartialEq)]
@@ -59,6 +60,12 @@ fn priority(id: ParamId, tool_rotation_first: bool) -> usize {
         ParamKind::D(i) => 40 + i,
         ParamKind::Compliance(i) => 50 + i,
         ParamKind::ToolRotation(i) => 60 + i,
+        ParamKind::Backlash(i) => 70 + i,
+        ParamKind::Harmonic {
+            joint,
+            order,
+            cosine,
+        } => 80 + 2 * (joint * MAX_HARMONIC_ORDER + order - 1) + usize::from(cosine),
     }
 }
 
@@ -199,6 +206,7 @@ mod tests {
                 q_deg: random_q(&robot, &mut rng),
                 wrench: random_wrench(&mut rng),
                 target: 0,
+                approach: [0; 6],
             })
             .collect();
         let all: Vec<ParamId> = ParamId::all().collect();
@@ -241,6 +249,7 @@ mod tests {
                 q_deg: random_q(&robot, &mut rng),
                 wrench: crate::robot::Wrench::zero(),
                 target: 0,
+                approach: [0; 6],
             })
             .collect();
         let all: Vec<ParamId> = ParamId::all().collect();

@@ -165,6 +165,7 @@ mod tests {
                 q_deg: random_q(robot, &mut rng),
                 wrench: random_wrench(&mut rng),
                 target: 0,
+                approach: [0; 6],
             })
             .collect()
     }

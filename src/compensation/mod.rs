@@ -193,6 +193,10 @@ pub struct Options {
     /// singular value below this (mm/rad) is `singular`. For the IRB 1600 the
     /// wrist measure is about 7 mm/rad per degree of q5 near q5 = 0.
     pub singular_sigma_min_mm_per_rad: f64,
+    /// The direction each joint approaches every command from (spec §8): a
+    /// program's pre-positioning move makes it so. Zeros: not known, the
+    /// middle of any backlash.
+    pub approach: [i8; JOINTS],
 }
 
 /// The nominal model as the controller sees it, placed in the world by the
@@ -333,12 +337,14 @@ pub fn compensate(
                 robot,
                 values,
                 &target.wrench,
+                &options.approach,
                 &target.tool_in_world,
                 seed,
                 &options.solver,
             );
             let q = iterate.q_deg;
-            let (tool, joints) = deflected_tool_and_joints(robot, values, &q, &target.wrench);
+            let (tool, joints) =
+                deflected_tool_and_joints(robot, values, &q, &target.wrench, &options.approach);
             let sigma_min_mm_per_rad = ik::scaled_geometric_jacobian(&tool, &joints)
                 .singular_values()
                 .min();
@@ -471,7 +477,7 @@ mod tests {
         let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
         let wrench = Wrench::from_array([50.0, -80.0, 100.0, 5.0, 0.0, -5.0]);
         let target = Target {
-            tool_in_world: robot.tool_in_world(&truth, &q, &wrench),
+            tool_in_world: robot.tool_in_world(&truth, &q, &wrench, &[0; JOINTS]),
             wrench,
             hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0]),
             tool: 0,
@@ -484,6 +490,7 @@ mod tests {
                 ..NumericOptions::default()
             },
             singular_sigma_min_mm_per_rad: 3.5,
+            approach: [0; JOINTS],
         };
         let one = compensate(&robot, &truth, &[target], &options)[0];
         assert_eq!(one.status, Status::NotConverged, "{one:?}");

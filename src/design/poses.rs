@@ -461,7 +461,12 @@ mod tests {
         assert_eq!(outcome.poses.len(), 27, "{:?}", outcome.rejections);
         for pose in &outcome.poses {
             assert!(robot.within_limits(&pose.q_deg), "{pose:?}");
-            let tool = robot.tool_in_world(&nominal, &pose.q_deg, &crate::robot::Wrench::zero());
+            let tool = robot.tool_in_world(
+                &nominal,
+                &pose.q_deg,
+                &crate::robot::Wrench::zero(),
+                &[0; JOINTS],
+            );
             assert!((tool.origin_mm - pose.target_mm).norm() < 1e-9, "{pose:?}");
             assert!(
                 (tool.rotation - pose.tool_rotation).norm() < 1e-9,

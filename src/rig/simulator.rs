@@ -28,7 +28,7 @@ use std::collections::HashMap;
 use super::approach::step_direction;
 use super::{Rig, RigError};
 use crate::robot::params::{ParamId, ParamKind};
-use crate::robot::{JOINTS, ParamValues, Robot, Wrench};
+use crate::robot::{ConfWrench, JOINTS, ParamValues, Robot, Wrench};
 
 /// Noise and error settings of the simulator.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -240,6 +240,41 @@ impl Simulator {
         })
     }
 
+    /// The unmodelled effects of the settings as the parameters of the
+    /// `eg_harmonic` model would hold them: each joint's backlash, and the
+    /// coefficients of sin(n·q) and cos(n·q) of its transmission errors
+    /// (`A·sin(n·q + φ) = A·cos φ·sin(n·q) + A·sin φ·cos(n·q)`). What a test
+    /// of a rung compares its estimates with.
+    pub fn joint_terms_truth(&self) -> Vec<(ParamId, f64)> {
+        let mut terms: Vec<(ParamId, f64)> = ParamId::backlashes()
+            .map(|id| (id, self.settings.backlash_deg))
+            .collect();
+        for joint in 0..JOINTS {
+            for (order, amplitude, phase) in [
+                (
+                    1,
+                    self.settings.transmission_error_1_deg,
+                    self.once_phases_rad[joint],
+                ),
+                (
+                    2,
+                    self.settings.transmission_error_deg,
+                    self.phases_rad[joint],
+                ),
+            ] {
+                terms.push((
+                    ParamId::harmonic(joint, order, false),
+                    amplitude * phase.cos(),
+                ));
+                terms.push((
+                    ParamId::harmonic(joint, order, true),
+                    amplitude * phase.sin(),
+                ));
+            }
+        }
+        terms
+    }
+
     /// The campaign's approach directions by cw_id (see `planned_approach`).
     pub fn with_planned_approach(mut self, planned: HashMap<i64, [i8; JOINTS]>) -> Self {
         self.planned_approach = planned;
@@ -267,9 +302,15 @@ impl Simulator {
         for i in [1, 2] {
             actual[i] += self.settings.quadratic_compliance * torques[i] * torques[i].abs();
         }
+        // Joint-error terms of the truth file itself (backlash3 = …) see the
+        // same approach as the settings' backlash.
         let p = self
             .robot
-            .predict(&self.truth, &actual, &wrench)
+            .prepare(&self.truth)
+            .predict_row(&ConfWrench {
+                approach: self.approach,
+                ..ConfWrench::new(actual, wrench)
+            })
             .position_mm;
         let residual = if self.settings.residual_mm > 0.0 {
             self.residual.at(q)

@@ -275,7 +275,8 @@ impl Default for NumericOptions {
 }
 
 /// Joint command (deg) that puts the tool at `tool_in_world` on the full loaded
-/// model, by Levenberg–Marquardt from `seed_deg`.
+/// model, each joint approached from `approach` (spec §8), by
+/// Levenberg–Marquardt from `seed_deg`.
 ///
 /// The step uses the geometric Jacobian of the deflected chain and neglects how the
 /// deflection changes with q; the deflection is re-evaluated at every trial point,
@@ -286,11 +287,13 @@ pub fn solve_loaded(
     robot: &Robot,
     p: &ParamValues,
     wrench: &Wrench,
+    approach: &[i8; JOINTS],
     tool_in_world: &Frame,
     seed_deg: &[f64; JOINTS],
     options: &NumericOptions,
 ) -> Result<[f64; JOINTS], IkError> {
-    solve_loaded_iterate(robot, p, wrench, tool_in_world, seed_deg, options).into_result(options)
+    solve_loaded_iterate(robot, p, wrench, approach, tool_in_world, seed_deg, options)
+        .into_result(options)
 }
 
 /// [`solve_loaded`] that also returns where it stopped when it did not converge:
@@ -300,12 +303,13 @@ pub fn solve_loaded_iterate(
     robot: &Robot,
     p: &ParamValues,
     wrench: &Wrench,
+    approach: &[i8; JOINTS],
     tool_in_world: &Frame,
     seed_deg: &[f64; JOINTS],
     options: &NumericOptions,
 ) -> Iterate {
     let mut iterate = damped_least_squares(
-        |q| deflected_tool_and_joints(robot, p, q, wrench),
+        |q| deflected_tool_and_joints(robot, p, q, wrench, approach),
         tool_in_world,
         seed_deg,
         options,
@@ -769,7 +773,7 @@ mod tests {
         for _ in 0..100 {
             let q_true = random_q(&robot, &mut rng);
             let wrench = random_wrench(&mut rng);
-            let target = robot.tool_in_world(&truth, &q_true, &wrench);
+            let target = robot.tool_in_world(&truth, &q_true, &wrench, &[0; JOINTS]);
             // Seed from the closed form of the nominal arm placed with the model's
             // world and tool frames, as a stage that commands a calibrated robot does.
             let flange = flange_target_in_base(&robot, &truth, &target);
@@ -784,12 +788,13 @@ mod tests {
                 &robot,
                 &truth,
                 &wrench,
+                &[0; JOINTS],
                 &target,
                 &seed.q_deg,
                 &NumericOptions::default(),
             )
             .unwrap();
-            let reached = robot.tool_in_world(&truth, &q, &wrench);
+            let reached = robot.tool_in_world(&truth, &q, &wrench, &[0; JOINTS]);
             assert!((reached.origin_mm - target.origin_mm).norm() < 1e-9);
             assert!(reached.angle_to(&target) < 1e-9);
             // Where the nominal seed is near the generating configuration the loaded

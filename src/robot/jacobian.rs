@@ -60,8 +60,8 @@ impl Screw {
 }
 
 /// The screw of a geometric parameter on `chain`, and the first body it moves
-/// (1..=6 links, 7 the tool and payload). `None` for world parameters and compliances,
-/// which need no torque term.
+/// (1..=6 links, 7 the tool and payload). `None` for world parameters, compliances
+/// and joint-error terms, which need no torque term.
 impl PreparedRobot<'_> {
     // Inlined: returned through memory, the screw costs a store-forwarding stall per column.
     #[inline(always)]
@@ -116,7 +116,9 @@ impl PreparedRobot<'_> {
             ),
             ParamKind::WorldTranslation(_)
             | ParamKind::WorldRotation(_)
-            | ParamKind::Compliance(_) => {
+            | ParamKind::Compliance(_)
+            | ParamKind::Backlash(_)
+            | ParamKind::Harmonic { .. } => {
                 return None;
             }
         })
@@ -252,8 +254,9 @@ impl PreparedRobot<'_> {
     ) -> (Prediction, Matrix3<f64>) {
         let ConfWrench {
             q_deg,
-            wrench,
             target,
+            approach,
+            ..
         } = row;
         assert_eq!(
             selected.len(),
@@ -268,7 +271,7 @@ impl PreparedRobot<'_> {
             loads,
             deflections_deg,
             deflected,
-        } = self.loaded_chains(q_deg, wrench, *target);
+        } = self.loaded_chains(row);
         let world = &self.world_from_base;
         let tool_base = deflected.tool.origin_mm;
         let position_mm = world.transform_point(&tool_base);
@@ -306,6 +309,14 @@ impl PreparedRobot<'_> {
                 ParamKind::ToolTranslation { target: other, .. } if other != *target => {
                     Vector3::zeros()
                 }
+                // An angle added to joint i's reading: its column is the joint's
+                // rate times the term's factor (the torques, on the readings'
+                // chain, do not see it).
+                ParamKind::Backlash(i) | ParamKind::Harmonic { joint: i, .. } => {
+                    let factor = joint_term_factor(id, q_deg[i], approach[i]);
+                    rotation_deg = world.rotation * deflected.joints[i + 1].axis(2) * factor;
+                    world.rotation * joint_rates[i] * factor
+                }
                 _ => {
                     let (screw, _) = self
                         .chain_screw(id, &deflected)
@@ -342,22 +353,38 @@ impl PreparedRobot<'_> {
     }
 }
 
+/// How much of a joint-error term's angle a row carries: the approach
+/// direction for a backlash, sin(n·q) or cos(n·q) for a harmonic.
+fn joint_term_factor(id: ParamId, q_deg: f64, approach: i8) -> f64 {
+    match id.kind() {
+        ParamKind::Backlash(_) => f64::from(approach),
+        ParamKind::Harmonic { order, cosine, .. } => {
+            let (sine, cos) = (order as f64 * q_deg * DEG).sin_cos();
+            if cosine { cos } else { sine }
+        }
+        _ => 0.0,
+    }
+}
+
 /// One conf-wrench combination: joint commands (deg), the wrench on the robot,
-/// and which target (SMR nest, 0-based, spec §7) was measured.
+/// which target (SMR nest, 0-based, spec §7) was measured, and the direction
+/// each joint last moved before the reading (−1, 0 unknown, +1; spec §8).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ConfWrench {
     pub q_deg: [f64; JOINTS],
     pub wrench: Wrench,
     pub target: usize,
+    pub approach: [i8; JOINTS],
 }
 
 impl ConfWrench {
-    /// A row of the one-target cell.
+    /// A row of the one-target cell, approach unknown.
     pub fn new(q_deg: [f64; JOINTS], wrench: Wrench) -> Self {
         ConfWrench {
             q_deg,
             wrench,
             target: 0,
+            approach: [0; JOINTS],
         }
     }
 }
@@ -436,20 +463,23 @@ pub fn batch_predict(robot: &Robot, p: &ParamValues, rows: &[ConfWrench]) -> Vec
     let prepared = robot.prepare(p);
     rows.par_iter()
         .with_min_len(CHUNK_ROWS)
-        .map(|row| prepared.predict_target(&row.q_deg, &row.wrench, row.target))
+        .map(|row| prepared.predict_row(row))
         .collect()
 }
 
-/// Tool frame in the world on the deflected chain; shared with the inverse kinematics.
+/// Tool frame in the world on the deflected chain, each joint approached from
+/// `approach`; shared with the inverse kinematics.
 pub(crate) fn deflected_tool_and_joints(
     robot: &Robot,
     p: &ParamValues,
     q_deg: &[f64; JOINTS],
     wrench: &Wrench,
+    approach: &[i8; JOINTS],
 ) -> (Frame, [Frame; JOINTS + 1]) {
     let prepared = robot.prepare(p);
     let (_, deflections) = prepared.deflections(q_deg, wrench);
-    let chain = prepared.chain(q_deg, &deflections);
+    let terms = prepared.joint_terms.angles_deg(q_deg, approach);
+    let chain = prepared.chain(q_deg, &std::array::from_fn(|i| deflections[i] + terms[i]));
     let world = &prepared.world_from_base;
     (
         world.compose(&chain.tool),
@@ -461,6 +491,23 @@ pub(crate) fn deflected_tool_and_joints(
 mod tests {
     use super::*;
     use crate::robot::params::{BASE_PARAM_COUNT, MAX_TARGETS, PARAM_COUNT};
+
+    /// Every slot: the 42, the further targets' translations, the joint terms.
+    fn every_slot() -> Vec<ParamId> {
+        ParamId::all_with_targets(MAX_TARGETS)
+            .chain(ParamId::joint_terms())
+            .collect()
+    }
+
+    /// A row with random joints, load, target and approach directions.
+    fn random_row(robot: &Robot, trial: usize, rng: &mut StdRng) -> ConfWrench {
+        ConfWrench {
+            q_deg: random_q(robot, rng),
+            wrench: random_wrench(rng),
+            target: trial % MAX_TARGETS,
+            approach: std::array::from_fn(|_| rng.random_range(-1..=1)),
+        }
+    }
     use crate::robot::test_support::{irb1600, random_q, random_wrench, truth_params};
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
@@ -484,7 +531,9 @@ mod tests {
             if !id.is_compliance() && !id.is_world() && trial % 2 == 1 {
                 p.0[id.index()] += rng.random_range(-0.5..0.5);
             }
-            if id.index() >= BASE_PARAM_COUNT {
+            if id.is_joint_term() {
+                p.0[id.index()] = rng.random_range(-0.05..0.05);
+            } else if id.index() >= BASE_PARAM_COUNT {
                 p.0[id.index()] += rng.random_range(-80.0..80.0);
             }
         }
@@ -494,17 +543,12 @@ mod tests {
     #[test]
     fn analytic_jacobian_matches_central_differences_for_every_slot() {
         let robot = irb1600();
-        let all: Vec<ParamId> = ParamId::all_with_targets(MAX_TARGETS).collect();
+        let all = every_slot();
         assert_eq!(all.len(), PARAM_COUNT);
         let mut rng = StdRng::seed_from_u64(7);
         for trial in 0..40 {
             let p = params_for_trial(&robot, &all, trial, &mut rng);
-            let row = ConfWrench {
-                q_deg: random_q(&robot, &mut rng),
-                wrench: random_wrench(&mut rng),
-                target: trial % MAX_TARGETS,
-            };
-            let (q, w) = (row.q_deg, row.wrench);
+            let row = random_row(&robot, trial, &mut rng);
             let mut columns = vec![Vector3::zeros(); PARAM_COUNT];
             robot.prepare(&p).jacobian_row(&row, &all, &mut columns);
             for id in &all {
@@ -513,7 +557,7 @@ mod tests {
                 plus.0[id.index()] += h;
                 let mut minus = p;
                 minus.0[id.index()] -= h;
-                let at = |v: &ParamValues| robot.prepare(v).predict_target(&q, &w, row.target);
+                let at = |v: &ParamValues| robot.prepare(v).predict_row(&row);
                 let fd = (at(&plus).position_mm - at(&minus).position_mm) / (2.0 * h);
                 let analytic = columns[id.index()];
                 let scale = analytic.norm().max(fd.norm());
@@ -533,7 +577,7 @@ mod tests {
     #[test]
     fn orientation_columns_match_central_differences_for_every_slot() {
         let robot = irb1600();
-        let all: Vec<ParamId> = ParamId::all_with_targets(MAX_TARGETS).collect();
+        let all = every_slot();
         let mut rng = StdRng::seed_from_u64(8);
         for trial in 0..40 {
             let mut p = params_for_trial(&robot, &all, trial, &mut rng);
@@ -542,11 +586,7 @@ mod tests {
             for (name, value) in [("alpha_t", 20.0), ("beta_t", -35.0), ("gamma_t", 80.0)] {
                 p.set(ParamId::from_name(name).unwrap(), value);
             }
-            let row = ConfWrench {
-                q_deg: random_q(&robot, &mut rng),
-                wrench: random_wrench(&mut rng),
-                target: trial % MAX_TARGETS,
-            };
+            let row = random_row(&robot, trial, &mut rng);
             let (q, w) = (row.q_deg, row.wrench);
             let mut columns = vec![Vector3::zeros(); PARAM_COUNT];
             let mut angular = vec![Vector3::zeros(); PARAM_COUNT];
@@ -559,7 +599,7 @@ mod tests {
                 prediction
             );
             assert_eq!(position_only, columns);
-            let tool = robot.tool_in_world(&p.aimed_at(row.target), &q, &w);
+            let tool = robot.tool_in_world(&p.aimed_at(row.target), &q, &w, &row.approach);
             assert!((tool.rotation - rotation).norm() < 1e-13);
             for id in &all {
                 let h = step(*id);
@@ -567,7 +607,9 @@ mod tests {
                 plus.0[id.index()] += h;
                 let mut minus = p;
                 minus.0[id.index()] -= h;
-                let at = |v: &ParamValues| robot.tool_in_world(&v.aimed_at(row.target), &q, &w);
+                let at = |v: &ParamValues| {
+                    robot.tool_in_world(&v.aimed_at(row.target), &q, &w, &row.approach)
+                };
                 let turn = at(&plus).rotation * at(&minus).rotation.transpose();
                 let fd =
                     super::super::frame::rotation_vector(&turn).map(f64::to_degrees) / (2.0 * h);
@@ -579,7 +621,9 @@ mod tests {
                 );
             }
             // Every kind of parameter turns the tool somewhere, except translations.
-            for name in ["alpha_w", "gamma_t", "dtheta6", "dalpha3", "k2"] {
+            for name in [
+                "alpha_w", "gamma_t", "dtheta6", "dalpha3", "k2", "sin2q3", "cos1q5",
+            ] {
                 let id = ParamId::from_name(name).unwrap();
                 assert!(angular[id.index()].norm() > 1e-6, "{name}");
             }

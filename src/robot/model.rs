@@ -15,7 +15,8 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::file::RobotSpec;
 use super::frame::{Frame, rot_x};
-use super::params::{MAX_TARGETS, PARAM_COUNT, ParamId, ParamValues};
+use super::jacobian::ConfWrench;
+use super::params::{MAX_HARMONIC_ORDER, MAX_TARGETS, PARAM_COUNT, ParamId, ParamValues};
 
 /// Number of joints; the model is for six-axis arms only.
 pub const JOINTS: usize = 6;
@@ -185,6 +186,7 @@ impl Robot {
             tool_rx,
             world_from_base: self.world_from_base(p),
             world_rotation_axes: world_rotation_axes(p),
+            joint_terms: JointTerms::of(p),
         }
     }
 
@@ -238,13 +240,20 @@ impl Robot {
         self.prepare(p).deflections(q_deg, wrench)
     }
 
-    /// Tool pose in the world frame on the loaded (deflected) robot.
-    pub fn tool_in_world(&self, p: &ParamValues, q_deg: &[f64; JOINTS], wrench: &Wrench) -> Frame {
+    /// Tool pose in the world frame on the loaded (deflected) robot, each
+    /// joint approached from `approach` (−1, 0, +1; spec §8: only a model with
+    /// backlash tells them apart).
+    pub fn tool_in_world(
+        &self,
+        p: &ParamValues,
+        q_deg: &[f64; JOINTS],
+        wrench: &Wrench,
+        approach: &[i8; JOINTS],
+    ) -> Frame {
         let prepared = self.prepare(p);
-        let (_, deflections) = prepared.deflections(q_deg, wrench);
         prepared
             .world_from_base
-            .compose(&prepared.chain(q_deg, &deflections).tool)
+            .compose(&prepared.loaded_chain(q_deg, wrench, approach))
     }
 
     /// Paper eq. (17): the SMR position with torques and deflections.
@@ -283,6 +292,73 @@ fn world_rotation_axes(p: &ParamValues) -> [Vector3<f64>; 3] {
     ]
 }
 
+/// The joint-error terms of a parameter set beyond the paper (issue #29): an
+/// angle added to each joint's reading, like a compliance deflection.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct JointTerms {
+    /// Half dead band per joint, deg, signed by the approach direction.
+    backlash_deg: [f64; JOINTS],
+    /// Per joint and order 1..: coefficients (deg) of sin(n·q) and cos(n·q).
+    harmonics_deg: [[(f64, f64); MAX_HARMONIC_ORDER]; JOINTS],
+    /// Whether any harmonic coefficient is non-zero: the elasto-geometric
+    /// model skips their trigonometry.
+    any_harmonic: bool,
+}
+
+impl JointTerms {
+    fn of(p: &ParamValues) -> Self {
+        let harmonics_deg: [[(f64, f64); MAX_HARMONIC_ORDER]; JOINTS] =
+            std::array::from_fn(|joint| {
+                std::array::from_fn(|o| {
+                    (
+                        p.get(ParamId::harmonic(joint, o + 1, false)),
+                        p.get(ParamId::harmonic(joint, o + 1, true)),
+                    )
+                })
+            });
+        let mut backlash = ParamId::backlashes();
+        JointTerms {
+            backlash_deg: std::array::from_fn(|_| backlash.next().map_or(0.0, |id| p.get(id))),
+            any_harmonic: harmonics_deg
+                .iter()
+                .flatten()
+                .any(|(s, c)| *s != 0.0 || *c != 0.0),
+            harmonics_deg,
+        }
+    }
+
+    /// The angle (deg) each joint sits past its reading `q_deg` when it
+    /// approached from `approach`.
+    pub(crate) fn angles_deg(
+        &self,
+        q_deg: &[f64; JOINTS],
+        approach: &[i8; JOINTS],
+    ) -> [f64; JOINTS] {
+        std::array::from_fn(|joint| {
+            let mut angle = self.backlash_deg[joint] * f64::from(approach[joint]);
+            if self.any_harmonic {
+                for (n, (sine, cosine)) in harmonic_basis(q_deg[joint]).iter().enumerate() {
+                    let (a, b) = self.harmonics_deg[joint][n];
+                    angle += a * sine + b * cosine;
+                }
+            }
+            angle
+        })
+    }
+}
+
+/// `(sin(n·q), cos(n·q))` for n = 1..=[`MAX_HARMONIC_ORDER`], by the angle-sum
+/// recurrence from one `sin_cos`.
+pub(crate) fn harmonic_basis(q_deg: f64) -> [(f64, f64); MAX_HARMONIC_ORDER] {
+    let (s1, c1) = (q_deg * DEG).sin_cos();
+    let mut basis = [(s1, c1); MAX_HARMONIC_ORDER];
+    for n in 1..MAX_HARMONIC_ORDER {
+        let (s, c) = basis[n - 1];
+        basis[n] = (s * c1 + c * s1, c * c1 - s * s1);
+    }
+    basis
+}
+
 /// A robot at one parameter set: the MDH link rotations about x and offsets, the
 /// tool and the world frames are fixed by the set, so they are computed once and a
 /// row only evaluates its six joint rotations (a third of the trigonometry).
@@ -305,6 +381,7 @@ pub struct PreparedRobot<'r> {
     pub(crate) world_from_base: Frame,
     /// Axes (world frame, through the world origin) of the world rotations of eq. (3).
     pub(crate) world_rotation_axes: [Vector3<f64>; 3],
+    pub(crate) joint_terms: JointTerms,
 }
 
 impl<'r> PreparedRobot<'r> {
@@ -328,6 +405,20 @@ impl<'r> PreparedRobot<'r> {
         )
     }
 
+    /// Tool frame (base frame, target 0) of the loaded robot: the compliance
+    /// deflections and the joint-error terms added to the readings.
+    pub(crate) fn loaded_chain(
+        &self,
+        q_deg: &[f64; JOINTS],
+        wrench: &Wrench,
+        approach: &[i8; JOINTS],
+    ) -> Frame {
+        let (_, deflections) = self.deflections(q_deg, wrench);
+        let terms = self.joint_terms.angles_deg(q_deg, approach);
+        self.chain(q_deg, &std::array::from_fn(|i| deflections[i] + terms[i]))
+            .tool
+    }
+
     /// Forward chain for the (sin, cos) of each joint angle, to `target`'s tool frame.
     fn chain_at(&self, joint_sin_cos: &[(f64, f64); JOINTS], target: usize) -> Chain {
         let mut joints = [Frame::identity(); JOINTS + 1];
@@ -347,24 +438,34 @@ impl<'r> PreparedRobot<'r> {
         }
     }
 
-    /// Both chains of one conf-wrench row to `target`'s tool frame: the undeflected
-    /// one with its loads, and the deflected one. The deflected joint angles reuse the
-    /// undeflected sines and cosines through the angle-sum formula, which halves the
-    /// trigonometry. The row's tool frame carries the payload and the wrench.
-    pub(crate) fn loaded_chains(
-        &self,
-        q_deg: &[f64; JOINTS],
-        wrench: &Wrench,
-        target: usize,
-    ) -> LoadedChains {
+    /// Both chains of one conf-wrench row to its target's tool frame: the
+    /// undeflected one (the readings) with its loads, and the deflected one
+    /// (compliance deflections and joint-error terms added). The deflected joint
+    /// angles reuse the undeflected sines and cosines through the angle-sum
+    /// formula, which halves the trigonometry. The row's tool frame carries the
+    /// payload and the wrench.
+    pub(crate) fn loaded_chains(&self, row: &ConfWrench) -> LoadedChains {
+        let ConfWrench {
+            q_deg,
+            wrench,
+            target,
+            approach,
+        } = row;
+        let target = *target;
         let undeflected_sin_cos: [(f64, f64); JOINTS] =
             std::array::from_fn(|i| (q_deg[i] * DEG + self.theta_zero_rad[i]).sin_cos());
         let undeflected = self.chain_at(&undeflected_sin_cos, target);
         let loads = self.robot.loads(&undeflected, wrench);
         let deflections_deg: [f64; JOINTS] =
             std::array::from_fn(|i| self.compliance(i) * loads.torques_nm[i]);
+        let terms_deg = self.joint_terms.angles_deg(q_deg, approach);
         let deflected = self.chain_at(
-            &std::array::from_fn(|i| add_angle(undeflected_sin_cos[i], deflections_deg[i] * DEG)),
+            &std::array::from_fn(|i| {
+                add_angle(
+                    undeflected_sin_cos[i],
+                    (deflections_deg[i] + terms_deg[i]) * DEG,
+                )
+            }),
             target,
         );
         LoadedChains {
@@ -387,19 +488,16 @@ impl<'r> PreparedRobot<'r> {
         (torques, deflections)
     }
 
-    /// Paper eq. (17): the SMR position with torques and deflections (target 0).
+    /// Paper eq. (17): the SMR position with torques and deflections (target 0,
+    /// no approach direction).
     pub fn predict(&self, q_deg: &[f64; JOINTS], wrench: &Wrench) -> Prediction {
-        self.predict_target(q_deg, wrench, 0)
+        self.predict_row(&ConfWrench::new(*q_deg, *wrench))
     }
 
-    /// [`Self::predict`] for the SMR of `target` (spec §7).
-    pub fn predict_target(
-        &self,
-        q_deg: &[f64; JOINTS],
-        wrench: &Wrench,
-        target: usize,
-    ) -> Prediction {
-        let chains = self.loaded_chains(q_deg, wrench, target);
+    /// [`Self::predict`] for a row: its target's SMR (spec §7) and its
+    /// approach directions (spec §8).
+    pub fn predict_row(&self, row: &ConfWrench) -> Prediction {
+        let chains = self.loaded_chains(row);
         Prediction {
             position_mm: self
                 .world_from_base

@@ -22,8 +22,22 @@ pub const BASE_PARAM_COUNT: usize = 42;
 /// Targets (SMR nests) one calibration can fit jointly.
 pub const MAX_TARGETS: usize = 8;
 
-/// Value slots: the 42, then one translation triple per further target.
-pub const PARAM_COUNT: usize = BASE_PARAM_COUNT + 3 * (MAX_TARGETS - 1);
+/// Slots of the 42 and the further targets' translations.
+const TARGETED_PARAM_COUNT: usize = BASE_PARAM_COUNT + 3 * (MAX_TARGETS - 1);
+
+/// Highest order of the transmission-error harmonics a joint can carry
+/// (`eg_harmonic`): once, twice and three times per output turn.
+pub const MAX_HARMONIC_ORDER: usize = 3;
+
+/// Slots of the joint-error terms beyond the paper (issue #29): a backlash per
+/// joint, then per joint and order a sine and a cosine coefficient.
+const JOINT_TERM_COUNT: usize = JOINTS + 2 * JOINTS * MAX_HARMONIC_ORDER;
+
+/// Value slots: the 42, one translation triple per further target, then the
+/// joint-error terms.
+pub const PARAM_COUNT: usize = TARGETED_PARAM_COUNT + JOINT_TERM_COUNT;
+
+use super::model::JOINTS;
 
 /// One of the parameters, by its slot: the spec's 42 in its order, then the
 /// translations of targets 1.. .
@@ -51,6 +65,16 @@ pub enum ParamKind {
     D(usize),
     /// Joint compliance (deg/(N·m)).
     Compliance(usize),
+    /// Half the dead band of joint 0..6 (deg): the joint sits this far past its
+    /// command in the direction it approached from (`dir1..dir6`, spec §8).
+    Backlash(usize),
+    /// Coefficient (deg) of `sin(order·q)` (or `cos`) in the transmission
+    /// error of `joint`, q its reading.
+    Harmonic {
+        joint: usize,
+        order: usize,
+        cosine: bool,
+    },
 }
 
 const NAMES: [&str; BASE_PARAM_COUNT] = [
@@ -67,6 +91,28 @@ static TARGET_NAMES: std::sync::LazyLock<Vec<String>> = std::sync::LazyLock::new
         .collect()
 });
 
+/// Names of the joint-error terms, in slot order: `backlash1..6`, then per joint
+/// and order `sin{n}q{j}` and `cos{n}q{j}` (the coefficient of sin(n·q_j)).
+static JOINT_TERM_NAMES: std::sync::LazyLock<Vec<String>> = std::sync::LazyLock::new(|| {
+    (0..JOINT_TERM_COUNT)
+        .map(
+            |slot| match ParamId((TARGETED_PARAM_COUNT + slot) as u8).kind() {
+                ParamKind::Backlash(joint) => format!("backlash{}", joint + 1),
+                ParamKind::Harmonic {
+                    joint,
+                    order,
+                    cosine,
+                } => format!(
+                    "{}{order}q{}",
+                    if cosine { "cos" } else { "sin" },
+                    joint + 1
+                ),
+                other => unreachable!("slot {slot} is a joint term, not {other:?}"),
+            },
+        )
+        .collect()
+});
+
 /// Tool-translation parameter names by axis.
 pub const TOOL_TRANSLATION_NAMES: [&str; 3] = ["x_t", "y_t", "z_t"];
 
@@ -80,6 +126,39 @@ impl ParamId {
     pub fn all_with_targets(targets: usize) -> impl Iterator<Item = ParamId> {
         let extra = 3 * targets.clamp(1, MAX_TARGETS).saturating_sub(1);
         (0..(BASE_PARAM_COUNT + extra) as u8).map(ParamId)
+    }
+
+    /// The backlash of each joint, in joint order.
+    pub fn backlashes() -> impl Iterator<Item = ParamId> {
+        (0..JOINTS).map(|joint| ParamId((TARGETED_PARAM_COUNT + joint) as u8))
+    }
+
+    /// The sine and cosine coefficients of every joint at `orders` (each in
+    /// 1..=[`MAX_HARMONIC_ORDER`]; others are skipped).
+    pub fn harmonics(orders: &[usize]) -> impl Iterator<Item = ParamId> + '_ {
+        (0..JOINTS).flat_map(move |joint| {
+            orders
+                .iter()
+                .filter(|o| (1..=MAX_HARMONIC_ORDER).contains(*o))
+                .flat_map(move |order| {
+                    [false, true].map(|cosine| ParamId::harmonic(joint, *order, cosine))
+                })
+        })
+    }
+
+    /// The coefficient of `sin(order·q_joint)` (or `cos`).
+    pub fn harmonic(joint: usize, order: usize, cosine: bool) -> ParamId {
+        assert!(
+            joint < JOINTS && (1..=MAX_HARMONIC_ORDER).contains(&order),
+            "joint {joint} order {order}"
+        );
+        let slot = JOINTS + 2 * (joint * MAX_HARMONIC_ORDER + order - 1) + usize::from(cosine);
+        ParamId((TARGETED_PARAM_COUNT + slot) as u8)
+    }
+
+    /// Every joint-error term, in slot order.
+    pub fn joint_terms() -> impl Iterator<Item = ParamId> {
+        (TARGETED_PARAM_COUNT..PARAM_COUNT).map(|i| ParamId(i as u8))
     }
 
     /// The translation of `target` (0-based) along `axis`.
@@ -103,19 +182,37 @@ impl ParamId {
         (index < PARAM_COUNT).then_some(ParamId(index as u8))
     }
 
+    /// One of the 42 or a joint-error term by its name (a further target's
+    /// translation is named by the table layer).
     pub fn from_name(name: &str) -> Option<ParamId> {
         NAMES
             .iter()
             .position(|n| *n == name)
             .map(|i| ParamId(i as u8))
+            .or_else(|| {
+                JOINT_TERM_NAMES
+                    .iter()
+                    .position(|n| n == name)
+                    .map(|slot| ParamId((TARGETED_PARAM_COUNT + slot) as u8))
+            })
+    }
+
+    /// Every name [`Self::from_name`] knows, for suggestions.
+    pub fn known_names() -> impl Iterator<Item = &'static str> {
+        NAMES
+            .iter()
+            .copied()
+            .chain(JOINT_TERM_NAMES.iter().map(String::as_str))
     }
 
     /// The spec's name; a further target's translation is `x_t[#k]` until a table
     /// names it by its target id.
     pub fn name(self) -> &'static str {
-        match NAMES.get(self.index()) {
+        let i = self.index();
+        match NAMES.get(i) {
             Some(name) => name,
-            None => &TARGET_NAMES[self.index() - BASE_PARAM_COUNT],
+            None if i < TARGETED_PARAM_COUNT => &TARGET_NAMES[i - BASE_PARAM_COUNT],
+            None => &JOINT_TERM_NAMES[i - TARGETED_PARAM_COUNT],
         }
     }
 
@@ -134,6 +231,15 @@ impl ParamId {
             24..=29 => ParamKind::A(i - 24),
             30..=35 => ParamKind::D(i - 30),
             36..=41 => ParamKind::Compliance(i - 36),
+            _ if i >= TARGETED_PARAM_COUNT + JOINTS => {
+                let slot = i - TARGETED_PARAM_COUNT - JOINTS;
+                ParamKind::Harmonic {
+                    joint: slot / (2 * MAX_HARMONIC_ORDER),
+                    order: 1 + (slot % (2 * MAX_HARMONIC_ORDER)) / 2,
+                    cosine: slot % 2 == 1,
+                }
+            }
+            _ if i >= TARGETED_PARAM_COUNT => ParamKind::Backlash(i - TARGETED_PARAM_COUNT),
             _ => ParamKind::ToolTranslation {
                 target: 1 + (i - BASE_PARAM_COUNT) / 3,
                 axis: (i - BASE_PARAM_COUNT) % 3,
@@ -151,13 +257,24 @@ impl ParamId {
             ParamKind::WorldRotation(_)
             | ParamKind::ToolRotation(_)
             | ParamKind::Theta(_)
-            | ParamKind::Alpha(_) => "deg",
+            | ParamKind::Alpha(_)
+            | ParamKind::Backlash(_)
+            | ParamKind::Harmonic { .. } => "deg",
             ParamKind::Compliance(_) => "deg/(N·m)",
         }
     }
 
     pub fn is_compliance(self) -> bool {
         matches!(self.kind(), ParamKind::Compliance(_))
+    }
+
+    /// A backlash or transmission-error harmonic (issue #29): an angle added to
+    /// the joint's reading like a compliance deflection.
+    pub fn is_joint_term(self) -> bool {
+        matches!(
+            self.kind(),
+            ParamKind::Backlash(_) | ParamKind::Harmonic { .. }
+        )
     }
 
     pub fn is_tool_rotation(self) -> bool {
@@ -365,8 +482,39 @@ mod tests {
         assert_eq!(ParamId::all_with_targets(3).count(), 48);
         assert_eq!(
             ParamId::target_translation(MAX_TARGETS - 1, 2).index(),
-            PARAM_COUNT - 1
+            TARGETED_PARAM_COUNT - 1
         );
+    }
+
+    #[test]
+    fn joint_terms_have_slots_names_and_kinds_of_their_own() {
+        let terms: Vec<ParamId> = ParamId::joint_terms().collect();
+        assert_eq!(terms.len(), 6 + 2 * 6 * MAX_HARMONIC_ORDER);
+        assert_eq!(terms.last().unwrap().index(), PARAM_COUNT - 1);
+        let mut names: Vec<&str> = terms.iter().map(|t| t.name()).collect();
+        names.sort();
+        names.dedup();
+        assert_eq!(names.len(), terms.len());
+        for id in &terms {
+            assert!(id.is_joint_term() && !id.is_compliance());
+            assert_eq!(ParamId::from_name(id.name()), Some(*id));
+            assert_eq!(id.unit(), "deg");
+        }
+        assert_eq!(ParamId::backlashes().nth(2).unwrap().name(), "backlash3");
+        let h = ParamId::harmonic(3, 2, true);
+        assert_eq!(h.name(), "cos2q4");
+        assert_eq!(
+            h.kind(),
+            ParamKind::Harmonic {
+                joint: 3,
+                order: 2,
+                cosine: true
+            }
+        );
+        assert_eq!(ParamId::harmonics(&[1, 2]).count(), 24);
+        assert_eq!(ParamId::harmonics(&[9]).count(), 0);
+        // The 42 and the targets keep their slots.
+        assert_eq!(ParamId::target_translation(7, 2).index(), 62);
     }
 
     #[test]

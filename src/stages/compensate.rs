@@ -481,6 +481,7 @@ impl CompensateSettings {
                 ..NumericOptions::default()
             },
             singular_sigma_min_mm_per_rad: self.singular_sigma_min_mm_per_rad,
+            approach: [0; JOINTS],
         }
     }
 }

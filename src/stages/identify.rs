@@ -31,6 +31,7 @@ use crate::calibration::selection::{ParameterSelection, SelectionRule};
 use crate::calibration::{
     CalibrationOptions, ModelResult, calibrate, registered_start, row_checks, stream, unit_checks,
 };
+use crate::robot::params::MAX_HARMONIC_ORDER;
 use crate::robot::{ConfWrench, MAX_TARGETS, ParamId, ParamValues};
 use crate::table::frame;
 use crate::table::parameters::{self, ModelName};
@@ -93,7 +94,10 @@ pub enum FixedValue {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct IdentifySettings {
-    /// Models to identify: nominal, registered, kinematic, elastogeometric.
+    /// Models to identify: nominal, registered, kinematic, elastogeometric,
+    /// reregistered, and the rungs beyond the paper eg_backlash (a backlash
+    /// per joint, from the rows' `dir1..dir6`) and eg_harmonic (eg_backlash
+    /// with transmission-error harmonics at `harmonic_orders`).
     pub models: Vec<String>,
     /// Parameters that may be freed (empty: all 42); rank analysis drops dependent ones.
     pub candidates: Vec<String>,
@@ -210,6 +214,10 @@ pub struct IdentifySettings {
     #[schemars(range(max = 10.0))]
     #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub held_out_min_t: f64,
+    /// Model `eg_harmonic`: the orders n of the transmission-error terms
+    /// sin(n·q) and cos(n·q) fitted per joint (1: once per output turn, 2:
+    /// twice, the usual strain-wave and RV reducer errors), each 1..=3.
+    pub harmonic_orders: Vec<usize>,
 }
 
 /// How `identify` chooses the free parameters.
@@ -257,6 +265,7 @@ impl Default for IdentifySettings {
             held_out_grouping: Grouping::Configuration,
             held_out_folds: 5,
             held_out_min_t: 2.0,
+            harmonic_orders: vec![1, 2],
             use_orientation: true,
             orientation_lever_mm: DEFAULT_ORIENTATION_LEVER_MM,
         }
@@ -322,7 +331,7 @@ impl IdentifySettings {
                     &key,
                     format!(
                         "unknown parameter{}",
-                        crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
+                        crate::suggest::did_you_mean(name, ParamId::known_names())
                     ),
                 ));
                 continue;
@@ -711,7 +720,7 @@ fn parse_candidates(names: &[String]) -> Result<Vec<ParamId>, StageError> {
             ParamId::from_name(n).ok_or_else(|| {
                 StageError::Invalid(format!(
                     "setting `candidates`: unknown parameter `{n}`{}",
-                    crate::suggest::did_you_mean(n, ParamId::all().map(|p| p.name()))
+                    crate::suggest::did_you_mean(n, ParamId::known_names())
                 ))
             })
         })
@@ -748,6 +757,21 @@ impl Stage for IdentifyStage {
         }
         if let Err(bad) = settings.fixed_values(&ParamValues::nominal(ctx.robot)) {
             problems.extend(bad);
+        }
+        for (i, order) in settings.harmonic_orders.iter().enumerate() {
+            if settings.harmonic_orders[..i].contains(order) {
+                problems.push(SettingsProblem::new(
+                    &format!("harmonic_orders[{i}]"),
+                    format!("order {order} is listed twice"),
+                ));
+            } else if !(1..=MAX_HARMONIC_ORDER).contains(order) {
+                problems.push(SettingsProblem::new(
+                    &format!("harmonic_orders[{i}]"),
+                    format!(
+                        "order {order}: expected 1 to {MAX_HARMONIC_ORDER} (times per output turn)"
+                    ),
+                ));
+            }
         }
         if settings.huber_sigmas > settings.reject_sigmas {
             problems.push(SettingsProblem::new(
@@ -853,6 +877,7 @@ impl Stage for IdentifyStage {
             robust,
             fixed,
             targets: targets.len().max(1),
+            harmonic_orders: settings.harmonic_orders.clone(),
             hold: Some(settings.hold_options()),
             selection: match settings.parameter_choice {
                 ParameterChoice::StandardErrors => None,

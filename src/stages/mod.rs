@@ -614,7 +614,8 @@ pub fn covariance_columns(
         .collect()
 }
 
-/// Reads conf-wrench rows (cw_id, q1..q6, wrench) from a checked table.
+/// Reads conf-wrench rows (cw_id, q1..q6, wrench, approach directions where
+/// given) from a checked table.
 pub fn conf_wrench_rows(
     input: &InputTable,
 ) -> Result<(Vec<i64>, Vec<crate::robot::ConfWrench>), StageError> {
@@ -629,11 +630,13 @@ pub fn conf_wrench_rows(
         .iter()
         .map(|c| f64_values(&input.df, c, path))
         .collect::<Result<Vec<_>, _>>()?;
+    let approach = crate::table::schema::approach_values(&input.df, path)?;
     let rows = (0..ids.len())
         .map(|k| crate::robot::ConfWrench {
             q_deg: std::array::from_fn(|i| joints[i][k]),
             wrench: crate::robot::Wrench::from_array(std::array::from_fn(|i| wrench[i][k])),
             target: 0,
+            approach: approach[k],
         })
         .collect();
     Ok((ids, rows))

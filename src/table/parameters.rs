@@ -30,6 +30,12 @@ pub enum ModelName {
     /// An earlier calibration's robot with the world frame and tool
     /// translation(s) fitted anew (a moved tracker or re-mounted tool, spec §7).
     Reregistered,
+    /// Elasto-geometric with a backlash per joint, signed by the approach
+    /// direction (issue #29).
+    EgBacklash,
+    /// `eg_backlash` with transmission-error harmonics per joint at the chosen
+    /// orders (issue #29).
+    EgHarmonic,
 }
 
 impl ModelName {
@@ -49,7 +55,24 @@ impl ModelName {
             ModelName::Kinematic => "kinematic",
             ModelName::Elastogeometric => "elastogeometric",
             ModelName::Reregistered => "reregistered",
+            ModelName::EgBacklash => "eg_backlash",
+            ModelName::EgHarmonic => "eg_harmonic",
         }
+    }
+
+    /// Every model a job may name.
+    pub fn every() -> impl Iterator<Item = ModelName> + Clone {
+        ModelName::ALL.into_iter().chain([
+            ModelName::Reregistered,
+            ModelName::EgBacklash,
+            ModelName::EgHarmonic,
+        ])
+    }
+
+    /// Whether the model has the joint-error terms beyond the paper's
+    /// (backlash, harmonics).
+    pub fn has_joint_terms(self) -> bool {
+        matches!(self, ModelName::EgBacklash | ModelName::EgHarmonic)
     }
 }
 
@@ -62,10 +85,10 @@ impl fmt::Display for ModelName {
 impl FromStr for ModelName {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        let every = ModelName::ALL.into_iter().chain([ModelName::Reregistered]);
+        let every = ModelName::every();
         every.clone().find(|m| m.as_str() == s).ok_or_else(|| {
             format!(
-                "unknown model `{s}`, expected nominal, registered, kinematic, elastogeometric or reregistered{}",
+                "unknown model `{s}`, expected nominal, registered, kinematic, elastogeometric, reregistered, eg_backlash or eg_harmonic{}",
                 crate::suggest::did_you_mean(s, every.map(|m| m.as_str()))
             )
         })
@@ -135,9 +158,15 @@ impl ParameterSet {
         }
     }
 
-    /// The parameters this set has: the 42 and one translation per further target.
+    /// The parameters this set has: the 42, one translation per further
+    /// target, and the joint-error terms it uses (any not `fixed` at zero).
     pub fn ids(&self) -> impl Iterator<Item = ParamId> + use<> {
-        ParamId::all_with_targets(self.targets.len())
+        let used: Vec<ParamId> = ParamId::joint_terms()
+            .filter(|id| {
+                self.status[id.index()] != ParamStatus::Fixed || self.values.get(*id) != 0.0
+            })
+            .collect();
+        ParamId::all_with_targets(self.targets.len()).chain(used)
     }
 
     /// The table name of `id` in this set (`x_t[nest2]` with several targets).
@@ -438,7 +467,7 @@ pub fn from_frame(
                     "name",
                     format!(
                         "unknown parameter `{name}`{}",
-                        crate::suggest::did_you_mean(name, ParamId::all().map(|p| p.name()))
+                        crate::suggest::did_you_mean(name, ParamId::known_names())
                     ),
                 )
             })?;

@@ -2193,6 +2193,34 @@ pub fn optional_str_values(
     })
 }
 
+/// The approach directions (spec §8) of each row from `dir1..dir6`, 0 where a
+/// column or value is absent (not known); a value other than −1, 0 or 1 is an
+/// error naming its column and row.
+pub fn approach_values(df: &DataFrame, file: &Path) -> Result<Vec<[i8; 6]>, TableError> {
+    let mut approach = vec![[0i8; 6]; df.height()];
+    for (joint, name) in APPROACH_COLUMNS.iter().enumerate() {
+        let Some(values) = optional_values(df, name, file, ColumnType::Int8, |c| {
+            Ok(c.cast(&DataType::Int64)?.i64()?.iter().collect())
+        })?
+        else {
+            continue;
+        };
+        for (row, value) in values.into_iter().enumerate() {
+            let Some(value) = value else { continue };
+            approach[row][joint] = i8::try_from(value)
+                .ok()
+                .filter(|d| (-1..=1).contains(d))
+                .ok_or_else(|| TableError::BadValue {
+                    file: file.to_path_buf(),
+                    column: (*name).to_string(),
+                    row,
+                    message: format!("`{value}` is not an approach direction: expected -1, 0 or 1"),
+                })?;
+        }
+    }
+    Ok(approach)
+}
+
 /// Values of a utf8 column (nulls as `None`).
 pub fn str_values(
     df: &DataFrame,

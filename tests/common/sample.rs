@@ -31,6 +31,7 @@ pub fn random_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
                 rng.random_range(-bound..bound)
             })),
             target: 0,
+            approach: [0; 6],
         })
         .collect()
 }
