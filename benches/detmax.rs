@@ -35,6 +35,7 @@ fn candidates(count: usize, seed: u64) -> Candidates {
                 rng.random_range(-bound..bound)
             })),
             target: 0,
+            approach: [0; 6],
         })
         .collect();
     let parameters = Selection::spec_identifiable();

@@ -62,6 +62,7 @@ fn campaign(
             q_deg,
             wrench: Wrench::from_array(wrench),
             target: 0,
+            approach: [0; 6],
         });
         measured.push(Vector3::from(p));
     }

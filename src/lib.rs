@@ -15,6 +15,7 @@ pub mod iso9283;
 pub mod job;
 pub mod journal;
 pub mod lab;
+pub mod ladder;
 pub mod logs;
 pub mod publish;
 pub mod report;

@@ -116,7 +116,10 @@ fn eg_harmonic_recovers_the_simulated_backlash_and_transmission_errors() {
     // The paper's model cannot express them; the rung is at the noise.
     let (eg_rms, rung_rms) = (rms_mm(&eg), rms_mm(&harmonic));
     assert!(rung_rms < 0.03, "eg_harmonic RMS {rung_rms:.4} mm");
-    assert!(eg_rms > 3.0 * rung_rms, "eg {eg_rms:.4} against {rung_rms:.4} mm");
+    assert!(
+        eg_rms > 3.0 * rung_rms,
+        "eg {eg_rms:.4} against {rung_rms:.4} mm"
+    );
 }
 
 #[test]
@@ -173,4 +176,170 @@ fn rows_without_approach_directions_leave_the_backlash_dependent() {
     // The table lists them, so a reader sees why they are not used.
     let listed: Vec<ParamId> = result.set.ids().collect();
     assert!(ParamId::backlashes().all(|id| listed.contains(&id)));
+}
+
+/// `jobs/ladder_sim.toml` run from a temporary folder, after `edit` of its
+/// text; the output folder.
+fn run_ladder_job(dir: &std::path::Path, edit: impl Fn(String) -> String) -> std::path::PathBuf {
+    let jobs = common::root().join("jobs");
+    let text = std::fs::read_to_string(jobs.join("ladder_sim.toml")).unwrap();
+    let text = ["robots/", "cdpr/", "truth/", "targets/"]
+        .iter()
+        .fold(text, |text, folder| {
+            text.replace(
+                &format!("\"{folder}"),
+                &format!("\"{}/{folder}", jobs.display()),
+            )
+        });
+    let job = dir.join("ladder_sim.toml");
+    std::fs::write(&job, edit(text)).unwrap();
+    let (code, stdout, stderr) = common::run(&["run", job.to_str().unwrap()], dir);
+    assert_eq!(code, 0, "{stdout}\n{stderr}");
+    dir.join("out")
+}
+
+/// Per model of a crossvalidate `ladder` table: (mean mm, chosen).
+fn ladder(out: &std::path::Path, stage: &str) -> Vec<(String, f64, bool)> {
+    use egcal::table::{self, schema};
+    let path = out.join(stage).join("ladder.parquet");
+    let df = table::read_parquet(&path).unwrap();
+    let models = schema::str_values(&df, "model", &path).unwrap();
+    let means = schema::f64_values(&df, "mean_mm", &path).unwrap();
+    let chosen: Vec<bool> = df
+        .column("chosen")
+        .unwrap()
+        .bool()
+        .unwrap()
+        .iter()
+        .map(|c| c.unwrap())
+        .collect();
+    (0..models.len())
+        .map(|k| (models[k].clone().unwrap(), means[k], chosen[k]))
+        .collect()
+}
+
+/// Mean of |e| for e ~ N(0, σ²I₃): σ·2·√(2/π), the tracker-noise floor of a
+/// mean error.
+fn noise_floor_mm(sigma_mm: f64) -> f64 {
+    sigma_mm * 2.0 * (2.0 / std::f64::consts::PI).sqrt()
+}
+
+/// Issue #29's simulator targets: on folds of whole configurations and of
+/// whole regions, the chosen rung is within 1.5× the noise floor and the
+/// elasto-geometric model at least 2× worse.
+#[test]
+fn the_ladder_job_chooses_eg_harmonic_within_the_noise_floor_held_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = run_ladder_job(dir.path(), |text| text);
+    let floor = noise_floor_mm(0.02);
+    for stage in ["ladder", "ladder_region"] {
+        let rungs = ladder(&out.join("ladder_sim"), stage);
+        let names: Vec<&str> = rungs.iter().map(|r| r.0.as_str()).collect();
+        assert_eq!(names, ["elastogeometric", "eg_backlash", "eg_harmonic"]);
+        let chosen = rungs.iter().find(|r| r.2).unwrap();
+        assert_eq!(chosen.0, "eg_harmonic", "{stage}: {rungs:?}");
+        assert!(
+            chosen.1 <= 1.5 * floor,
+            "{stage}: {rungs:?}, floor {floor:.4}"
+        );
+        assert!(rungs[0].1 >= 2.0 * chosen.1, "{stage}: {rungs:?}");
+    }
+    assert_drilling_applied(&out.join("ladder_sim"), floor);
+}
+
+/// The drilling targets compensated with eg_harmonic and run on the
+/// simulated robot from their pre-positions land within 1.5× the noise floor,
+/// and the program reaches each target the same way.
+fn assert_drilling_applied(out: &std::path::Path, floor: f64) {
+    use egcal::table::{self, schema};
+    let path = out.join("accuracy_drilling").join("target_stats.parquet");
+    let df = table::read_parquet(&path).unwrap();
+    let runs = schema::str_values(&df, "run", &path).unwrap();
+    let means = schema::f64_values(&df, "mean_mm", &path).unwrap();
+    let mean_of = |run: &str| means[runs.iter().position(|r| r.as_deref() == Some(run)).unwrap()];
+    let (rung, eg) = (mean_of("achieved"), mean_of("baseline"));
+    assert!(
+        rung <= 1.5 * floor,
+        "eg_harmonic {rung:.4} mm, floor {floor:.4}"
+    );
+    assert!(
+        eg >= 2.0 * rung,
+        "elastogeometric {eg:.4} against {rung:.4} mm"
+    );
+
+    // compensate wrote the directions it solved for; the program moves to a
+    // pre-position 1° below each target on every joint, then to the target
+    // with an exact stop.
+    let commands_path = out.join("compensate_drilling").join("commands.parquet");
+    let commands = table::read_parquet(&commands_path).unwrap();
+    let directions = schema::approach_values(&commands, &commands_path).unwrap();
+    assert!(directions.iter().all(|d| *d == [1; 6]), "{directions:?}");
+    let text = std::fs::read_to_string(out.join("program_drilling").join("DRILLING.mod")).unwrap();
+    let joint_targets: std::collections::BTreeMap<String, Vec<f64>> = text
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("CONST jointtarget "))
+        .map(|rest| {
+            let (name, value) = rest.split_once(":=").unwrap();
+            let numbers = value
+                .split(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-' || c == 'E'))
+                .filter_map(|t| t.parse::<f64>().ok())
+                .take(6)
+                .collect();
+            (name.trim().to_string(), numbers)
+        })
+        .collect();
+    let moves: Vec<(String, String)> = text
+        .lines()
+        .map(str::trim)
+        .skip_while(|l| *l != "PROC path_joint()")
+        .take_while(|l| *l != "ENDPROC")
+        .filter_map(|l| l.strip_prefix("MoveAbsJ "))
+        .map(|rest| {
+            let fields: Vec<&str> = rest.split(", ").collect();
+            (fields[0].to_string(), fields[2].to_string())
+        })
+        .collect();
+    assert!(
+        !moves.is_empty() && moves.len().is_multiple_of(2),
+        "{moves:?}"
+    );
+    for pair in moves.chunks(2) {
+        let (pre, target) = (&pair[0], &pair[1]);
+        assert!(
+            pre.0.starts_with("jp_") && target.0.starts_with("jt_"),
+            "{pair:?}"
+        );
+        assert_eq!(pre.0[3..], target.0[3..]);
+        assert_eq!(target.1, "fine");
+        let (p, t) = (&joint_targets[&pre.0], &joint_targets[&target.0]);
+        for joint in 0..6 {
+            assert!(
+                (t[joint] - p[joint] - 1.0).abs() < 1e-5,
+                "{pair:?}: {p:?} {t:?}"
+            );
+        }
+    }
+}
+
+/// A robot without backlash or transmission errors: the richer rungs only fit
+/// noise, and the ladder stays with the elasto-geometric model.
+#[test]
+fn a_rung_that_only_adds_noise_is_not_chosen() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = run_ladder_job(dir.path(), |text| {
+        text.replace("backlash_deg = 0.01", "backlash_deg = 0.0")
+            .replace(
+                "transmission_error_1_deg = 0.01",
+                "transmission_error_1_deg = 0.0",
+            )
+            .replace(
+                "transmission_error_deg = 0.01",
+                "transmission_error_deg = 0.0",
+            )
+    });
+    for stage in ["ladder", "ladder_region"] {
+        let rungs = ladder(&out.join("ladder_sim"), stage);
+        let chosen = rungs.iter().find(|r| r.2).unwrap();
+        assert_eq!(chosen.0, "elastogeometric", "{stage}: {rungs:?}");
+    }
 }

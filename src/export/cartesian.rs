@@ -82,6 +82,10 @@ pub struct Stop {
     /// The point `approach_mm` back along the tool's z axis, moved to before
     /// the target and again after it; `None` without approach moves.
     pub approach: Option<Pose>,
+    /// The joint configuration moved to before the target so that each joint
+    /// reaches it from the command's approach direction (backlash); `None`
+    /// without pre-positioning or without a direction.
+    pub pre_position_q_deg: Option<[f64; JOINTS]>,
 }
 
 /// Why a program's Cartesian moves cannot be written.
@@ -104,6 +108,21 @@ pub enum CartesianError {
         target_branch: u8,
         approach_branch: u8,
     },
+    #[error(
+        "target_id {target_id}: the pre-positioning move {pre_position_deg}° before the command on joint {joint} (to {q_deg}°, so that the joint reaches the command from the direction the backlash was compensated for) is outside the joint's limits [{lower_deg}°, {upper_deg}°]; compensate this target from the other direction (`compensate`'s `approach`) or leave it out"
+    )]
+    PrePositionOutsideLimits {
+        target_id: i64,
+        pre_position_deg: f64,
+        joint: usize,
+        q_deg: f64,
+        lower_deg: f64,
+        upper_deg: f64,
+    },
+    #[error(
+        "target_id {target_id}: the command was compensated for joints reaching it from fixed directions (backlash), but a linear approach along the tool's z axis ({approach_mm} mm) decides the joints' directions itself; set `approach_mm` = 0, or `pre_position_deg` = 0 to write the program without pre-positioning (it then warns)"
+    )]
+    PrePositionWithApproach { target_id: i64, approach_mm: f64 },
 }
 
 /// The pose of `tool` at `q_deg` on `robot`'s nominal arm, base frame.
@@ -117,6 +136,9 @@ pub fn tool_in_base(robot: &Robot, tool: &ProgramTool, q_deg: &[f64; JOINTS]) ->
 /// along the tool's z axis, with the nominal arm's configuration there nearest
 /// the target's (which must be of the same branch).
 ///
+/// With `pre_position_deg`, a row compensated for approach directions gets
+/// the configuration that far back from its command along them.
+///
 /// Cost: one forward chain per row; with approach points, one nominal inverse
 /// kinematics per row too (µs in closed form, about 1 ms numerically).
 pub fn stops(
@@ -125,6 +147,7 @@ pub fn stops(
     tools: &[ProgramTool],
     row_tools: &[usize],
     approach_mm: Option<f64>,
+    pre_position_deg: Option<f64>,
 ) -> Result<Vec<Stop>, CartesianError> {
     commands
         .iter()
@@ -137,14 +160,52 @@ pub fn stops(
                 Some(distance) => Some(approach_pose(robot, tool, &target_frame, c, distance)?),
                 None => None,
             };
+            let pre_position_q_deg = match pre_position_deg {
+                Some(distance) if c.has_approach() => {
+                    if let Some(approach_mm) = approach_mm {
+                        return Err(CartesianError::PrePositionWithApproach {
+                            target_id: c.target_id,
+                            approach_mm,
+                        });
+                    }
+                    Some(pre_position(robot, c, distance)?)
+                }
+                _ => None,
+            };
             Ok(Stop {
                 target_id: c.target_id,
                 tool: tool_index,
                 target: pose(&target_frame, c.q_deg),
                 approach,
+                pre_position_q_deg,
             })
         })
         .collect()
+}
+
+/// The command moved back by `distance_deg` against each joint's approach
+/// direction, within the joint limits.
+fn pre_position(
+    robot: &Robot,
+    command: &Command,
+    distance_deg: f64,
+) -> Result<[f64; JOINTS], CartesianError> {
+    let mut q_deg = command.q_deg;
+    for (joint, q) in q_deg.iter_mut().enumerate() {
+        *q -= f64::from(command.approach[joint]) * distance_deg;
+        let [lower_deg, upper_deg] = robot.limits_deg(joint);
+        if !(lower_deg..=upper_deg).contains(q) {
+            return Err(CartesianError::PrePositionOutsideLimits {
+                target_id: command.target_id,
+                pre_position_deg: distance_deg,
+                joint: joint + 1,
+                q_deg: *q,
+                lower_deg,
+                upper_deg,
+            });
+        }
+    }
+    Ok(q_deg)
 }
 
 fn approach_pose(
@@ -268,6 +329,7 @@ mod tests {
             tool_id: None,
             envelope_distance: None,
             u95_mm: None,
+            approach: [0; JOINTS],
         }
     }
 
@@ -286,7 +348,7 @@ mod tests {
     fn approach_points_lie_back_along_the_tool_axis_on_the_same_branch() {
         let robot = irb1600();
         let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
-        let stops = stops(&robot, &[command(1, q)], &[tool()], &[0], Some(50.0)).unwrap();
+        let stops = stops(&robot, &[command(1, q)], &[tool()], &[0], Some(50.0), None).unwrap();
         let stop = &stops[0];
         let approach = stop.approach.unwrap();
         let target = tool_in_base(&robot, &tool(), &q);
@@ -307,6 +369,73 @@ mod tests {
     }
 
     #[test]
+    fn a_command_with_directions_is_reached_from_below_them_within_the_limits() {
+        let robot = irb1600();
+        let row = Command {
+            approach: [1, -1, 0, 1, 1, -1],
+            ..command(4, [10.0, 20.0, -30.0, 40.0, 50.0, 60.0])
+        };
+        let stop = &stops(
+            &robot,
+            std::slice::from_ref(&row),
+            &[tool()],
+            &[0],
+            None,
+            Some(0.5),
+        )
+        .unwrap()[0];
+        assert_eq!(
+            stop.pre_position_q_deg,
+            Some([9.5, 20.5, -30.0, 39.5, 49.5, 60.5])
+        );
+        // Without pre-positioning, or without a direction, none.
+        let plain = stops(
+            &robot,
+            std::slice::from_ref(&row),
+            &[tool()],
+            &[0],
+            None,
+            None,
+        )
+        .unwrap();
+        assert_eq!(plain[0].pre_position_q_deg, None);
+        let undirected = stops(
+            &robot,
+            &[command(4, row.q_deg)],
+            &[tool()],
+            &[0],
+            None,
+            Some(0.5),
+        );
+        assert_eq!(undirected.unwrap()[0].pre_position_q_deg, None);
+        // A pre-position beyond a joint limit is refused, naming row and joint.
+        let [lower, _] = robot.limits_deg(1);
+        let at_limit = Command {
+            q_deg: [10.0, lower + 0.2, -30.0, 40.0, 50.0, 60.0],
+            approach: [0, 1, 0, 0, 0, 0],
+            ..row.clone()
+        };
+        let err = stops(&robot, &[at_limit], &[tool()], &[0], None, Some(0.5)).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                CartesianError::PrePositionOutsideLimits {
+                    target_id: 4,
+                    joint: 2,
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        // A linear approach along the tool axis would decide the directions.
+        let err = stops(&robot, &[row], &[tool()], &[0], Some(50.0), Some(0.5)).unwrap_err();
+        assert!(
+            matches!(err, CartesianError::PrePositionWithApproach { .. }),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn an_approach_point_out_of_reach_is_refused_naming_the_target() {
         let robot = irb1600();
         // 5 m back along the tool axis is beyond a 1.45 m arm's reach.
@@ -316,6 +445,7 @@ mod tests {
             &[tool()],
             &[0],
             Some(5000.0),
+            None,
         )
         .unwrap_err();
         assert!(err.to_string().contains("target_id 7"), "{err}");
@@ -326,7 +456,15 @@ mod tests {
         let robot = irb1600();
         let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
         let mut row = command(3, q);
-        let stops = stops(&robot, std::slice::from_ref(&row), &[tool()], &[0], None).unwrap();
+        let stops = stops(
+            &robot,
+            std::slice::from_ref(&row),
+            &[tool()],
+            &[0],
+            None,
+            None,
+        )
+        .unwrap();
         row.position_mm = stops[0].target.position_mm;
         row.quaternion_wxyz = stops[0].target.quaternion_wxyz;
         assert_eq!(table_deviation(std::slice::from_ref(&row), &stops), None);

@@ -1,7 +1,9 @@
 //! Plain CSV of the commands a controller may execute (status `ok`): a header
 //! line and one line per row, nothing else, so that any CSV reader takes it as
 //! it is; in the `commands` table's column order and names, then the optional
-//! columns the table had (`tool_id`, `envelope_distance`, `u95_mm`). What every
+//! columns the table had (`tool_id`, `envelope_distance`, `u95_mm`, `dir1 …
+//! dir6`), and `pre_q1_deg … pre_q6_deg`, the configuration to move to before
+//! the row (empty where none), when the program pre-positions. What every
 //! exported file says in its header (provenance, assumptions, the tool the
 //! Cartesian columns are poses of, the rows left out) goes to the notes file
 //! beside it ([`notes`], `commands.csv.txt`).
@@ -10,6 +12,8 @@
 //! notes' tool at the joint command on the nominal arm (see
 //! [`super::cartesian`]); they equal the table's when the table was computed
 //! for that tool, and the notes warn when it was not.
+
+use crate::robot::JOINTS;
 
 use super::{
     JOINT_DECIMALS, POSITION_DECIMALS, Program, QUATERNION_DECIMALS, fixed, header_lines,
@@ -30,6 +34,8 @@ struct Optional {
     tool_id: bool,
     envelope_distance: bool,
     u95_mm: bool,
+    approach: bool,
+    pre_position: bool,
 }
 
 impl Optional {
@@ -39,6 +45,8 @@ impl Optional {
             tool_id: any(&|c| c.tool_id.is_some()),
             envelope_distance: any(&|c| c.envelope_distance.is_some()),
             u95_mm: any(&|c| c.u95_mm.is_some()),
+            approach: any(&|c| c.has_approach()),
+            pre_position: program.stops.iter().any(|s| s.pre_position_q_deg.is_some()),
         }
     }
 }
@@ -66,6 +74,12 @@ pub fn table(program: &Program) -> String {
             out.push(',');
             out.push_str(name);
         }
+    }
+    if optional.approach {
+        out.push_str(",dir1,dir2,dir3,dir4,dir5,dir6");
+    }
+    if optional.pre_position {
+        out.push_str(",pre_q1_deg,pre_q2_deg,pre_q3_deg,pre_q4_deg,pre_q5_deg,pre_q6_deg");
     }
     out.push('\n');
     let ok = program.commands.iter().filter(|c| c.is_ok());
@@ -100,6 +114,15 @@ pub fn table(program: &Program) -> String {
         }
         if optional.u95_mm {
             fields.push(number(c.u95_mm));
+        }
+        if optional.approach {
+            fields.extend(c.approach.iter().map(i8::to_string));
+        }
+        if optional.pre_position {
+            match &stop.pre_position_q_deg {
+                Some(q) => fields.extend(q.iter().map(|v| fixed(*v, JOINT_DECIMALS))),
+                None => fields.extend(std::iter::repeat_n(String::new(), JOINTS)),
+            }
         }
         out.push_str(&fields.join(","));
         out.push('\n');

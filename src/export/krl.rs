@@ -2,6 +2,10 @@
 //! `E6POS` per corrected Cartesian target; `<name>.src` moves to them (`PTP`
 //! E6AXIS; `PTP` E6POS to the first, then `LIN`).
 //!
+//! A command compensated for approach directions (backlash) is reached from
+//! its pre-position (`E6AXIS XB_<id>`): `PTP` there, then to the target with an
+//! exact stop (`PTP` E6AXIS on the joint path, `LIN` on the linear one).
+//!
 //! Conventions (KUKA System Software expert programming, "Status and Turn";
 //! the forum and application notes found with it agree on these bits):
 //!
@@ -78,6 +82,8 @@ pub fn data_name(prefix: &str, target_id: i64) -> String {
 pub const BASE_NAME: &str = "XBASE";
 /// Name (with `_1` … for several) of the tool frames the `.dat` declares.
 pub const TOOL_NAME: &str = "XTOOL";
+/// Prefix of the pre-positioning `E6AXIS` data (backlash).
+const PRE_POSITION_PREFIX: &str = "XB_";
 
 /// The fields `X ..,Y ..,Z ..,A ..,B ..,C ..` of a position (mm) and a
 /// rotation (w, x, y, z), as a `FRAME` and an `E6POS` start.
@@ -159,15 +165,25 @@ pub fn dat(robot: &Robot, program: &Program, motion: &MotionSettings) -> String 
         ));
     }
     let externals = "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0";
+    let e6axis = |q_deg: &[f64; JOINTS]| {
+        let axes: Vec<String> = (0..JOINTS)
+            .map(|i| format!("A{} {}", i + 1, fixed(q_deg[i], JOINT_DECIMALS)))
+            .collect();
+        format!("{{{},{externals}}}", axes.join(","))
+    };
     for stop in &program.stops {
-        if motion.motions.joint {
-            let axes: Vec<String> = (0..JOINTS)
-                .map(|i| format!("A{} {}", i + 1, fixed(stop.target.q_deg[i], JOINT_DECIMALS)))
-                .collect();
+        if let Some(q) = &stop.pre_position_q_deg {
             out.push_str(&format!(
-                "DECL E6AXIS {}={{{},{externals}}}\n",
+                "DECL E6AXIS {}={}\n",
+                data_name(PRE_POSITION_PREFIX, stop.target_id),
+                e6axis(q)
+            ));
+        }
+        if motion.motions.joint {
+            out.push_str(&format!(
+                "DECL E6AXIS {}={}\n",
                 data_name("XJ_", stop.target_id),
-                axes.join(",")
+                e6axis(&stop.target.q_deg)
             ));
         }
         if motion.motions.linear {
@@ -239,6 +255,14 @@ pub fn src(program: &Program, motion: &MotionSettings) -> String {
         out.push_str("; joint moves to the joint commands (exact stops)\n");
         for stop in stops {
             select(&mut out, stop.tool);
+            // From the pre-position the joints arrive moving the way the
+            // compensation assumed.
+            if stop.pre_position_q_deg.is_some() {
+                out.push_str(&format!(
+                    "PTP {}{approximation}\n",
+                    data_name(PRE_POSITION_PREFIX, stop.target_id)
+                ));
+            }
             out.push_str(&format!("PTP {}\n", data_name("XJ_", stop.target_id)));
         }
     }
@@ -254,6 +278,13 @@ pub fn src(program: &Program, motion: &MotionSettings) -> String {
                 approximation
             };
             let first = if k == 0 { "PTP" } else { "LIN" };
+            if stop.pre_position_q_deg.is_some() {
+                out.push_str(&format!(
+                    "PTP {}{approximation}\nLIN {name}\n",
+                    data_name(PRE_POSITION_PREFIX, stop.target_id)
+                ));
+                continue;
+            }
             match &stop.approach {
                 None if k == 0 => out.push_str(&format!("PTP {name}\n")),
                 None => out.push_str(&format!("LIN {name}{approximate}\n")),
@@ -382,6 +413,25 @@ mod tests {
                 "LIN XA_2"
             ]
         );
+    }
+
+    #[test]
+    fn a_pre_positioned_target_is_reached_from_its_pre_position() {
+        let robot = irb1600();
+        let motion = test_support::motion(None, None);
+        let mut program = test_support::program(&robot, &[3], None, None);
+        program.stops[0].pre_position_q_deg = Some([9.0, 21.0, -30.0, 40.0, 50.0, 60.0]);
+        let dat = dat(&robot, &program, &motion);
+        assert!(
+            dat.contains("DECL E6AXIS XB_3={A1 9.000000,A2 21.000000,A3 -30.000000,A4 40.000000,A5 50.000000,A6 60.000000,E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}"),
+            "{dat}"
+        );
+        let moves: Vec<String> = src(&program, &motion)
+            .lines()
+            .filter(|l| l.starts_with("PTP") || l.starts_with("LIN"))
+            .map(String::from)
+            .collect();
+        assert_eq!(moves, ["PTP XB_3", "PTP XJ_3", "PTP XB_3", "LIN XP_3"]);
     }
 
     #[test]

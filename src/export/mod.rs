@@ -74,9 +74,18 @@ pub struct Command {
     /// 95 % uncertainty (spec §8; optional columns, null where not computed).
     pub envelope_distance: Option<f64>,
     pub u95_mm: Option<f64>,
+    /// The direction each joint must reach the command from (spec §8 `dir1 …
+    /// dir6`, −1, 0 or +1): the one the model's backlash was compensated for;
+    /// all 0 when the table has none.
+    pub approach: [i8; JOINTS],
 }
 
 impl Command {
+    /// Whether the command was compensated for a direction of some joint.
+    pub fn has_approach(&self) -> bool {
+        self.approach.iter().any(|d| *d != 0)
+    }
+
     pub fn is_ok(&self) -> bool {
         self.status == STATUS_OK
     }
@@ -209,6 +218,11 @@ pub struct MotionSettings {
     /// point this far back along the tool's z axis before and after each
     /// target, which it then reaches with an exact stop; `None` = off.
     pub approach_mm: Option<f64>,
+    /// Pre-positioning (backlash): a joint move to the command minus this
+    /// (deg) times each joint's approach direction before every target with
+    /// one, so that each joint arrives moving the way the compensation
+    /// assumed; `None` = off.
+    pub pre_position_deg: Option<f64>,
 }
 
 /// The header lines every file carries (without comment markers).
@@ -285,6 +299,10 @@ pub fn unprintable(program: &Program, motion: &MotionSettings) -> Option<String>
             "setting `approach_mm`".into(),
             motion.approach_mm.unwrap_or(0.0),
         ),
+        (
+            "setting `pre_position_deg`".into(),
+            motion.pre_position_deg.unwrap_or(0.0),
+        ),
     ];
     for c in &program.commands {
         let row = |what: &str| format!("target_id {}: {what}", c.target_id);
@@ -310,6 +328,10 @@ pub fn unprintable(program: &Program, motion: &MotionSettings) -> Option<String>
             values.extend(pose.position_mm.iter().map(|v| (name.clone(), *v)));
             values.extend(pose.quaternion_wxyz.iter().map(|v| (name.clone(), *v)));
             values.extend(pose.q_deg.iter().map(|v| (name.clone(), *v)));
+        }
+        if let Some(q) = &stop.pre_position_q_deg {
+            let name = format!("target_id {}: pre-position", stop.target_id);
+            values.extend(q.iter().map(|v| (name.clone(), *v)));
         }
     }
     for (k, tool) in program.tools.iter().enumerate() {
@@ -482,7 +504,9 @@ const GENERATED_NAMES: [&str; 6] = [
 ];
 /// Prefixes of the per-target data names (RAPID `jt_`, `pt_`, `pa_`; KRL `XJ_`,
 /// `XP_`, `XA_`) and of several KRL tools (`XTOOL_1`).
-const GENERATED_PREFIXES: [&str; 7] = ["jt_", "pt_", "pa_", "xj_", "xp_", "xa_", "xtool_"];
+const GENERATED_PREFIXES: [&str; 9] = [
+    "jt_", "jp_", "pt_", "pa_", "xj_", "xp_", "xa_", "xb_", "xtool_",
+];
 
 /// ABB's predefined data (module BASE), which a module cannot declare again,
 /// and `tool0`, the flange, which cannot be redefined.
@@ -627,6 +651,7 @@ pub(crate) mod test_support {
                 linear: true,
             },
             approach_mm,
+            pre_position_deg: None,
         }
     }
 
@@ -652,6 +677,7 @@ pub(crate) mod test_support {
                 tool_id: None,
                 envelope_distance: None,
                 u95_mm: None,
+                approach: [0; JOINTS],
             })
             .collect();
         let tool = ProgramTool {
@@ -669,6 +695,7 @@ pub(crate) mod test_support {
             std::slice::from_ref(&tool),
             &row_tools,
             approach_mm,
+            None,
         )
         .unwrap();
         Program {
@@ -790,6 +817,7 @@ mod tests {
             tool_id: None,
             envelope_distance: None,
             u95_mm: None,
+            approach: [0; JOINTS],
         };
         let lines = skipped_lines(std::slice::from_ref(&command));
         assert_eq!(lines[1], "  target_id 3: unreachable MoveAbsJ jt_1");

@@ -2,6 +2,11 @@
 //! and `CONST robtarget` data (position, quaternion, `confdata`) moved to with
 //! `MoveJ` (the first) and `MoveL` (the rest).
 //!
+//! A command compensated for approach directions (backlash) is reached from
+//! its pre-position (`CONST jointtarget jp_<id>`, [`Stop::pre_position_q_deg`]):
+//! `MoveAbsJ` there, then to the target with an exact stop (`MoveAbsJ` on the
+//! joint path, `MoveL` on the linear one).
+//!
 //! `confdata` [cf1, cf4, cf6, cfx] follows ABB's definition (RAPID reference
 //! manual, data type `confdata`; table reproduced in
 //! CEAD-group/py-opw-kinematics `AXIS_CONFIGURATION.md`): cf1, cf4, cf6 are the
@@ -58,6 +63,12 @@ pub fn confdata(robot: &Robot, q_deg: &[f64; JOINTS]) -> ConfData {
         cf6: quadrant(q_deg[5]),
         cfx: 4 * behind_axis1 + 2 * behind_lower_arm + axis5_negative,
     }
+}
+
+/// A `jointtarget` value: the six joints, external axes unused.
+fn jointtarget(q_deg: &[f64; JOINTS]) -> String {
+    let q = q_deg.map(|v| fixed(v, JOINT_DECIMALS)).join(", ");
+    format!("[[{q}], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]]")
 }
 
 /// Name of a target's data: `<prefix><id>`, `n` for a minus sign.
@@ -192,18 +203,26 @@ pub fn module(
         None => "fine".to_string(),
     };
     let stops = &program.stops;
-    if motion.motions.joint {
-        for stop in stops {
-            let q = stop
-                .target
-                .q_deg
-                .map(|v| fixed(v, JOINT_DECIMALS))
-                .join(", ");
+    for stop in stops {
+        if let Some(q) = &stop.pre_position_q_deg {
             line(
                 &mut out,
                 &format!(
-                    "  CONST jointtarget {} := [[{q}], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]];",
-                    data_name("jt_", stop.target_id)
+                    "  CONST jointtarget {} := {};",
+                    data_name("jp_", stop.target_id),
+                    jointtarget(q)
+                ),
+            );
+        }
+    }
+    if motion.motions.joint {
+        for stop in stops {
+            line(
+                &mut out,
+                &format!(
+                    "  CONST jointtarget {} := {};",
+                    data_name("jt_", stop.target_id),
+                    jointtarget(&stop.target.q_deg)
                 ),
             );
         }
@@ -253,12 +272,28 @@ pub fn module(
         line(&mut out, "");
         line(&mut out, "  PROC path_joint()");
         for (k, stop) in stops.iter().enumerate() {
+            // From the pre-position the joints arrive moving the way the
+            // compensation assumed; the target then stops exactly.
+            let zone_here = match &stop.pre_position_q_deg {
+                Some(_) => {
+                    line(
+                        &mut out,
+                        &format!(
+                            "    MoveAbsJ {}, {}",
+                            data_name("jp_", stop.target_id),
+                            tail(stop, &zone)
+                        ),
+                    );
+                    "fine"
+                }
+                None => zone_at(k),
+            };
             line(
                 &mut out,
                 &format!(
                     "    MoveAbsJ {}, {}",
                     data_name("jt_", stop.target_id),
-                    tail(stop, zone_at(k))
+                    tail(stop, zone_here)
                 ),
             );
         }
@@ -270,6 +305,21 @@ pub fn module(
         for (k, stop) in stops.iter().enumerate() {
             let first = if k == 0 { "MoveJ" } else { "MoveL" };
             let target = data_name("pt_", stop.target_id);
+            if stop.pre_position_q_deg.is_some() {
+                line(
+                    &mut out,
+                    &format!(
+                        "    MoveAbsJ {}, {}",
+                        data_name("jp_", stop.target_id),
+                        tail(stop, &zone)
+                    ),
+                );
+                line(
+                    &mut out,
+                    &format!("    MoveL {target}, {}", tail(stop, "fine")),
+                );
+                continue;
+            }
             match &stop.approach {
                 None => line(
                     &mut out,
@@ -438,6 +488,40 @@ mod tests {
         );
         assert!(!text.contains("WARNING"));
         assert!(text.contains("    gripper := [TRUE,"));
+    }
+
+    #[test]
+    fn a_pre_positioned_target_is_reached_from_its_pre_position_with_an_exact_stop() {
+        let robot = irb1600();
+        let motion = test_support::motion(Some(10), None);
+        let mut program = test_support::program(&robot, &[1, 2], None, None);
+        for stop in &mut program.stops {
+            stop.pre_position_q_deg = Some(stop.target.q_deg.map(|q| q - 1.0));
+        }
+        let text = module(&robot, &program, &motion, "egcal_tool", "egcal_wobj");
+        assert!(
+            text.contains("  CONST jointtarget jp_1 := [[9.000000, 19.000000, -31.000000, 39.000000, 49.000000, 59.000000], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]];"),
+            "{text}"
+        );
+        let moves: Vec<&str> = text
+            .lines()
+            .map(str::trim)
+            .filter_map(|l| l.strip_prefix("Move"))
+            .map(|l| l.split(", egcal_tool").next().unwrap())
+            .collect();
+        assert_eq!(
+            moves,
+            [
+                "AbsJ jp_1, egcal_speed, z10",
+                "AbsJ jt_1, egcal_speed, fine",
+                "AbsJ jp_2, egcal_speed, z10",
+                "AbsJ jt_2, egcal_speed, fine",
+                "AbsJ jp_1, egcal_speed, z10",
+                "L pt_1, egcal_speed, fine",
+                "AbsJ jp_2, egcal_speed, z10",
+                "L pt_2, egcal_speed, fine",
+            ]
+        );
     }
 
     #[test]

@@ -6,6 +6,7 @@
 //! page are those recorded in the inputs' provenance.
 
 pub mod held_out;
+pub mod ladder;
 pub mod plots;
 pub mod verdict;
 
@@ -295,6 +296,8 @@ pub struct ReportData {
     pub excluded_rows: Option<Vec<ExcludedRow>>,
     /// Held-out figures per protocol and model, when `crossvalidation` is bound.
     pub held_out: Option<Vec<held_out::HeldOutRow>>,
+    /// The model ladder of `crossvalidate`, when `ladder` is bound.
+    pub ladder: Option<Vec<ladder::LadderRow>>,
     /// The predicted uncertainty over the workspace, when `accuracy_map` is bound.
     pub accuracy_map: Option<AccuracyMap>,
     /// The ISO 9283 test of the compensated commands, when `iso9283` is bound.
@@ -553,6 +556,7 @@ pub fn render(data: &ReportData) -> String {
     section(&mut out, 1, paper);
     stats_section(&mut out, data);
     held_out::render(&mut out, data.held_out.as_deref());
+    ladder::render(&mut out, data.ladder.as_deref());
     section(&mut out, 2, paper);
     histogram_section(&mut out, data, &models, &colors);
     section(&mut out, 3, paper);
@@ -1810,6 +1814,7 @@ mod tests {
             ]),
             o1_scaling: DEFAULT_O1_SCALING.into(),
             held_out: None,
+            ladder: None,
             excluded_rows: Some(vec![ExcludedRow {
                 cw_id: 17,
                 model: None,

@@ -65,7 +65,7 @@ use crate::calibration::row_checks::{MAX_POSITION_MM, compact, joints_problem, w
 use crate::compensation::envelope::{self, EnvelopeLimits, JointEnvelope};
 use crate::compensation::{self, Command, Options, Status, Target, pose_frame};
 use crate::robot::ik::NumericOptions;
-use crate::robot::{ConfWrench, Frame, JOINTS, ParamValues, Robot, Wrench};
+use crate::robot::{ConfWrench, Frame, JOINTS, ParamId, ParamValues, Robot, Wrench};
 use crate::table::frame;
 use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
@@ -137,6 +137,14 @@ pub struct CompensateSettings {
     /// another frame or unit); 1 never refuses.
     #[schemars(range(min = 0.0, max = 1.0))]
     pub max_unreachable_fraction: f64,
+    /// The direction each joint reaches every command from (spec §8), −1, 0
+    /// or +1 per joint: a model with backlash (`eg_backlash`, `eg_harmonic`)
+    /// puts the tool where it is when each joint arrives moving this way, and
+    /// an exported program moves so (a pre-positioning joint move before each
+    /// target, `export_program`'s `pre_position_deg`). Absent: +1 on every
+    /// joint with a model whose backlash is not zero, else 0 (no direction).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub approach: Option<[i8; JOINTS]>,
 }
 
 impl Default for CompensateSettings {
@@ -153,6 +161,7 @@ impl Default for CompensateSettings {
             max_envelope_distance_deg: 40.0,
             max_u95_mm: 0.5,
             max_unreachable_fraction: 0.5,
+            approach: None,
         }
     }
 }
@@ -162,7 +171,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Load-aware compensation: joint commands that put the calibrated, loaded tool on each target, and corrected Cartesian targets for the nominal controller",
-    code_version: 4,
+    code_version: 5,
     inputs: &[
         TableSlot {
             name: "targets",
@@ -281,6 +290,16 @@ impl Stage for CompensateStage {
                 "input `selection` chooses rows of the input `envelope`, which is not bound",
             ));
         }
+        if let Some(approach) = settings.approach
+            && approach.iter().any(|d| !(-1..=1).contains(d))
+        {
+            problems.push(SettingsProblem::new(
+                "approach",
+                format!(
+                    "expected −1, 0 or +1 per joint (the direction each joint reaches the command from), found {approach:?}"
+                ),
+            ));
+        }
         if settings
             .tool
             .as_deref()
@@ -305,8 +324,13 @@ impl Stage for CompensateStage {
         let tools = tool_indices(set.as_ref(), settings, &rows, &input.path)?;
         let world_from_base = ctx.robot.world_from_base(&values);
         let targets = world_targets(settings, &world_from_base, &rows, &tools);
-        let commands =
-            compensation::compensate(ctx.robot, &values, &targets, &settings.solver_options());
+        let approach = settings.approach_for(&values);
+        let commands = compensation::compensate(
+            ctx.robot,
+            &values,
+            &targets,
+            &settings.solver_options(approach),
+        );
         refuse_mostly_unreachable(
             settings,
             &input.path,
@@ -328,6 +352,7 @@ impl Stage for CompensateStage {
                 .zip(&commands)
                 .map(|(target, command)| ConfWrench {
                     target: target.tool,
+                    approach,
                     ..ConfWrench::new(command.q_deg, target.wrench)
                 })
                 .collect();
@@ -388,7 +413,25 @@ impl Stage for CompensateStage {
             .as_deref()
             .map(covariance_columns)
             .unwrap_or_default();
-        for column in extra.into_iter().chain(covariance_columns) {
+        // The direction each joint must reach its command from, for the
+        // program (spec §8's dir columns); absent when none was used.
+        let approach_columns: Vec<Column> = if approach.iter().any(|d| *d != 0) {
+            (0..JOINTS)
+                .map(|j| {
+                    Column::new(
+                        schema::APPROACH_COLUMNS[j].into(),
+                        vec![approach[j]; commands.len()],
+                    )
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        for column in extra
+            .into_iter()
+            .chain(covariance_columns)
+            .chain(approach_columns)
+        {
             commands_table
                 .with_column(column)
                 .map_err(|e| StageError::Failed(format!("commands: {e}")))?;
@@ -397,7 +440,7 @@ impl Stage for CompensateStage {
         outputs.tables.insert("commands".into(), commands_table);
         outputs.tables.insert(
             "conf_wrenches".into(),
-            conf_wrenches_frame(&rows.ids, &targets, &commands),
+            conf_wrenches_frame(&rows.ids, &targets, &commands, &approach),
         );
         outputs
             .facts
@@ -447,7 +490,12 @@ pub(super) fn nominal_target_commands(
     let values = ParamValues::nominal(robot.spec());
     let world_from_base = robot.world_from_base(&values);
     let targets = world_targets(&settings, &world_from_base, &rows, &vec![0; rows.ids.len()]);
-    let commands = compensation::compensate(robot, &values, &targets, &settings.solver_options());
+    let commands = compensation::compensate(
+        robot,
+        &values,
+        &targets,
+        &settings.solver_options([0; JOINTS]),
+    );
     Ok((rows.ids, targets, commands))
 }
 
@@ -471,8 +519,22 @@ fn world_targets(
 }
 
 impl CompensateSettings {
-    /// The loaded IK's options these settings describe.
-    fn solver_options(&self) -> Options {
+    /// The approach direction of every joint for the parameter `values`: the
+    /// setting, else +1 on every joint when the values hold a backlash (a
+    /// model with backlash needs a direction to place the tool), else none.
+    fn approach_for(&self, values: &ParamValues) -> [i8; JOINTS] {
+        self.approach.unwrap_or_else(|| {
+            if ParamId::backlashes().any(|id| values.get(id) != 0.0) {
+                [1; JOINTS]
+            } else {
+                [0; JOINTS]
+            }
+        })
+    }
+
+    /// The loaded IK's options these settings describe, each joint reaching
+    /// its command from `approach`.
+    fn solver_options(&self, approach: [i8; JOINTS]) -> Options {
         Options {
             solver: NumericOptions {
                 max_iterations: self.max_iterations,
@@ -481,7 +543,7 @@ impl CompensateSettings {
                 ..NumericOptions::default()
             },
             singular_sigma_min_mm_per_rad: self.singular_sigma_min_mm_per_rad,
-            approach: [0; JOINTS],
+            approach,
         }
     }
 }
@@ -854,7 +916,15 @@ fn commands_frame(ids: &[i64], commands: &[Command]) -> DataFrame {
     frame(columns)
 }
 
-fn conf_wrenches_frame(ids: &[i64], targets: &[Target], commands: &[Command]) -> DataFrame {
+/// The `ok` commands as conf-wrench rows, with the direction each joint must
+/// reach them from (`dir1 … dir6`, when one was used; a `measure` stage
+/// pre-positions for it).
+fn conf_wrenches_frame(
+    ids: &[i64],
+    targets: &[Target],
+    commands: &[Command],
+    approach: &[i8; JOINTS],
+) -> DataFrame {
     let ok: Vec<usize> = (0..ids.len())
         .filter(|&k| commands[k].status == Status::Ok)
         .collect();
@@ -877,6 +947,11 @@ fn conf_wrenches_frame(ids: &[i64], targets: &[Target], commands: &[Command]) ->
                 .map(|&k| targets[k].wrench.to_array()[i])
                 .collect::<Vec<_>>(),
         ));
+    }
+    if approach.iter().any(|d| *d != 0) {
+        for (joint, name) in schema::APPROACH_COLUMNS.iter().enumerate() {
+            columns.push(Column::new((*name).into(), vec![approach[joint]; ok.len()]));
+        }
     }
     frame(columns)
 }

@@ -26,8 +26,10 @@ use super::{
     StageInfo, StageOutputs, TableSlot,
 };
 use crate::calibration::groups::Grouping;
+use crate::ladder;
 use crate::stats;
 use crate::table::frame;
+use crate::table::parameters::ModelName;
 use crate::table::schema::{self, f64_values, i64_values, str_values};
 
 pub struct CrossvalidateStage;
@@ -46,6 +48,16 @@ pub struct CrossvalidateSettings {
     pub compare_random: bool,
     /// The identification of each fold, as an `identify` stage's settings.
     pub identify: IdentifySettings,
+    /// The model ladder (`ladder` table, fact `chosen_model`): a richer model
+    /// is chosen over a simpler one only when both paired tests on the
+    /// grouped folds' held-out errors are below this.
+    #[schemars(extend("exclusiveMinimum" = 0.0, "exclusiveMaximum" = 0.5))]
+    pub ladder_alpha: f64,
+    /// The model ladder: and only when its mean held-out error is lower by at
+    /// least this share of the simpler model's (row-level tests overstate
+    /// significance, as a fold's rows share one calibration).
+    #[schemars(range(min = 0.0, max = 1.0))]
+    pub ladder_min_gain: f64,
 }
 
 impl Default for CrossvalidateSettings {
@@ -54,6 +66,8 @@ impl Default for CrossvalidateSettings {
             grouping: Grouping::Configuration,
             folds: 5,
             compare_random: true,
+            ladder_alpha: 0.05,
+            ladder_min_gain: 0.05,
             identify: IdentifySettings {
                 models: ["registered", "kinematic", "elastogeometric"]
                     .map(String::from)
@@ -69,7 +83,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Held-out accuracy: identify on all folds but one, validate on it, for grouped (region, configuration, load, time) and random folds",
-    code_version: 1,
+    code_version: 2,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -108,6 +122,12 @@ static INFO: StageInfo = StageInfo {
             schema: schema::crossvalidation_tests,
             required: true,
             meaning: "per protocol and pair of models, on the same held-out rows: mean difference, paired t and Wilcoxon p-values",
+        },
+        TableSlot {
+            name: "ladder",
+            schema: schema::crossvalidation_ladder,
+            required: true,
+            meaning: "the models from the simplest up on the grouped folds, each compared with the one chosen so far, and the model chosen",
         },
     ],
 };
@@ -322,6 +342,7 @@ impl Stage for CrossvalidateStage {
         let mut stats_table = FoldColumns::default();
         let mut error_rows = ErrorColumns::default();
         let mut tests = TestColumns::default();
+        let mut ladder: Option<DataFrame> = None;
         for (grouping, fold_of_row) in &protocols {
             ctx.progress.note(&format!(
                 "{grouping} folds: identifying and validating {} folds of {} rows",
@@ -369,6 +390,21 @@ impl Stage for CrossvalidateStage {
                     tests.push(grouping, a, b, &errors[*a], &errors[*b])?;
                 }
             }
+            if ladder.is_none() {
+                let rule = ladder::Rule {
+                    alpha: settings.ladder_alpha,
+                    min_gain: settings.ladder_min_gain,
+                };
+                let (table, chosen) = ladder_table(grouping, &errors, rule)?;
+                ctx.progress.note(&format!(
+                    "{grouping} folds: model chosen by the ladder: {chosen}"
+                ));
+                outputs.facts.insert("chosen_model".into(), chosen);
+                ladder = Some(table);
+            }
+        }
+        if let Some(ladder) = ladder {
+            outputs.tables.insert("ladder".into(), ladder);
         }
         outputs
             .tables
@@ -385,6 +421,86 @@ impl Stage for CrossvalidateStage {
             .insert("rows".into(), data.ids.len().to_string());
         Ok(outputs)
     }
+}
+
+/// The `ladder` table of one protocol's errors and the model chosen: the
+/// models climbed from the simplest ([`ModelName::ladder_rank`]).
+fn ladder_table(
+    grouping: &Grouping,
+    errors: &ProtocolErrors,
+    rule: ladder::Rule,
+) -> Result<(DataFrame, String), StageError> {
+    let mut rungs: Vec<ladder::Rung> = errors
+        .iter()
+        .map(|(model, rows)| ladder::Rung {
+            model: model.clone(),
+            errors_mm: rows.iter().map(|(id, _, e)| (*id, *e)).collect(),
+        })
+        .collect();
+    rungs.sort_by_key(|r| {
+        r.model
+            .parse::<ModelName>()
+            .map_or(usize::MAX, ModelName::ladder_rank)
+    });
+    let climb = ladder::climb(&rungs, rule)
+        .ok_or_else(|| StageError::Failed("no fitted model to choose from".into()))?;
+    let mut figures_of = Vec::new();
+    for rung in &rungs {
+        let values: Vec<f64> = rung.errors_mm.iter().map(|(_, e)| *e).collect();
+        figures_of.push(figures(&values)?);
+    }
+    let steps = &climb.steps;
+    let column = |name: &str, values: Vec<Option<f64>>| Column::new(name.into(), values);
+    let table = frame(vec![
+        Column::new(
+            "protocol".into(),
+            vec![grouping.as_str().to_string(); steps.len()],
+        ),
+        Column::new(
+            "model".into(),
+            steps.iter().map(|s| s.model.clone()).collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "mean_mm".into(),
+            steps.iter().map(|s| s.mean_mm).collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "p997_mm".into(),
+            figures_of.iter().map(|f| f[2]).collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "max_mm".into(),
+            figures_of.iter().map(|f| f[3]).collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "compared_with".into(),
+            steps
+                .iter()
+                .map(|s| s.compared_with.clone())
+                .collect::<Vec<_>>(),
+        ),
+        column(
+            "mean_difference_mm",
+            steps.iter().map(|s| s.mean_difference_mm).collect(),
+        ),
+        column("paired_t_p", steps.iter().map(|s| s.paired_t_p).collect()),
+        column("wilcoxon_p", steps.iter().map(|s| s.wilcoxon_p).collect()),
+        Column::new(
+            "accepted".into(),
+            steps.iter().map(|s| s.accepted).collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "chosen".into(),
+            (0..steps.len())
+                .map(|k| k == climb.chosen)
+                .collect::<Vec<_>>(),
+        ),
+        Column::new(
+            "reason".into(),
+            steps.iter().map(|s| s.reason.clone()).collect::<Vec<_>>(),
+        ),
+    ]);
+    Ok((table, steps[climb.chosen].model.clone()))
 }
 
 /// Rows of the `folds` and `stats` tables.

@@ -27,8 +27,8 @@ use crate::export::{
 use crate::robot::{Frame, Robot};
 use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
-    self, COMMAND_POSITION_COLUMNS, COMMAND_QUATERNION_COLUMNS, JOINT_COLUMNS, f64_values,
-    i64_values, optional_f64_values, optional_str_values, str_values,
+    self, COMMAND_POSITION_COLUMNS, COMMAND_QUATERNION_COLUMNS, JOINT_COLUMNS, approach_values,
+    f64_values, i64_values, optional_f64_values, optional_str_values, str_values,
 };
 use crate::table::{self as tables, TableError};
 
@@ -113,6 +113,17 @@ pub struct ExportProgramSettings {
     /// target, which it reaches with an exact stop. 0 = off.
     #[schemars(range(min = 0.0, max = 1000.0))]
     pub approach_mm: f64,
+    /// Pre-positioning for a model with backlash, deg: before each target
+    /// whose command carries approach directions (`dir1 … dir6`, written by
+    /// `compensate` with such a model), a joint move to the command minus
+    /// this times each direction, so that each joint reaches the command
+    /// moving the way the backlash was compensated for. It must exceed the
+    /// dead band (the identified `backlash` is half of it; 0.01°–0.1° on
+    /// industrial reducers), and stay small, since the path from it to the
+    /// target is where the directions hold. 0 = off: the program then
+    /// carries a warning.
+    #[schemars(range(min = 0.0, max = 10.0))]
+    pub pre_position_deg: f64,
     /// `joint`, `linear` or `both`.
     pub motion: MotionSetting,
     /// Rows whose status is not `ok`: `skip` (named in the headers) or `fail`.
@@ -132,6 +143,7 @@ impl Default for ExportProgramSettings {
             wobj_name: "egcal_wobj".into(),
             tool_target: None,
             approach_mm: 0.0,
+            pre_position_deg: 1.0,
             motion: MotionSetting::Joint,
             on_failed: OnFailedSetting::Skip,
         }
@@ -178,7 +190,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Programs for the controller from joint commands: ABB RAPID (.mod), KUKA KRL (.src/.dat), CSV, and a URDF of the calibrated geometry",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "commands",
@@ -363,6 +375,8 @@ impl Stage for ExportProgramStage {
             },
             approach_mm: (settings.approach_mm > 0.0 && settings.motion != MotionSetting::Joint)
                 .then_some(settings.approach_mm),
+            pre_position_deg: (settings.pre_position_deg > 0.0)
+                .then_some(settings.pre_position_deg),
         };
         let set = model_set(ctx, "parameters", "model", &settings.model)?;
         let parameters = match &set {
@@ -376,9 +390,24 @@ impl Stage for ExportProgramStage {
             &commands,
             &input.path,
         )?;
-        let stops = cartesian::stops(ctx.robot, &commands, &tools, &row_tools, motion.approach_mm)
-            .map_err(|e| StageError::Invalid(format!("{}: {e}", input.path.display())))?;
+        let stops = cartesian::stops(
+            ctx.robot,
+            &commands,
+            &tools,
+            &row_tools,
+            motion.approach_mm,
+            motion.pre_position_deg,
+        )
+        .map_err(|e| StageError::Invalid(format!("{}: {e}", input.path.display())))?;
         let mut warnings = Vec::new();
+        if motion.pre_position_deg.is_none()
+            && let Some(c) = commands.iter().find(|c| c.is_ok() && c.has_approach())
+        {
+            warnings.push(format!(
+                "the commands were compensated for each joint reaching them from a fixed direction (backlash; target_id {} from {:?}), and `pre_position_deg` = 0 writes no move that makes it so: a joint arriving from the other side is off by its dead band",
+                c.target_id, c.approach
+            ));
+        }
         if let Some(d) = cartesian::table_deviation(&commands, &stops) {
             warnings.push(format!(
                 "the commands table's Cartesian targets (x_cmd_mm ... qz_cmd) are up to {:.4} mm (target_id {}) and {:.2e} rad from the poses of the declared tool at the joint commands: they were computed for another tool. These files use the declared tool and its poses, which give the same joint commands.",
@@ -839,6 +868,7 @@ pub fn read_commands(
     let tool_id = optional_str_values(df, "tool_id", path)?;
     let envelope_distance = optional_f64_values(df, "envelope_distance", path)?;
     let u95_mm = optional_f64_values(df, "u95_mm", path)?;
+    let approach = approach_values(df, path)?;
     let at = |column: &Option<Vec<Option<f64>>>, row: usize| {
         column.as_ref().and_then(|c| c[row]).filter(|v| !v.is_nan())
     };
@@ -871,6 +901,7 @@ pub fn read_commands(
             tool_id: tool_id.as_ref().and_then(|c| c[row].clone()),
             envelope_distance: at(&envelope_distance, row),
             u95_mm: at(&u95_mm, row),
+            approach: approach[row],
         });
     }
     Ok(rows)
@@ -898,6 +929,7 @@ mod tests {
             tool_id: None,
             envelope_distance: Some(3.0),
             u95_mm: Some(0.2),
+            approach: [0; 6],
         }
     }
 

@@ -116,6 +116,15 @@ pub struct MeasureSettings {
     #[schemars(range(max = 1.0e5))]
     #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_tracker_distance_mm: f64,
+    /// Rows whose `conf_wrenches` carry approach directions (`dir1 … dir6`,
+    /// as `compensate` writes them for a model with backlash) are reached
+    /// from a pre-position: the command minus this (deg) times each
+    /// direction, as an exported program moves (`export_program`'s
+    /// `pre_position_deg`), so each joint arrives moving the way the
+    /// compensation assumed.
+    #[schemars(range(max = 10.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub pre_position_deg: f64,
 }
 
 impl Default for MeasureSettings {
@@ -139,6 +148,7 @@ impl Default for MeasureSettings {
             max_wrench_error_n: None,
             max_wrench_error_nm: None,
             max_tracker_distance_mm: 40_000.0,
+            pre_position_deg: 1.0,
         }
     }
 }
@@ -259,6 +269,9 @@ impl Stage for MeasureStage {
         let seed = settings.seed.unwrap_or(ctx.seed);
 
         let truth = model_values(ctx, "truth", "truth_model", &settings.truth_model)?;
+        // The direction each row must be reached from (spec §8), where given.
+        let required = schema::approach_values(&input.df, &input.path)?;
+        let pre_positioned = required.iter().flatten().any(|d| *d != 0);
 
         // The journal belongs to the rows and the rig they are measured on, not to
         // retry, timeout or safety settings, nor to the external driver's command
@@ -271,6 +284,10 @@ impl Stage for MeasureStage {
             let rig =
                 serde_json::to_vec(&(settings.driver, &settings.robot_id)).expect("serialises");
             hasher.update(&rig);
+            // Where the rows are reached from is part of what is measured.
+            if pre_positioned {
+                hasher.update(&settings.pre_position_deg.to_le_bytes());
+            }
             if settings.driver == DriverKind::Simulator {
                 hasher.update(&serde_json::to_vec(&settings.simulator).expect("serialises"));
                 hasher.update(&seed.to_le_bytes());
@@ -310,13 +327,18 @@ impl Stage for MeasureStage {
             max_tracker_distance_mm: settings.max_tracker_distance_mm,
         };
 
-        // The rows are measured in input order: each row's approach direction
-        // follows from the commands before it.
-        let q_deg: Vec<[f64; JOINTS]> = rows.iter().map(|r| r.q_deg).collect();
+        // The rows are measured in input order, each from its pre-position
+        // where it has one: each row's approach direction follows from the
+        // moves before it.
+        let pre_positions: Vec<Option<[f64; JOINTS]>> = rows
+            .iter()
+            .zip(&required)
+            .map(|(row, dir)| pre_position(&row.q_deg, dir, settings.pre_position_deg))
+            .collect();
         let approach: HashMap<i64, [i8; JOINTS]> = ids
             .iter()
             .copied()
-            .zip(approach_directions(&q_deg))
+            .zip(row_directions(&rows, &pre_positions))
             .collect();
         let mut rig: Box<dyn Rig> = match settings.driver {
             DriverKind::Simulator => {
@@ -344,22 +366,34 @@ impl Stage for MeasureStage {
         let mut failures = 0;
         for (done_count, &k) in todo.iter().enumerate() {
             check_safety(ctx, settings, &input.path, ids[k], k, &rows[k])?;
+            if let Some(q_deg) = &pre_positions[k] {
+                let pre = ConfWrench::new(*q_deg, rows[k].wrench);
+                check_safety(ctx, settings, &input.path, ids[k], k, &pre).map_err(|e| {
+                    StageError::Failed(format!(
+                        "{e} (the pre-position {} deg before the row against its dir1 … dir6, the side its backlash was compensated for; lower `pre_position_deg` or compensate the target from the other side)",
+                        settings.pre_position_deg
+                    ))
+                })?;
+            }
             let mut attempts = 0;
             let entry = loop {
                 attempts += 1;
-                let checked = measure_row(rig.as_mut(), ids[k], &rows[k]).and_then(|reading| {
-                    bounds.check(
-                        &rows[k].q_deg,
-                        &rows[k].wrench.to_array(),
-                        &reading.q_deg,
-                        &reading.wrench,
-                        &reading.position_mm,
-                    )?;
-                    if let Some(fault) = reading.sigma_mm.as_ref().and_then(sigma_fault) {
-                        return Err(fault.into());
-                    }
-                    Ok(reading)
-                });
+                let checked = pre_positions[k]
+                    .map_or(Ok(()), |q_deg| rig.move_joints(ids[k], q_deg))
+                    .and_then(|()| measure_row(rig.as_mut(), ids[k], &rows[k]))
+                    .and_then(|reading| {
+                        bounds.check(
+                            &rows[k].q_deg,
+                            &rows[k].wrench.to_array(),
+                            &reading.q_deg,
+                            &reading.wrench,
+                            &reading.position_mm,
+                        )?;
+                        if let Some(fault) = reading.sigma_mm.as_ref().and_then(sigma_fault) {
+                            return Err(fault.into());
+                        }
+                        Ok(reading)
+                    });
                 match checked {
                     Ok(reading) => break Entry::Measured(reading),
                     Err(e) => match e.disposition() {
@@ -423,6 +457,35 @@ impl Stage for MeasureStage {
         );
         Ok(outputs)
     }
+}
+
+/// Where a row with the approach directions `dir` is moved to first: its
+/// command `distance_deg` back against them; `None` without a direction.
+fn pre_position(
+    q_deg: &[f64; JOINTS],
+    dir: &[i8; JOINTS],
+    distance_deg: f64,
+) -> Option<[f64; JOINTS]> {
+    dir.iter()
+        .any(|d| *d != 0)
+        .then(|| std::array::from_fn(|j| q_deg[j] - f64::from(dir[j]) * distance_deg))
+}
+
+/// The approach direction of every row measured in order, each from its
+/// pre-position where it has one.
+fn row_directions(
+    rows: &[ConfWrench],
+    pre_positions: &[Option<[f64; JOINTS]>],
+) -> Vec<[i8; JOINTS]> {
+    let mut moves = Vec::with_capacity(rows.len() * 2);
+    let mut row_move = Vec::with_capacity(rows.len());
+    for (row, pre) in rows.iter().zip(pre_positions) {
+        moves.extend(*pre);
+        row_move.push(moves.len());
+        moves.push(row.q_deg);
+    }
+    let directions = approach_directions(&moves);
+    row_move.into_iter().map(|k| directions[k]).collect()
 }
 
 /// Checks a commanded row before the move; a violation stops the campaign and

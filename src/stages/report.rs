@@ -19,6 +19,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{InputTable, Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
 use crate::report::held_out::HeldOutRow;
+use crate::report::ladder::LadderRow;
 use crate::report::{
     self, AccuracyMap, CommandRow, Criterion, DetmaxStep, ExcludedRow, InputSource, IsoDistance,
     IsoPoint, IsoTest, MapPoint, ParamRow, Pose, ReportData, StatsRow, TestRow, TraceRow, Truth,
@@ -137,7 +138,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Self-contained HTML report (report.html): verdict (PASS/FAIL against tolerance_mm, warnings), error statistics (Table III with compare_with_paper), histograms, poses, accuracy map, ISO 9283, parameters, traces, tests, provenance",
-    code_version: 5,
+    code_version: 6,
     inputs: &[
         TableSlot {
             name: "stats",
@@ -192,6 +193,12 @@ static INFO: StageInfo = StageInfo {
             schema: schema::crossvalidation_stats,
             required: false,
             meaning: "held-out figures of grouped and random folds (crossvalidate's stats), shown beside the validation statistics",
+        },
+        TableSlot {
+            name: "ladder",
+            schema: schema::crossvalidation_ladder,
+            required: false,
+            meaning: "the model ladder and the model chosen (crossvalidate's ladder)",
         },
         TableSlot {
             name: "accuracy_map",
@@ -304,6 +311,7 @@ impl Stage for ReportStage {
                 .get("crossvalidation")
                 .map(read_held_out)
                 .transpose()?,
+            ladder: ctx.inputs.get("ladder").map(read_ladder).transpose()?,
             accuracy_map: ctx
                 .inputs
                 .get("accuracy_map")
@@ -597,6 +605,39 @@ fn read_held_out(table: &InputTable) -> Result<Vec<HeldOutRow>, TableError> {
             mean_mm: mean[k],
             p997_mm: p997[k],
             max_mm: max[k],
+        })
+        .collect())
+}
+
+fn read_ladder(table: &InputTable) -> Result<Vec<LadderRow>, TableError> {
+    let protocol = strings(table, "protocol")?;
+    let model = strings(table, "model")?;
+    let [mean, p997, max] = ["mean_mm", "p997_mm", "max_mm"].map(|c| floats(table, c));
+    let (mean, p997, max) = (mean?, p997?, max?);
+    let compared_with = schema::str_values(&table.df, "compared_with", &table.path)?;
+    let t = optional_floats(&table.df, "paired_t_p", &table.path)?;
+    let w = optional_floats(&table.df, "wilcoxon_p", &table.path)?;
+    let chosen: Vec<bool> = table
+        .df
+        .column("chosen")
+        .and_then(|c| {
+            c.bool()
+                .map(|b| b.iter().map(|v| v == Some(true)).collect())
+        })
+        .map_err(|e| io_error(&table.path, e))?;
+    let reason = strings(table, "reason")?;
+    Ok((0..model.len())
+        .map(|k| LadderRow {
+            protocol: protocol[k].clone(),
+            model: model[k].clone(),
+            mean_mm: mean[k],
+            p997_mm: p997[k],
+            max_mm: max[k],
+            compared_with: compared_with[k].clone(),
+            paired_t_p: t[k],
+            wilcoxon_p: w[k],
+            chosen: chosen[k],
+            reason: reason[k].clone(),
         })
         .collect())
 }

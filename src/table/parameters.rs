@@ -69,6 +69,19 @@ impl ModelName {
         ])
     }
 
+    /// The model's place on the ladder of `crossvalidate`'s choice (issue
+    /// #29): each rung holds the terms of those below it.
+    pub fn ladder_rank(self) -> usize {
+        match self {
+            ModelName::Nominal => 0,
+            ModelName::Registered | ModelName::Reregistered => 1,
+            ModelName::Kinematic => 2,
+            ModelName::Elastogeometric => 3,
+            ModelName::EgBacklash => 4,
+            ModelName::EgHarmonic => 5,
+        }
+    }
+
     /// Whether the model has the joint-error terms beyond the paper's
     /// (backlash, harmonics).
     pub fn has_joint_terms(self) -> bool {

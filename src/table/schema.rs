@@ -301,6 +301,15 @@ pub fn conf_wrenches() -> TableSchema {
     )];
     joint_columns(&mut columns, "joint command");
     wrench_columns(&mut columns);
+    for name in APPROACH_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Int8,
+            "",
+            false,
+            "direction this joint must reach the command from (-1, 0 or +1; spec §8), as `compensate` writes for a model with backlash: `measure` moves to a pre-position first",
+        ));
+    }
     TableSchema {
         kind: "conf_wrenches",
         description: "Joint configurations with the wrench applied at each (any table with these columns, e.g. candidates or measurements).",
@@ -1109,6 +1118,94 @@ pub fn crossvalidation_errors() -> TableSchema {
 }
 
 /// `crossvalidate`'s paired comparisons of models on the same held-out rows.
+pub fn crossvalidation_ladder() -> TableSchema {
+    TableSchema {
+        kind: "crossvalidation_ladder",
+        description: "The model ladder on the grouped folds (issue #29): from the simplest model up, each compared with the one chosen so far on the same held-out rows; a rung is taken only when it is lower on average and both paired tests are significant.",
+        columns: vec![
+            protocol_and_model().remove(0),
+            col(
+                "model",
+                ColumnType::Utf8,
+                "",
+                true,
+                "the rung, simplest first",
+            ),
+            col(
+                "mean_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "mean held-out error over the folds",
+            ),
+            col(
+                "p997_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "99.7th percentile of the held-out errors",
+            ),
+            col(
+                "max_mm",
+                ColumnType::Float64,
+                "mm",
+                true,
+                "largest held-out error",
+            ),
+            col(
+                "compared_with",
+                ColumnType::Utf8,
+                "",
+                false,
+                "the rung chosen so far it was compared with; null for the first",
+            ),
+            col(
+                "mean_difference_mm",
+                ColumnType::Float64,
+                "mm",
+                false,
+                "mean of this rung's error minus the other's, row by row",
+            ),
+            col(
+                "paired_t_p",
+                ColumnType::Float64,
+                "",
+                false,
+                "paired t-test p-value (null: the errors are identical)",
+            ),
+            col(
+                "wilcoxon_p",
+                ColumnType::Float64,
+                "",
+                false,
+                "Wilcoxon signed-rank p-value",
+            ),
+            col(
+                "accepted",
+                ColumnType::Boolean,
+                "",
+                true,
+                "the climb moved to this rung (or started at it)",
+            ),
+            col(
+                "chosen",
+                ColumnType::Boolean,
+                "",
+                true,
+                "the model chosen: the last rung accepted",
+            ),
+            col(
+                "reason",
+                ColumnType::Utf8,
+                "",
+                true,
+                "why, with the figures",
+            ),
+        ],
+        unique: None,
+    }
+}
+
 pub fn crossvalidation_tests() -> TableSchema {
     TableSchema {
         kind: "crossvalidation_tests",
@@ -1476,6 +1573,15 @@ pub fn commands() -> TableSchema {
         "radius of the predicted position's 95 % uncertainty, sqrt(χ²₃(0.95)·λmax(J·Σ·Jᵀ)) (spec §8); null without a covariance",
     ));
     position_covariance_columns(&mut columns);
+    for name in APPROACH_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Int8,
+            "",
+            false,
+            "direction this joint must reach the command from for the model's backlash to hold: -1 or +1 (0: any); a program moves so with a pre-positioning move (spec §8); absent when no direction was used",
+        ));
+    }
     TableSchema {
         kind: "commands",
         description: "Joint commands per target and the corrected Cartesian targets (spec §7): what `compensate` writes.",
@@ -2120,6 +2226,7 @@ pub fn all() -> Vec<TableSchema> {
         crossvalidation_stats(),
         crossvalidation_errors(),
         crossvalidation_tests(),
+        crossvalidation_ladder(),
         poses(),
         candidates(),
         gate_decision(),

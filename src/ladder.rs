@@ -1,0 +1,258 @@
+//! The model ladder (issue #29): which of the models a crossvalidation
+//! compared goes in service. The models are climbed from the simplest; a
+//! richer rung replaces the one chosen so far only when its held-out errors,
+//! row by row on the same grouped folds, are lower on average by at least a
+//! minimum share of the simpler rung's mean, and both paired tests (t and
+//! Wilcoxon) call the difference significant. The share is there because the
+//! rows of a fold share one calibration, so row-level tests overstate
+//! significance: a rung fitted to noise can come out a fraction of a percent
+//! better "significantly" on a thousand rows. Nor is a rung chosen that is
+//! worse than the one below it.
+
+use std::collections::BTreeMap;
+
+use crate::stats;
+
+/// One rung's held-out errors: the model and (cw_id, error mm) per row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rung {
+    pub model: String,
+    pub errors_mm: Vec<(i64, f64)>,
+}
+
+/// What the climb decided at one rung.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Step {
+    pub model: String,
+    /// Mean held-out error over the rows (mm).
+    pub mean_mm: f64,
+    /// The rung chosen so far that this one was compared with; `None` for the
+    /// first rung.
+    pub compared_with: Option<String>,
+    /// Mean of this rung's error minus the other's, row by row (mm).
+    pub mean_difference_mm: Option<f64>,
+    pub paired_t_p: Option<f64>,
+    pub wilcoxon_p: Option<f64>,
+    /// Whether the climb moved to this rung (or started at it).
+    pub accepted: bool,
+    pub reason: String,
+}
+
+/// The decision: every rung's step, and the index of the chosen one.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Climb {
+    pub steps: Vec<Step>,
+    pub chosen: usize,
+}
+
+/// What a richer rung must show to be chosen.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Rule {
+    /// Both paired tests' p-values below this.
+    pub alpha: f64,
+    /// The mean error lower by at least this share of the simpler rung's.
+    pub min_gain: f64,
+}
+
+/// Climbs `rungs`, given simplest first, by `rule`. `None` when there are
+/// no rungs.
+pub fn climb(rungs: &[Rung], rule: Rule) -> Option<Climb> {
+    let Rule { alpha, min_gain } = rule;
+    let first = rungs.first()?;
+    let mean = |rung: &Rung| {
+        rung.errors_mm.iter().map(|(_, e)| e).sum::<f64>() / rung.errors_mm.len().max(1) as f64
+    };
+    let mut steps = vec![Step {
+        model: first.model.clone(),
+        mean_mm: mean(first),
+        compared_with: None,
+        mean_difference_mm: None,
+        paired_t_p: None,
+        wilcoxon_p: None,
+        accepted: true,
+        reason: "the simplest model compared".into(),
+    }];
+    let mut chosen = 0;
+    for (index, rung) in rungs.iter().enumerate().skip(1) {
+        let current = &rungs[chosen];
+        let (ours, theirs) = paired(rung, current);
+        let differences: Vec<f64> = ours.iter().zip(&theirs).map(|(a, b)| a - b).collect();
+        let mean_difference = (!differences.is_empty())
+            .then(|| differences.iter().sum::<f64>() / differences.len() as f64);
+        // Identical errors (a term the rows cannot see) have no variance:
+        // nothing to tell apart.
+        let t = stats::paired_t(&ours, &theirs).ok().map(|t| t.p_value);
+        let w = stats::wilcoxon_signed_rank(&ours, &theirs)
+            .ok()
+            .map(|w| w.p_value);
+        let significant = |p: Option<f64>| p.is_some_and(|p| p < alpha);
+        let (accepted, reason) = match mean_difference {
+            None => (
+                false,
+                format!("no held-out row in common with {}", current.model),
+            ),
+            Some(d) if d >= 0.0 => (
+                false,
+                format!(
+                    "held-out mean {:.4} mm is not below {:.4} mm of {}",
+                    mean(rung),
+                    mean(current),
+                    current.model
+                ),
+            ),
+            Some(d) if -d < min_gain * mean(current) => (
+                false,
+                format!(
+                    "held-out mean {:.4} mm, {:.4} mm below {}: less than the {}% gain a richer model must show",
+                    mean(rung),
+                    -d,
+                    current.model,
+                    min_gain * 100.0
+                ),
+            ),
+            Some(d) if significant(t) && significant(w) => (
+                true,
+                format!(
+                    "held-out mean {:.4} mm, {:.4} mm below {} (paired t p = {}, Wilcoxon p = {})",
+                    mean(rung),
+                    -d,
+                    current.model,
+                    p_text(t),
+                    p_text(w)
+                ),
+            ),
+            Some(d) => (
+                false,
+                format!(
+                    "held-out mean {:.4} mm below {} by {:.4} mm, not significant at {alpha} (paired t p = {}, Wilcoxon p = {})",
+                    mean(rung),
+                    current.model,
+                    -d,
+                    p_text(t),
+                    p_text(w)
+                ),
+            ),
+        };
+        steps.push(Step {
+            model: rung.model.clone(),
+            mean_mm: mean(rung),
+            compared_with: Some(current.model.clone()),
+            mean_difference_mm: mean_difference,
+            paired_t_p: t,
+            wilcoxon_p: w,
+            accepted,
+            reason,
+        });
+        if accepted {
+            chosen = index;
+        }
+    }
+    Some(Climb { steps, chosen })
+}
+
+/// The errors of the rows both rungs predicted, in cw_id order.
+fn paired(a: &Rung, b: &Rung) -> (Vec<f64>, Vec<f64>) {
+    let others: BTreeMap<i64, f64> = b.errors_mm.iter().copied().collect();
+    a.errors_mm
+        .iter()
+        .filter_map(|(id, e)| others.get(id).map(|other| (*e, *other)))
+        .unzip()
+}
+
+/// A p-value for the reason text; one below the smallest normal double (the
+/// t distribution's tail underflows there) is written as a bound, not `0`.
+fn p_text(p: Option<f64>) -> String {
+    match p {
+        None => "undefined".into(),
+        Some(p) if p < f64::MIN_POSITIVE => format!("< {:.0e}", f64::MIN_POSITIVE),
+        Some(p) => format!("{p:.2e}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const RULE: Rule = Rule {
+        alpha: 0.05,
+        min_gain: 0.05,
+    };
+
+    fn rung(model: &str, errors: impl Fn(i64) -> f64) -> Rung {
+        Rung {
+            model: model.into(),
+            errors_mm: (0..200).map(|id| (id, errors(id))).collect(),
+        }
+    }
+
+    /// A wobble around a level, the same rows for every rung.
+    fn wobble(id: i64) -> f64 {
+        ((id as f64) * 0.7).sin() * 0.01
+    }
+
+    #[test]
+    fn a_significantly_better_rung_is_chosen_and_noise_is_not() {
+        let rungs = [
+            rung("elastogeometric", |id| 0.10 + wobble(id)),
+            // Clearly better on every row.
+            rung("eg_backlash", |id| 0.04 + wobble(id) * 0.5),
+            // Slightly worse than the backlash rung: fits noise.
+            rung("eg_harmonic", |id| {
+                0.0402 + wobble(id) * 0.5 + wobble(id + 3) * 0.001
+            }),
+        ];
+        let climb = climb(&rungs, RULE).unwrap();
+        assert_eq!(climb.chosen, 1);
+        assert!(climb.steps[1].accepted && !climb.steps[2].accepted);
+        assert_eq!(climb.steps[2].compared_with.as_deref(), Some("eg_backlash"));
+        assert!(
+            climb.steps[2].reason.contains("not below"),
+            "{}",
+            climb.steps[2].reason
+        );
+    }
+
+    #[test]
+    fn a_lower_mean_that_is_not_significant_is_not_chosen() {
+        // Differences alternate in sign around a tiny mean improvement.
+        let rungs = [
+            rung("elastogeometric", |id| 0.10 + wobble(id)),
+            rung("eg_backlash", |id| {
+                0.10 + wobble(id) - 0.006 + if id % 2 == 0 { 0.2 } else { -0.2 }
+            }),
+        ];
+        let climb = climb(&rungs, RULE).unwrap();
+        assert_eq!(climb.chosen, 0);
+        assert!(climb.steps[1].reason.contains("not significant"));
+    }
+
+    #[test]
+    fn a_significant_but_small_gain_is_not_chosen() {
+        let rungs = [
+            rung("elastogeometric", |id| 0.10 + wobble(id)),
+            rung("eg_backlash", |id| {
+                0.098 + wobble(id) + 1e-4 * (id % 3) as f64
+            }),
+        ];
+        let climb = climb(&rungs, RULE).unwrap();
+        assert_eq!(climb.chosen, 0);
+        assert!(climb.steps[1].paired_t_p.unwrap() < 1e-6);
+        assert!(
+            climb.steps[1].reason.contains("5% gain"),
+            "{}",
+            climb.steps[1].reason
+        );
+    }
+
+    #[test]
+    fn identical_errors_keep_the_simpler_rung() {
+        let rungs = [
+            rung("elastogeometric", |id| 0.1 + wobble(id)),
+            rung("eg_backlash", |id| 0.1 + wobble(id)),
+        ];
+        let climb = climb(&rungs, RULE).unwrap();
+        assert_eq!(climb.chosen, 0);
+        assert_eq!(climb.steps[1].paired_t_p, None);
+        assert!(super::climb(&[], RULE).is_none());
+    }
+}
