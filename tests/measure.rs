@@ -396,3 +396,95 @@ fn an_unsafe_wrench_is_refused_before_the_move_and_the_rows_before_it_are_kept()
     );
     assert_eq!(measurements(dir.path()).height(), 15);
 }
+
+/// Rows carrying approach directions (as `compensate` writes them for a
+/// model with backlash) are reached from a pre-position: the measured rows
+/// carry those directions, the external simulator (which takes directions
+/// from its own moves, the pre-positioning move among them) measures what the
+/// in-process one does, and the backlash puts the rows where it should.
+#[test]
+fn rows_with_approach_directions_are_reached_from_their_pre_positions() {
+    use polars::prelude::{Column, DataFrame};
+    let source = common::root().join("fixtures/measure/noiseless_simulator/conf_wrenches.parquet");
+    let plain_rows = table::read_parquet(&source).unwrap();
+    let n = plain_rows.height();
+    // Row k from +1 on every joint when k is even, −1 when odd.
+    let wanted: Vec<i8> = (0..n).map(|k| if k % 2 == 0 { 1 } else { -1 }).collect();
+    let with_directions = |dir: &Path| {
+        let mut df: DataFrame = plain_rows.clone();
+        for name in table::schema::APPROACH_COLUMNS {
+            df.with_column(Column::new(name.into(), wanted.clone()))
+                .unwrap();
+        }
+        let path = dir.join("conf_wrenches.parquet");
+        table::write_parquet(&mut df, &path, None).unwrap();
+        let job = dir.join("job.toml");
+        let text = std::fs::read_to_string(&job).unwrap();
+        std::fs::write(
+            &job,
+            text.replace(source.to_str().unwrap(), path.to_str().unwrap()),
+        )
+        .unwrap();
+        job
+    };
+    let effects = "backlash_deg = 0.05\n";
+    let inproc = tempfile::tempdir().unwrap();
+    // Row 7 is 0.2° from joint 2's limit: a 1° pre-position would be refused.
+    common::measure_job(
+        inproc.path(),
+        &format!("seed = 42\npre_position_deg = 0.1\n[stages.simulator]\n{effects}"),
+    );
+    let job = with_directions(inproc.path());
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], inproc.path());
+    assert_eq!(code, 0, "{stderr}");
+
+    let external = tempfile::tempdir().unwrap();
+    let settings = external.path().join("simulator.toml");
+    std::fs::write(&settings, effects).unwrap();
+    common::measure_job(
+        external.path(),
+        &format!(
+            "{}\npre_position_deg = 0.1",
+            sim_driver(&["--settings", settings.to_str().unwrap()])
+        ),
+    );
+    let job = with_directions(external.path());
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], external.path());
+    assert_eq!(code, 0, "{stderr}");
+    let (a, b) = (measurements(inproc.path()), measurements(external.path()));
+    assert_eq!(a.height(), n);
+    assert_eq!(table::content_hash(&a), table::content_hash(&b));
+    for name in table::schema::APPROACH_COLUMNS {
+        let written: Vec<i64> = a
+            .column(name)
+            .unwrap()
+            .cast(&polars::prelude::DataType::Int64)
+            .unwrap()
+            .i64()
+            .unwrap()
+            .iter()
+            .map(Option::unwrap)
+            .collect();
+        let expected: Vec<i64> = wanted.iter().map(|d| i64::from(*d)).collect();
+        assert_eq!(written, expected, "{name}");
+    }
+
+    // The same rows measured in order without directions sit elsewhere: the
+    // pre-positions changed the side of the dead band of some joints.
+    let plain = tempfile::tempdir().unwrap();
+    let job = common::measure_job(
+        plain.path(),
+        &format!("seed = 42\n[stages.simulator]\n{effects}"),
+    );
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], plain.path());
+    assert_eq!(code, 0, "{stderr}");
+    let x = |df: &polars::prelude::DataFrame| {
+        table::schema::f64_values(df, "x_mm", Path::new("m")).unwrap()
+    };
+    let moved = x(&a)
+        .iter()
+        .zip(x(&measurements(plain.path())))
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(moved > 0.1, "pre-positioning moves x by at most {moved} mm");
+}
