@@ -26,19 +26,7 @@ fn value_of(file: &Path, key_column: &str, key: &str, column: &str) -> f64 {
 #[test]
 fn compensated_targets_are_as_accurate_as_the_validation_and_the_programs_are_written() {
     let dir = tempfile::tempdir().unwrap();
-    let jobs = common::root().join("jobs");
-    let text = std::fs::read_to_string(jobs.join("compensate_sim.toml")).unwrap();
-    // Same job, run from a temporary folder: make its relative paths absolute.
-    let text = ["robots/", "cdpr/", "truth/", "targets/"]
-        .iter()
-        .fold(text, |text, folder| {
-            text.replace(
-                &format!("\"{folder}"),
-                &format!("\"{}/{folder}", jobs.display()),
-            )
-        });
-    let job = dir.path().join("compensate_sim.toml");
-    std::fs::write(&job, text).unwrap();
+    let job = common::shipped_job_in(dir.path(), "compensate_sim", |text| text);
     let (code, stdout, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
     assert_eq!(code, 0, "{stdout}\n{stderr}");
 

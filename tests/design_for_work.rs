@@ -49,18 +49,7 @@ fn fact(file: &Path, key: &str) -> String {
 #[test]
 fn the_design_for_the_work_beats_o1_at_the_work_targets() {
     let dir = tempfile::tempdir().unwrap();
-    let jobs = common::root().join("jobs");
-    let text = std::fs::read_to_string(jobs.join("design_for_work_sim.toml")).unwrap();
-    let text = ["robots/", "cdpr/", "truth/", "targets/"]
-        .iter()
-        .fold(text, |text, folder| {
-            text.replace(
-                &format!("\"{folder}"),
-                &format!("\"{}/{folder}", jobs.display()),
-            )
-        });
-    let job = dir.path().join("design_for_work_sim.toml");
-    std::fs::write(&job, text).unwrap();
+    let job = common::shipped_job_in(dir.path(), "design_for_work_sim", |text| text);
     let (code, stdout, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
     assert_eq!(code, 0, "{stdout}\n{stderr}");
     let out = dir.path().join("out/design_for_work_sim");

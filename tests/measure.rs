@@ -12,6 +12,17 @@ fn measurements(dir: &Path) -> polars::prelude::DataFrame {
     table::read_parquet(&dir.join("out/measure/measurements.parquet")).unwrap()
 }
 
+/// The largest difference of `x_mm` between two measurements of the same rows.
+fn largest_x_difference_mm(a: &polars::prelude::DataFrame, b: &polars::prelude::DataFrame) -> f64 {
+    let x = |df: &polars::prelude::DataFrame| {
+        table::schema::f64_values(df, "x_mm", Path::new("m")).unwrap()
+    };
+    x(a).iter()
+        .zip(x(b))
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max)
+}
+
 /// The measure stage's settings for `egcal sim-driver` over the paper's
 /// robot and truth, seed 42, with `extra` arguments.
 fn sim_driver(extra: &[&str]) -> String {
@@ -79,14 +90,7 @@ fn the_unmodelled_effects_are_the_same_robot_in_process_and_behind_a_driver() {
     assert_eq!(code, 0, "{stderr}");
     let (a, b) = (measurements(inproc.path()), measurements(external.path()));
     assert_eq!(table::content_hash(&a), table::content_hash(&b));
-    let x = |df: &polars::prelude::DataFrame| {
-        table::schema::f64_values(df, "x_mm", Path::new("m")).unwrap()
-    };
-    let moved = x(&a)
-        .iter()
-        .zip(x(&measurements(plain.path())))
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0, f64::max);
+    let moved = largest_x_difference_mm(&a, &measurements(plain.path()));
     assert!(moved > 0.01, "the effects move x by at most {moved} mm");
 
     // Each row carries its approach direction (spec §8), from the commands in
@@ -478,13 +482,6 @@ fn rows_with_approach_directions_are_reached_from_their_pre_positions() {
     );
     let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], plain.path());
     assert_eq!(code, 0, "{stderr}");
-    let x = |df: &polars::prelude::DataFrame| {
-        table::schema::f64_values(df, "x_mm", Path::new("m")).unwrap()
-    };
-    let moved = x(&a)
-        .iter()
-        .zip(x(&measurements(plain.path())))
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0, f64::max);
+    let moved = largest_x_difference_mm(&a, &measurements(plain.path()));
     assert!(moved > 0.1, "pre-positioning moves x by at most {moved} mm");
 }

@@ -181,18 +181,7 @@ fn rows_without_approach_directions_leave_the_backlash_dependent() {
 /// `jobs/ladder_sim.toml` run from a temporary folder, after `edit` of its
 /// text; the output folder.
 fn run_ladder_job(dir: &std::path::Path, edit: impl Fn(String) -> String) -> std::path::PathBuf {
-    let jobs = common::root().join("jobs");
-    let text = std::fs::read_to_string(jobs.join("ladder_sim.toml")).unwrap();
-    let text = ["robots/", "cdpr/", "truth/", "targets/"]
-        .iter()
-        .fold(text, |text, folder| {
-            text.replace(
-                &format!("\"{folder}"),
-                &format!("\"{}/{folder}", jobs.display()),
-            )
-        });
-    let job = dir.join("ladder_sim.toml");
-    std::fs::write(&job, edit(text)).unwrap();
+    let job = common::shipped_job_in(dir, "ladder_sim", edit);
     let (code, stdout, stderr) = common::run(&["run", job.to_str().unwrap()], dir);
     assert_eq!(code, 0, "{stdout}\n{stderr}");
     dir.join("out")

@@ -107,6 +107,25 @@ inputs = {{ conf_wrenches = "{fixture}" }}
 }
 
 /// A job measuring the fixture's conf-wrench rows with the given measure settings.
+/// The shipped job `jobs/<name>.toml`, its text changed by `edit`, written
+/// into `dir` with its relative paths (robot, cable robot, truth, targets)
+/// made absolute, so it runs from there; the job file's path.
+pub fn shipped_job_in(dir: &Path, name: &str, edit: impl Fn(String) -> String) -> PathBuf {
+    let jobs = root().join("jobs");
+    let text = std::fs::read_to_string(jobs.join(format!("{name}.toml"))).expect("shipped job");
+    let text = ["robots/", "cdpr/", "truth/", "targets/"]
+        .iter()
+        .fold(text, |text, folder| {
+            text.replace(
+                &format!("\"{folder}"),
+                &format!("\"{}/{folder}", jobs.display()),
+            )
+        });
+    let job = dir.join(format!("{name}.toml"));
+    std::fs::write(&job, edit(text)).expect("write job");
+    job
+}
+
 pub fn measure_job(dir: &Path, settings: &str) -> std::path::PathBuf {
     let root = root();
     let text = format!(
