@@ -458,20 +458,9 @@ fn rows_with_approach_directions_are_reached_from_their_pre_positions() {
     let (a, b) = (measurements(inproc.path()), measurements(external.path()));
     assert_eq!(a.height(), n);
     assert_eq!(table::content_hash(&a), table::content_hash(&b));
-    for name in table::schema::APPROACH_COLUMNS {
-        let written: Vec<i64> = a
-            .column(name)
-            .unwrap()
-            .cast(&polars::prelude::DataType::Int64)
-            .unwrap()
-            .i64()
-            .unwrap()
-            .iter()
-            .map(Option::unwrap)
-            .collect();
-        let expected: Vec<i64> = wanted.iter().map(|d| i64::from(*d)).collect();
-        assert_eq!(written, expected, "{name}");
-    }
+    let written = table::schema::approach_values(&a, Path::new("measurements")).unwrap();
+    let expected: Vec<[i8; 6]> = wanted.iter().map(|d| [*d; 6]).collect();
+    assert_eq!(written, expected);
 
     // The same rows measured in order without directions sit elsewhere: the
     // pre-positions changed the side of the dead band of some joints.
