@@ -332,3 +332,66 @@ fn a_rung_that_only_adds_noise_is_not_chosen() {
         assert_eq!(chosen.0, "elastogeometric", "{stage}: {rungs:?}");
     }
 }
+
+/// `jobs/residual_sim.toml` (issue #29, `eg_residual`): on held-out rows
+/// between the calibration rows, the Gaussian-process residual lowers the
+/// error of the parametric rung it sits on, and the 95 % ellipsoids of
+/// J·Σ·Jᵀ plus its variance and noise cover 0.95 ± 0.03 of the errors.
+/// Compensated, its variance widens every command's u95; without its
+/// `residual_model` input the set is refused rather than predicted as
+/// eg_harmonic.
+#[test]
+fn eg_residual_lowers_the_held_out_error_and_covers_95_percent() {
+    use egcal::table::{self, schema};
+    let dir = tempfile::tempdir().unwrap();
+    let job = common::shipped_job_in(dir.path(), "residual_sim", |text| text);
+    let (code, stdout, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stdout}\n{stderr}");
+    let out = dir.path().join("out").join("residual_sim");
+    let path = out.join("validate").join("stats.parquet");
+    let df = table::read_parquet(&path).unwrap();
+    let models = schema::str_values(&df, "model", &path).unwrap();
+    let means = schema::f64_values(&df, "mean_mm", &path).unwrap();
+    let coverage = schema::f64_values(&df, "coverage_95", &path).unwrap();
+    let row = |m: &str| models.iter().position(|x| x.as_deref() == Some(m)).unwrap();
+    let (harmonic, residual) = (row("eg_harmonic"), row("eg_residual"));
+    assert!(
+        means[residual] < 0.9 * means[harmonic],
+        "eg_residual {:.4} mm against eg_harmonic {:.4} mm",
+        means[residual],
+        means[harmonic]
+    );
+    assert!(
+        (coverage[residual] - 0.95).abs() <= 0.03,
+        "coverage {:.3}",
+        coverage[residual]
+    );
+
+    let u95 = |stage: &str| {
+        let path = out.join(stage).join("commands.parquet");
+        let df = table::read_parquet(&path).unwrap();
+        schema::optional_f64_values(&df, "u95_mm", &path)
+            .unwrap()
+            .unwrap()
+    };
+    let (with, without) = (
+        u95("compensate_drilling"),
+        u95("compensate_drilling_harmonic"),
+    );
+    let compared: Vec<(f64, f64)> = with
+        .iter()
+        .zip(&without)
+        .filter_map(|(a, b)| Some(((*a)?, (*b)?)))
+        .collect();
+    assert!(!compared.is_empty());
+    for (a, b) in compared {
+        assert!(a > b, "u95 with the residual {a:.4} mm, without {b:.4} mm");
+    }
+
+    let job = common::shipped_job_in(dir.path(), "residual_sim", |text| {
+        text.replace(", residual_model = \"identify.residual_model\" }", " }")
+    });
+    let (code, stdout, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_ne!(code, 0, "{stdout}\n{stderr}");
+    assert!(stderr.contains("residual_model"), "{stderr}");
+}

@@ -166,7 +166,7 @@ pub fn calibrate(
     let six_d = data.has_orientations();
     let joint_terms: Vec<ParamId> = match model {
         ModelName::EgBacklash => ParamId::backlashes().collect(),
-        ModelName::EgHarmonic => ParamId::backlashes()
+        ModelName::EgHarmonic | ModelName::EgResidual => ParamId::backlashes()
             .chain(ParamId::harmonics(&options.harmonic_orders))
             .collect(),
         _ => Vec::new(),
@@ -179,7 +179,10 @@ pub fn calibrate(
                 p.is_world() || p.is_tool_translation() || (six_d && p.is_tool_rotation())
             }
             ModelName::Kinematic => !p.is_compliance(),
-            ModelName::Elastogeometric | ModelName::EgBacklash | ModelName::EgHarmonic => true,
+            ModelName::Elastogeometric
+            | ModelName::EgBacklash
+            | ModelName::EgHarmonic
+            | ModelName::EgResidual => true,
         })
         .chain(
             joint_terms

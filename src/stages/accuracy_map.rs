@@ -65,7 +65,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Predicted 95 % position uncertainty (J·Σ·Jᵀ) over a grid around the calibration rows, for the report's accuracy map",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "parameters",
@@ -91,6 +91,7 @@ static INFO: StageInfo = StageInfo {
             required: false,
             meaning: "rows with role = calibration are the calibration rows; all rows when absent",
         },
+        super::residual_rung::RESIDUAL_INPUT,
     ],
     outputs: &[
         TableSlot {
@@ -175,7 +176,7 @@ impl Stage for AccuracyMapStage {
             slices: settings.slices,
             margin_mm: settings.margin_mm,
         };
-        let map = accuracy_map::accuracy_map(
+        let mut map = accuracy_map::accuracy_map(
             ctx.robot,
             &mapped_values,
             &mapped_free,
@@ -183,6 +184,24 @@ impl Stage for AccuracyMapStage {
             &calibration_q,
             &spec,
         );
+        // The eg_residual set's residual variance at each reachable point,
+        // unloaded: the prior's far from the calibration rows.
+        if let Some(residual) = super::residual_rung::bound_residual(ctx, &set)? {
+            let reachable: Vec<usize> = (0..map.len())
+                .filter(|k| map[*k].q_deg.is_some() && map[*k].covariance_mm2.is_some())
+                .collect();
+            let rows: Vec<ConfWrench> = reachable
+                .iter()
+                .filter_map(|k| map[*k].q_deg)
+                .map(|q| ConfWrench::new(q, Wrench::zero()))
+                .collect();
+            let extra = super::residual_rung::predict_rows(&residual, &rows)?;
+            for (k, r) in reachable.iter().zip(&extra) {
+                map[*k].covariance_mm2 = map[*k]
+                    .covariance_mm2
+                    .map(|c| c + super::residual_rung::covariance_mm2(r));
+            }
+        }
         let mut outputs = StageOutputs::default();
         outputs
             .tables

@@ -171,7 +171,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Load-aware compensation: joint commands that put the calibrated, loaded tool on each target, and corrected Cartesian targets for the nominal controller",
-    code_version: 5,
+    code_version: 6,
     inputs: &[
         TableSlot {
             name: "targets",
@@ -186,6 +186,7 @@ static INFO: StageInfo = StageInfo {
             meaning: "parameter sets; nominal when absent",
         },
         super::COVARIANCE_INPUT,
+        super::residual_rung::RESIDUAL_INPUT,
         TableSlot {
             name: "envelope",
             schema: schema::envelope,
@@ -325,12 +326,32 @@ impl Stage for CompensateStage {
         let world_from_base = ctx.robot.world_from_base(&values);
         let targets = world_targets(settings, &world_from_base, &rows, &tools);
         let approach = settings.approach_for(&values);
-        let commands = compensation::compensate(
-            ctx.robot,
-            &values,
-            &targets,
-            &settings.solver_options(approach),
-        );
+        let residual = match &set {
+            Some(set) => super::residual_rung::bound_residual(ctx, set)?,
+            None => None,
+        };
+        let (commands, residual_predictions) = match &residual {
+            Some(residual) => {
+                let (commands, predictions) = super::residual_rung::compensate_with_residual(
+                    ctx.robot,
+                    &values,
+                    &targets,
+                    &settings.solver_options(approach),
+                    residual,
+                    approach,
+                )?;
+                (commands, Some(predictions))
+            }
+            None => (
+                compensation::compensate(
+                    ctx.robot,
+                    &values,
+                    &targets,
+                    &settings.solver_options(approach),
+                ),
+                None,
+            ),
+        };
         refuse_mostly_unreachable(
             settings,
             &input.path,
@@ -356,12 +377,14 @@ impl Stage for CompensateStage {
                     ..ConfWrench::new(command.q_deg, target.wrench)
                 })
                 .collect();
-            covariances = Some(row_covariances(
-                ctx,
-                set,
-                covariance.as_ref(),
-                &conf_wrenches,
-            ));
+            let mut rows = row_covariances(ctx, set, covariance.as_ref(), &conf_wrenches);
+            // The residual's variance: back to its prior far from the rows.
+            if let Some(extra) = &residual_predictions {
+                for (c, r) in rows.iter_mut().zip(extra) {
+                    *c = c.map(|c| c + super::residual_rung::covariance_mm2(r));
+                }
+            }
+            covariances = Some(rows);
         } else if calibrated.is_some() {
             warnings.push(
                 "u95_mm not checked: no `covariance` input (bind identify's covariance so that commands whose predicted 95 % uncertainty exceeds max_u95_mm are outside_envelope)".to_string(),
@@ -437,6 +460,16 @@ impl Stage for CompensateStage {
                 .map_err(|e| StageError::Failed(format!("commands: {e}")))?;
         }
         let mut outputs = StageOutputs::default();
+        if let Some(extra) = &residual_predictions {
+            let largest = extra
+                .iter()
+                .map(|r| super::residual_rung::mean_mm(r).norm())
+                .fold(0.0, f64::max);
+            outputs.facts.insert(
+                "residual_mean_max_mm".into(),
+                format!("{largest:.4} (the residual's mean added at the commands; their correction_mm is measured from the targets shifted by it)"),
+            );
+        }
         outputs.tables.insert("commands".into(), commands_table);
         outputs.tables.insert(
             "conf_wrenches".into(),

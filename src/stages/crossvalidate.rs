@@ -85,7 +85,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Held-out accuracy: identify on all folds but one, validate on it, for grouped (region, configuration, load, time) and random folds",
-    code_version: 3,
+    code_version: 4,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -201,6 +201,16 @@ fn run_fold(
             df: parameters,
         },
     );
+    let residual_name = super::residual_rung::RESIDUAL_OUTPUT.name;
+    if let Some(residual) = identified.tables.get(residual_name) {
+        inputs.insert(
+            residual_name.to_string(),
+            InputTable {
+                path: format!("crossvalidate fold {fold} residual_model").into(),
+                df: residual.clone(),
+            },
+        );
+    }
     let validate_ctx = StageContext {
         inputs: &inputs,
         progress: &quiet,

@@ -170,6 +170,16 @@ fn model_set(
     model: ModelName,
     nominal: &ParamValues,
 ) -> Result<ParameterSet, StageError> {
+    // The calibration in service is one parameters table; a residual model
+    // beside it would not travel with it, and predictions without it are
+    // another model's.
+    if model.has_residual_model() {
+        return Err(StageError::Invalid(format!(
+            "{}: `{model}` cannot be gated into service: its residual model is a second table the published calibration does not carry; gate `{}` (its parameters) instead",
+            table.path.display(),
+            ModelName::EgHarmonic
+        )));
+    }
     let sets = parameters::from_frame(&table.df, &table.path, nominal)?;
     let available: Vec<&str> = sets.iter().map(|s| s.model.as_str()).collect();
     sets.iter()

@@ -26,6 +26,7 @@ use crate::calibration::fit::{
 };
 use crate::calibration::groups::Grouping;
 use crate::calibration::held::HoldOptions;
+use crate::calibration::residual::ResidualOptions;
 use crate::calibration::robust::RobustOptions;
 use crate::calibration::selection::{ParameterSelection, SelectionRule};
 use crate::calibration::{
@@ -97,7 +98,9 @@ pub struct IdentifySettings {
     /// Models to identify: nominal, registered, kinematic, elastogeometric,
     /// reregistered, and the rungs beyond the paper eg_backlash (a backlash
     /// per joint, from the rows' `dir1..dir6`) and eg_harmonic (eg_backlash
-    /// with transmission-error harmonics at `harmonic_orders`).
+    /// with transmission-error harmonics at `harmonic_orders`) and
+    /// eg_residual (eg_harmonic's parameters and a Gaussian-process residual
+    /// on joint angles and load, the output `residual_model`).
     pub models: Vec<String>,
     /// Parameters that may be freed (empty: all 42); rank analysis drops dependent ones.
     pub candidates: Vec<String>,
@@ -218,6 +221,11 @@ pub struct IdentifySettings {
     /// sin(n·q) and cos(n·q) fitted per joint (1: once per output turn, 2:
     /// twice, the usual strain-wave and RV reducer errors), each 1..=3.
     pub harmonic_orders: Vec<usize>,
+    /// Model `eg_residual`: inducing points of the Gaussian-process residual's
+    /// sparse posterior; with at most this many calibration rows it is exact.
+    /// Fit and prediction cost grow with its square.
+    #[schemars(range(min = 16, max = 4096))]
+    pub residual_inducing_points: usize,
 }
 
 /// How `identify` chooses the free parameters.
@@ -266,6 +274,7 @@ impl Default for IdentifySettings {
             held_out_folds: 5,
             held_out_min_t: 2.0,
             harmonic_orders: vec![1, 2],
+            residual_inducing_points: ResidualOptions::default().inducing_points,
             use_orientation: true,
             orientation_lever_mm: DEFAULT_ORIENTATION_LEVER_MM,
         }
@@ -361,7 +370,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 8,
+    code_version: 9,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -413,6 +422,7 @@ static INFO: StageInfo = StageInfo {
             required: true,
             meaning: "rows left out (row checks, robust fit) and why",
         },
+        super::residual_rung::RESIDUAL_OUTPUT,
     ],
 };
 
@@ -977,6 +987,7 @@ impl Stage for IdentifyStage {
         let mut trace = TraceColumns::default();
         let mut covariance = CovarianceColumns::default();
         let mut residuals: Option<DataFrame> = None;
+        let mut residual_models = Vec::new();
         // A model that did not converge or came out implausible fails the
         // stage, after every model was tried: a later model's bad input (too
         // few rows) is the better message, and all failures show at once.
@@ -1122,6 +1133,35 @@ impl Stage for IdentifyStage {
                     .map(|r| r.norm() > settings.outlier_threshold_mm)
                     .collect(),
             };
+            if model.has_residual_model() {
+                ctx.progress
+                    .note(&format!("{model}: fitting the residual model"));
+                let options = ResidualOptions {
+                    inducing_points: settings.residual_inducing_points,
+                    seed: ctx.seed,
+                    ..ResidualOptions::default()
+                };
+                let fitted = super::residual_rung::fit_over(
+                    model,
+                    &result,
+                    ids,
+                    &data.rows,
+                    &options,
+                    &measurements.path,
+                )?;
+                let h = fitted.fitted.hyperparameters();
+                outputs.facts.insert(
+                    format!("{model}_residual"),
+                    format!(
+                        "prior σ {:.4} mm, noise σ {:.4} mm, {} rows, {} inducing points",
+                        h.signal_variance_mm2.sqrt(),
+                        h.noise_variance_mm2.sqrt(),
+                        fitted.rows.len(),
+                        fitted.fitted.inducing_points()
+                    ),
+                );
+                residual_models.push(fitted);
+            }
             let part = residual_frame(model, &result.residuals_mm, &result.weights, ids, &flagged);
             match residuals.as_mut() {
                 // Appends the columns' chunks; no copy.
@@ -1151,6 +1191,10 @@ impl Stage for IdentifyStage {
         outputs
             .tables
             .insert("excluded_rows".into(), excluded.into_frame());
+        outputs.tables.insert(
+            super::residual_rung::RESIDUAL_OUTPUT.name.into(),
+            super::residual_rung::to_frame(&residual_models),
+        );
         outputs
             .facts
             .insert("calibration_rows".into(), data.rows.len().to_string());

@@ -25,6 +25,7 @@ pub mod measure;
 pub mod poses;
 pub mod predict;
 pub mod report;
+pub mod residual_rung;
 pub mod scan_logs;
 pub mod select;
 pub mod settings_check;

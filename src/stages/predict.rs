@@ -45,7 +45,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Forward model: SMR position, load torques and deflections for conf-wrench rows",
-    code_version: 3,
+    code_version: 4,
     inputs: &[
         TableSlot {
             name: "conf_wrenches",
@@ -60,6 +60,7 @@ static INFO: StageInfo = StageInfo {
             meaning: "parameter sets; nominal when absent",
         },
         super::COVARIANCE_INPUT,
+        super::residual_rung::RESIDUAL_INPUT,
     ],
     outputs: &[TableSlot {
         name: "predictions",
@@ -101,7 +102,20 @@ impl Stage for PredictStage {
         if let Some(set) = &set {
             super::aim_rows(input, set, &mut rows)?;
         }
-        let predictions = batch_predict(ctx.robot, &values, &rows);
+        let mut predictions = batch_predict(ctx.robot, &values, &rows);
+        let residual = match &set {
+            Some(set) => super::residual_rung::bound_residual(ctx, set)?,
+            None => None,
+        };
+        let residual_predictions = match &residual {
+            Some(model) => Some(super::residual_rung::predict_rows(model, &rows)?),
+            None => None,
+        };
+        if let Some(extra) = &residual_predictions {
+            for (prediction, r) in predictions.iter_mut().zip(extra) {
+                prediction.position_mm += super::residual_rung::mean_mm(r);
+            }
+        }
         let mut columns = vec![Column::new("cw_id".into(), ids)];
         for (axis, name) in POSITION_COLUMNS.iter().enumerate() {
             let v: Vec<f64> = predictions.iter().map(|p| p.position_mm[axis]).collect();
@@ -121,7 +135,12 @@ impl Stage for PredictStage {
         if let Some(set) = &set
             && let Some(covariance) = bound_covariance(ctx, set)?
         {
-            let covariances = row_covariances(ctx, set, covariance.as_ref(), &rows);
+            let mut covariances = row_covariances(ctx, set, covariance.as_ref(), &rows);
+            if let Some(extra) = &residual_predictions {
+                for (c, r) in covariances.iter_mut().zip(extra) {
+                    *c = c.map(|c| c + super::residual_rung::covariance_mm2(r));
+                }
+            }
             columns.extend(covariance_columns(&covariances));
         }
         let mut outputs = StageOutputs::default();

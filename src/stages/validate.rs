@@ -14,6 +14,11 @@
 //! Without the input those columns are left out; for a model without a
 //! covariance (nominal) they are null.
 //!
+//! The `eg_residual` set (issue #29) needs the `residual_model` input: its
+//! predictions add the residual's mean, its `J·Σ·Jᵀ` the residual's latent
+//! variance, and its coverage takes the residual's noise variance as the
+//! rows' noise (rows without σ columns).
+//!
 //! Rows with a measured tool orientation (6-D rows, spec §8) also get their
 //! orientation error, the angle between the model's and the measured tool
 //! orientation (`errors.error_deg`; `stats.mean_deg`, `rms_deg`, `max_deg`).
@@ -51,7 +56,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Validation errors per model, statistics (Table III) and pairwise hypothesis tests",
-    code_version: 5,
+    code_version: 6,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -72,6 +77,7 @@ static INFO: StageInfo = StageInfo {
             meaning: "rows with role = validation are used; all rows when absent",
         },
         super::COVARIANCE_INPUT,
+        super::residual_rung::RESIDUAL_INPUT,
     ],
     outputs: &[
         TableSlot {
@@ -160,7 +166,17 @@ impl Stage for ValidateStage {
             for (row, target) in rows.iter_mut().zip(&targets) {
                 row.target = *target;
             }
-            let predictions = batch_predict(ctx.robot, &set.values, &rows);
+            let mut predictions = batch_predict(ctx.robot, &set.values, &rows);
+            let residual = super::residual_rung::bound_residual(ctx, set)?;
+            let residual_predictions = match &residual {
+                Some(model) => Some(super::residual_rung::predict_rows(model, &rows)?),
+                None => None,
+            };
+            if let Some(extra) = &residual_predictions {
+                for (prediction, r) in predictions.iter_mut().zip(extra) {
+                    prediction.position_mm += super::residual_rung::mean_mm(r);
+                }
+            }
             if let Some(orientations) = &measured_rotations {
                 let observations = Observations {
                     orientations: Some(orientations),
@@ -177,10 +193,23 @@ impl Stage for ValidateStage {
             let covariance = bound_covariance(ctx, set)?;
             let mut model_norms = Vec::with_capacity(rows.len());
             let mut covered = Vec::with_capacity(rows.len());
-            let covariances = covariance
+            let mut covariances = covariance
                 .as_ref()
                 .map(|c| row_covariances(ctx, set, c.as_ref(), &rows));
-            let variance_factor = covariance.flatten().and_then(|c| c.variance_factor);
+            if let (Some(covariances), Some(extra)) = (covariances.as_mut(), &residual_predictions)
+            {
+                for (c, r) in covariances.iter_mut().zip(extra) {
+                    *c = c.map(|c| c + super::residual_rung::covariance_mm2(r));
+                }
+            }
+            // The residual model's noise is what its mean leaves; the fit's
+            // variance factor counts the residual's signal as noise too.
+            let variance_factor = match &residual {
+                Some(model) if sigma_mm.is_none() => {
+                    Some(model.hyperparameters().noise_variance_mm2)
+                }
+                _ => covariance.flatten().and_then(|c| c.variance_factor),
+            };
             for (k, prediction) in predictions.iter().enumerate() {
                 let error = prediction.position_mm - measured[k];
                 e.cw_id.push(ids[k]);

@@ -5,6 +5,7 @@
 //! that `egcal show` (and any Parquet tool) can print where a table came from.
 
 pub mod parameters;
+pub mod residual_model;
 pub mod schema;
 pub mod time;
 

@@ -36,6 +36,9 @@ pub enum ModelName {
     /// `eg_backlash` with transmission-error harmonics per joint at the chosen
     /// orders (issue #29).
     EgHarmonic,
+    /// `eg_harmonic`'s parameters plus a Gaussian-process model of what they
+    /// leave, on joint angles and load (issue #29; the `residual_model` table).
+    EgResidual,
 }
 
 impl ModelName {
@@ -57,6 +60,7 @@ impl ModelName {
             ModelName::Reregistered => "reregistered",
             ModelName::EgBacklash => "eg_backlash",
             ModelName::EgHarmonic => "eg_harmonic",
+            ModelName::EgResidual => "eg_residual",
         }
     }
 
@@ -66,6 +70,7 @@ impl ModelName {
             ModelName::Reregistered,
             ModelName::EgBacklash,
             ModelName::EgHarmonic,
+            ModelName::EgResidual,
         ])
     }
 
@@ -79,13 +84,22 @@ impl ModelName {
             ModelName::Elastogeometric => 3,
             ModelName::EgBacklash => 4,
             ModelName::EgHarmonic => 5,
+            ModelName::EgResidual => 6,
         }
     }
 
     /// Whether the model has the joint-error terms beyond the paper's
     /// (backlash, harmonics).
     pub fn has_joint_terms(self) -> bool {
-        matches!(self, ModelName::EgBacklash | ModelName::EgHarmonic)
+        matches!(
+            self,
+            ModelName::EgBacklash | ModelName::EgHarmonic | ModelName::EgResidual
+        )
+    }
+
+    /// Whether the model carries a residual model beside its parameters.
+    pub fn has_residual_model(self) -> bool {
+        self == ModelName::EgResidual
     }
 }
 
@@ -101,7 +115,7 @@ impl FromStr for ModelName {
         let every = ModelName::every();
         every.clone().find(|m| m.as_str() == s).ok_or_else(|| {
             format!(
-                "unknown model `{s}`, expected nominal, registered, kinematic, elastogeometric, reregistered, eg_backlash or eg_harmonic{}",
+                "unknown model `{s}`, expected nominal, registered, kinematic, elastogeometric, reregistered, eg_backlash, eg_harmonic or eg_residual{}",
                 crate::suggest::did_you_mean(s, every.map(|m| m.as_str()))
             )
         })

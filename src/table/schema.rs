@@ -638,6 +638,89 @@ pub fn residuals() -> TableSchema {
     }
 }
 
+/// The length-scale columns of `residual_model`, in the order of
+/// [`crate::calibration::residual::FeatureLayout::joint_load`]'s groups.
+pub const LENGTH_SCALE_COLUMNS: [&str; 12] = [
+    "length_scale_q1",
+    "length_scale_q2",
+    "length_scale_q3",
+    "length_scale_q4",
+    "length_scale_q5",
+    "length_scale_q6",
+    "length_scale_fx",
+    "length_scale_fy",
+    "length_scale_fz",
+    "length_scale_mx",
+    "length_scale_my",
+    "length_scale_mz",
+];
+
+/// The residual columns of `residual_model`: measured − the set's prediction.
+pub const RESIDUAL_COLUMNS: [&str; 3] = ["residual_x_mm", "residual_y_mm", "residual_z_mm"];
+
+/// The Gaussian-process residual of the `eg_residual` model (issue #29): its
+/// training rows and hyperparameters, all a consumer needs to rebuild the same
+/// posterior.
+pub fn residual_model() -> TableSchema {
+    let mut columns = vec![
+        col(
+            "model",
+            ColumnType::Utf8,
+            "",
+            true,
+            "the parameter set the residual is taken over (eg_residual)",
+        ),
+        col("cw_id", ColumnType::Int64, "", true, "the calibration row"),
+    ];
+    joint_columns(&mut columns, "measured joint angles of the row");
+    wrench_columns(&mut columns);
+    for name in RESIDUAL_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "mm",
+            true,
+            "measured position − the parameter set's prediction, world frame",
+        ));
+    }
+    columns.push(col(
+        "inducing",
+        ColumnType::Boolean,
+        "",
+        true,
+        "the row is an inducing point of the sparse posterior (all false: exact posterior)",
+    ));
+    columns.push(col(
+        "signal_variance_mm2",
+        ColumnType::Float64,
+        "mm²",
+        true,
+        "prior variance of the residual per axis, the same on every row: the predictive variance far from the rows",
+    ));
+    columns.push(col(
+        "noise_variance_mm2",
+        ColumnType::Float64,
+        "mm²",
+        true,
+        "measurement-noise variance per axis, the same on every row",
+    ));
+    for name in LENGTH_SCALE_COLUMNS {
+        columns.push(col(
+            name,
+            ColumnType::Float64,
+            "",
+            true,
+            "kernel length scale of the joint (its sine and cosine) or of the wrench component (scaled by 100 N or 10 N·m), the same on every row",
+        ));
+    }
+    TableSchema {
+        kind: "residual_model",
+        description: "The Gaussian-process residual of the eg_residual model over its parameter set (issue #29): training rows, inducing points and hyperparameters.",
+        columns,
+        unique: None,
+    }
+}
+
 /// `../shared/spec/model.md` §7 `covariance`.
 pub fn covariance() -> TableSchema {
     TableSchema {
@@ -2216,6 +2299,7 @@ pub fn all() -> Vec<TableSchema> {
         identification_trace(),
         residuals(),
         covariance(),
+        residual_model(),
         excluded_rows(),
         identifiability(),
         observability(),

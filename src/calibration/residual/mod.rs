@@ -265,6 +265,10 @@ enum Posterior {
 /// A fitted residual model.
 #[derive(Debug, Clone)]
 pub struct ResidualModel {
+    /// The training rows [`ResidualModel::fit`] chose as inducing points
+    /// (empty for an exact posterior or explicit points): what a table keeps
+    /// to rebuild the same posterior.
+    inducing_rows: Vec<usize>,
     layout: FeatureLayout,
     hyperparameters: Hyperparameters,
     jitter: f64,
@@ -318,14 +322,14 @@ fn check_training(
     Ok(())
 }
 
-/// `count` rows chosen by k-means++ seeding (each next row drawn with
-/// probability proportional to its squared distance to the nearest chosen
-/// one), row-major. Fewer when the rows have fewer distinct values. `O(n·m·d)`.
-fn kmeans_plus_plus(x: Rows<'_>, count: usize, rng: &mut StdRng) -> Vec<f64> {
+/// The indices of `count` rows chosen by k-means++ seeding (each next row
+/// drawn with probability proportional to its squared distance to the nearest
+/// chosen one). Fewer when the rows have fewer distinct values. `O(n·m·d)`.
+fn kmeans_plus_plus(x: Rows<'_>, count: usize, rng: &mut StdRng) -> Vec<usize> {
     let n = x.len();
     let distance = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(p, q)| (p - q) * (p - q)).sum();
     let first = rng.random_range(0..n);
-    let mut chosen = x.row(first).to_vec();
+    let mut chosen = vec![first];
     let mut nearest: Vec<f64> = (0..n).map(|i| distance(x.row(i), x.row(first))).collect();
     for _ in 1..count.min(n) {
         let total: f64 = nearest.iter().sum();
@@ -341,7 +345,7 @@ fn kmeans_plus_plus(x: Rows<'_>, count: usize, rng: &mut StdRng) -> Vec<f64> {
             })
             .unwrap_or_else(|| nearest.iter().rposition(|d| *d > 0.0).unwrap_or(n - 1));
         let new = x.row(pick);
-        chosen.extend_from_slice(new);
+        chosen.push(pick);
         nearest.par_iter_mut().enumerate().for_each(|(i, d)| {
             *d = d.min(distance(x.row(i), new));
         });
@@ -416,11 +420,15 @@ impl ResidualModel {
         let n = all.len();
         let mut rng = StdRng::seed_from_u64(options.seed);
         let sparse = n > options.inducing_points;
-        let inducing = if sparse {
+        let inducing_rows = if sparse {
             kmeans_plus_plus(all, options.inducing_points.max(1), &mut rng)
         } else {
             Vec::new()
         };
+        let inducing: Vec<f64> = inducing_rows
+            .iter()
+            .flat_map(|i| all.row(*i).iter().copied())
+            .collect();
         let (subset_x, subset_y) = if n > options.optimisation_rows.max(MIN_ROWS) {
             let mut picked =
                 index::sample(&mut rng, n, options.optimisation_rows.max(MIN_ROWS)).into_vec();
@@ -482,13 +490,15 @@ impl ResidualModel {
             jitter: BASE_JITTER,
         })?;
         let hyperparameters = Hyperparameters::from_log(&theta);
-        Self::build(
+        let mut model = Self::build(
             layout,
             features,
             residuals_mm,
             hyperparameters,
             sparse.then_some(inducing),
-        )
+        )?;
+        model.inducing_rows = inducing_rows;
+        Ok(model)
     }
 
     /// The posterior for given hyperparameters: exact without `inducing`,
@@ -547,6 +557,7 @@ impl ResidualModel {
             };
             if let Some(posterior) = posterior {
                 return Ok(ResidualModel {
+                    inducing_rows: Vec::new(),
                     layout: layout.clone(),
                     hyperparameters,
                     jitter: *jitter,
@@ -584,6 +595,13 @@ impl ResidualModel {
 
     pub fn hyperparameters(&self) -> &Hyperparameters {
         &self.hyperparameters
+    }
+
+    /// The training rows chosen as inducing points by [`ResidualModel::fit`]
+    /// (in the order chosen); empty when the posterior is exact or was
+    /// built on explicit points.
+    pub fn inducing_rows(&self) -> &[usize] {
+        &self.inducing_rows
     }
 
     /// Inducing points of the sparse posterior; 0 when it is exact.
