@@ -395,3 +395,75 @@ fn eg_residual_lowers_the_held_out_error_and_covers_95_percent() {
     assert_ne!(code, 0, "{stdout}\n{stderr}");
     assert!(stderr.contains("residual_model"), "{stderr}");
 }
+
+/// The joint terms (backlash signed by the approach, harmonics of orders 1–3)
+/// against the independent numpy model of `fixtures/tools/joint_terms_check.py`
+/// (the paper's 4×4 matrices): egcal's predicted positions, and its analytic
+/// Jacobian columns against the script's central differences.
+#[test]
+fn joint_terms_match_the_numpy_reference() {
+    use egcal::robot::batch_jacobian;
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/fixtures/joint_terms/jacobian.json"
+    );
+    let text = std::fs::read_to_string(path).expect("fixture");
+    let fixture: serde_json::Value = serde_json::from_str(&text).expect("JSON");
+    let numbers = |v: &serde_json::Value| -> Vec<f64> {
+        v.as_array()
+            .expect("array")
+            .iter()
+            .map(|x| x.as_f64().expect("number"))
+            .collect()
+    };
+    let (robot, mut values) = robot_and_truth();
+    let terms = fixture["terms_deg"].as_object().expect("terms");
+    let ids: Vec<ParamId> = terms
+        .keys()
+        .map(|name| ParamId::from_name(name).expect("a joint term"))
+        .collect();
+    for (id, value) in ids.iter().zip(terms.values()) {
+        values.set(*id, value.as_f64().expect("number"));
+    }
+    let cases = fixture["rows"].as_array().expect("rows");
+    let rows: Vec<ConfWrench> = cases
+        .iter()
+        .map(|row| {
+            let q = numbers(&row["q_deg"]);
+            let wrench = numbers(&row["wrench"]);
+            let approach = numbers(&row["approach"]);
+            ConfWrench {
+                approach: std::array::from_fn(|j| approach[j] as i8),
+                ..ConfWrench::new(
+                    std::array::from_fn(|j| q[j]),
+                    Wrench::from_array(std::array::from_fn(|c| wrench[c])),
+                )
+            }
+        })
+        .collect();
+    let batch = batch_jacobian(&robot, &values, &rows, &ids);
+    let m = ids.len();
+    for (k, case) in cases.iter().enumerate() {
+        let expected = numbers(&case["position_mm"]);
+        let got = batch.predictions[k].position_mm;
+        for axis in 0..3 {
+            assert!(
+                (got[axis] - expected[axis]).abs() < 1e-9,
+                "row {k} axis {axis}: {} against numpy's {}",
+                got[axis],
+                expected[axis]
+            );
+        }
+        for (j, id) in ids.iter().enumerate() {
+            let column = numbers(&case["columns_mm_per_deg"][id.name()]);
+            for (axis, expected) in column.iter().enumerate() {
+                let analytic = batch.jacobian[(3 * k + axis) * m + j];
+                assert!(
+                    (analytic - expected).abs() < 1e-6 * (1.0 + expected.abs()),
+                    "row {k} {} axis {axis}: {analytic} against numpy's {expected}",
+                    id.name(),
+                );
+            }
+        }
+    }
+}

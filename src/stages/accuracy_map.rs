@@ -196,10 +196,11 @@ impl Stage for AccuracyMapStage {
                 .map(|q| ConfWrench::new(q, Wrench::zero()))
                 .collect();
             let extra = super::residual_rung::predict_rows(&residual, &rows)?;
-            for (k, r) in reachable.iter().zip(&extra) {
-                map[*k].covariance_mm2 = map[*k]
-                    .covariance_mm2
-                    .map(|c| c + super::residual_rung::covariance_mm2(r));
+            let mut covariances: Vec<_> =
+                reachable.iter().map(|k| map[*k].covariance_mm2).collect();
+            super::residual_rung::add_variance(&mut covariances, &extra);
+            for (k, c) in reachable.iter().zip(covariances) {
+                map[*k].covariance_mm2 = c;
             }
         }
         let mut outputs = StageOutputs::default();

@@ -380,9 +380,7 @@ impl Stage for CompensateStage {
             let mut rows = row_covariances(ctx, set, covariance.as_ref(), &conf_wrenches);
             // The residual's variance: back to its prior far from the rows.
             if let Some(extra) = &residual_predictions {
-                for (c, r) in rows.iter_mut().zip(extra) {
-                    *c = c.map(|c| c + super::residual_rung::covariance_mm2(r));
-                }
+                super::residual_rung::add_variance(&mut rows, extra);
             }
             covariances = Some(rows);
         } else if calibrated.is_some() {

@@ -104,18 +104,9 @@ impl Stage for PredictStage {
         }
         let mut predictions = batch_predict(ctx.robot, &values, &rows);
         let residual = match &set {
-            Some(set) => super::residual_rung::bound_residual(ctx, set)?,
+            Some(set) => super::residual_rung::add_mean(ctx, set, &rows, &mut predictions)?,
             None => None,
         };
-        let residual_predictions = match &residual {
-            Some(model) => Some(super::residual_rung::predict_rows(model, &rows)?),
-            None => None,
-        };
-        if let Some(extra) = &residual_predictions {
-            for (prediction, r) in predictions.iter_mut().zip(extra) {
-                prediction.position_mm += super::residual_rung::mean_mm(r);
-            }
-        }
         let mut columns = vec![Column::new("cw_id".into(), ids)];
         for (axis, name) in POSITION_COLUMNS.iter().enumerate() {
             let v: Vec<f64> = predictions.iter().map(|p| p.position_mm[axis]).collect();
@@ -136,10 +127,8 @@ impl Stage for PredictStage {
             && let Some(covariance) = bound_covariance(ctx, set)?
         {
             let mut covariances = row_covariances(ctx, set, covariance.as_ref(), &rows);
-            if let Some(extra) = &residual_predictions {
-                for (c, r) in covariances.iter_mut().zip(extra) {
-                    *c = c.map(|c| c + super::residual_rung::covariance_mm2(r));
-                }
+            if let Some((_, extra)) = &residual {
+                super::residual_rung::add_variance(&mut covariances, extra);
             }
             columns.extend(covariance_columns(&covariances));
         }

@@ -142,6 +142,32 @@ pub fn predict_rows(
         .map_err(|e| StageError::Failed(format!("the residual model's prediction: {e}")))
 }
 
+/// For a set with a residual: its prediction at each row, with its mean added
+/// to `predictions`' positions. `None` (nothing changed) for other sets.
+pub fn add_mean(
+    ctx: &StageContext,
+    set: &ParameterSet,
+    rows: &[ConfWrench],
+    predictions: &mut [crate::robot::Prediction],
+) -> Result<Option<(ResidualModel, Vec<ResidualPrediction>)>, StageError> {
+    let Some(residual) = bound_residual(ctx, set)? else {
+        return Ok(None);
+    };
+    let extra = predict_rows(&residual, rows)?;
+    for (prediction, r) in predictions.iter_mut().zip(&extra) {
+        prediction.position_mm += mean_mm(r);
+    }
+    Ok(Some((residual, extra)))
+}
+
+/// Adds the residual's variance to each row's `J·Σ·Jᵀ` (rows without one stay
+/// `None`).
+pub fn add_variance(covariances: &mut [Option<Matrix3<f64>>], extra: &[ResidualPrediction]) {
+    for (c, r) in covariances.iter_mut().zip(extra) {
+        *c = c.map(|c| c + covariance_mm2(r));
+    }
+}
+
 /// The residual's mean as a vector (mm).
 pub fn mean_mm(prediction: &ResidualPrediction) -> Vector3<f64> {
     Vector3::from(prediction.mean_mm)

@@ -167,16 +167,7 @@ impl Stage for ValidateStage {
                 row.target = *target;
             }
             let mut predictions = batch_predict(ctx.robot, &set.values, &rows);
-            let residual = super::residual_rung::bound_residual(ctx, set)?;
-            let residual_predictions = match &residual {
-                Some(model) => Some(super::residual_rung::predict_rows(model, &rows)?),
-                None => None,
-            };
-            if let Some(extra) = &residual_predictions {
-                for (prediction, r) in predictions.iter_mut().zip(extra) {
-                    prediction.position_mm += super::residual_rung::mean_mm(r);
-                }
-            }
+            let residual = super::residual_rung::add_mean(ctx, set, &rows, &mut predictions)?;
             if let Some(orientations) = &measured_rotations {
                 let observations = Observations {
                     orientations: Some(orientations),
@@ -196,16 +187,13 @@ impl Stage for ValidateStage {
             let mut covariances = covariance
                 .as_ref()
                 .map(|c| row_covariances(ctx, set, c.as_ref(), &rows));
-            if let (Some(covariances), Some(extra)) = (covariances.as_mut(), &residual_predictions)
-            {
-                for (c, r) in covariances.iter_mut().zip(extra) {
-                    *c = c.map(|c| c + super::residual_rung::covariance_mm2(r));
-                }
+            if let (Some(covariances), Some((_, extra))) = (covariances.as_mut(), &residual) {
+                super::residual_rung::add_variance(covariances, extra);
             }
             // The residual model's noise is what its mean leaves; the fit's
             // variance factor counts the residual's signal as noise too.
             let variance_factor = match &residual {
-                Some(model) if sigma_mm.is_none() => {
+                Some((model, _)) if sigma_mm.is_none() => {
                     Some(model.hyperparameters().noise_variance_mm2)
                 }
                 _ => covariance.flatten().and_then(|c| c.variance_factor),

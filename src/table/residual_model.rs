@@ -22,16 +22,7 @@ use crate::robot::ConfWrench;
 
 /// The features of a conf-wrench row: its joint angles and wrench.
 pub fn row_features(row: &ConfWrench) -> [f64; JOINT_LOAD_FEATURES] {
-    let w = &row.wrench;
-    let wrench = [
-        w.force_n.x,
-        w.force_n.y,
-        w.force_n.z,
-        w.moment_nm.x,
-        w.moment_nm.y,
-        w.moment_nm.z,
-    ];
-    joint_load_features(&row.q_deg, &wrench)
+    joint_load_features(&row.q_deg, &row.wrench.to_array())
 }
 
 /// The features of many rows, row-major.
@@ -72,9 +63,8 @@ pub fn to_frame(parts: &[(TrainingRows<'_>, &ResidualModel)]) -> DataFrame {
             for (j, q) in row.q_deg.iter().enumerate() {
                 joints[j].push(*q);
             }
-            let w = &row.wrench;
-            for (c, v) in w.force_n.iter().chain(w.moment_nm.iter()).enumerate() {
-                wrench[c].push(*v);
+            for (c, v) in row.wrench.to_array().into_iter().enumerate() {
+                wrench[c].push(v);
             }
             for (a, r) in training.residuals_mm[k].iter().enumerate() {
                 residual[a].push(*r);
@@ -248,32 +238,40 @@ mod tests {
         (ids, rows, residuals)
     }
 
+    /// `n` training rows fitted with `inducing_points`, and their table.
+    fn fitted_table(
+        n: usize,
+        inducing_points: usize,
+    ) -> (Vec<ConfWrench>, ResidualModel, DataFrame) {
+        let (ids, rows, residuals) = training(n);
+        let options = ResidualOptions {
+            inducing_points,
+            ..ResidualOptions::default()
+        };
+        let fitted = ResidualModel::fit(
+            &FeatureLayout::joint_load(),
+            &features_of(&rows),
+            &residuals,
+            &options,
+        )
+        .expect("fit");
+        let training = TrainingRows {
+            model: ModelName::EgResidual,
+            ids: &ids,
+            rows: &rows,
+            residuals_mm: &residuals,
+        };
+        let df = to_frame(&[(training, &fitted)]);
+        (rows, fitted, df)
+    }
+
     /// Written and read back, the model predicts what the fitted one does,
     /// exact and sparse.
     #[test]
     fn the_table_rebuilds_the_same_posterior() {
-        let (ids, rows, residuals) = training(120);
-        let features = features_of(&rows);
-        let at = features_of(&rows[..10]);
         for inducing_points in [256, 40] {
-            let options = ResidualOptions {
-                inducing_points,
-                ..ResidualOptions::default()
-            };
-            let fitted = ResidualModel::fit(
-                &FeatureLayout::joint_load(),
-                &features,
-                &residuals,
-                &options,
-            )
-            .expect("fit");
-            let training = TrainingRows {
-                model: ModelName::EgResidual,
-                ids: &ids,
-                rows: &rows,
-                residuals_mm: &residuals,
-            };
-            let df = to_frame(&[(training, &fitted)]);
+            let (rows, fitted, df) = fitted_table(120, inducing_points);
+            let at = features_of(&rows[..10]);
             let path = Path::new("residual_model.parquet");
             let read = model_of(&df, path, ModelName::EgResidual)
                 .expect("read")
@@ -297,21 +295,7 @@ mod tests {
     /// A hyperparameter that changes between rows is refused, naming its row.
     #[test]
     fn a_hyperparameter_that_differs_between_rows_is_refused() {
-        let (ids, rows, residuals) = training(40);
-        let fitted = ResidualModel::fit(
-            &FeatureLayout::joint_load(),
-            &features_of(&rows),
-            &residuals,
-            &ResidualOptions::default(),
-        )
-        .expect("fit");
-        let training = TrainingRows {
-            model: ModelName::EgResidual,
-            ids: &ids,
-            rows: &rows,
-            residuals_mm: &residuals,
-        };
-        let mut df = to_frame(&[(training, &fitted)]);
+        let (_, _, mut df) = fitted_table(40, 256);
         let mut noise = f64_values(&df, "noise_variance_mm2", Path::new("t")).expect("noise");
         noise[7] *= 2.0;
         df.replace(
