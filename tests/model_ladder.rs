@@ -6,7 +6,7 @@
 mod common;
 
 use egcal::calibration::fit::{FitOptions, Observations};
-use egcal::calibration::{CalibrationOptions, ModelResult, calibrate};
+use egcal::calibration::{CalibrationOptions, ModelResult, ResidualBase, calibrate};
 use egcal::rig::Rig;
 use egcal::rig::approach::approach_directions;
 use egcal::rig::simulator::{Simulator, SimulatorSettings};
@@ -56,12 +56,22 @@ fn identify(
         harmonic_orders: vec![1, 2],
         ..CalibrationOptions::new(ParamId::all().collect(), FitOptions::default())
     };
+    identify_with(robot, model, rows, measured, &options)
+}
+
+fn identify_with(
+    robot: &Robot,
+    model: ModelName,
+    rows: &[ConfWrench],
+    measured: &[Vector3<f64>],
+    options: &CalibrationOptions,
+) -> ModelResult {
     calibrate(
         robot,
         model,
         &Observations::new(rows, measured),
         &ParamValues::nominal(robot.spec()),
-        &options,
+        options,
     )
     .unwrap()
 }
@@ -120,6 +130,41 @@ fn eg_harmonic_recovers_the_simulated_backlash_and_transmission_errors() {
         eg_rms > 3.0 * rung_rms,
         "eg {eg_rms:.4} against {rung_rms:.4} mm"
     );
+}
+
+/// `residual_base = "elastogeometric"`: eg_residual's parametric part is the
+/// paper's model (no backlash or harmonic among its parameters), the default
+/// eg_harmonic's.
+#[test]
+fn eg_residual_s_parametric_part_is_its_base_model() {
+    let (robot, truth) = robot_and_truth();
+    let (_, rows, measured) = campaign(&robot, &truth, effects(), 200, 13);
+    let fit = |model: ModelName, base: ResidualBase| {
+        let options = CalibrationOptions {
+            residual_base: base,
+            ..CalibrationOptions::new(ParamId::all().collect(), FitOptions::default())
+        };
+        identify_with(&robot, model, &rows, &measured, &options)
+    };
+    let eg = fit(ModelName::Elastogeometric, ResidualBase::EgHarmonic);
+    let over_eg = fit(ModelName::EgResidual, ResidualBase::Elastogeometric);
+    let harmonic = fit(ModelName::EgHarmonic, ResidualBase::EgHarmonic);
+    let over_harmonic = fit(ModelName::EgResidual, ResidualBase::EgHarmonic);
+    for id in ParamId::all() {
+        let (a, b) = (over_eg.set.values.get(id), eg.set.values.get(id));
+        assert!((a - b).abs() < 1e-12, "{id}: {a} against {b}");
+    }
+    for id in ParamId::backlashes().chain(ParamId::harmonics(&[1, 2])) {
+        assert_eq!(over_eg.set.values.get(id), 0.0, "{id}");
+        assert_ne!(
+            over_eg.set.status[id.index()],
+            ParamStatus::Identified,
+            "{id}"
+        );
+    }
+    assert!((rms_mm(&over_eg) - rms_mm(&eg)).abs() < 1e-12);
+    assert!((rms_mm(&over_harmonic) - rms_mm(&harmonic)).abs() < 1e-12);
+    assert!(rms_mm(&over_harmonic) < 0.5 * rms_mm(&over_eg));
 }
 
 #[test]

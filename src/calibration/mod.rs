@@ -54,6 +54,32 @@ pub struct CalibrationOptions {
     /// Orders of the transmission-error harmonics the `eg_harmonic` model
     /// fits per joint (1: once per output turn).
     pub harmonic_orders: Vec<usize>,
+    /// The parametric model under `eg_residual`'s Gaussian process.
+    pub residual_base: ResidualBase,
+}
+
+/// The parametric model `eg_residual` identifies before fitting its
+/// Gaussian process to what that model leaves.
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum ResidualBase {
+    /// The backlash and the transmission harmonics (`eg_harmonic`'s parameters).
+    #[default]
+    EgHarmonic,
+    /// The paper's model alone: where harmonics fitted without a region of
+    /// joint space extrapolate into it, the process corrects what the paper's
+    /// model leaves without them.
+    Elastogeometric,
 }
 
 impl CalibrationOptions {
@@ -70,6 +96,7 @@ impl CalibrationOptions {
             hold: Some(HoldOptions::default()),
             selection: None,
             harmonic_orders: vec![1, 2],
+            residual_base: ResidualBase::default(),
         }
     }
 }
@@ -166,6 +193,9 @@ pub fn calibrate(
     let six_d = data.has_orientations();
     let joint_terms: Vec<ParamId> = match model {
         ModelName::EgBacklash => ParamId::backlashes().collect(),
+        ModelName::EgResidual if options.residual_base == ResidualBase::Elastogeometric => {
+            Vec::new()
+        }
         ModelName::EgHarmonic | ModelName::EgResidual => ParamId::backlashes()
             .chain(ParamId::harmonics(&options.harmonic_orders))
             .collect(),

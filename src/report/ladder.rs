@@ -35,7 +35,8 @@ pub fn render(out: &mut String, rows: Option<&[LadderRow]>) {
         out,
         "<h3 id=\"ladder\">Model ladder</h3>\n<p>From the simplest model up, on the {} folds: \
          a richer model is chosen only when its held-out errors, row by row on the same folds, \
-         are lower and both paired tests say so. Chosen: <strong>{}</strong>.</p>\n\
+         are lower by the minimum gain, both paired tests say so and its 99.7th percentile is \
+         not worse beyond that share. Chosen: <strong>{}</strong>.</p>\n\
          <div class=\"wide\"><table class=\"stats\">\n<thead>\n<tr><th>model</th>\
          <th class=\"num\">mean</th><th class=\"num\">p99.7</th><th class=\"num\">max</th>\
          <th>against</th><th class=\"num\">paired t p</th><th class=\"num\">Wilcoxon p</th>\

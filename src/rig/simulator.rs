@@ -66,6 +66,15 @@ pub struct SimulatorSettings {
     /// angular transmission errors are 0.3–1 arcmin (0.005–0.017°).
     #[schemars(range(min = 0.0, max = 10.0))]
     pub transmission_error_1_deg: f64,
+    /// Amplitude at the joint of a transmission error at the motor's rate,
+    /// `A·sin(N·q + χ_i)` with `N` the joint's `gear_ratio` in the robot file
+    /// (deg): the motor-side gear's eccentricity seen through the reducer,
+    /// one period per motor turn (360°/N of the joint, 3° at N = 121). Only
+    /// joints with a `gear_ratio` have it; a value above 0 on a robot file
+    /// without any is refused. Reducers' motor-rate components are a fraction
+    /// of their 0.3–1 arcmin total, so 0.001–0.005°.
+    #[schemars(range(min = 0.0, max = 10.0))]
+    pub transmission_error_motor_deg: f64,
     /// Gear backlash of every joint, half its dead band (deg): the joint sits
     /// this far past its command in the direction it approached from. Cycloidal
     /// and RV reducers are specified at ≤ 1 arcmin lost motion, so 0.005–0.01°.
@@ -120,6 +129,7 @@ impl Default for SimulatorSettings {
             sensor_noise_nm: 0.01,
             transmission_error_deg: 0.003,
             transmission_error_1_deg: 0.0,
+            transmission_error_motor_deg: 0.0,
             backlash_deg: 0.0,
             residual_mm: 0.0,
             residual_length_deg: 60.0,
@@ -140,6 +150,9 @@ pub struct Simulator {
     clock_start_us: i64,
     phases_rad: [f64; JOINTS],
     once_phases_rad: [f64; JOINTS],
+    motor_phases_rad: [f64; JOINTS],
+    /// Each joint's reducer ratio from the robot file (None: no motor-rate error).
+    gear_ratios: [Option<f64>; JOINTS],
     residual: SmoothResidual,
     rng: StdRng,
     cw_id: i64,
@@ -220,7 +233,17 @@ impl Simulator {
         seed: u64,
     ) -> Result<Self, String> {
         let clock_start_us = settings.clock_start_us()?;
-        let (phases_rad, once_phases_rad) = transmission_phases_rad(&truth);
+        let gear_ratios: [Option<f64>; JOINTS] =
+            std::array::from_fn(|i| robot.spec().joints.get(i).and_then(|j| j.gear_ratio));
+        if settings.transmission_error_motor_deg > 0.0 && gear_ratios.iter().all(Option::is_none) {
+            return Err(format!(
+                "simulator setting `transmission_error_motor_deg` = {} needs the motor's rate: \
+                 give `gear_ratio` (motor turns per joint turn) to the joints of robot file {}",
+                settings.transmission_error_motor_deg,
+                robot.spec().path.display()
+            ));
+        }
+        let [phases_rad, once_phases_rad, motor_phases_rad] = transmission_phases_rad(&truth);
         let residual = SmoothResidual::new(&truth, &settings);
         Ok(Simulator {
             robot,
@@ -230,6 +253,8 @@ impl Simulator {
             clock_start_us,
             phases_rad,
             once_phases_rad,
+            motor_phases_rad,
+            gear_ratios,
             residual,
             rng: StdRng::seed_from_u64(seed),
             cw_id: 0,
@@ -288,17 +313,28 @@ impl Simulator {
         Normal::new(0.0, sigma).map_or(0.0, |n| n.sample(&mut self.rng))
     }
 
+    /// The joint-side errors of the settings at command `q` (deg): the
+    /// transmission errors at twice, once and the motor's rate per turn, and
+    /// the backlash on the side of the current approach.
+    fn joint_errors_deg(&self, q: &[f64; JOINTS]) -> [f64; JOINTS] {
+        std::array::from_fn(|i| {
+            let angle = q[i].to_radians();
+            let motor = self.gear_ratios[i].map_or(0.0, |ratio| {
+                self.settings.transmission_error_motor_deg
+                    * (ratio * angle + self.motor_phases_rad[i]).sin()
+            });
+            self.settings.transmission_error_deg * (2.0 * angle + self.phases_rad[i]).sin()
+                + self.settings.transmission_error_1_deg * (angle + self.once_phases_rad[i]).sin()
+                + motor
+                + self.settings.backlash_deg * f64::from(self.approach[i])
+        })
+    }
+
     fn position_now(&self, q: &[f64; JOINTS]) -> [f64; 3] {
         let wrench = Wrench::from_array(self.applied);
         let (torques, _) = self.robot.deflections(&self.truth, q, &wrench);
-        let mut actual = *q;
-        for i in 0..JOINTS {
-            let angle = q[i].to_radians();
-            actual[i] += self.settings.transmission_error_deg
-                * (2.0 * angle + self.phases_rad[i]).sin()
-                + self.settings.transmission_error_1_deg * (angle + self.once_phases_rad[i]).sin()
-                + self.settings.backlash_deg * f64::from(self.approach[i]);
-        }
+        let errors = self.joint_errors_deg(q);
+        let mut actual: [f64; JOINTS] = std::array::from_fn(|i| q[i] + errors[i]);
         for i in [1, 2] {
             actual[i] += self.settings.quadratic_compliance * torques[i] * torques[i].abs();
         }
@@ -321,16 +357,17 @@ impl Simulator {
     }
 }
 
-/// The phases of the unmodelled transmission errors, twice- and once-per-turn
-/// in that order. They belong to the simulated robot, not to the stage that
+/// The phases of the unmodelled transmission errors, twice-per-turn,
+/// once-per-turn and at the motor's rate, in that order (drawn in that order,
+/// so adding a kind kept the earlier ones). They belong to the simulated robot, not to the stage that
 /// measures it: every measure stage over the same truth (the calibration
 /// campaign, then the compensated commands) meets the same gearboxes, so they
 /// are drawn from [`truth_seed`].
-fn transmission_phases_rad(truth: &ParamValues) -> ([f64; JOINTS], [f64; JOINTS]) {
+fn transmission_phases_rad(truth: &ParamValues) -> [[f64; JOINTS]; 3] {
     let mut phase_rng = StdRng::seed_from_u64(truth_seed(truth));
-    let twice = std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU));
-    let once = std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU));
-    (twice, once)
+    std::array::from_fn(|_| {
+        std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU))
+    })
 }
 
 /// A seed from the truth's arm parameters (not its frames: moving the tracker
@@ -547,6 +584,46 @@ mod tests {
             .with_planned_approach(HashMap::from([(4, [-1; JOINTS])]));
         resumed.move_joints(4, q).unwrap();
         assert!(close(resumed.measure().unwrap(), from_above, 1e-12));
+    }
+
+    /// The motor-rate error repeats every motor turn (360°/N of the joint),
+    /// has its amplitude, is only on joints with a gear ratio, and the
+    /// reading is the truth at the command plus it; without any gear ratio
+    /// in the robot file the setting is refused.
+    #[test]
+    fn the_motor_rate_error_has_the_gear_ratio_s_period_and_its_amplitude() {
+        let settings = SimulatorSettings {
+            transmission_error_motor_deg: 0.002,
+            ..quiet()
+        };
+        let robot = irb1600();
+        let truth = truth_params(&robot);
+        let refused = Simulator::new(robot.clone(), truth, settings.clone(), 1)
+            .err()
+            .unwrap_or_default();
+        assert!(refused.contains("gear_ratio"), "{refused}");
+        let mut spec = robot.spec().clone();
+        spec.joints[1].gear_ratio = Some(121.0);
+        let robot = Robot::new(spec);
+        let mut sim = Simulator::new(robot.clone(), truth, settings, 1).unwrap();
+        let q = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0];
+        let period_deg = 360.0 / 121.0;
+        let errors = sim.joint_errors_deg(&q);
+        let mut turned = q;
+        turned[1] += 7.0 * period_deg;
+        assert!((sim.joint_errors_deg(&turned)[1] - errors[1]).abs() < 1e-12);
+        assert!(errors.iter().enumerate().all(|(i, e)| i == 1 || *e == 0.0));
+        let peak = (0..1000)
+            .map(|k| {
+                let mut at = q;
+                at[1] += period_deg * k as f64 / 1000.0;
+                sim.joint_errors_deg(&at)[1].abs()
+            })
+            .fold(0.0, f64::max);
+        assert!((peak - 0.002).abs() < 1e-7, "{peak}");
+        sim.move_joints(1, q).unwrap();
+        let expected = truth_at(&robot, &truth, &std::array::from_fn(|i| q[i] + errors[i]));
+        assert!(close(sim.measure().unwrap(), expected, 1e-9));
     }
 
     /// The smooth residual has the RMS asked for, is smooth (a 0.1° move

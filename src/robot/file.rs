@@ -45,6 +45,11 @@ pub struct JointSpec {
     /// Optional; only the URDF export uses it (`<limit effort>`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_torque_nm: Option<f64>,
+    /// Motor turns per joint turn of the reducer (for example 121 for an RV
+    /// reducer). Optional; only the simulator uses it, for transmission
+    /// errors at the motor's rate (`transmission_error_motor_deg`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gear_ratio: Option<f64>,
 }
 
 /// A capsule: the set of points within `radius_mm` of the segment `from_mm`–`to_mm`.
@@ -269,6 +274,13 @@ impl RobotSpec {
                     Bound::Torque,
                 ));
             }
+            if let Some(ratio) = &joint.gear_ratio {
+                checks.push((
+                    key("gear_ratio"),
+                    std::slice::from_ref(ratio),
+                    Bound::GearRatio,
+                ));
+            }
             if let Some(capsule) = &joint.capsule {
                 checks.push((key("capsule.from_mm"), &capsule.from_mm, Bound::Length));
                 checks.push((key("capsule.to_mm"), &capsule.to_mm, Bound::Length));
@@ -323,6 +335,9 @@ const MAX_JOINT_SPEED_DEG_S: f64 = 10_000.0;
 /// Largest joint torque that is not a typo (N·m; the largest arms' base axes
 /// stay below 1e5).
 const MAX_JOINT_TORQUE_NM: f64 = 1.0e6;
+/// Largest reducer ratio that is not a typo (harmonic drives reach 160,
+/// cascaded reducers a few hundred).
+const MAX_GEAR_RATIO: f64 = 10_000.0;
 
 /// What a number of the robot file must satisfy besides being finite.
 #[derive(Debug, Clone, Copy)]
@@ -335,6 +350,7 @@ enum Bound {
     Gravity,
     Speed,
     Torque,
+    GearRatio,
 }
 
 impl Bound {
@@ -370,6 +386,12 @@ impl Bound {
             Bound::Torque => (
                 value > 0.0 && value <= MAX_JOINT_TORQUE_NM,
                 format!("a joint torque > 0 and at most {MAX_JOINT_TORQUE_NM} N·m"),
+            ),
+            // Below 1 the "reducer" would speed the joint up; industrial
+            // reducers stay below a few hundred.
+            Bound::GearRatio => (
+                (1.0..=MAX_GEAR_RATIO).contains(&value),
+                format!("a gear ratio (motor turns per joint turn) from 1 to {MAX_GEAR_RATIO}"),
             ),
         };
         // NaN fails every comparison above, so it lands here too.
@@ -446,6 +468,26 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("joints[0].max_torque_nm"), "{err}");
+    }
+
+    #[test]
+    fn a_gear_ratio_is_optional_and_checked() {
+        let with = |ratio: &str| {
+            let text = IRB1600.replacen(
+                "max_velocity_deg_s = 150.0",
+                &format!("max_velocity_deg_s = 150.0\ngear_ratio = {ratio}"),
+                1,
+            );
+            RobotSpec::parse(&text, Path::new("r.toml"))
+        };
+        assert_eq!(with("121.0").unwrap().joints[0].gear_ratio, Some(121.0));
+        for bad in ["0.5", "nan", "1e6"] {
+            let err = with(bad).unwrap_err().to_string();
+            assert!(
+                err.contains("joints[0].gear_ratio") && err.contains("from 1 to"),
+                "{bad}: {err}"
+            );
+        }
     }
 
     #[test]

@@ -99,7 +99,7 @@ pub struct IdentifySettings {
     /// reregistered, and the rungs beyond the paper eg_backlash (a backlash
     /// per joint, from the rows' `dir1..dir6`) and eg_harmonic (eg_backlash
     /// with transmission-error harmonics at `harmonic_orders`) and
-    /// eg_residual (eg_harmonic's parameters and a Gaussian-process residual
+    /// eg_residual (`residual_base`'s parameters and a Gaussian-process residual
     /// on joint angles and load, the output `residual_model`).
     pub models: Vec<String>,
     /// Parameters that may be freed (empty: all 42); rank analysis drops dependent ones.
@@ -226,6 +226,11 @@ pub struct IdentifySettings {
     /// Fit and prediction cost grow with its square.
     #[schemars(range(min = 16, max = 4096))]
     pub residual_inducing_points: usize,
+    /// Model `eg_residual`: the parametric model under its Gaussian process,
+    /// eg_harmonic (default) or elastogeometric (no backlash or harmonics:
+    /// where harmonics extrapolate into configurations the rows do not
+    /// surround, the process then corrects the paper's model instead).
+    pub residual_base: crate::calibration::ResidualBase,
 }
 
 /// How `identify` chooses the free parameters.
@@ -275,6 +280,7 @@ impl Default for IdentifySettings {
             held_out_min_t: 2.0,
             harmonic_orders: vec![1, 2],
             residual_inducing_points: ResidualOptions::default().inducing_points,
+            residual_base: crate::calibration::ResidualBase::default(),
             use_orientation: true,
             orientation_lever_mm: DEFAULT_ORIENTATION_LEVER_MM,
         }
@@ -888,6 +894,7 @@ impl Stage for IdentifyStage {
             fixed,
             targets: targets.len().max(1),
             harmonic_orders: settings.harmonic_orders.clone(),
+            residual_base: settings.residual_base,
             hold: Some(settings.hold_options()),
             selection: match settings.parameter_choice {
                 ParameterChoice::StandardErrors => None,

@@ -36,8 +36,9 @@ pub enum ModelName {
     /// `eg_backlash` with transmission-error harmonics per joint at the chosen
     /// orders (issue #29).
     EgHarmonic,
-    /// `eg_harmonic`'s parameters plus a Gaussian-process model of what they
-    /// leave, on joint angles and load (issue #29; the `residual_model` table).
+    /// `eg_harmonic`'s parameters (or the elasto-geometric model's, identify's
+    /// `residual_base`) plus a Gaussian-process model of what they leave, on
+    /// joint angles and load (issue #29; the `residual_model` table).
     EgResidual,
 }
 
