@@ -258,16 +258,17 @@ class RwsEmulator:
             Symbol("egc_reached", "jointtarget", [list(self.q), [EAX_NONE] * 6]),
         )}
 
-        self.tmpdir, self.cert_file, context = None, None, None
-        if version == 2:  # the certificate (kept in a temp dir until close) before the socket
-            self.tmpdir = tempfile.mkdtemp(prefix="rws_emulator_")
+        context = None
+        if version == 2:
+            # The certificate before the socket. The context holds it once loaded, so
+            # its files go at once: a test that kills the emulator leaves nothing in /tmp.
+            tmpdir = tempfile.mkdtemp(prefix="rws_emulator_")
             try:
-                key, self.cert_file = make_certificate(self.tmpdir)
+                key, cert = make_certificate(tmpdir)
                 context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
-                context.load_cert_chain(self.cert_file, key)
-            except BaseException:
-                shutil.rmtree(self.tmpdir, ignore_errors=True)
-                raise
+                context.load_cert_chain(cert, key)
+            finally:
+                shutil.rmtree(tmpdir, ignore_errors=True)
         self.server = _Server((host, port), _RwsHandler, bind_and_activate=True)
         self.server.emulator = self
         self.server.ssl_context = context
@@ -288,9 +289,6 @@ class RwsEmulator:
             self.server.shutdown()
             self.thread.join(timeout=2.0)
         self.server.server_close()
-        if self.tmpdir is not None:
-            shutil.rmtree(self.tmpdir, ignore_errors=True)
-            self.tmpdir = None
 
     def die(self):
         self.log("rws: fault die, exiting with status 3")
