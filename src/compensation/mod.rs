@@ -292,6 +292,25 @@ fn seeds(robot: &Robot, targets: &[Target], candidates: &[Candidates]) -> Vec<[f
         .collect()
 }
 
+/// The model rows of `commands`: each command's joints under its target's
+/// wrench and tool, approached from `approach`; what J·Σ·Jᵀ and the residual
+/// model are evaluated at.
+pub fn command_rows(
+    targets: &[Target],
+    commands: &[Command],
+    approach: [i8; JOINTS],
+) -> Vec<crate::robot::ConfWrench> {
+    targets
+        .iter()
+        .zip(commands)
+        .map(|(target, command)| crate::robot::ConfWrench {
+            target: target.tool,
+            approach,
+            ..crate::robot::ConfWrench::new(command.q_deg, target.wrench)
+        })
+        .collect()
+}
+
 /// Compensates every target with the parameter set `calibrated`; one
 /// [`Command`] per target, in order. An unreachable or singular target does not
 /// affect the others' commands except as the previous seed of an unhinted

@@ -368,15 +368,7 @@ impl Stage for CompensateStage {
         if let Some(set) = &set
             && let Some(covariance) = bound_covariance(ctx, set)?
         {
-            let conf_wrenches: Vec<ConfWrench> = targets
-                .iter()
-                .zip(&commands)
-                .map(|(target, command)| ConfWrench {
-                    target: target.tool,
-                    approach,
-                    ..ConfWrench::new(command.q_deg, target.wrench)
-                })
-                .collect();
+            let conf_wrenches = compensation::command_rows(&targets, &commands, approach);
             let mut rows = row_covariances(ctx, set, covariance.as_ref(), &conf_wrenches);
             // The residual's variance: back to its prior far from the rows.
             if let Some(extra) = &residual_predictions {

@@ -199,16 +199,8 @@ pub fn compensate_with_residual(
     residual: &ResidualModel,
     approach: [i8; crate::robot::JOINTS],
 ) -> Result<(Vec<crate::compensation::Command>, Vec<ResidualPrediction>), StageError> {
-    let rows_at = |commands: &[crate::compensation::Command]| -> Vec<ConfWrench> {
-        targets
-            .iter()
-            .zip(commands)
-            .map(|(target, command)| ConfWrench {
-                target: target.tool,
-                approach,
-                ..ConfWrench::new(command.q_deg, target.wrench)
-            })
-            .collect()
+    let rows_at = |commands: &[crate::compensation::Command]| {
+        crate::compensation::command_rows(targets, commands, approach)
     };
     let mut commands = crate::compensation::compensate(robot, values, targets, options);
     let mut predictions = predict_rows(residual, &rows_at(&commands))?;
