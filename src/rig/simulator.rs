@@ -359,10 +359,10 @@ impl Simulator {
 
 /// The phases of the unmodelled transmission errors, twice-per-turn,
 /// once-per-turn and at the motor's rate, in that order (drawn in that order,
-/// so adding a kind kept the earlier ones). They belong to the simulated robot, not to the stage that
-/// measures it: every measure stage over the same truth (the calibration
-/// campaign, then the compensated commands) meets the same gearboxes, so they
-/// are drawn from [`truth_seed`].
+/// so adding a kind kept the earlier ones). They belong to the simulated
+/// robot, not to the stage that measures it: every measure stage over the
+/// same truth (the calibration campaign, then the compensated commands) meets
+/// the same gearboxes, so they are drawn from [`truth_seed`].
 fn transmission_phases_rad(truth: &ParamValues) -> [[f64; JOINTS]; 3] {
     let mut phase_rng = StdRng::seed_from_u64(truth_seed(truth));
     std::array::from_fn(|_| {
