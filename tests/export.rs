@@ -1398,6 +1398,26 @@ fn check_refuses_bad_settings_with_their_key() {
             "needs the input `parameters`",
         ),
         ("formats = []", "stages[0].formats", "no format given"),
+        (
+            "formats = [\"fanuc\"]\nzone = \"z10\"",
+            "stages[0].zone",
+            "not radii",
+        ),
+        (
+            "formats = [\"yaskawa\"]\nzone = \"z10\"",
+            "stages[0].zone",
+            "not radii",
+        ),
+        (
+            "formats = [\"fanuc\"]\nmodule_name = \"Cell_a\"",
+            "stages[0].module_name",
+            "upper case",
+        ),
+        (
+            "fanuc_user_tool = 11",
+            "stages[0].fanuc_user_tool",
+            "range [1, 10]",
+        ),
         ("motion = \"circular\"", "stages[0].motion", "circular"),
         ("on_failed = \"ignore\"", "stages[0].on_failed", "ignore"),
     ] {
@@ -1486,4 +1506,351 @@ fn export_program_runs_in_a_job_and_publishes_its_files() {
         "{stdout}{stderr}"
     );
     assert_eq!(read("CELL_A.mod"), module);
+}
+
+// ---- FANUC TP and Yaskawa INFORM, read back by their own small readers ------
+
+/// The IRB 1600 robot file with a FANUC-style J3 (`j3_from_j2 = 1`) and
+/// signed pulse ratios on every axis.
+const PULSES_PER_DEG: [f64; 6] = [1234.5, -1100.25, 987.0, 700.0, -650.5, 400.0];
+
+fn controller_robot_file(dir: &Path) -> PathBuf {
+    let mut text = std::fs::read_to_string(robot_file()).unwrap();
+    for (speed, pulses) in ["150.0", "160.0", "170.0", "320.0", "400.0", "450.0"]
+        .iter()
+        .zip(PULSES_PER_DEG)
+    {
+        let line = format!("max_velocity_deg_s = {speed}");
+        assert_eq!(text.matches(&line).count(), 1, "{line}");
+        text = text.replace(&line, &format!("{line}\npulses_per_deg = {pulses}"));
+    }
+    text.push_str("\n[controller]\nj3_from_j2 = 1.0\n");
+    let path = dir.join("fanuc_like.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// The `(index, body)` of every `P[i…]{ … };` block of an `.ls` file's `/POS`.
+fn ls_positions(text: &str) -> BTreeMap<usize, String> {
+    let pos = text.split("/POS\n").nth(1).unwrap();
+    pos.split("};")
+        .filter(|block| block.contains("P["))
+        .map(|block| {
+            let start = block.find("P[").unwrap() + 2;
+            let index: String = block[start..]
+                .chars()
+                .take_while(char::is_ascii_digit)
+                .collect();
+            (index.parse().unwrap(), block.to_string())
+        })
+        .collect()
+}
+
+/// `KEY = value` fields of a position block (`J1= 10.000 deg`, `X = 1.0 mm`).
+fn ls_fields(block: &str) -> BTreeMap<String, f64> {
+    block
+        .split([',', '\n', '\t'])
+        .filter_map(|part| part.split_once('='))
+        .filter_map(|(key, value)| {
+            let number = value.split_whitespace().next()?.parse::<f64>().ok()?;
+            Some((key.trim().to_string(), number))
+        })
+        .collect()
+}
+
+/// Rotation of fixed angles about x, y, z (deg): `Rot(z, c)·Rot(y, b)·Rot(x, a)`.
+fn xyz_fixed(a_deg: f64, b_deg: f64, c_deg: f64) -> Matrix3<f64> {
+    rz(c_deg.to_radians()) * ry(b_deg.to_radians()) * rx(a_deg.to_radians())
+}
+
+/// The IRB 1600's wrist centre (d6 = 65 mm back along the flange's z axis)
+/// in its arm plane: (distance in front of axis 1, height), mm.
+fn wrist_in_arm_plane(robot: &Robot, q: &[f64; 6]) -> (f64, f64) {
+    let (r, p) = nominal_flange(robot, q);
+    let wrist = p - r * Vector3::new(0.0, 0.0, 65.0);
+    let (s, c) = q[0].to_radians().sin_cos();
+    (wrist.x * c + wrist.y * s, wrist.z)
+}
+
+fn wrist_in_front(robot: &Robot, q: &[f64; 6]) -> bool {
+    wrist_in_arm_plane(robot, q).0 >= 0.0
+}
+
+/// Whether the IRB 1600's elbow (axis 3, 700 mm up the lower arm from axis
+/// 2 at (150, 486.5) mm, tilted forward by q2) lies on the side of the line
+/// from axis 2 to the wrist centre where it is at zero (above it).
+fn elbow_up(robot: &Robot, q: &[f64; 6]) -> bool {
+    let (shoulder_x, shoulder_z) = (150.0, 486.5);
+    let (s2, c2) = q[1].to_radians().sin_cos();
+    let elbow = (700.0 * s2, 700.0 * c2);
+    let (wx, wz) = wrist_in_arm_plane(robot, q);
+    let to_wrist = (wx - shoulder_x, wz - shoulder_z);
+    to_wrist.0 * elbow.1 - to_wrist.1 * elbow.0 >= 0.0
+}
+
+#[test]
+fn fanuc_and_yaskawa_read_back_give_the_commands_to_the_printed_precision() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = controller_robot_file(dir.path());
+    let robot = Robot::new(RobotSpec::load(&file).unwrap());
+    let mut rows = random_rows(&robot, 40, 17);
+    rows[5].status = "unreachable";
+    let ok: Vec<&Row> = rows.iter().filter(|r| r.status == "ok").collect();
+    let tool = (Matrix3::identity(), Vector3::new(22.0, 50.0, 150.0));
+    let (code, log, out) = export_for(
+        &file,
+        dir.path(),
+        &rows,
+        None,
+        "formats = [\"fanuc\", \"yaskawa\"]\nmotion = \"both\"\n",
+    );
+    assert_eq!(code, 0, "{log}");
+    assert!(!out.join("EGCAL_PROGRAM.mod").exists());
+
+    // ---- FANUC .ls
+    let ls = std::fs::read_to_string(out.join("EGCAL_PROGRAM.ls")).unwrap();
+    assert!(ls.starts_with("/PROG  EGCAL_PROGRAM\n/ATTR\n") && ls.ends_with("/END\n"));
+    let main: Vec<&str> = ls
+        .split("/MN\n")
+        .nth(1)
+        .unwrap()
+        .split("/POS\n")
+        .next()
+        .unwrap()
+        .lines()
+        .collect();
+    assert!(ls.contains(&format!("LINE_COUNT\t= {};", main.len())));
+    let mut motions = Vec::new();
+    let mut remarks = Vec::new();
+    let mut register = [f64::NAN; 6];
+    let mut tool_set_before_move = false;
+    for (k, line) in main.iter().enumerate() {
+        let (number, body) = line.split_once(':').unwrap();
+        assert_eq!(number.trim().parse::<usize>().unwrap(), k + 1, "{line}");
+        assert!(body.ends_with(" ;"), "{line}");
+        let body = body.trim_end_matches(" ;");
+        if let Some(remark) = body.strip_prefix("  !") {
+            assert!(remark.len() <= 32, "{remark}");
+            remarks.push(remark);
+        } else if let Some(rest) = body.strip_prefix("  PR[100,") {
+            let (element, value) = rest.split_once("]=").unwrap();
+            register[element.parse::<usize>().unwrap() - 1] = value.parse().unwrap();
+        } else if body == "  UTOOL[10]=PR[100]" {
+            tool_set_before_move = motions.is_empty();
+        } else if body.starts_with('J') || body.starts_with('L') {
+            let words: Vec<&str> = body.split_whitespace().collect();
+            assert_eq!(words.len(), 4, "{line}");
+            assert_eq!(words[3], "FINE");
+            motions.push((words[0], words[1].to_string(), words[2].to_string()));
+        }
+    }
+    assert!(tool_set_before_move);
+    assert!(main.iter().any(|l| l.ends_with(":  UTOOL_NUM=10 ;")));
+    assert_eq!(register, [22.0, 50.0, 150.0, 0.0, 0.0, 0.0]);
+    let remarks = remarks.join(" ");
+    for expected in [
+        "target_id 6: unreachable",
+        "NOMINAL kinematic model",
+        "UFRAME_NUM=0",
+    ] {
+        assert!(remarks.contains(expected), "`{expected}` in {remarks}");
+    }
+    let positions = ls_positions(&ls);
+    assert_eq!(motions.len(), 2 * ok.len());
+    assert_eq!(positions.len(), motions.len());
+    let joint_tol = 0.5e-3 + 1e-9;
+    let position_tol = 0.5e-3 * 1.7321 + 1e-6;
+    for (k, (kind, p, speed)) in motions.iter().enumerate() {
+        assert_eq!(*p, format!("P[{}]", k + 1));
+        let row = ok[k % ok.len()];
+        let block = &positions[&(k + 1)];
+        assert!(block.contains("UF : 0, UT : 10,"), "{block}");
+        let f = ls_fields(block);
+        if k < ok.len() {
+            // Joint path: the controller's J3 is q3 + q2.
+            assert_eq!((*kind, speed.as_str()), ("J", "20%"));
+            let q: [f64; 6] = std::array::from_fn(|j| f[&format!("J{}", j + 1)]);
+            let q_file = [q[0], q[1], q[2] - q[1], q[3], q[4], q[5]];
+            for (j, (printed, q)) in q_file.iter().zip(row.q).enumerate() {
+                let tol = if j == 2 { 2.0 * joint_tol } else { joint_tol };
+                assert!(
+                    (printed - q).abs() <= tol,
+                    "P[{}] J{}",
+                    k + 1,
+                    j + 1
+                );
+            }
+        } else {
+            // Linear path: the tool's pose at the command, W P R fixed angles.
+            let expected_kind = if k == ok.len() { "J" } else { "L" };
+            assert_eq!(*kind, expected_kind);
+            if *kind == "L" {
+                assert_eq!(speed, "100mm/sec");
+            }
+            let (r, p) = compose(&nominal_flange(&robot, &row.q), &tool);
+            for (axis, key) in ["X", "Y", "Z"].iter().enumerate() {
+                assert!(
+                    (f[*key] - p[axis]).abs() <= position_tol,
+                    "P[{}] {key}",
+                    k + 1
+                );
+            }
+            let printed = xyz_fixed(f["W"], f["P"], f["R"]);
+            assert!((printed - r).abs().max() <= 3.0 * 0.5e-3_f64.to_radians() + 1e-9);
+            let config = block.split("CONFIG : '").nth(1).unwrap();
+            let config = &config[..config.find('\'').unwrap()];
+            let flags: Vec<&str> = config.split([' ', ',']).filter(|s| !s.is_empty()).collect();
+            let flip = if row.q[4] > 0.0 { "F" } else { "N" };
+            let front = if wrist_in_front(&robot, &row.q) {
+                "T"
+            } else {
+                "B"
+            };
+            assert_eq!(flags[0], flip, "{config}");
+            let up = if elbow_up(&robot, &row.q) { "U" } else { "D" };
+            assert_eq!(flags[1], up, "{config}");
+            assert_eq!(flags[2], front, "{config}");
+            for (flag, j) in flags[3..].iter().zip([3, 4, 5]) {
+                let turn = ((row.q[j] + 180.0) / 360.0).ceil() - 1.0;
+                assert_eq!(flag.parse::<f64>().unwrap(), turn, "{config} J{}", j + 1);
+            }
+        }
+    }
+
+    // ---- Yaskawa .jbi
+    let jbi = std::fs::read_to_string(out.join("EGCAL_PROGRAM.jbi")).unwrap();
+    let lines: Vec<&str> = jbi.lines().collect();
+    assert_eq!(lines[..3], ["/JOB", "//NAME EGCAL_PROGRAM", "//POS"]);
+    assert_eq!(lines.last(), Some(&"END"));
+    let npos = lines[3].strip_prefix("///NPOS ").unwrap();
+    assert_eq!(npos, format!("{},0,0,0,0,0", 2 * ok.len()));
+    assert!(lines.contains(&"///TOOL 1"));
+    let mut pulse_data = true;
+    let mut rconf: Option<Vec<u8>> = None;
+    let mut data = BTreeMap::new();
+    for line in &lines[..lines.iter().position(|l| *l == "//INST").unwrap()] {
+        match *line {
+            "///POSTYPE PULSE" | "///PULSE" => pulse_data = true,
+            "///POSTYPE ROBOT" | "///RECTAN" => pulse_data = false,
+            l if l.starts_with("///RCONF ") => {
+                rconf = Some(l[9..].split(',').map(|b| b.parse().unwrap()).collect());
+            }
+            l if l.starts_with('C') => {
+                let (name, values) = l.split_once('=').unwrap();
+                let values: Vec<f64> = values.split(',').map(|v| v.parse().unwrap()).collect();
+                data.insert(name.to_string(), (pulse_data, rconf.clone(), values));
+            }
+            _ => {}
+        }
+    }
+    let inst = &lines[lines.iter().position(|l| *l == "NOP").unwrap() + 1..lines.len() - 1];
+    let comments: Vec<&str> = inst.iter().filter_map(|l| l.strip_prefix('\'')).collect();
+    assert!(comments.iter().all(|c| c.len() <= 32));
+    assert!(comments.join(" ").contains("target_id 6: unreachable"));
+    assert!(
+        comments
+            .join(" ")
+            .contains("WARNING: a job cannot set a tool file")
+    );
+    let moves: Vec<&str> = inst
+        .iter()
+        .copied()
+        .filter(|l| !l.starts_with('\''))
+        .collect();
+    assert_eq!(moves.len(), 2 * ok.len());
+    for (k, line) in moves.iter().enumerate() {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        let name = format!("C{k:05}");
+        assert_eq!(words[1], name);
+        assert_eq!(words[3], "PL=0");
+        let (pulses, conf, values) = &data[&name];
+        let row = ok[k % ok.len()];
+        if k < ok.len() {
+            assert_eq!(words[..1], ["MOVJ"]);
+            assert_eq!(words[2], "VJ=20.00");
+            assert!(*pulses);
+            // Whole pulses: within half a pulse, then J3 from U − L.
+            let controller: Vec<f64> = values
+                .iter()
+                .zip(PULSES_PER_DEG)
+                .map(|(p, r)| p / r)
+                .collect();
+            let q_file = [
+                controller[0],
+                controller[1],
+                controller[2] - controller[1],
+                controller[3],
+                controller[4],
+                controller[5],
+            ];
+            for j in 0..6 {
+                let half_pulse = 0.5 / PULSES_PER_DEG[j].abs();
+                let tol = if j == 2 {
+                    half_pulse + 0.5 / PULSES_PER_DEG[1].abs()
+                } else {
+                    half_pulse
+                };
+                assert!(
+                    (q_file[j] - row.q[j]).abs() <= tol + 1e-9,
+                    "{name} axis {}",
+                    j + 1
+                );
+            }
+        } else {
+            assert_eq!(words[0], if k == ok.len() { "MOVJ" } else { "MOVL" });
+            if words[0] == "MOVL" {
+                assert_eq!(words[2], "V=100.0");
+            }
+            assert!(!*pulses);
+            let (r, p) = compose(&nominal_flange(&robot, &row.q), &tool);
+            for axis in 0..3 {
+                assert!((values[axis] - p[axis]).abs() <= position_tol, "{name}");
+            }
+            let printed = xyz_fixed(values[3], values[4], values[5]);
+            assert!((printed - r).abs().max() <= 3.0 * 0.5e-4_f64.to_radians() + 1e-9);
+            let conf = conf.as_ref().unwrap();
+            assert_eq!(conf.len(), 8);
+            assert_eq!(conf[0], u8::from(row.q[4] <= 0.0), "{name} flip");
+            assert_eq!(
+                conf[1],
+                u8::from(!elbow_up(&robot, &row.q)),
+                "{name} upper arm"
+            );
+            assert_eq!(
+                conf[2],
+                u8::from(!wrist_in_front(&robot, &row.q)),
+                "{name} front"
+            );
+            for (bit, j) in [(3, 3), (4, 5), (5, 0)] {
+                assert_eq!(
+                    conf[bit],
+                    u8::from(row.q[j].abs() >= 180.0),
+                    "{name} axis {}",
+                    j + 1
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn a_yaskawa_job_without_pulse_ratios_is_refused_for_joint_moves() {
+    let robot = robot();
+    let dir = tempfile::tempdir().unwrap();
+    let rows = random_rows(&robot, 3, 5);
+    let (code, log, _) = export(dir.path(), &rows, None, "formats = [\"yaskawa\"]\n");
+    assert_eq!(code, 2, "{log}");
+    assert!(
+        log.contains("joints[0].pulses_per_deg") && log.contains("motion = \"linear\""),
+        "{log}"
+    );
+    // Cartesian moves need none.
+    let (code, log, out) = export(
+        dir.path(),
+        &rows,
+        None,
+        "formats = [\"yaskawa\"]\nmotion = \"linear\"\n",
+    );
+    assert_eq!(code, 0, "{log}");
+    assert!(out.join("EGCAL_PROGRAM.jbi").exists());
 }

@@ -17,7 +17,7 @@ use crate::robot::JOINTS;
 
 use super::{
     JOINT_DECIMALS, POSITION_DECIMALS, Program, QUATERNION_DECIMALS, fixed, header_lines,
-    skipped_lines, tool_lines, warning_lines,
+    printed_precision, skipped_lines, tool_lines, warning_lines,
 };
 
 /// Column names, as in the `commands` table.
@@ -134,7 +134,7 @@ pub fn table(program: &Program) -> String {
 pub fn notes(program: &Program) -> String {
     // The CSV declares no names; a tool is told apart by its target.
     let names = vec!["of the Cartesian columns".to_string(); program.tools.len()];
-    let mut lines = header_lines(&program.provenance, "commands.csv");
+    let mut lines = header_lines(&program.provenance, "commands.csv", printed_precision());
     lines.extend([
         "commands.csv is plain CSV: a header line, then one line per row with status ok.".into(),
         "Columns as in the commands table (units in their names); x_cmd_mm, y_cmd_mm, z_cmd_mm and".into(),

@@ -36,8 +36,8 @@
 use super::cartesian::Pose;
 use super::{
     EULER_DECIMALS, JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload,
-    Program, ProgramTool, fixed, header_lines, rotation_from_quaternion, skipped_lines, tool_lines,
-    tool_names, warning_lines, wrist_placement, zyx_angles,
+    Program, ProgramTool, fixed, header_lines, printed_precision, rotation_from_quaternion,
+    skipped_lines, tool_lines, tool_names, warning_lines, wrist_placement, zyx_angles,
 };
 use crate::robot::{JOINTS, Robot};
 
@@ -118,7 +118,7 @@ fn header(out: &mut String, program: &Program, kind: &str) {
             "degrades path accuracy and the collision detection.".into(),
         ],
     };
-    for text in header_lines(&program.provenance, kind)
+    for text in header_lines(&program.provenance, kind, printed_precision())
         .iter()
         .chain(&tool_lines(program, &tools))
         .chain(&[
@@ -165,7 +165,9 @@ pub fn dat(robot: &Robot, program: &Program, motion: &MotionSettings) -> String 
         ));
     }
     let externals = "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0";
+    // The controller's joint values (the robot file's `[controller]`).
     let e6axis = |q_deg: &[f64; JOINTS]| {
+        let q_deg = robot.spec().controller_joints_deg(q_deg);
         let axes: Vec<String> = (0..JOINTS)
             .map(|i| format!("A{} {}", i + 1, fixed(q_deg[i], JOINT_DECIMALS)))
             .collect();

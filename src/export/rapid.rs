@@ -27,8 +27,8 @@
 use super::cartesian::Pose;
 use super::{
     JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload, Program,
-    ProgramTool, QUATERNION_DECIMALS, Stop, fixed, header_lines, skipped_lines, tool_lines,
-    tool_names, warning_lines, wrist_placement,
+    ProgramTool, QUATERNION_DECIMALS, Stop, fixed, header_lines, printed_precision, skipped_lines,
+    tool_lines, tool_names, warning_lines, wrist_placement,
 };
 use crate::robot::{JOINTS, Robot};
 
@@ -65,9 +65,14 @@ pub fn confdata(robot: &Robot, q_deg: &[f64; JOINTS]) -> ConfData {
     }
 }
 
-/// A `jointtarget` value: the six joints, external axes unused.
-fn jointtarget(q_deg: &[f64; JOINTS]) -> String {
-    let q = q_deg.map(|v| fixed(v, JOINT_DECIMALS)).join(", ");
+/// A `jointtarget` value: the controller's six joint values (the robot
+/// file's `[controller]`), external axes unused.
+fn jointtarget(robot: &Robot, q_deg: &[f64; JOINTS]) -> String {
+    let q = robot
+        .spec()
+        .controller_joints_deg(q_deg)
+        .map(|v| fixed(v, JOINT_DECIMALS))
+        .join(", ");
     format!("[[{q}], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]]")
 }
 
@@ -157,7 +162,7 @@ pub fn module(
         ],
     };
     line(&mut out, &format!("MODULE {}", motion.name));
-    for text in header_lines(&program.provenance, "ABB RAPID module")
+    for text in header_lines(&program.provenance, "ABB RAPID module", printed_precision())
         .iter()
         .chain(&tool_lines(program, &tools))
         .chain(&[
@@ -210,7 +215,7 @@ pub fn module(
                 &format!(
                     "  CONST jointtarget {} := {};",
                     data_name("jp_", stop.target_id),
-                    jointtarget(q)
+                    jointtarget(robot, q)
                 ),
             );
         }
@@ -222,7 +227,7 @@ pub fn module(
                 &format!(
                     "  CONST jointtarget {} := {};",
                     data_name("jt_", stop.target_id),
-                    jointtarget(&stop.target.q_deg)
+                    jointtarget(robot, &stop.target.q_deg)
                 ),
             );
         }

@@ -50,6 +50,11 @@ pub struct JointSpec {
     /// errors at the motor's rate (`transmission_error_motor_deg`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gear_ratio: Option<f64>,
+    /// Encoder pulses per degree of this axis as the controller counts them,
+    /// signed (a Yaskawa controller's pulse ratio). Optional; only Yaskawa
+    /// jobs in joint form (`POSTYPE PULSE`) need it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pulses_per_deg: Option<f64>,
 }
 
 /// A capsule: the set of points within `radius_mm` of the segment `from_mm`–`to_mm`.
@@ -82,6 +87,26 @@ pub struct PayloadSpec {
     pub cog_mm: [f64; 3],
 }
 
+/// How the controller numbers the joints where it differs from the robot
+/// file (optional `[controller]` table); only the programs use it.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ControllerSpec {
+    /// The controller's J3 is `q3 + j3_from_j2 · q2` (robot-file degrees):
+    /// 1 or −1 on FANUC arms, whose J3 is the forearm's angle from the
+    /// horizontal (the sign that keeps the forearm's direction when J2 alone
+    /// moves); 0 (the default) where J3 is measured from the upper arm (ABB,
+    /// KUKA, Yaskawa, Universal Robots).
+    #[serde(default)]
+    pub j3_from_j2: f64,
+}
+
+impl ControllerSpec {
+    fn is_default(&self) -> bool {
+        *self == ControllerSpec::default()
+    }
+}
+
 /// The whole robot file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
@@ -111,6 +136,10 @@ pub struct RobotSpec {
     pub tool: TransformSpec,
     #[serde(default = "no_payload")]
     pub payload: PayloadSpec,
+    /// The controller's joint numbering, where it is not the robot file's.
+    /// Skipped when default, so files without it keep their content hash.
+    #[serde(default, skip_serializing_if = "ControllerSpec::is_default")]
+    pub controller: ControllerSpec,
 }
 
 fn default_gravity() -> [f64; 3] {
@@ -281,6 +310,13 @@ impl RobotSpec {
                     Bound::GearRatio,
                 ));
             }
+            if let Some(pulses) = &joint.pulses_per_deg {
+                checks.push((
+                    key("pulses_per_deg"),
+                    std::slice::from_ref(pulses),
+                    Bound::PulseRatio,
+                ));
+            }
             if let Some(capsule) = &joint.capsule {
                 checks.push((key("capsule.from_mm"), &capsule.from_mm, Bound::Length));
                 checks.push((key("capsule.to_mm"), &capsule.to_mm, Bound::Length));
@@ -300,6 +336,15 @@ impl RobotSpec {
                 return Err(invalid(key, format!("expected {expected}, found {found}")));
             }
         }
+        if ![-1.0, 0.0, 1.0].contains(&self.controller.j3_from_j2) {
+            return Err(invalid(
+                "controller.j3_from_j2".into(),
+                format!(
+                    "expected -1, 0 or 1 (the controller's J3 is q3 + j3_from_j2 * q2), found {}",
+                    self.controller.j3_from_j2
+                ),
+            ));
+        }
         for (i, joint) in self.joints.iter().enumerate() {
             let [lo, hi] = joint.limits_deg;
             if lo >= hi {
@@ -310,6 +355,22 @@ impl RobotSpec {
             }
         }
         Ok(())
+    }
+
+    /// The joint values the controller shows for the robot-file command
+    /// `q_deg` (deg): the same but for a FANUC-style J3 (`[controller]`).
+    pub fn controller_joints_deg(&self, q_deg: &[f64; 6]) -> [f64; 6] {
+        let mut controller = *q_deg;
+        controller[2] += self.controller.j3_from_j2 * q_deg[1];
+        controller
+    }
+
+    /// The robot-file command of the controller's joint values (deg): the
+    /// inverse of [`RobotSpec::controller_joints_deg`].
+    pub fn robot_file_joints_deg(&self, controller_deg: &[f64; 6]) -> [f64; 6] {
+        let mut q_deg = *controller_deg;
+        q_deg[2] -= self.controller.j3_from_j2 * controller_deg[1];
+        q_deg
     }
 
     /// Blake3 hash of the canonical form (so whitespace or comment edits do not
@@ -338,6 +399,8 @@ const MAX_JOINT_TORQUE_NM: f64 = 1.0e6;
 /// Largest reducer ratio that is not a typo (harmonic drives reach 160,
 /// cascaded reducers a few hundred).
 const MAX_GEAR_RATIO: f64 = 10_000.0;
+/// Largest pulse ratio that is not a typo (pulses per degree of the axis).
+const MAX_PULSES_PER_DEG: f64 = 1.0e6;
 
 /// What a number of the robot file must satisfy besides being finite.
 #[derive(Debug, Clone, Copy)]
@@ -351,6 +414,7 @@ enum Bound {
     Speed,
     Torque,
     GearRatio,
+    PulseRatio,
 }
 
 impl Bound {
@@ -393,6 +457,14 @@ impl Bound {
                 (1.0..=MAX_GEAR_RATIO).contains(&value),
                 format!("a gear ratio (motor turns per joint turn) from 1 to {MAX_GEAR_RATIO}"),
             ),
+            // Signed; encoders count from tens to a few thousand pulses per
+            // degree of the axis.
+            Bound::PulseRatio => (
+                (1.0..=MAX_PULSES_PER_DEG).contains(&value.abs()),
+                format!(
+                    "encoder pulses per degree, signed, of magnitude 1 to {MAX_PULSES_PER_DEG}"
+                ),
+            ),
         };
         // NaN fails every comparison above, so it lands here too.
         (!ok).then_some(expected)
@@ -431,6 +503,61 @@ mod tests {
             .to_string();
         assert!(err.contains("joints[0].d_mm"), "{err}");
         assert!(err.contains("line"), "{err}");
+    }
+
+    #[test]
+    fn the_controller_section_is_optional_checked_and_keeps_old_hashes() {
+        let plain = RobotSpec::parse(IRB1600, Path::new("r.toml")).unwrap();
+        assert_eq!(plain.controller.j3_from_j2, 0.0);
+        let q = [10.0, 20.0, -30.0, 40.0, 50.0, 60.0];
+        assert_eq!(plain.controller_joints_deg(&q), q);
+        // An explicit default is the same robot, with the same cache key.
+        let explicit = RobotSpec::parse(
+            &format!("{IRB1600}\n[controller]\nj3_from_j2 = 0.0\n"),
+            Path::new("r.toml"),
+        )
+        .unwrap();
+        assert_eq!(explicit.content_hash(), plain.content_hash());
+        let fanuc = RobotSpec::parse(
+            &format!("{IRB1600}\n[controller]\nj3_from_j2 = 1.0\n"),
+            Path::new("r.toml"),
+        )
+        .unwrap();
+        assert_ne!(fanuc.content_hash(), plain.content_hash());
+        assert_eq!(
+            fanuc.controller_joints_deg(&q),
+            [10.0, 20.0, -10.0, 40.0, 50.0, 60.0]
+        );
+        assert_eq!(
+            fanuc.robot_file_joints_deg(&fanuc.controller_joints_deg(&q)),
+            q
+        );
+        let err = RobotSpec::parse(
+            &format!("{IRB1600}\n[controller]\nj3_from_j2 = 0.5\n"),
+            Path::new("r.toml"),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("controller.j3_from_j2") && err.contains("-1, 0 or 1"),
+            "{err}"
+        );
+        let text = IRB1600.replacen(
+            "max_velocity_deg_s = 150.0",
+            "max_velocity_deg_s = 150.0\npulses_per_deg = 0.2",
+            1,
+        );
+        let err = RobotSpec::parse(&text, Path::new("r.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("joints[0].pulses_per_deg"), "{err}");
+        let text = IRB1600.replacen(
+            "max_velocity_deg_s = 150.0",
+            "max_velocity_deg_s = 150.0\npulses_per_deg = -1341.5",
+            1,
+        );
+        let spec = RobotSpec::parse(&text, Path::new("r.toml")).unwrap();
+        assert_eq!(spec.joints[0].pulses_per_deg, Some(-1341.5));
     }
 
     #[test]

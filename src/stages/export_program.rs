@@ -1,6 +1,7 @@
 //! `export_program`: programs for the robot controller from a `commands` table
-//! (spec §7): an ABB RAPID module, a KUKA KRL pair, a CSV, and (with a
-//! parameters table) a URDF of the calibrated geometry. Writes files only, no
+//! (spec §7): an ABB RAPID module, a KUKA KRL pair, a FANUC TP program, a
+//! Yaskawa INFORM job, a CSV, and (with a parameters table) a URDF of the
+//! calibrated geometry. Writes files only, no
 //! table; the runner publishes and caches them beside other stages' tables.
 //!
 //! The conventions live in `crate::export`; this file reads the rows, checks
@@ -22,7 +23,7 @@ use crate::calibration::row_checks::{MAX_POSITION_MM, compact, joints_problem};
 use crate::compensation::Status;
 use crate::export::cartesian::{self, Payload, ProgramTool};
 use crate::export::{
-    self, Command, MotionSettings, Motions, Program, Provenance, krl, rapid, urdf,
+    self, Command, MotionSettings, Motions, Program, Provenance, fanuc, krl, rapid, urdf, yaskawa,
 };
 use crate::robot::{Frame, Robot};
 use crate::table::parameters::{ModelName, ParameterSet};
@@ -42,6 +43,11 @@ pub enum ProgramFormat {
     Rapid,
     /// KUKA KRL pair `<module_name>.src` and `<module_name>.dat`.
     Krl,
+    /// FANUC TP program `<module_name>.ls` (ASCII form).
+    Fanuc,
+    /// Yaskawa INFORM job `<module_name>.jbi` (joint moves need the robot
+    /// file's `pulses_per_deg`).
+    Yaskawa,
     /// `commands.csv`.
     Csv,
     /// `robot.urdf` of the calibrated geometry (needs the `parameters` input).
@@ -80,8 +86,8 @@ const ZONES_MM: [u32; 14] = [0, 1, 5, 10, 15, 20, 30, 40, 50, 60, 80, 100, 150, 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ExportProgramSettings {
-    /// Files to write; by default every format that applies (URDF only with a
-    /// `parameters` input).
+    /// Files to write; by default RAPID, KRL and CSV, and the URDF with a
+    /// `parameters` input (FANUC and Yaskawa when listed).
     pub formats: Option<Vec<ProgramFormat>>,
     /// Model of the `parameters` input whose calibrated tool the programs
     /// declare and the URDF shows: the one the commands were compensated with.
@@ -124,6 +130,18 @@ pub struct ExportProgramSettings {
     /// carries a warning.
     #[schemars(range(min = 0.0, max = 10.0))]
     pub pre_position_deg: f64,
+    /// FANUC: the tool frame (`UTOOL[n]`) the program writes its tool into
+    /// and selects; it overwrites what the frame held.
+    #[schemars(range(min = 1, max = 10))]
+    pub fanuc_user_tool: u32,
+    /// FANUC: the position register (`PR[n]`) the tool is built in; it
+    /// overwrites what the register held.
+    #[schemars(range(min = 1, max = 100))]
+    pub fanuc_position_register: u32,
+    /// Yaskawa: the tool file (`///TOOL n`) the job's positions are taught
+    /// with; the job names the values it must hold.
+    #[schemars(range(min = 0, max = 63))]
+    pub yaskawa_tool_file: u32,
     /// `joint`, `linear` or `both`.
     pub motion: MotionSetting,
     /// Rows whose status is not `ok`: `skip` (named in the headers) or `fail`.
@@ -144,6 +162,9 @@ impl Default for ExportProgramSettings {
             tool_target: None,
             approach_mm: 0.0,
             pre_position_deg: 1.0,
+            fanuc_user_tool: 10,
+            fanuc_position_register: 100,
+            yaskawa_tool_file: 1,
             motion: MotionSetting::Joint,
             on_failed: OnFailedSetting::Skip,
         }
@@ -190,7 +211,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Programs for the controller from joint commands: ABB RAPID (.mod), KUKA KRL (.src/.dat), CSV, and a URDF of the calibrated geometry",
-    code_version: 3,
+    code_version: 4,
     inputs: &[
         TableSlot {
             name: "commands",
@@ -228,7 +249,7 @@ impl Stage for ExportProgramStage {
         if formats.is_empty() {
             problems.push(SettingsProblem::new(
                 "formats",
-                "no format given: list at least one of rapid, krl, csv, urdf",
+                "no format given: list at least one of rapid, krl, fanuc, yaskawa, csv, urdf",
             ));
         }
         if let Some(i) = formats.iter().position(|f| *f == ProgramFormat::Urdf)
@@ -269,6 +290,43 @@ impl Stage for ExportProgramStage {
                 &settings.module_name,
                 krl::MAX_IDENTIFIER_LEN,
                 "KRL",
+            ));
+        }
+        let fanuc = formats.contains(&ProgramFormat::Fanuc);
+        let yaskawa = formats.contains(&ProgramFormat::Yaskawa);
+        if fanuc {
+            name_checks.push((
+                "module_name",
+                &settings.module_name,
+                fanuc::MAX_NAME_LEN,
+                "FANUC TP",
+            ));
+            if settings.module_name.chars().any(|c| c.is_ascii_lowercase()) {
+                problems.push(SettingsProblem::new(
+                    "module_name",
+                    format!(
+                        "`{}`: FANUC program names are upper case",
+                        settings.module_name
+                    ),
+                ));
+            }
+        }
+        if yaskawa {
+            name_checks.push((
+                "module_name",
+                &settings.module_name,
+                yaskawa::MAX_NAME_LEN,
+                "Yaskawa INFORM",
+            ));
+        }
+        if (fanuc || yaskawa) && settings.zone != "fine" {
+            problems.push(SettingsProblem::new(
+                "zone",
+                format!(
+                    "`{}` with format {}: FANUC's CNT and Yaskawa's PL are not radii, so these programs stop exactly at every point; use `fine`",
+                    settings.zone,
+                    if fanuc { "`fanuc`" } else { "`yaskawa`" }
+                ),
             ));
         }
         for (key, name, max_len, language) in name_checks {
@@ -464,6 +522,29 @@ impl Stage for ExportProgramStage {
                     outputs
                         .files
                         .insert(format!("{name}.dat"), dat.into_bytes());
+                }
+                ProgramFormat::Fanuc => {
+                    let frames = fanuc::FanucFrames {
+                        user_tool: settings.fanuc_user_tool,
+                        position_register: settings.fanuc_position_register,
+                    };
+                    let text = fanuc::program(ctx.robot, &program, &motion, &frames);
+                    outputs
+                        .files
+                        .insert(format!("{name}.ls"), text.into_bytes());
+                }
+                ProgramFormat::Yaskawa => {
+                    let text =
+                        yaskawa::job(ctx.robot, &program, &motion, settings.yaskawa_tool_file)
+                            .map_err(|e| {
+                                StageError::Invalid(format!(
+                                    "format `yaskawa` ({}): {e}",
+                                    ctx.robot.spec().path.display()
+                                ))
+                            })?;
+                    outputs
+                        .files
+                        .insert(format!("{name}.jbi"), text.into_bytes());
                 }
                 ProgramFormat::Csv => {
                     outputs.files.insert(
