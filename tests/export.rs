@@ -1673,12 +1673,7 @@ fn fanuc_and_yaskawa_read_back_give_the_commands_to_the_printed_precision() {
             let q_file = [q[0], q[1], q[2] - q[1], q[3], q[4], q[5]];
             for (j, (printed, q)) in q_file.iter().zip(row.q).enumerate() {
                 let tol = if j == 2 { 2.0 * joint_tol } else { joint_tol };
-                assert!(
-                    (printed - q).abs() <= tol,
-                    "P[{}] J{}",
-                    k + 1,
-                    j + 1
-                );
+                assert!((printed - q).abs() <= tol, "P[{}] J{}", k + 1, j + 1);
             }
         } else {
             // Linear path: the tool's pose at the command, W P R fixed angles.

@@ -49,6 +49,17 @@ use crate::table::schema;
 
 pub struct ImportMeasurementsStage;
 
+/// Whose numbering the source's joint columns follow.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum JointConvention {
+    /// The robot file's.
+    RobotFile,
+    /// The controller's (the robot file's `[controller]`, e.g. a FANUC's J3
+    /// from the horizontal).
+    Controller,
+}
+
 /// Which source column holds each contract column. Required: `q1_deg … q6_deg`,
 /// `x_mm`, `y_mm`, `z_mm`. The names are the contract's; the units of the source
 /// are those of `joint_unit`, `length_unit`, `force_unit`, `moment_unit`.
@@ -176,6 +187,11 @@ pub struct ImportMeasurementsSettings {
     pub constant: Constants,
     /// Unit of the joint columns in the source: deg or rad.
     pub joint_unit: JointUnit,
+    /// Whose joint values the source holds: `robot_file` (the default), or
+    /// `controller` when they are the controller's as the robot file's
+    /// `[controller]` describes them (a FANUC's J3, measured from the
+    /// horizontal); those are converted to the robot file's on import.
+    pub joint_convention: JointConvention,
     /// Unit of positions and sigmas in the source: mm or m.
     pub length_unit: LengthUnit,
     /// Unit of the force columns in the source: N only.
@@ -202,6 +218,7 @@ impl Default for ImportMeasurementsSettings {
             columns: ColumnMap::default(),
             constant: Constants::default(),
             joint_unit: JointUnit::Deg,
+            joint_convention: JointConvention::RobotFile,
             length_unit: LengthUnit::Mm,
             force_unit: ForceUnit::Newton,
             moment_unit: MomentUnit::NewtonMetre,
@@ -456,7 +473,7 @@ impl Stage for ImportMeasurementsStage {
         settings: &ImportMeasurementsSettings,
         ctx: &SettingsContext,
     ) -> Vec<SettingsProblem> {
-        let checked = import(settings, ctx.job_dir).and_then(|imported| {
+        let checked = import_for(ctx.robot, settings, ctx.job_dir).and_then(|imported| {
             let robot = crate::robot::Robot::new(ctx.robot.clone());
             check_units(&robot, ctx.job_dir, settings, &imported.measurements)
         });
@@ -471,7 +488,7 @@ impl Stage for ImportMeasurementsStage {
         ctx: &StageContext,
         settings: &ImportMeasurementsSettings,
     ) -> Result<StageOutputs, StageError> {
-        let imported = import(settings, ctx.job_dir)?;
+        let imported = import_for(ctx.robot.spec(), settings, ctx.job_dir)?;
         for note in &imported.notes {
             ctx.progress.note(note);
         }
@@ -492,6 +509,37 @@ pub struct Imported {
     pub facts: BTreeMap<String, String>,
     /// Warnings about the file that did not stop the import, each naming the file.
     pub notes: Vec<String>,
+}
+
+/// [`import`], with joint values in the controller's convention turned into
+/// the robot file's (`joint_convention`).
+pub fn import_for(
+    robot: &crate::robot::RobotSpec,
+    settings: &ImportMeasurementsSettings,
+    job_dir: &Path,
+) -> Result<Imported, StageError> {
+    let mut imported = import(settings, job_dir)?;
+    let coupling = robot.controller.j3_from_j2;
+    if settings.joint_convention == JointConvention::Controller && coupling != 0.0 {
+        let file = Path::new(&settings.path);
+        let q2 = schema::f64_values(&imported.measurements, "q2_deg", file)?;
+        let q3 = schema::f64_values(&imported.measurements, "q3_deg", file)?;
+        // The controller's J3 is q3 + j3_from_j2 · q2.
+        let q3_robot_file: Vec<f64> = q2
+            .iter()
+            .zip(&q3)
+            .map(|(q2, j3)| j3 - coupling * q2)
+            .collect();
+        imported
+            .measurements
+            .with_column(Column::new("q3_deg".into(), q3_robot_file))
+            .map_err(|e| StageError::Invalid(format!("{}: {e}", file.display())))?;
+        imported.facts.insert(
+            "joint_convention".into(),
+            format!("controller: q3 = J3 - {coupling} * J2"),
+        );
+    }
+    Ok(imported)
 }
 
 /// Reads, converts and checks the export the settings name (relative paths
@@ -829,6 +877,37 @@ z_mm = "z"
 
     fn error(toml: &str, dir: &Path) -> String {
         import(&settings(toml), dir).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn controller_joints_become_the_robot_file_s() {
+        let dir = tempfile::tempdir().unwrap();
+        write(
+            dir.path(),
+            "e.csv",
+            "a1,a2,a3,a4,a5,a6,x,y,z\n1,30,-20,4,5,6,1000,0,500\n",
+        );
+        let plain = crate::robot::test_support::irb1600().spec().clone();
+        let mut fanuc = plain.clone();
+        fanuc.controller.j3_from_j2 = 1.0;
+        let toml = format!("path = \"e.csv\"\njoint_convention = \"controller\"\n{JOINTS_XYZ}");
+        // J3 = q3 + q2: the forearm's -20 deg from the horizontal is q3 = -50.
+        let df = import_for(&fanuc, &settings(&toml), dir.path())
+            .unwrap()
+            .measurements;
+        assert_eq!(f64s(&df, "q2_deg"), [30.0]);
+        assert_eq!(f64s(&df, "q3_deg"), [-50.0]);
+        // Without a coupling in the robot file, or in the robot file's
+        // convention, the values stay.
+        let df = import_for(&plain, &settings(&toml), dir.path())
+            .unwrap()
+            .measurements;
+        assert_eq!(f64s(&df, "q3_deg"), [-20.0]);
+        let toml = format!("path = \"e.csv\"\n{JOINTS_XYZ}");
+        let df = import_for(&fanuc, &settings(&toml), dir.path())
+            .unwrap()
+            .measurements;
+        assert_eq!(f64s(&df, "q3_deg"), [-20.0]);
     }
 
     #[test]
