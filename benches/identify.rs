@@ -63,6 +63,7 @@ fn campaign(
             wrench: Wrench::from_array(wrench),
             target: 0,
             approach: [0; 6],
+            track_mm: 0.0,
         });
         measured.push(Vector3::from(p));
     }

@@ -391,7 +391,8 @@ pub fn orientation_residuals(
         .map(|(row, orientation)| {
             let orientation = orientation.as_ref()?;
             let chains = prepared.loaded_chains(row);
-            let model = prepared.world_from_base.rotation * chains.deflected.tool.rotation;
+            let model =
+                prepared.world_from_base_at(row.track_mm).rotation * chains.deflected.tool.rotation;
             Some(orientation_residual_deg(
                 &orientation.world_from_tool,
                 &model,
@@ -1036,6 +1037,7 @@ mod tests {
                 wrench: random_wrench(&mut rng),
                 target: 0,
                 approach: [0; 6],
+                track_mm: 0.0,
             })
             .collect()
     }

@@ -67,6 +67,10 @@ impl HoldOptions {
             | ParamKind::Backlash(_)
             | ParamKind::Harmonic { .. } => Some((self.max_std_error_deg, "deg")),
             ParamKind::Compliance(_) => Some((self.max_std_error_compliance, "deg/(N·m)")),
+            ParamKind::Track(term) => match term.unit() {
+                "deg" => Some((self.max_std_error_deg, "deg")),
+                _ => Some((self.max_std_error_mm, "mm")),
+            },
         }
     }
 }

@@ -66,6 +66,8 @@ fn priority(id: ParamId, tool_rotation_first: bool) -> usize {
             order,
             cosine,
         } => 80 + 2 * (joint * MAX_HARMONIC_ORDER + order - 1) + usize::from(cosine),
+        // After every joint term (80 + 2·6·3).
+        ParamKind::Track(term) => 120 + term.slot(),
     }
 }
 
@@ -207,6 +209,7 @@ mod tests {
                 wrench: random_wrench(&mut rng),
                 target: 0,
                 approach: [0; 6],
+                track_mm: 0.0,
             })
             .collect();
         let all: Vec<ParamId> = ParamId::all().collect();
@@ -250,6 +253,7 @@ mod tests {
                 wrench: crate::robot::Wrench::zero(),
                 target: 0,
                 approach: [0; 6],
+                track_mm: 0.0,
             })
             .collect();
         let all: Vec<ParamId> = ParamId::all().collect();

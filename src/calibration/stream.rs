@@ -166,6 +166,7 @@ mod tests {
                 wrench: random_wrench(&mut rng),
                 target: 0,
                 approach: [0; 6],
+                track_mm: 0.0,
             })
             .collect()
     }

@@ -140,6 +140,10 @@ pub struct RobotSpec {
     /// Skipped when default, so files without it keep their content hash.
     #[serde(default, skip_serializing_if = "ControllerSpec::is_default")]
     pub controller: ControllerSpec,
+    /// A linear track carrying the arm (optional); rows then record the
+    /// carriage's position `e1_mm`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub track: Option<super::track::TrackSpec>,
 }
 
 fn default_gravity() -> [f64; 3] {
@@ -334,6 +338,28 @@ impl RobotSpec {
                     many => format!("{many:?}"),
                 };
                 return Err(invalid(key, format!("expected {expected}, found {found}")));
+            }
+        }
+        if let Some(track) = &self.track {
+            let [lo, hi] = track.travel_mm;
+            if !(lo.is_finite() && hi.is_finite() && lo < hi && lo.abs().max(hi.abs()) <= MAX_LENGTH_MM)
+            {
+                return Err(invalid(
+                    "track.travel_mm".into(),
+                    format!(
+                        "expected [min, max] with min < max within ±{MAX_LENGTH_MM} mm, found [{lo}, {hi}]"
+                    ),
+                ));
+            }
+            if !(1..=super::track::MAX_TRACK_ORDER).contains(&track.polynomial_order) {
+                return Err(invalid(
+                    "track.polynomial_order".into(),
+                    format!(
+                        "expected 1 to {}, found {}",
+                        super::track::MAX_TRACK_ORDER,
+                        track.polynomial_order
+                    ),
+                ));
             }
         }
         if ![-1.0, 0.0, 1.0].contains(&self.controller.j3_from_j2) {

@@ -118,7 +118,8 @@ impl PreparedRobot<'_> {
             | ParamKind::WorldRotation(_)
             | ParamKind::Compliance(_)
             | ParamKind::Backlash(_)
-            | ParamKind::Harmonic { .. } => {
+            | ParamKind::Harmonic { .. }
+            | ParamKind::Track(_) => {
                 return None;
             }
         })
@@ -256,6 +257,7 @@ impl PreparedRobot<'_> {
             q_deg,
             target,
             approach,
+            track_mm,
             ..
         } = row;
         assert_eq!(
@@ -272,7 +274,13 @@ impl PreparedRobot<'_> {
             deflections_deg,
             deflected,
         } = self.loaded_chains(row);
-        let world = &self.world_from_base;
+        // The chain hangs from the world frame through the carriage (the
+        // world frame alone without a track); the world parameters move
+        // both, the chain's move what hangs from the carriage.
+        let world_frame = &self.world_from_base;
+        let carriage = self.carriage(*track_mm);
+        let world_at_row = self.world_from_base_at(*track_mm);
+        let world = &world_at_row;
         let tool_base = deflected.tool.origin_mm;
         let position_mm = world.transform_point(&tool_base);
 
@@ -296,7 +304,15 @@ impl PreparedRobot<'_> {
         for (j, (column, &id)) in columns.iter_mut().zip(selected).enumerate() {
             let mut rotation_deg = Vector3::zeros();
             *column = match id.kind() {
-                ParamKind::WorldTranslation(t) => world.axis(t),
+                ParamKind::WorldTranslation(t) => world_frame.axis(t),
+                ParamKind::Track(term) => match &carriage {
+                    Some(carriage) => {
+                        rotation_deg = world_frame.rotation * carriage.angular_rate(term);
+                        world_frame.rotation * carriage.rate(term, &tool_base)
+                    }
+                    // A robot without a track: its terms move nothing.
+                    None => Vector3::zeros(),
+                },
                 ParamKind::WorldRotation(r) => {
                     rotation_deg = self.world_rotation_axes[r];
                     self.world_rotation_axes[r].cross(&position_mm) * DEG
@@ -375,6 +391,9 @@ pub struct ConfWrench {
     pub wrench: Wrench,
     pub target: usize,
     pub approach: [i8; JOINTS],
+    /// The carriage's position on the robot's track (mm, the row's
+    /// `e1_mm`); 0 without a track.
+    pub track_mm: f64,
 }
 
 impl ConfWrench {
@@ -385,6 +404,7 @@ impl ConfWrench {
             wrench,
             target: 0,
             approach: [0; JOINTS],
+            track_mm: 0.0,
         }
     }
 }
@@ -492,10 +512,12 @@ mod tests {
     use super::*;
     use crate::robot::params::{BASE_PARAM_COUNT, MAX_TARGETS, PARAM_COUNT};
 
-    /// Every slot: the 42, the further targets' translations, the joint terms.
+    /// Every slot: the 42, the further targets' translations, the joint
+    /// terms, the track's terms.
     fn every_slot() -> Vec<ParamId> {
         ParamId::all_with_targets(MAX_TARGETS)
             .chain(ParamId::joint_terms())
+            .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
             .collect()
     }
 
@@ -506,16 +528,31 @@ mod tests {
             wrench: random_wrench(rng),
             target: trial % MAX_TARGETS,
             approach: std::array::from_fn(|_| rng.random_range(-1..=1)),
+            track_mm: rng.random_range(-200.0..3000.0),
         }
     }
-    use crate::robot::test_support::{irb1600, random_q, random_wrench, truth_params};
+    use crate::robot::test_support::{
+        irb1600, irb1600_on_track, random_q, random_wrench, truth_params,
+    };
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
 
     /// Central difference step per parameter unit: small enough that the O(h²)
     /// truncation error is below 1e-9 relative, large enough for round-off.
+    /// The track's terms scale with `u^k`, which can be 1e-5, and a
+    /// compliance with a torque that can be 0.3 N·m: their columns are that
+    /// small, so their steps are larger to keep round-off (about 1e-12 of
+    /// positions a few metres from the world origin, divided by the step)
+    /// below the tolerance; their truncation error is zero (translations)
+    /// or below 1e-8 relative.
     fn step(id: ParamId) -> f64 {
-        if id.is_compliance() { 1e-6 } else { 1e-4 }
+        if id.is_compliance() {
+            1e-5
+        } else if id.is_track_term() {
+            1e-2
+        } else {
+            1e-4
+        }
     }
 
     /// The truth, and on odd trials random errors away from it; the targets
@@ -533,6 +570,8 @@ mod tests {
             }
             if id.is_joint_term() {
                 p.0[id.index()] = rng.random_range(-0.05..0.05);
+            } else if id.is_track_term() {
+                p.0[id.index()] = rng.random_range(-0.5..0.5);
             } else if id.index() >= BASE_PARAM_COUNT {
                 p.0[id.index()] += rng.random_range(-80.0..80.0);
             }
@@ -542,7 +581,7 @@ mod tests {
 
     #[test]
     fn analytic_jacobian_matches_central_differences_for_every_slot() {
-        let robot = irb1600();
+        let robot = irb1600_on_track();
         let all = every_slot();
         assert_eq!(all.len(), PARAM_COUNT);
         let mut rng = StdRng::seed_from_u64(7);
@@ -576,7 +615,7 @@ mod tests {
     /// columns are those of `jacobian_row`, bit for bit.
     #[test]
     fn orientation_columns_match_central_differences_for_every_slot() {
-        let robot = irb1600();
+        let robot = irb1600_on_track();
         let all = every_slot();
         let mut rng = StdRng::seed_from_u64(8);
         for trial in 0..40 {
@@ -587,7 +626,6 @@ mod tests {
                 p.set(ParamId::from_name(name).unwrap(), value);
             }
             let row = random_row(&robot, trial, &mut rng);
-            let (q, w) = (row.q_deg, row.wrench);
             let mut columns = vec![Vector3::zeros(); PARAM_COUNT];
             let mut angular = vec![Vector3::zeros(); PARAM_COUNT];
             let prepared = robot.prepare(&p);
@@ -599,7 +637,7 @@ mod tests {
                 prediction
             );
             assert_eq!(position_only, columns);
-            let tool = robot.tool_in_world(&p.aimed_at(row.target), &q, &w, &row.approach);
+            let tool = robot.tool_in_world_of_row(&p, &row);
             assert!((tool.rotation - rotation).norm() < 1e-13);
             for id in &all {
                 let h = step(*id);
@@ -607,9 +645,7 @@ mod tests {
                 plus.0[id.index()] += h;
                 let mut minus = p;
                 minus.0[id.index()] -= h;
-                let at = |v: &ParamValues| {
-                    robot.tool_in_world(&v.aimed_at(row.target), &q, &w, &row.approach)
-                };
+                let at = |v: &ParamValues| robot.tool_in_world_of_row(v, &row);
                 let turn = at(&plus).rotation * at(&minus).rotation.transpose();
                 let fd =
                     super::super::frame::rotation_vector(&turn).map(f64::to_degrees) / (2.0 * h);

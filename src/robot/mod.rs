@@ -8,6 +8,7 @@ pub mod ik;
 pub mod jacobian;
 pub mod model;
 pub mod params;
+pub mod track;
 
 pub use file::RobotSpec;
 pub use frame::Frame;
@@ -26,6 +27,15 @@ pub(crate) mod test_support {
     pub fn irb1600() -> Robot {
         let text = include_str!("../../jobs/robots/irb1600_145.toml");
         Robot::new(RobotSpec::parse(text, Path::new("irb1600_145.toml")).unwrap())
+    }
+
+    /// The IRB 1600 on a 3 m linear track along its base's x axis.
+    pub fn irb1600_on_track() -> Robot {
+        let text = format!(
+            "{}\n[track]\ntravel_mm = [0.0, 3000.0]\n",
+            include_str!("../../jobs/robots/irb1600_145.toml")
+        );
+        Robot::new(RobotSpec::parse(&text, Path::new("irb1600_track.toml")).unwrap())
     }
 
     /// The shipped UR10 file: an arm without a spherical wrist.

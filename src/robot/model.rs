@@ -17,6 +17,7 @@ use super::file::RobotSpec;
 use super::frame::{Frame, rot_x};
 use super::jacobian::ConfWrench;
 use super::params::{MAX_HARMONIC_ORDER, MAX_TARGETS, PARAM_COUNT, ParamId, ParamValues};
+use super::track::{Carriage, TrackErrors, TrackTerm};
 
 /// Number of joints; the model is for six-axis arms only.
 pub const JOINTS: usize = 6;
@@ -187,6 +188,12 @@ impl Robot {
             world_from_base: self.world_from_base(p),
             world_rotation_axes: world_rotation_axes(p),
             joint_terms: JointTerms::of(p),
+            track: self.spec.track.map(|track| TrackErrors {
+                length_mm: track.length_mm(),
+                coefficients: std::array::from_fn(|slot| {
+                    v[ParamId::track(TrackTerm::of_slot(slot)).index()]
+                }),
+            }),
         }
     }
 
@@ -254,6 +261,16 @@ impl Robot {
         prepared
             .world_from_base
             .compose(&prepared.loaded_chain(q_deg, wrench, approach))
+    }
+
+    /// [`Self::tool_in_world`] for a row: its target's tool (spec §7), its
+    /// approach directions and, on a track, its carriage position.
+    pub fn tool_in_world_of_row(&self, p: &ParamValues, row: &ConfWrench) -> Frame {
+        let aimed = p.aimed_at(row.target);
+        let prepared = self.prepare(&aimed);
+        prepared
+            .world_from_base_at(row.track_mm)
+            .compose(&prepared.loaded_chain(&row.q_deg, &row.wrench, &row.approach))
     }
 
     /// Paper eq. (17): the SMR position with torques and deflections.
@@ -382,11 +399,27 @@ pub struct PreparedRobot<'r> {
     /// Axes (world frame, through the world origin) of the world rotations of eq. (3).
     pub(crate) world_rotation_axes: [Vector3<f64>; 3],
     pub(crate) joint_terms: JointTerms,
+    /// The track's errors, when the robot file has a track.
+    pub(crate) track: Option<TrackErrors>,
 }
 
 impl<'r> PreparedRobot<'r> {
     pub fn robot(&self) -> &'r Robot {
         self.robot
+    }
+
+    /// The carriage at `track_mm` (`None` without a track).
+    pub(crate) fn carriage(&self, track_mm: f64) -> Option<Carriage> {
+        self.track.as_ref().map(|t| t.carriage(track_mm))
+    }
+
+    /// World ← base with the carriage at `track_mm` (the world frame alone
+    /// without a track).
+    pub fn world_from_base_at(&self, track_mm: f64) -> Frame {
+        match self.carriage(track_mm) {
+            Some(carriage) => self.world_from_base.compose(&carriage.frame),
+            None => self.world_from_base,
+        }
     }
 
     /// Compliance of joint `i`, deg/(N·m).
@@ -450,6 +483,7 @@ impl<'r> PreparedRobot<'r> {
             wrench,
             target,
             approach,
+            ..
         } = row;
         let target = *target;
         let undeflected_sin_cos: [(f64, f64); JOINTS] =
@@ -500,7 +534,7 @@ impl<'r> PreparedRobot<'r> {
         let chains = self.loaded_chains(row);
         Prediction {
             position_mm: self
-                .world_from_base
+                .world_from_base_at(row.track_mm)
                 .transform_point(&chains.deflected.tool.origin_mm),
             torques_nm: chains.loads.torques_nm,
             deflections_deg: chains.deflections_deg,

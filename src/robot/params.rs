@@ -33,11 +33,15 @@ pub const MAX_HARMONIC_ORDER: usize = 3;
 /// joint, then per joint and order a sine and a cosine coefficient.
 const JOINT_TERM_COUNT: usize = JOINTS + 2 * JOINTS * MAX_HARMONIC_ORDER;
 
-/// Value slots: the 42, one translation triple per further target, then the
-/// joint-error terms.
-pub const PARAM_COUNT: usize = TARGETED_PARAM_COUNT + JOINT_TERM_COUNT;
+/// First slot of the track's error terms (issue #30).
+const TRACK_START: usize = TARGETED_PARAM_COUNT + JOINT_TERM_COUNT;
+
+/// Value slots: the 42, one translation triple per further target, the
+/// joint-error terms, then the track's error terms.
+pub const PARAM_COUNT: usize = TRACK_START + TRACK_TERM_COUNT;
 
 use super::model::JOINTS;
+use super::track::{TRACK_TERM_COUNT, TrackTerm};
 
 /// One of the parameters, by its slot: the spec's 42 in its order, then the
 /// translations of targets 1.. .
@@ -75,6 +79,8 @@ pub enum ParamKind {
         order: usize,
         cosine: bool,
     },
+    /// A coefficient of the track's errors along its travel (mm or deg).
+    Track(TrackTerm),
 }
 
 const NAMES: [&str; BASE_PARAM_COUNT] = [
@@ -110,6 +116,13 @@ static JOINT_TERM_NAMES: std::sync::LazyLock<Vec<String>> = std::sync::LazyLock:
                 other => unreachable!("slot {slot} is a joint term, not {other:?}"),
             },
         )
+        .collect()
+});
+
+/// Names of the track's error terms, in slot order.
+static TRACK_TERM_NAMES: std::sync::LazyLock<Vec<String>> = std::sync::LazyLock::new(|| {
+    (0..TRACK_TERM_COUNT)
+        .map(|slot| TrackTerm::of_slot(slot).name())
         .collect()
 });
 
@@ -158,7 +171,19 @@ impl ParamId {
 
     /// Every joint-error term, in slot order.
     pub fn joint_terms() -> impl Iterator<Item = ParamId> {
-        (TARGETED_PARAM_COUNT..PARAM_COUNT).map(|i| ParamId(i as u8))
+        (TARGETED_PARAM_COUNT..TRACK_START).map(|i| ParamId(i as u8))
+    }
+
+    /// The track's error terms up to polynomial order `order`, in slot order.
+    pub fn track_terms(order: usize) -> impl Iterator<Item = ParamId> {
+        (0..TRACK_TERM_COUNT)
+            .filter(move |slot| TrackTerm::of_slot(*slot).order() <= order)
+            .map(|slot| ParamId((TRACK_START + slot) as u8))
+    }
+
+    /// The parameter of one track term.
+    pub fn track(term: TrackTerm) -> ParamId {
+        ParamId((TRACK_START + term.slot()) as u8)
     }
 
     /// The translation of `target` (0-based) along `axis`.
@@ -195,6 +220,12 @@ impl ParamId {
                     .position(|n| n == name)
                     .map(|slot| ParamId((TARGETED_PARAM_COUNT + slot) as u8))
             })
+            .or_else(|| {
+                TRACK_TERM_NAMES
+                    .iter()
+                    .position(|n| n == name)
+                    .map(|slot| ParamId((TRACK_START + slot) as u8))
+            })
     }
 
     /// Every name [`Self::from_name`] knows, for suggestions.
@@ -203,6 +234,7 @@ impl ParamId {
             .iter()
             .copied()
             .chain(JOINT_TERM_NAMES.iter().map(String::as_str))
+            .chain(TRACK_TERM_NAMES.iter().map(String::as_str))
     }
 
     /// The spec's name; a further target's translation is `x_t[#k]` until a table
@@ -212,7 +244,8 @@ impl ParamId {
         match NAMES.get(i) {
             Some(name) => name,
             None if i < TARGETED_PARAM_COUNT => &TARGET_NAMES[i - BASE_PARAM_COUNT],
-            None => &JOINT_TERM_NAMES[i - TARGETED_PARAM_COUNT],
+            None if i < TRACK_START => &JOINT_TERM_NAMES[i - TARGETED_PARAM_COUNT],
+            None => &TRACK_TERM_NAMES[i - TRACK_START],
         }
     }
 
@@ -231,6 +264,7 @@ impl ParamId {
             24..=29 => ParamKind::A(i - 24),
             30..=35 => ParamKind::D(i - 30),
             36..=41 => ParamKind::Compliance(i - 36),
+            _ if i >= TRACK_START => ParamKind::Track(TrackTerm::of_slot(i - TRACK_START)),
             _ if i >= TARGETED_PARAM_COUNT + JOINTS => {
                 let slot = i - TARGETED_PARAM_COUNT - JOINTS;
                 ParamKind::Harmonic {
@@ -261,7 +295,13 @@ impl ParamId {
             | ParamKind::Backlash(_)
             | ParamKind::Harmonic { .. } => "deg",
             ParamKind::Compliance(_) => "deg/(N·m)",
+            ParamKind::Track(term) => term.unit(),
         }
+    }
+
+    /// A coefficient of the track's errors.
+    pub fn is_track_term(self) -> bool {
+        matches!(self.kind(), ParamKind::Track(_))
     }
 
     pub fn is_compliance(self) -> bool {
@@ -490,7 +530,15 @@ mod tests {
     fn joint_terms_have_slots_names_and_kinds_of_their_own() {
         let terms: Vec<ParamId> = ParamId::joint_terms().collect();
         assert_eq!(terms.len(), 6 + 2 * 6 * MAX_HARMONIC_ORDER);
-        assert_eq!(terms.last().unwrap().index(), PARAM_COUNT - 1);
+        assert_eq!(terms.last().unwrap().index(), TRACK_START - 1);
+        // The track's terms follow, to the last slot.
+        let track: Vec<ParamId> = ParamId::track_terms(3).collect();
+        assert_eq!(track.len(), TRACK_TERM_COUNT);
+        assert_eq!(track.last().unwrap().index(), PARAM_COUNT - 1);
+        assert_eq!(ParamId::track_terms(1).count(), 6);
+        assert!(track.iter().all(|t| t.is_track_term() && !t.is_joint_term()));
+        assert_eq!(ParamId::from_name("track_pitch2").map(|t| t.unit()), Some("deg"));
+        assert_eq!(ParamId::from_name("track_z3").map(|t| t.unit()), Some("mm"));
         let mut names: Vec<&str> = terms.iter().map(|t| t.name()).collect();
         names.sort();
         names.dedup();

@@ -638,6 +638,7 @@ pub fn conf_wrench_rows(
             wrench: crate::robot::Wrench::from_array(std::array::from_fn(|i| wrench[i][k])),
             target: 0,
             approach: approach[k],
+            track_mm: 0.0,
         })
         .collect();
     Ok((ids, rows))
