@@ -201,6 +201,19 @@ pub fn calibrate(
             .collect(),
         _ => Vec::new(),
     };
+    // A track's errors along its travel are the cell's geometry: every model
+    // that fits the arm's geometry fits them too (issue #30).
+    let track_terms: Vec<ParamId> = match (robot.spec().track, model) {
+        (
+            Some(track),
+            ModelName::Kinematic
+            | ModelName::Elastogeometric
+            | ModelName::EgBacklash
+            | ModelName::EgHarmonic
+            | ModelName::EgResidual,
+        ) => ParamId::track_terms(track.polynomial_order).collect(),
+        _ => Vec::new(),
+    };
     let candidates: Vec<ParamId> = ParamId::all_with_targets(targets)
         .filter(allowed)
         .filter(|p| match model {
@@ -217,6 +230,7 @@ pub fn calibrate(
         .chain(
             joint_terms
                 .into_iter()
+                .chain(track_terms)
                 .filter(|id| !options.fixed.iter().any(|(f, _)| f == id)),
         )
         .collect();
@@ -500,7 +514,12 @@ pub fn registered_start(
         .iter()
         .map(|k| {
             let row = &data.rows[*k];
-            prepared.loaded_chains(row).deflected.joints[JOINTS]
+            let flange = prepared.loaded_chains(row).deflected.joints[JOINTS];
+            // On a track, the base frame at e = 0 is the one registered.
+            match prepared.carriage(row.track_mm) {
+                Some(carriage) => carriage.frame.compose(&flange),
+                None => flange,
+            }
         })
         .collect();
     let measured: Vec<Vector3<f64>> = used.iter().map(|k| data.measured_mm[*k]).collect();

@@ -342,7 +342,10 @@ impl RobotSpec {
         }
         if let Some(track) = &self.track {
             let [lo, hi] = track.travel_mm;
-            if !(lo.is_finite() && hi.is_finite() && lo < hi && lo.abs().max(hi.abs()) <= MAX_LENGTH_MM)
+            if !(lo.is_finite()
+                && hi.is_finite()
+                && lo < hi
+                && lo.abs().max(hi.abs()) <= MAX_LENGTH_MM)
             {
                 return Err(invalid(
                     "track.travel_mm".into(),

@@ -536,8 +536,15 @@ mod tests {
         assert_eq!(track.len(), TRACK_TERM_COUNT);
         assert_eq!(track.last().unwrap().index(), PARAM_COUNT - 1);
         assert_eq!(ParamId::track_terms(1).count(), 6);
-        assert!(track.iter().all(|t| t.is_track_term() && !t.is_joint_term()));
-        assert_eq!(ParamId::from_name("track_pitch2").map(|t| t.unit()), Some("deg"));
+        assert!(
+            track
+                .iter()
+                .all(|t| t.is_track_term() && !t.is_joint_term())
+        );
+        assert_eq!(
+            ParamId::from_name("track_pitch2").map(|t| t.unit()),
+            Some("deg")
+        );
         assert_eq!(ParamId::from_name("track_z3").map(|t| t.unit()), Some("mm"));
         let mut names: Vec<&str> = terms.iter().map(|t| t.name()).collect();
         names.sort();

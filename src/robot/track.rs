@@ -198,9 +198,7 @@ impl Carriage {
     /// vector, base-at-0 frame, per degree; zero for the others.
     pub fn angular_rate(&self, term: TrackTerm) -> Vector3<f64> {
         match term {
-            TrackTerm::Angle { axis, order } => {
-                self.angle_axes[axis] * self.u.powi(order as i32)
-            }
+            TrackTerm::Angle { axis, order } => self.angle_axes[axis] * self.u.powi(order as i32),
             _ => Vector3::zeros(),
         }
     }
@@ -273,7 +271,10 @@ mod tests {
                     let mut moved = errors();
                     moved.coefficients[slot] += delta;
                     let carriage = moved.carriage(e_mm);
-                    (carriage.frame.transform_point(&point), carriage.frame.rotation)
+                    (
+                        carriage.frame.transform_point(&point),
+                        carriage.frame.rotation,
+                    )
                 };
                 let h = 1e-4;
                 let (plus, r_plus) = at(h);
@@ -288,8 +289,7 @@ mod tests {
                 // The rotation's rate as a rotation vector (deg per unit).
                 let r0 = errors().carriage(e_mm).frame.rotation;
                 let skew = (r_plus - r_minus) / (2.0 * h) * r0.transpose();
-                let numeric_angular =
-                    Vector3::new(skew[(2, 1)], skew[(0, 2)], skew[(1, 0)]) / DEG;
+                let numeric_angular = Vector3::new(skew[(2, 1)], skew[(0, 2)], skew[(1, 0)]) / DEG;
                 let angular = errors().carriage(e_mm).angular_rate(term);
                 assert!(
                     (numeric_angular - angular).norm() < 1e-6,

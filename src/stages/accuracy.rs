@@ -118,6 +118,7 @@ impl Stage for AccuracyStage {
             norms_by_run.push(run_errors(
                 run,
                 table,
+                ctx.robot.spec(),
                 &targets.points,
                 settings.max_error_mm,
                 &mut errors,
@@ -218,11 +219,12 @@ fn target_points(table: &InputTable) -> Result<TargetPoints, StageError> {
 fn run_errors(
     run: &'static str,
     table: &InputTable,
+    robot: &crate::robot::RobotSpec,
     targets: &HashMap<i64, Vector3<f64>>,
     max_error_mm: f64,
     errors: &mut ErrorColumns,
 ) -> Result<HashMap<i64, f64>, StageError> {
-    let rows = measured_rows(table, None)?;
+    let rows = measured_rows(table, robot, None)?;
     let mut norms = HashMap::with_capacity(rows.ids.len());
     for (k, id) in rows.ids.iter().enumerate() {
         let target = targets.get(id).ok_or_else(|| {

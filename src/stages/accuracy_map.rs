@@ -149,7 +149,7 @@ impl Stage for AccuracyMapStage {
             ))
         })?;
         let measurements = ctx.input("measurements")?;
-        let (ids, mut rows) = conf_wrench_rows(measurements)?;
+        let (ids, mut rows) = conf_wrench_rows(measurements, ctx.robot.spec())?;
         super::aim_rows(measurements, &set, &mut rows)?;
         let (mapped_values, mapped_free) =
             tool_of_target(&set, &covariance.free, &settings.target)?;

@@ -328,7 +328,7 @@ impl Stage for CrossvalidateStage {
             None => None,
         };
         let measurements = ctx.input("measurements")?;
-        let data = measured_rows(measurements, keep.as_ref())?;
+        let data = measured_rows(measurements, ctx.robot.spec(), keep.as_ref())?;
         let mut protocols: Vec<(Grouping, Vec<usize>)> = Vec::new();
         let grouped =
             fold_assignment(&data, settings.grouping, settings.folds, ctx.seed).map_err(|e| {

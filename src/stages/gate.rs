@@ -283,9 +283,9 @@ impl Stage for GateStage {
         };
 
         let measurements = ctx.input("measurements")?;
-        let mut window = measured_rows(measurements, None)?;
+        let mut window = measured_rows(measurements, ctx.robot.spec(), None)?;
         let holdout_ids = ids_with_role(ctx.input("selection")?, "validation")?;
-        let mut holdout = measured_rows(measurements, Some(&holdout_ids))?;
+        let mut holdout = measured_rows(measurements, ctx.robot.spec(), Some(&holdout_ids))?;
         holdout.leave_out_bad_rows(ctx.robot, &measurements.path);
         let left_out = window.leave_out_bad_rows(ctx.robot, &measurements.path);
         if let Some(summary) = &left_out {

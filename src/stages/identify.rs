@@ -596,9 +596,10 @@ impl MeasuredRows {
 /// copied twice.
 pub fn measured_rows(
     table: &InputTable,
+    robot: &crate::robot::RobotSpec,
     keep: Option<&HashSet<i64>>,
 ) -> Result<MeasuredRows, StageError> {
-    let (ids, rows) = conf_wrench_rows(table)?;
+    let (ids, rows) = conf_wrench_rows(table, robot)?;
     let xyz = schema::POSITION_COLUMNS
         .iter()
         .map(|c| f64_values(&table.df, c, &table.path))
@@ -833,7 +834,7 @@ impl Stage for IdentifyStage {
             None => None,
         };
         let measurements = ctx.input("measurements")?;
-        let mut data = measured_rows(measurements, keep.as_ref())?;
+        let mut data = measured_rows(measurements, ctx.robot.spec(), keep.as_ref())?;
         if data.rows.is_empty() {
             return Err(StageError::Invalid(
                 "no calibration rows (selection marks none, or measurements is empty)".into(),

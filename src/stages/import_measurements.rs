@@ -137,6 +137,10 @@ pub struct ColumnMap {
     pub dir5: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dir6: Option<String>,
+    /// The carriage's position on the robot's linear track (robot file
+    /// `[track]`), in `length_unit`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub e1_mm: Option<String>,
     /// Which SMR (nest) each row measured: a long table, one row per target reading.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_id: Option<String>,
@@ -244,7 +248,7 @@ static INFO: StageInfo = StageInfo {
 };
 
 /// Every contract column a source column can be mapped to, in output order.
-const CONTRACT: [(&str, Kind); 35] = [
+const CONTRACT: [(&str, Kind); 36] = [
     ("cw_id", Kind::Integer),
     ("q1_deg", Kind::Joint),
     ("q2_deg", Kind::Joint),
@@ -276,6 +280,7 @@ const CONTRACT: [(&str, Kind); 35] = [
     ("dir4", Kind::Integer),
     ("dir5", Kind::Integer),
     ("dir6", Kind::Integer),
+    ("e1_mm", Kind::Position),
     ("target_id", Kind::Text),
     ("config_id", Kind::Integer),
     ("robot_id", Kind::Text),
@@ -320,6 +325,7 @@ impl ColumnMap {
             "dir4" => &self.dir4,
             "dir5" => &self.dir5,
             "dir6" => &self.dir6,
+            "e1_mm" => &self.e1_mm,
             "target_id" => &self.target_id,
             "config_id" => &self.config_id,
             "robot_id" => &self.robot_id,
@@ -620,7 +626,7 @@ fn check_units(
         path: job_dir.join(&settings.path),
         df: measurements.clone(),
     };
-    let (_, rows) = super::conf_wrench_rows(&table)?;
+    let (_, rows) = super::conf_wrench_rows(&table, robot.spec())?;
     let xyz = schema::POSITION_COLUMNS
         .iter()
         .map(|c| schema::f64_values(measurements, c, &table.path))
@@ -739,7 +745,8 @@ fn build(
         .chain(&schema::POSITION_COLUMNS)
         .chain(&schema::SIGMA_COLUMNS)
         .chain(&schema::ORIENTATION_COLUMNS)
-        .chain(&schema::ORIENTATION_SIGMA_COLUMNS);
+        .chain(&schema::ORIENTATION_SIGMA_COLUMNS)
+        .chain(std::iter::once(&schema::TRACK_COLUMN));
     for name in float_names {
         let values = match find(name) {
             Some(m) => {
@@ -877,6 +884,20 @@ z_mm = "z"
 
     fn error(toml: &str, dir: &Path) -> String {
         import(&settings(toml), dir).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn a_track_position_is_imported_in_the_length_unit() {
+        let dir = tempfile::tempdir().unwrap();
+        write(
+            dir.path(),
+            "e.csv",
+            "a1,a2,a3,a4,a5,a6,x,y,z,e\n1,2,3,4,5,6,1.0,0.0,0.5,2.25\n",
+        );
+        let toml = format!("path = \"e.csv\"\nlength_unit = \"m\"\n{JOINTS_XYZ}e1_mm = \"e\"\n");
+        let df = import(&settings(&toml), dir.path()).unwrap().measurements;
+        assert_eq!(f64s(&df, "e1_mm"), [2250.0]);
+        assert_eq!(f64s(&df, "x_mm"), [1000.0]);
     }
 
     #[test]

@@ -260,7 +260,7 @@ impl Stage for MeasureStage {
         settings: &MeasureSettings,
     ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("conf_wrenches")?;
-        let (ids, rows) = conf_wrench_rows(input)?;
+        let (ids, rows) = conf_wrench_rows(input, ctx.robot.spec())?;
         let config_ids = input
             .df
             .column("config_id")

@@ -353,6 +353,9 @@ impl<S: Stage> StageKind for S {
         canonical: &serde_json::Value,
         ctx: &SettingsContext,
     ) -> Vec<SettingsProblem> {
+        if let Some(problem) = track_problem(self.info().kind, ctx.robot) {
+            return vec![problem];
+        }
         match typed_settings::<S>(canonical) {
             Ok(settings) => Stage::check_settings(self, &settings, ctx),
             Err(e) => vec![SettingsProblem::new("", e.to_string())],
@@ -383,7 +386,12 @@ impl<S: Stage> StageKind for S {
             job_dir: ctx.job_dir,
             bound_inputs: &bound,
         };
-        let problems = Stage::check_settings(self, &settings, &checks);
+        let mut problems: Vec<SettingsProblem> = track_problem(self.info().kind, ctx.robot.spec())
+            .into_iter()
+            .collect();
+        if problems.is_empty() {
+            problems = Stage::check_settings(self, &settings, &checks);
+        }
         if !problems.is_empty() {
             return Err(settings_error(&problems));
         }
@@ -398,6 +406,39 @@ impl<S: Stage> StageKind for S {
     ) -> Result<serde_json::Value, StageError> {
         Stage::external_key(self, &typed_settings::<S>(canonical)?, job_dir, run_date)
     }
+}
+
+/// The stage kinds that handle a robot on a linear track (issue #30): those
+/// that read measured or commanded rows with their `e1_mm` and evaluate
+/// the model through the carriage. The others (designing poses, measuring
+/// through a rig, compensating targets, programs, grids) would place the
+/// arm as if the carriage stood at 0, so they refuse such a robot.
+const TRACK_STAGES: &[&str] = &[
+    "identifiability",
+    "select",
+    "import_measurements",
+    "split",
+    "identify",
+    "crossvalidate",
+    "validate",
+    "gate",
+    "predict",
+    "accuracy",
+    "report",
+];
+
+/// Why stage `kind` cannot run for `robot`: a track it does not handle yet.
+fn track_problem(kind: &str, robot: &crate::robot::RobotSpec) -> Option<SettingsProblem> {
+    (robot.track.is_some() && !TRACK_STAGES.contains(&kind)).then(|| {
+        SettingsProblem::new(
+            "",
+            format!(
+                "the robot file {} has a [track], and stage kind `{kind}` does not handle a robot on a track yet: it would place the arm as if the carriage stood at 0 (kinds that do: {})",
+                robot.path.display(),
+                TRACK_STAGES.join(", ")
+            ),
+        )
+    })
 }
 
 fn typed_settings<S: Stage>(canonical: &serde_json::Value) -> Result<S::Settings, StageError> {
@@ -616,9 +657,10 @@ pub fn covariance_columns(
 }
 
 /// Reads conf-wrench rows (cw_id, q1..q6, wrench, approach directions where
-/// given) from a checked table.
+/// given, the carriage position on a track) from a checked table.
 pub fn conf_wrench_rows(
     input: &InputTable,
+    robot: &crate::robot::RobotSpec,
 ) -> Result<(Vec<i64>, Vec<crate::robot::ConfWrench>), StageError> {
     use crate::table::schema::{JOINT_COLUMNS, WRENCH_COLUMNS, f64_values, i64_values};
     let path = &input.path;
@@ -632,16 +674,58 @@ pub fn conf_wrench_rows(
         .map(|c| f64_values(&input.df, c, path))
         .collect::<Result<Vec<_>, _>>()?;
     let approach = crate::table::schema::approach_values(&input.df, path)?;
+    let track = track_positions(input, robot)?;
     let rows = (0..ids.len())
         .map(|k| crate::robot::ConfWrench {
             q_deg: std::array::from_fn(|i| joints[i][k]),
             wrench: crate::robot::Wrench::from_array(std::array::from_fn(|i| wrench[i][k])),
             target: 0,
             approach: approach[k],
-            track_mm: 0.0,
+            track_mm: track[k],
         })
         .collect();
     Ok((ids, rows))
+}
+
+/// Each row's carriage position (`e1_mm`), checked against the robot
+/// file's track: required with a track, refused without one (a position
+/// nothing would read is a table meant for another cell), and within the
+/// travel. Zeros without a track.
+fn track_positions(
+    input: &InputTable,
+    robot: &crate::robot::RobotSpec,
+) -> Result<Vec<f64>, StageError> {
+    use crate::table::schema::{TRACK_COLUMN, track_values};
+    let path = &input.path;
+    let values = track_values(&input.df, path)?;
+    match (&robot.track, values) {
+        (None, None) => Ok(vec![0.0; input.df.height()]),
+        (None, Some(_)) => Err(StageError::Invalid(format!(
+            "{}: column `{TRACK_COLUMN}` gives a track position, but the robot file {} has no [track]: add it, or use the table of this robot",
+            path.display(),
+            robot.path.display()
+        ))),
+        (Some(_), None) => Err(StageError::Invalid(format!(
+            "{}: the robot file {} has a [track], so every row needs its carriage position in column `{TRACK_COLUMN}` (mm)",
+            path.display(),
+            robot.path.display()
+        ))),
+        (Some(track), Some(values)) => {
+            let [lo, hi] = track.travel_mm;
+            if let Some((row, value)) = values
+                .iter()
+                .enumerate()
+                .find(|(_, v)| !(lo..=hi).contains(*v))
+            {
+                return Err(StageError::Invalid(format!(
+                    "{}: column `{TRACK_COLUMN}`, row {row}: {value} mm is outside the track's travel [{lo}, {hi}] mm (robot file {})",
+                    path.display(),
+                    robot.path.display()
+                )));
+            }
+            Ok(values)
+        }
+    }
 }
 
 /// Conf-wrench rows that command the robot (candidates, rows to predict or to
@@ -653,7 +737,7 @@ pub fn commanded_rows(
     ctx: &StageContext,
     input: &InputTable,
 ) -> Result<(Vec<i64>, Vec<crate::robot::ConfWrench>), StageError> {
-    let (ids, rows) = conf_wrench_rows(input)?;
+    let (ids, rows) = conf_wrench_rows(input, ctx.robot.spec())?;
     let mut bad = rows.iter().enumerate().filter_map(|(k, row)| {
         crate::calibration::row_checks::conf_wrench_problem(ctx.robot, row).map(|p| (k, p))
     });

@@ -173,7 +173,7 @@ impl Stage for SplitStage {
                 (ids, roles, None)
             }
             Some(grouping) => {
-                let data = measured_rows(input, None)?;
+                let data = measured_rows(input, ctx.robot.spec(), None)?;
                 // One group per fold: fold g is group g, dealt by size.
                 let folds =
                     fold_assignment(&data, grouping, settings.groups, ctx.seed).map_err(|e| {

@@ -114,7 +114,7 @@ impl Stage for ValidateStage {
             None => None,
         };
         let measurements = ctx.input("measurements")?;
-        let mut data = measured_rows(measurements, keep.as_ref())?;
+        let mut data = measured_rows(measurements, ctx.robot.spec(), keep.as_ref())?;
         let left_out = data.leave_out_bad_rows(ctx.robot, &measurements.path);
         if let Some(summary) = &left_out {
             ctx.progress.note(&format!("warning: {summary}"));

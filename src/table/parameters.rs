@@ -187,9 +187,11 @@ impl ParameterSet {
     }
 
     /// The parameters this set has: the 42, one translation per further
-    /// target, and the joint-error terms it uses (any not `fixed` at zero).
+    /// target, and the joint-error and track terms it uses (any not `fixed`
+    /// at zero).
     pub fn ids(&self) -> impl Iterator<Item = ParamId> + use<> {
         let used: Vec<ParamId> = ParamId::joint_terms()
+            .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
             .filter(|id| {
                 self.status[id.index()] != ParamStatus::Fixed || self.values.get(*id) != 0.0
             })

@@ -310,6 +310,7 @@ pub fn conf_wrenches() -> TableSchema {
             "direction this joint must reach the command from (-1, 0 or +1; spec §8), as `compensate` writes for a model with backlash: `measure` moves to a pre-position first",
         ));
     }
+    columns.push(track_column());
     TableSchema {
         kind: "conf_wrenches",
         description: "Joint configurations with the wrench applied at each (any table with these columns, e.g. candidates or measurements).",
@@ -402,6 +403,7 @@ pub fn measurements() -> TableSchema {
             "direction in which this joint last moved before the reading: -1, 0 (not known) or +1; a campaign's from its previous command (spec §8)",
         ));
     }
+    columns.push(track_column());
     TableSchema {
         kind: "measurements",
         description: "Complete measured rows (spec §6). Incomplete rows go to measurement_failures, never here.",
@@ -1497,6 +1499,20 @@ pub const ORIENTATION_COLUMNS: [&str; 3] = ["rx_deg", "ry_deg", "rz_deg"];
 
 /// Approach direction of each joint (spec §8).
 pub const APPROACH_COLUMNS: [&str; 6] = ["dir1", "dir2", "dir3", "dir4", "dir5", "dir6"];
+
+/// The carriage's position on the robot's linear track (issue #30).
+pub const TRACK_COLUMN: &str = "e1_mm";
+
+/// The optional [`TRACK_COLUMN`] of a table of rows.
+fn track_column() -> ColumnSpec {
+    col(
+        TRACK_COLUMN,
+        ColumnType::Float64,
+        "mm",
+        false,
+        "position of the carriage on the robot's linear track (robot file `[track]`), within its `travel_mm`; required, and only allowed, when the robot file has a track",
+    )
+}
 /// The corrected Cartesian target of `commands` (spec §7), robot base frame.
 pub const COMMAND_POSITION_COLUMNS: [&str; 3] = ["x_cmd_mm", "y_cmd_mm", "z_cmd_mm"];
 /// Its orientation as a unit quaternion (w, x, y, z), base←tool.
@@ -2410,6 +2426,33 @@ pub fn approach_values(df: &DataFrame, file: &Path) -> Result<Vec<[i8; 6]>, Tabl
         }
     }
     Ok(approach)
+}
+
+/// Each row's carriage position (`e1_mm`): `None` when the table has no
+/// such column; a null, non-finite value is an error naming its row.
+pub fn track_values(df: &DataFrame, file: &Path) -> Result<Option<Vec<f64>>, TableError> {
+    let Some(values) = optional_f64_values(df, TRACK_COLUMN, file)? else {
+        return Ok(None);
+    };
+    values
+        .into_iter()
+        .enumerate()
+        .map(|(row, value)| match value {
+            Some(v) if v.is_finite() => Ok(v),
+            Some(value) => Err(TableError::NonFinite {
+                file: file.to_path_buf(),
+                column: TRACK_COLUMN.into(),
+                row,
+                value,
+            }),
+            None => Err(TableError::Null {
+                file: file.to_path_buf(),
+                column: TRACK_COLUMN.into(),
+                row,
+            }),
+        })
+        .collect::<Result<Vec<f64>, TableError>>()
+        .map(Some)
 }
 
 /// Values of a utf8 column (nulls as `None`).

@@ -59,5 +59,10 @@ pub fn write_measurements(
         let values: Vec<f64> = measured.iter().map(|p| p[axis]).collect();
         columns.push(Column::new((*name).into(), values));
     }
+    // Rows of a robot on a track carry their carriage positions.
+    if rows.iter().any(|r| r.track_mm != 0.0) {
+        let values: Vec<f64> = rows.iter().map(|r| r.track_mm).collect();
+        columns.push(Column::new(schema::TRACK_COLUMN.into(), values));
+    }
     table::write_parquet(&mut table::frame(columns), path, None).unwrap();
 }
