@@ -37,7 +37,9 @@ use super::import_source::{
     CsvLayout, FileSettings, Kind, Mapped, Source, SourceUnits, cannot_read, column_map_problems,
     read_source,
 };
-pub use super::import_source::{ForceUnit, JointUnit, LengthUnit, MomentUnit, SourceFormat};
+pub use super::import_source::{
+    ForceUnit, JointConvention, JointUnit, LengthUnit, MomentUnit, SourceFormat,
+};
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, settings_error,
@@ -48,17 +50,6 @@ use crate::calibration::row_checks::{
 use crate::table::schema;
 
 pub struct ImportMeasurementsStage;
-
-/// Whose numbering the source's joint columns follow.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
-#[serde(rename_all = "snake_case")]
-pub enum JointConvention {
-    /// The robot file's.
-    RobotFile,
-    /// The controller's (the robot file's `[controller]`, e.g. a FANUC's J3
-    /// from the horizontal).
-    Controller,
-}
 
 /// Which source column holds each contract column. Required: `q1_deg … q6_deg`,
 /// `x_mm`, `y_mm`, `z_mm`. The names are the contract's; the units of the source
@@ -525,24 +516,16 @@ pub fn import_for(
     job_dir: &Path,
 ) -> Result<Imported, StageError> {
     let mut imported = import(settings, job_dir)?;
-    let coupling = robot.controller.j3_from_j2;
-    if settings.joint_convention == JointConvention::Controller && coupling != 0.0 {
-        let file = Path::new(&settings.path);
-        let q2 = schema::f64_values(&imported.measurements, "q2_deg", file)?;
-        let q3 = schema::f64_values(&imported.measurements, "q3_deg", file)?;
-        // The controller's J3 is q3 + j3_from_j2 · q2.
-        let q3_robot_file: Vec<f64> = q2
-            .iter()
-            .zip(&q3)
-            .map(|(q2, j3)| j3 - coupling * q2)
-            .collect();
-        imported
-            .measurements
-            .with_column(Column::new("q3_deg".into(), q3_robot_file))
-            .map_err(|e| StageError::Invalid(format!("{}: {e}", file.display())))?;
+    let file = job_dir.join(&settings.path);
+    if super::import_source::joints_to_robot_file(
+        &mut imported.measurements,
+        settings.joint_convention,
+        robot,
+        &file,
+    )? {
         imported.facts.insert(
             "joint_convention".into(),
-            format!("controller: q3 = J3 - {coupling} * J2"),
+            format!("controller: q3 = J3 - {} * J2", robot.controller.j3_from_j2),
         );
     }
     Ok(imported)

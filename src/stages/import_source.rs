@@ -41,6 +41,46 @@ pub enum SourceFormat {
     Parquet,
 }
 
+/// Whose numbering a source's joint columns follow.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum JointConvention {
+    /// The robot file's.
+    RobotFile,
+    /// The controller's (the robot file's `[controller]`, e.g. a FANUC's J3
+    /// from the horizontal).
+    Controller,
+}
+
+/// Turns an imported table's joints from the controller's numbering into
+/// the robot file's (`q3 = J3 − j3_from_j2 · J2`, null where either is
+/// null); `Ok(false)` when there is nothing to do (the robot file's
+/// convention, no coupling, or no joint columns).
+pub fn joints_to_robot_file(
+    table: &mut polars::prelude::DataFrame,
+    convention: JointConvention,
+    robot: &crate::robot::RobotSpec,
+    file: &Path,
+) -> Result<bool, StageError> {
+    let coupling = robot.controller.j3_from_j2;
+    if convention == JointConvention::RobotFile || coupling == 0.0 {
+        return Ok(false);
+    }
+    let joints = |name: &str| crate::table::schema::optional_f64_values(table, name, file);
+    let (Some(q2), Some(q3)) = (joints("q2_deg")?, joints("q3_deg")?) else {
+        return Ok(false);
+    };
+    let q3_robot_file: Vec<Option<f64>> = q2
+        .iter()
+        .zip(&q3)
+        .map(|(q2, j3)| Some(j3.as_ref()? - coupling * q2.as_ref()?))
+        .collect();
+    table
+        .with_column(polars::prelude::Column::new("q3_deg".into(), q3_robot_file))
+        .map_err(|e| StageError::Invalid(format!("{}: {e}", file.display())))?;
+    Ok(true)
+}
+
 /// Unit of the joint columns in the source.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
 pub enum JointUnit {
@@ -758,5 +798,45 @@ pub fn suggestion(wanted: &str, names: &[&str]) -> String {
     {
         [one] => format!(" (did you mean `{one}`?)"),
         _ => String::new(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use polars::prelude::{Column, DataFrame};
+
+    fn table() -> DataFrame {
+        DataFrame::new(
+            2,
+            vec![
+                Column::new("q2_deg".into(), vec![Some(30.0), None]),
+                Column::new("q3_deg".into(), vec![Some(-20.0), Some(5.0)]),
+            ],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn controller_joints_become_the_robot_file_s_and_nulls_stay_null() {
+        let mut fanuc = crate::robot::test_support::irb1600().spec().clone();
+        fanuc.controller.j3_from_j2 = 1.0;
+        let file = Path::new("t.csv");
+        let mut converted = table();
+        assert!(
+            joints_to_robot_file(&mut converted, JointConvention::Controller, &fanuc, file)
+                .unwrap()
+        );
+        let q3 = crate::table::schema::optional_f64_values(&converted, "q3_deg", file)
+            .unwrap()
+            .unwrap();
+        // J3 = q3 + q2: -20 from the horizontal at q2 = 30 is q3 = -50; a
+        // row without q2 (no branch hint) keeps none.
+        assert_eq!(q3, [Some(-50.0), None]);
+        let mut kept = table();
+        assert!(
+            !joints_to_robot_file(&mut kept, JointConvention::RobotFile, &fanuc, file).unwrap()
+        );
+        assert_eq!(kept, table());
     }
 }

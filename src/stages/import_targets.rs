@@ -28,8 +28,8 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::import_source::{
-    CsvLayout, FileSettings, ForceUnit, JointUnit, Kind, LengthUnit, Mapped, MomentUnit, Source,
-    SourceFormat, SourceUnits, cannot_read, column_map_problems, read_source,
+    CsvLayout, FileSettings, ForceUnit, JointConvention, JointUnit, Kind, LengthUnit, Mapped,
+    MomentUnit, Source, SourceFormat, SourceUnits, cannot_read, column_map_problems, read_source,
 };
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
@@ -166,6 +166,10 @@ pub struct ImportTargetsSettings {
     pub angle_unit: JointUnit,
     /// Unit of the branch-hint joint columns in the source: deg or rad.
     pub joint_unit: JointUnit,
+    /// Whose joint values the branch hints are: `robot_file` (the default)
+    /// or `controller` (the robot file's `[controller]`, a FANUC's J3 from
+    /// the horizontal), converted to the robot file's on import.
+    pub joint_convention: JointConvention,
     /// Unit of the force columns in the source: N only.
     pub force_unit: ForceUnit,
     /// Unit of the moment columns in the source: N·m (also N*m, Nm) or N·mm (also N*mm, Nmm).
@@ -186,6 +190,7 @@ impl Default for ImportTargetsSettings {
             length_unit: LengthUnit::Mm,
             angle_unit: JointUnit::Deg,
             joint_unit: JointUnit::Deg,
+            joint_convention: JointConvention::RobotFile,
             force_unit: ForceUnit::Newton,
             moment_unit: MomentUnit::NewtonMetre,
         }
@@ -379,7 +384,13 @@ impl Stage for ImportTargetsStage {
         ctx: &StageContext,
         settings: &ImportTargetsSettings,
     ) -> Result<StageOutputs, StageError> {
-        let (targets, source_blake3, notes) = import(settings, ctx.job_dir)?;
+        let (mut targets, source_blake3, notes) = import(settings, ctx.job_dir)?;
+        super::import_source::joints_to_robot_file(
+            &mut targets,
+            settings.joint_convention,
+            ctx.robot.spec(),
+            &ctx.job_dir.join(&settings.path),
+        )?;
         for note in &notes {
             ctx.progress.note(note);
         }
