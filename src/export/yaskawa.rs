@@ -45,7 +45,7 @@ const ANGLE_DECIMALS: usize = 4;
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum JobError {
     #[error(
-        "joint moves in a Yaskawa job are pulse data, and the robot file gives no `joints[{joint}].pulses_per_deg` (the controller's pulse ratio of that axis); add them, or set `motion = \"linear\"`"
+        "joint moves in a Yaskawa job (the joint path, and the pre-positions before commands with approach directions) are pulse data, and the robot file gives no `joints[{joint}].pulses_per_deg` (the controller's pulse ratio of that axis); add them, or set `motion = \"linear\"` (with `pre_position_deg = 0` for commands with approach directions)"
     )]
     NoPulseRatio { joint: usize },
     #[error(
