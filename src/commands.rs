@@ -718,12 +718,20 @@ pub fn sim_driver(
             settings
         }
     };
+    let robot_has_track = robot.spec().track.is_some();
     let mut simulator =
         Simulator::new(robot, values, settings, seed).map_err(CommandError::Usage)?;
     let stdin = std::io::stdin();
     let stdout = std::io::stdout();
+    // The track's methods only for a robot on a track.
     let all: Vec<String> = crate::rig::protocol::METHODS
         .iter()
+        .chain(
+            robot_has_track
+                .then_some(&crate::rig::protocol::TRACK_METHODS)
+                .into_iter()
+                .flatten(),
+        )
         .map(|m| m.to_string())
         .collect();
     crate::rig::driver::serve(

@@ -341,7 +341,7 @@ fn stages_that_do_not_handle_a_track_refuse_it() {
     let (code, stdout, stderr) = common::run(
         &[
             "stage",
-            "poses",
+            "iso_cube",
             "--robot",
             file.to_str().unwrap(),
             "--settings",
@@ -355,7 +355,7 @@ fn stages_that_do_not_handle_a_track_refuse_it() {
     assert_eq!(code, 2, "{log}");
     assert!(
         log.contains("[track]")
-            && log.contains("`poses` does not handle")
+            && log.contains("`iso_cube` does not handle")
             && log.contains("identify"),
         "{log}"
     );

@@ -31,6 +31,8 @@ pub struct ExternalDriver {
     last_sigma_mm: Option<[f64; 3]>,
     /// The driver's self-description from `hello`.
     pub name: String,
+    /// The methods `hello` announced (empty when it announced none).
+    pub capabilities: Vec<String>,
 }
 
 impl ExternalDriver {
@@ -113,6 +115,7 @@ impl ExternalDriver {
             last_measured_at_us: 0,
             last_sigma_mm: None,
             name: String::new(),
+            capabilities: Vec::new(),
         };
         let at_start =
             |problem: String| RigError::Fatal(format!("starting driver `{shown}`: {problem}"));
@@ -137,6 +140,7 @@ impl ExternalDriver {
             }
         }
         driver.name = hello.name.unwrap_or(shown);
+        driver.capabilities = hello.capabilities.unwrap_or_default();
         Ok(driver)
     }
 
@@ -215,6 +219,13 @@ impl ExternalDriver {
     fn missing(method: &str, field: &str) -> RigError {
         RigError::Fatal(format!("driver reply to `{method}` lacks `{field}`"))
     }
+
+    /// Whether `hello` announced a linear track's methods.
+    pub fn drives_a_track(&self) -> bool {
+        super::protocol::TRACK_METHODS
+            .iter()
+            .all(|m| self.capabilities.iter().any(|c| c == m))
+    }
 }
 
 impl Rig for ExternalDriver {
@@ -257,6 +268,16 @@ impl Rig for ExternalDriver {
 
     fn measured_sigma_mm(&self) -> Option<[f64; 3]> {
         self.last_sigma_mm
+    }
+
+    fn move_track(&mut self, cw_id: i64, e_mm: f64) -> Result<(), RigError> {
+        self.call(Call::MoveTrack { cw_id, e_mm }).map(|_| ())
+    }
+
+    fn read_track(&mut self) -> Result<f64, RigError> {
+        self.call(Call::ReadTrack {})?
+            .e_mm
+            .ok_or_else(|| Self::missing("read_track", "e_mm"))
     }
 
     fn release_wrench(&mut self) -> Result<(), RigError> {
@@ -395,6 +416,8 @@ pub fn serve(
             Call::ReleaseWrench {} => rig.release_wrench(),
             Call::ReadWrench {} => rig.read_wrench().map(|w| result.wrench = Some(w)),
             Call::ReadJoints {} => rig.read_joints().map(|q| result.q_deg = Some(q)),
+            Call::MoveTrack { cw_id, e_mm } => rig.move_track(cw_id, e_mm),
+            Call::ReadTrack {} => rig.read_track().map(|e| result.e_mm = Some(e)),
             Call::Measure {} => rig.measure().map(|p| {
                 result.position_mm = Some(p);
                 result.measured_at_us = Some(rig.measured_at_us());

@@ -105,6 +105,16 @@ pub trait Rig {
     fn measure(&mut self) -> Result<[f64; 3], RigError>;
     /// Releases the cable tension before the next move.
     fn release_wrench(&mut self) -> Result<(), RigError>;
+    /// Moves a linear track's carriage to `e_mm` (robot files with a
+    /// `[track]`), before the joints of conf-wrench row `cw_id` move.
+    fn move_track(&mut self, cw_id: i64, e_mm: f64) -> Result<(), RigError> {
+        let _ = (cw_id, e_mm);
+        Err(RigError::Fatal(NO_TRACK.into()))
+    }
+    /// The track's position encoder (mm).
+    fn read_track(&mut self) -> Result<f64, RigError> {
+        Err(RigError::Fatal(NO_TRACK.into()))
+    }
     /// Timestamp of the last tracker reading, µs since the epoch (UTC).
     fn measured_at_us(&self) -> i64;
     /// The tracker's own 1-σ uncertainty of the last reading (mm), when it gives one.
@@ -119,6 +129,10 @@ pub trait Rig {
     /// Releases the devices (sessions, streams) before a driver answers `shutdown`.
     fn shutdown(&mut self) {}
 }
+
+/// Why a rig without a track axis refuses the track's methods.
+const NO_TRACK: &str =
+    "this rig has no linear track axis (move_track, read_track), and the robot file has a [track]";
 
 /// Per-request time limit of external drivers.
 pub fn timeout_from_seconds(seconds: f64) -> Duration {

@@ -39,6 +39,11 @@ pub enum Call {
     ReadJoints {},
     /// Measure the SMR with the laser tracker (mm, tracker frame).
     Measure {},
+    /// Move a linear track's carriage to `e_mm` for row `cw_id` (robots on a
+    /// track; sent before `move_joints`); reply when settled.
+    MoveTrack { cw_id: i64, e_mm: f64 },
+    /// Read the track's position encoder (mm).
+    ReadTrack {},
     /// Park and exit.
     Shutdown {},
 }
@@ -73,6 +78,9 @@ pub struct ReplyResult {
     /// read_joints.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub q_deg: Option<[f64; 6]>,
+    /// read_track: the carriage's position (mm).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub e_mm: Option<f64>,
     /// measure.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub position_mm: Option<[f64; 3]>,
@@ -163,7 +171,11 @@ impl ErrorCode {
     }
 }
 
-/// Method names, as capabilities.
+/// The methods of a linear track's axis: a driver of a robot on a track
+/// announces them in `hello`'s capabilities.
+pub const TRACK_METHODS: [&str; 2] = ["move_track", "read_track"];
+
+/// Method names, as capabilities (the track's are [`TRACK_METHODS`]).
 pub const METHODS: [&str; 8] = [
     "hello",
     "move_joints",

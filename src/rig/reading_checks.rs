@@ -51,6 +51,7 @@ const SENSOR_RANGE_NM: &str = "sensor_range_nm";
 const MAX_WRENCH_ERROR_N: &str = "max_wrench_error_n";
 const MAX_WRENCH_ERROR_NM: &str = "max_wrench_error_nm";
 const MAX_TRACKER_DISTANCE: &str = "max_tracker_distance_mm";
+const MAX_TRACK_ERROR: &str = "max_track_error_mm";
 
 /// A reading outside its bounds: which field, its value, and the bound it broke.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -113,6 +114,26 @@ pub enum ReadingFault {
         crate::calibration::row_checks::MAX_SIGMA_MM
     )]
     SigmaOutOfRange { column: &'static str, value: f64 },
+    #[error(
+        "implausible reading: e1_mm = {} is {} mm from the commanded carriage position {}, more than {MAX_TRACK_ERROR} = {} mm",
+        compact(*value), compact((value - commanded).abs()), compact(*commanded), compact(*bound_mm)
+    )]
+    TrackError {
+        value: f64,
+        commanded: f64,
+        bound_mm: f64,
+    },
+}
+
+/// A track's position reading that is not its command within `bound_mm`
+/// (NaN included): a carriage that stopped short, or an encoder in other units.
+pub fn track_fault(commanded_mm: f64, read_mm: f64, bound_mm: f64) -> Option<ReadingFault> {
+    let within = (read_mm - commanded_mm).abs() <= bound_mm;
+    (!within).then_some(ReadingFault::TrackError {
+        value: read_mm,
+        commanded: commanded_mm,
+        bound_mm,
+    })
 }
 
 /// A tracker's reported 1-σ outside what any tracker reports (the bounds the
@@ -244,6 +265,17 @@ mod tests {
     const Q: [f64; JOINTS] = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0];
     const W: [f64; 6] = [100.0, -50.0, 20.0, 5.0, -2.0, 1.0];
     const P: [f64; 3] = [1200.0, -300.0, 900.0];
+
+    #[test]
+    fn a_track_reading_far_from_its_command_or_not_a_number_is_a_fault() {
+        assert_eq!(track_fault(1500.0, 1500.4, 1.0), None);
+        let far = track_fault(1500.0, 1.5, 1.0).expect("a reading in metres");
+        assert!(
+            far.to_string().contains("max_track_error_mm = 1 mm"),
+            "{far}"
+        );
+        assert!(track_fault(1500.0, f64::NAN, 1.0).is_some());
+    }
 
     fn bounds(max_wrench_error: Option<f64>) -> ReadingBounds {
         ReadingBounds {

@@ -157,6 +157,8 @@ pub struct Simulator {
     rng: StdRng,
     cw_id: i64,
     commanded_q: Option<[f64; JOINTS]>,
+    /// The track carriage's commanded position (mm); 0 without a track.
+    commanded_track_mm: f64,
     /// Where each joint approached its command from ([`super::approach`]).
     approach: [i8; JOINTS],
     /// The campaign's own approach directions by cw_id, so a resumed campaign
@@ -259,6 +261,7 @@ impl Simulator {
             rng: StdRng::seed_from_u64(seed),
             cw_id: 0,
             commanded_q: None,
+            commanded_track_mm: 0.0,
             approach: [0; JOINTS],
             planned_approach: HashMap::new(),
             applied: [0.0; 6],
@@ -345,6 +348,7 @@ impl Simulator {
             .prepare(&self.truth)
             .predict_row(&ConfWrench {
                 approach: self.approach,
+                track_mm: self.commanded_track_mm,
                 ..ConfWrench::new(actual, wrench)
             })
             .position_mm;
@@ -465,6 +469,35 @@ impl Rig for Simulator {
     fn release_wrench(&mut self) -> Result<(), RigError> {
         self.applied = [0.0; 6];
         Ok(())
+    }
+
+    /// The carriage reaches its command exactly as its encoder counts it:
+    /// where it really stands (scale, straightness, angles) is the truth's
+    /// track errors.
+    fn move_track(&mut self, _cw_id: i64, e_mm: f64) -> Result<(), RigError> {
+        let Some(track) = self.robot.spec().track else {
+            return Err(RigError::Fatal(format!(
+                "move_track: the simulated robot ({}) has no [track]",
+                self.robot.spec().path.display()
+            )));
+        };
+        let [lo, hi] = track.travel_mm;
+        if !(e_mm >= lo && e_mm <= hi) {
+            return Err(RigError::Row(format!(
+                "move_track: {e_mm} mm is outside the track's travel [{lo}, {hi}] mm"
+            )));
+        }
+        self.commanded_track_mm = e_mm;
+        Ok(())
+    }
+
+    fn read_track(&mut self) -> Result<f64, RigError> {
+        match self.robot.spec().track {
+            Some(_) => Ok(self.commanded_track_mm),
+            None => Err(RigError::Fatal(
+                "read_track: the simulated robot has no [track]".into(),
+            )),
+        }
     }
 
     fn measured_at_us(&self) -> i64 {

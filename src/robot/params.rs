@@ -135,6 +135,14 @@ impl ParamId {
         (0..BASE_PARAM_COUNT as u8).map(ParamId)
     }
 
+    /// The 42, then the terms of the robot file's track (to its polynomial
+    /// order) when it has one: every parameter of the cell's geometry and
+    /// compliance, for rank analyses and designs.
+    pub fn of_robot(spec: &RobotSpec) -> impl Iterator<Item = ParamId> + use<> {
+        let order = spec.track.map_or(0, |t| t.polynomial_order);
+        ParamId::all().chain(ParamId::track_terms(order))
+    }
+
     /// The 42 and the translations of targets 1..`targets`.
     pub fn all_with_targets(targets: usize) -> impl Iterator<Item = ParamId> {
         let extra = 3 * targets.clamp(1, MAX_TARGETS).saturating_sub(1);

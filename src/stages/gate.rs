@@ -557,6 +557,7 @@ fn changed_parameters(
     in_service: &ParameterSet,
 ) -> Vec<(ParamId, f64, Option<f64>)> {
     ParamId::all()
+        .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
         .filter(|id| {
             candidate.status[id.index()] == ParamStatus::Identified
                 || in_service.status[id.index()] == ParamStatus::Identified

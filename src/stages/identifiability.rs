@@ -67,7 +67,7 @@ impl Stage for IdentifiabilityStage {
         settings: &IdentifiabilitySettings,
     ) -> Result<StageOutputs, StageError> {
         let (_, rows) = commanded_rows(ctx, ctx.input("candidates")?)?;
-        let candidates: Vec<ParamId> = ParamId::all()
+        let candidates: Vec<ParamId> = ParamId::of_robot(ctx.robot.spec())
             .filter(|p| !(settings.kinematic_only && p.is_compliance()))
             .collect();
         let nominal = ParamValues::nominal(ctx.robot.spec());

@@ -27,7 +27,7 @@ use crate::calibration::row_checks::JOINT_LIMIT_TOLERANCE_DEG;
 use crate::journal::Journal;
 use crate::rig::approach::approach_directions;
 use crate::rig::driver::ExternalDriver;
-use crate::rig::reading_checks::{ReadingBounds, sigma_fault};
+use crate::rig::reading_checks::{ReadingBounds, sigma_fault, track_fault};
 use crate::rig::simulator::{Simulator, SimulatorSettings};
 use crate::rig::{Disposition, Rig, RigError, timeout_from_seconds};
 use crate::robot::{ConfWrench, JOINTS};
@@ -125,6 +125,12 @@ pub struct MeasureSettings {
     #[schemars(range(max = 10.0))]
     #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub pre_position_deg: f64,
+    /// How far a linear track's position reading may lie from its command
+    /// (mm), for a robot file with a `[track]`: a settled carriage reads
+    /// within hundredths of a millimetre.
+    #[schemars(range(max = 1000.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub max_track_error_mm: f64,
 }
 
 impl Default for MeasureSettings {
@@ -149,6 +155,7 @@ impl Default for MeasureSettings {
             max_wrench_error_nm: None,
             max_tracker_distance_mm: 40_000.0,
             pre_position_deg: 1.0,
+            max_track_error_mm: 1.0,
         }
     }
 }
@@ -216,6 +223,9 @@ pub(crate) struct Reading {
     /// The tracker's own 1-σ uncertainty of the point (mm), when it gives one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sigma_mm: Option<[f64; 3]>,
+    /// A linear track's position reading (mm), for a robot on a track.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub track_mm: Option<f64>,
 }
 
 impl Entry {
@@ -272,6 +282,7 @@ impl Stage for MeasureStage {
         // The direction each row must be reached from (spec §8), where given.
         let required = schema::approach_values(&input.df, &input.path)?;
         let pre_positioned = required.iter().flatten().any(|d| *d != 0);
+        let on_track = ctx.robot.spec().track.is_some();
 
         // The journal belongs to the rows and the rig they are measured on, not to
         // retry, timeout or safety settings, nor to the external driver's command
@@ -352,14 +363,23 @@ impl Stage for MeasureStage {
                         .with_planned_approach(approach.clone()),
                 )
             }
-            DriverKind::External => Box::new(
-                ExternalDriver::start(
+            DriverKind::External => {
+                let driver = ExternalDriver::start(
                     &settings.command,
                     ctx.job_dir,
                     timeout_from_seconds(settings.timeout_s),
                 )
-                .map_err(|e| StageError::Failed(e.to_string()))?,
-            ),
+                .map_err(|e| StageError::Failed(e.to_string()))?;
+                if on_track && !driver.drives_a_track() {
+                    return Err(StageError::Failed(format!(
+                        "the robot file {} has a [track], and driver `{}` does not announce {} in its capabilities: it cannot place the carriage, so no row would be measured where it was designed",
+                        ctx.robot.spec().path.display(),
+                        driver.name,
+                        crate::rig::protocol::TRACK_METHODS.join(" and ")
+                    )));
+                }
+                Box::new(driver)
+            }
         };
 
         ctx.progress.start(todo.len() as u64, "rows");
@@ -378,22 +398,34 @@ impl Stage for MeasureStage {
             let mut attempts = 0;
             let entry = loop {
                 attempts += 1;
-                let checked = pre_positions[k]
-                    .map_or(Ok(()), |q_deg| rig.move_joints(ids[k], q_deg))
-                    .and_then(|()| measure_row(rig.as_mut(), ids[k], &rows[k]))
-                    .and_then(|reading| {
-                        bounds.check(
-                            &rows[k].q_deg,
-                            &rows[k].wrench.to_array(),
-                            &reading.q_deg,
-                            &reading.wrench,
-                            &reading.position_mm,
-                        )?;
-                        if let Some(fault) = reading.sigma_mm.as_ref().and_then(sigma_fault) {
-                            return Err(fault.into());
-                        }
-                        Ok(reading)
-                    });
+                // The carriage moves first, so the pre-position is where the row is.
+                let checked = (if on_track {
+                    rig.move_track(ids[k], rows[k].track_mm)
+                } else {
+                    Ok(())
+                })
+                .and_then(|()| {
+                    pre_positions[k].map_or(Ok(()), |q_deg| rig.move_joints(ids[k], q_deg))
+                })
+                .and_then(|()| measure_row(rig.as_mut(), ids[k], &rows[k], on_track))
+                .and_then(|reading| {
+                    bounds.check(
+                        &rows[k].q_deg,
+                        &rows[k].wrench.to_array(),
+                        &reading.q_deg,
+                        &reading.wrench,
+                        &reading.position_mm,
+                    )?;
+                    if let Some(fault) = reading.sigma_mm.as_ref().and_then(sigma_fault) {
+                        return Err(fault.into());
+                    }
+                    if let Some(fault) = reading.track_mm.and_then(|read| {
+                        track_fault(rows[k].track_mm, read, settings.max_track_error_mm)
+                    }) {
+                        return Err(fault.into());
+                    }
+                    Ok(reading)
+                });
                 match checked {
                     Ok(reading) => break Entry::Measured(reading),
                     Err(e) => match e.disposition() {
@@ -531,22 +563,30 @@ fn check_safety(
     Ok(())
 }
 
-/// One conf-wrench row on the rig, in the lab's order.
+/// One conf-wrench row on the rig, in the lab's order; with `on_track`, the
+/// carriage (already moved to the row's position) is read with the joints.
 pub(crate) fn measure_row(
     rig: &mut dyn Rig,
     cw_id: i64,
     row: &ConfWrench,
+    on_track: bool,
 ) -> Result<Reading, RigError> {
     rig.move_joints(cw_id, row.q_deg)?;
     rig.apply_wrench(row.wrench.to_array())?;
     let wrench = rig.read_wrench()?;
     let q_deg = rig.read_joints()?;
+    let track_mm = if on_track {
+        Some(rig.read_track()?)
+    } else {
+        None
+    };
     let position_mm = rig.measure()?;
     rig.release_wrench()?;
     let finite = wrench
         .iter()
         .chain(&q_deg)
         .chain(&position_mm)
+        .chain(&track_mm)
         .all(|v| v.is_finite());
     if !finite {
         return Err(RigError::Transient(
@@ -560,6 +600,7 @@ pub(crate) fn measure_row(
         position_mm,
         measured_at_us: rig.measured_at_us(),
         sigma_mm: rig.measured_sigma_mm(),
+        track_mm,
     })
 }
 
@@ -684,6 +725,10 @@ pub(crate) fn measurements_frame(
                 .collect();
             columns.push(Column::new((*name).into(), values));
         }
+    }
+    if readings.iter().any(|(r, _)| r.track_mm.is_some()) {
+        let values: Vec<Option<f64>> = readings.iter().map(|(r, _)| r.track_mm).collect();
+        columns.push(Column::new(schema::TRACK_COLUMN.into(), values));
     }
     if with_config_id {
         columns.push(Column::new("config_id".into(), config));

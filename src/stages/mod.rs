@@ -410,10 +410,14 @@ impl<S: Stage> StageKind for S {
 
 /// The stage kinds that handle a robot on a linear track (issue #30): those
 /// that read measured or commanded rows with their `e1_mm` and evaluate
-/// the model through the carriage. The others (designing poses, measuring
-/// through a rig, compensating targets, programs, grids) would place the
-/// arm as if the carriage stood at 0, so they refuse such a robot.
+/// the model through the carriage, and the campaign's design and measurement
+/// (poses at carriage stations, wrenches, the rig moving the carriage). The
+/// others (compensating targets, programs, grids) would place the arm as if
+/// the carriage stood at 0, so they refuse such a robot.
 const TRACK_STAGES: &[&str] = &[
+    "poses",
+    "wrenches",
+    "measure",
     "identifiability",
     "select",
     "import_measurements",
@@ -691,7 +695,7 @@ pub fn conf_wrench_rows(
 /// file's track: required with a track, refused without one (a position
 /// nothing would read is a table meant for another cell), and within the
 /// travel. Zeros without a track.
-fn track_positions(
+pub(crate) fn track_positions(
     input: &InputTable,
     robot: &crate::robot::RobotSpec,
 ) -> Result<Vec<f64>, StageError> {

@@ -28,7 +28,7 @@ use super::{
 use crate::compensation::Status;
 use crate::design::collision::{CapsuleMm, Cell};
 use crate::design::poses::{
-    BranchPoint, PoseProblem, Sampling, SingularityLimits, generate, xyz_euler_deg,
+    BranchPoint, PoseOutcome, PoseProblem, Sampling, SingularityLimits, generate, xyz_euler_deg,
 };
 use crate::robot::{JOINTS, ParamValues, ik};
 use crate::table::frame;
@@ -118,6 +118,13 @@ pub struct PosesSettings {
     pub frame: String,
     /// With `targets`: user frames, as `compensate`'s setting `frames`.
     pub frames: BTreeMap<String, [f64; 6]>,
+    /// For a robot on a linear track: the carriage stations, evenly spread
+    /// over the travel ends included, at each of which the whole box is
+    /// sampled (default 5). The box, the floor and the cable robot are in
+    /// the base frame, so they ride with the carriage; the tracker stays in
+    /// the world. At least the track's polynomial order + 1.
+    #[schemars(range(min = 2, max = 1000))]
+    pub track_stations: Option<usize>,
 }
 
 impl Default for PosesSettings {
@@ -143,6 +150,7 @@ impl Default for PosesSettings {
             near_work_radius_mm: 100.0,
             frame: WORLD_FRAME.to_string(),
             frames: BTreeMap::new(),
+            track_stations: None,
         }
     }
 }
@@ -236,6 +244,7 @@ impl Stage for PosesStage {
         if ctx.bound_inputs.contains(&"targets") {
             problems.extend(target_frame_problems(&settings.frame, &settings.frames));
         }
+        problems.extend(track_problems(settings, ctx));
         problems
     }
 
@@ -317,7 +326,9 @@ impl Stage for PosesStage {
             Some(input) => near_work_points(ctx, settings, input, &nominal)?,
             None => Vec::new(),
         };
-        let points = settings.target_points() + near_work.len();
+        let stations = track_stations_mm(ctx.robot.spec(), settings);
+        let points_per_station = settings.target_points() + near_work.len();
+        let points = points_per_station * stations.len();
         if points >= LONG_RUN_POINTS {
             ctx.progress.note(&format!(
                 "{points} target points with up to {} orientation attempts each: this takes a while",
@@ -330,9 +341,39 @@ impl Stage for PosesStage {
             ctx.progress
                 .advance(done.fetch_add(1, Ordering::Relaxed) + 1)
         };
-        let outcome = generate(
-            ctx.robot, &nominal, &problem, &near_work, ctx.seed, &on_point,
-        );
+        let mut outcome = PoseOutcome::default();
+        let mut station_of_pose = Vec::new();
+        for (s, station_mm) in stations.iter().enumerate() {
+            // At a station the carriage stands at `e` (nominally a translation
+            // along the base's x axis), so the tracker is `e` nearer in x.
+            let mut at_station = problem.clone();
+            let seed = match station_mm {
+                Some(e_mm) => {
+                    at_station.cell.tracker -= Vector3::new(*e_mm, 0.0, 0.0);
+                    ctx.seed ^ (s as u64 + 1).wrapping_mul(TRACK_STATION_SEED)
+                }
+                None => ctx.seed,
+            };
+            let station = generate(
+                ctx.robot,
+                &nominal,
+                &at_station,
+                &near_work,
+                seed,
+                &on_point,
+            );
+            let id_offset = (s * points_per_station) as i64;
+            for mut pose in station.poses {
+                pose.config_id += id_offset;
+                outcome.poses.push(pose);
+                station_of_pose.push(*station_mm);
+            }
+            for (reason, count) in station.rejections {
+                *outcome.rejections.entry(reason).or_default() += count;
+            }
+            outcome.dropped_points += station.dropped_points;
+            outcome.targets += station.targets;
+        }
         if outcome.poses.is_empty() {
             // The settings put the box where this robot cannot work: bad input.
             return Err(StageError::Invalid(format!(
@@ -388,6 +429,10 @@ impl Stage for PosesStage {
             "incidence_deg".into(),
             poses.iter().map(|p| p.incidence_deg).collect::<Vec<_>>(),
         ));
+        if stations.iter().any(Option::is_some) {
+            let values: Vec<f64> = station_of_pose.iter().map(|e| e.unwrap_or(0.0)).collect();
+            columns.push(Column::new(schema::TRACK_COLUMN.into(), values));
+        }
 
         let mut outputs = StageOutputs::default();
         outputs.tables.insert("poses".into(), frame(columns));
@@ -400,6 +445,11 @@ impl Stage for PosesStage {
         outputs
             .facts
             .insert("dropped_points".into(), outcome.dropped_points.to_string());
+        if stations.iter().any(Option::is_some) {
+            outputs
+                .facts
+                .insert("track_stations".into(), stations.len().to_string());
+        }
         if !near_work.is_empty() {
             outputs
                 .facts
@@ -418,6 +468,73 @@ impl Stage for PosesStage {
         }
         Ok(outputs)
     }
+}
+
+/// Seed offset of each track station's draws, apart from the others'.
+const TRACK_STATION_SEED: u64 = 0x7472_6163_6b73_7461;
+
+/// Carriage stations a track campaign uses by default: enough for the
+/// highest polynomial order (3) with one to spare.
+const DEFAULT_TRACK_STATIONS: usize = 5;
+
+/// The carriage positions (mm) the box is sampled at: evenly over the
+/// travel, ends included; one `None` for a robot without a track.
+fn track_stations_mm(
+    robot: &crate::robot::RobotSpec,
+    settings: &PosesSettings,
+) -> Vec<Option<f64>> {
+    let Some(track) = robot.track else {
+        return vec![None];
+    };
+    let n = settings
+        .track_stations
+        .unwrap_or(DEFAULT_TRACK_STATIONS)
+        .max(2);
+    let [lo, hi] = track.travel_mm;
+    (0..n)
+        .map(|s| Some(lo + (hi - lo) * s as f64 / (n - 1) as f64))
+        .collect()
+}
+
+/// `track_stations` only with a track, and enough of them for its
+/// polynomials; work targets are not placed on a track yet.
+fn track_problems(settings: &PosesSettings, ctx: &SettingsContext) -> Vec<SettingsProblem> {
+    let robot = ctx.robot;
+    let mut problems = Vec::new();
+    match (robot.track, settings.track_stations) {
+        (None, Some(_)) => problems.push(SettingsProblem::new(
+            "track_stations",
+            format!(
+                "the robot file {} has no [track]: remove `track_stations`, or use the robot file of the arm on its track",
+                robot.path.display()
+            ),
+        )),
+        (Some(track), stations) => {
+            let n = stations.unwrap_or(DEFAULT_TRACK_STATIONS);
+            if n < track.polynomial_order + 1 {
+                problems.push(SettingsProblem::new(
+                    "track_stations",
+                    format!(
+                        "{n} stations cannot separate polynomials of order {} along the track (robot file {}): give at least {}",
+                        track.polynomial_order,
+                        robot.path.display(),
+                        track.polynomial_order + 1
+                    ),
+                ));
+            }
+            if ctx.bound_inputs.contains(&"targets") {
+                problems.push(SettingsProblem::new(
+                    "inputs.targets",
+                    format!(
+                        "points near the work are not placed on a track yet: the robot file {} has a [track]; unbind `targets`",
+                        robot.path.display()
+                    ),
+                ));
+            }
+        }
+        (None, None) => {}
+    }
+    problems
 }
 
 /// Seed offset of the points drawn around the work targets, apart from the box's.

@@ -277,7 +277,7 @@ impl Stage for SelectStage {
                 chosen
             }
             None => {
-                let all: Vec<ParamId> = ParamId::all().collect();
+                let all: Vec<ParamId> = ParamId::of_robot(ctx.robot.spec()).collect();
                 rank::analyse(
                     ctx.robot,
                     &nominal,

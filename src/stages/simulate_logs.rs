@@ -409,7 +409,7 @@ impl SimulateLogsStage {
             let mut attempts = 0;
             let mut reading = loop {
                 attempts += 1;
-                match measure_row(&mut rig, cw_id, &pool[row]) {
+                match measure_row(&mut rig, cw_id, &pool[row], false) {
                     Ok(reading) => break reading,
                     Err(e) if e.is_transient() && attempts < ATTEMPTS => {
                         rig.release_wrench()

@@ -121,6 +121,10 @@ impl Stage for WrenchesStage {
             .iter()
             .map(|c| f64_values(&input.df, c, &input.path))
             .collect::<Result<Vec<_>, _>>()?;
+        // The carriage rides with the cable robot (both in the base frame):
+        // each configuration's position passes through to its wrenches.
+        let positions = super::track_positions(input, ctx.robot.spec())?;
+        let track_mm = ctx.robot.spec().track.is_some().then_some(positions);
         let force = Normal::new(0.0, settings.sigma_force_n)
             .map_err(|e| StageError::Invalid(format!("setting `sigma_force_n`: {e}")))?;
         let moment = Normal::new(0.0, settings.sigma_moment_nm)
@@ -201,6 +205,7 @@ impl Stage for WrenchesStage {
         let mut w: Vec<Vec<f64>> = vec![Vec::new(); 6];
         let mut tensions: Vec<Vec<f64>> = vec![Vec::new(); TENSION_COLUMNS.len()];
         let mut margin = Vec::new();
+        let mut track_of_row = Vec::new();
         let (mut draws, mut short_configs) = (0usize, 0usize);
         for (k, (found, &config_id)) in per_config.iter().zip(&config_ids).enumerate() {
             draws += found.attempts;
@@ -217,6 +222,9 @@ impl Stage for WrenchesStage {
                     column.push(value);
                 }
                 margin.push(feasibility.capacity_margin_n);
+                if let Some(track_mm) = &track_mm {
+                    track_of_row.push(track_mm[k]);
+                }
             }
             if found.kept.len() < wanted {
                 short_configs += 1;
@@ -240,6 +248,9 @@ impl Stage for WrenchesStage {
             columns.push(Column::new((*name).into(), values));
         }
         columns.push(Column::new("margin_n".into(), margin));
+        if track_mm.is_some() {
+            columns.push(Column::new(schema::TRACK_COLUMN.into(), track_of_row));
+        }
         let mut outputs = StageOutputs::default();
         outputs.tables.insert("candidates".into(), frame(columns));
         outputs.facts.insert("candidates".into(), kept.to_string());

@@ -1342,9 +1342,18 @@ pub fn poses() -> TableSchema {
         "configuration id, unique",
     )];
     for (name, meaning) in [
-        ("target_x_mm", "target SMR position, base frame"),
-        ("target_y_mm", "target SMR position, base frame"),
-        ("target_z_mm", "target SMR position, base frame"),
+        (
+            "target_x_mm",
+            "target SMR position, base frame (on a track: the base at the row's carriage position)",
+        ),
+        (
+            "target_y_mm",
+            "target SMR position, base frame (on a track: the base at the row's carriage position)",
+        ),
+        (
+            "target_z_mm",
+            "target SMR position, base frame (on a track: the base at the row's carriage position)",
+        ),
     ] {
         columns.push(col(name, ColumnType::Float64, "mm", true, meaning));
     }
@@ -1379,6 +1388,7 @@ pub fn poses() -> TableSchema {
         true,
         "angle between the SMR axis and the direction to the tracker",
     ));
+    columns.push(track_column());
     TableSchema {
         kind: "poses",
         description: "Robot configurations that reach the target points with the SMR facing the tracker, collision-free.",
