@@ -78,6 +78,7 @@ fn target(tool_in_world: Frame, wrench: Wrench) -> Target {
         wrench,
         hint_deg: None,
         tool: 0,
+        track_mm: 0.0,
     }
 }
 
@@ -222,6 +223,7 @@ fn unreachable_out_of_limit_and_singular_targets_get_their_status_and_spare_the_
                 wrench: random_wrench(&mut rng),
                 hint_deg: Some(q),
                 tool: 0,
+                track_mm: 0.0,
             }
         })
         .collect();
@@ -242,6 +244,7 @@ fn unreachable_out_of_limit_and_singular_targets_get_their_status_and_spare_the_
         wrench: Wrench::zero(),
         hint_deg: Some([11.0, 19.0, -9.0, 31.0, 119.0, 49.0]),
         tool: 0,
+        track_mm: 0.0,
     };
     let mut mixed = good.clone();
     mixed.insert(5, target(far, Wrench::zero()));

@@ -148,6 +148,153 @@ fn the_track_campaign_designs_measures_and_calibrates_the_cell() {
     // All 11 terms of order 2 but the rail's linear sideways misalignment,
     // which the world frame's yaw and joint 1's offset take.
     assert_eq!(identified, 10);
+
+    the_programs_move_the_carriage_to_each_target(&out);
+}
+
+/// The grid's programs, read back as the controllers would: every position
+/// carries its command's carriage position as the first external axis, and
+/// the FANUC program's joint positions with their E1, run on the job's
+/// simulated cell without noise, put the tool on the targets to the
+/// calibration's accuracy.
+fn the_programs_move_the_carriage_to_each_target(out: &Path) {
+    let commands = read(&out.join("compensate_grid/commands.parquet"));
+    let statuses = strings(&commands, "status");
+    let carriage: HashMap<i64, f64> = i64s(&commands, "target_id")
+        .into_iter()
+        .zip(f64s(&commands, "e1_mm"))
+        .zip(&statuses)
+        .filter(|(_, status)| *status == "ok")
+        .map(|(pair, _)| pair)
+        .collect();
+    assert!(carriage.len() >= 40, "{} ok commands", carriage.len());
+    let files = out.join("export_grid");
+    let text = |name: &str| std::fs::read_to_string(files.join(name)).unwrap();
+
+    // RAPID: jointtarget jt_<id> and robtarget pt_<id>, eax_a first in
+    // their extjoint (the last bracket).
+    let rapid = text("TRACKGRID.mod");
+    for prefix in ["jt_", "pt_"] {
+        for (id, e) in &carriage {
+            let key = format!(" {prefix}{id} := ");
+            let line = rapid
+                .lines()
+                .find(|l| l.contains(&key))
+                .unwrap_or_else(|| panic!("RAPID: no {prefix}{id}"));
+            let extjoint = line.rsplit('[').next().unwrap();
+            let eax_a: f64 = extjoint.split(',').next().unwrap().trim().parse().unwrap();
+            assert!(
+                (eax_a - e).abs() < 1e-4,
+                "{prefix}{id}: eax_a {eax_a}, e1 {e}"
+            );
+        }
+    }
+    // KRL: E6AXIS XJ_<id> and E6POS XP_<id> with E1.
+    let krl = text("TRACKGRID.dat");
+    for prefix in ["XJ_", "XP_"] {
+        for (id, e) in &carriage {
+            let key = format!(" {prefix}{id}={{");
+            let line = krl
+                .lines()
+                .find(|l| l.contains(&key))
+                .unwrap_or_else(|| panic!("KRL: no {prefix}{id}"));
+            let e1: f64 = line
+                .split(',')
+                .find_map(|field| field.trim().strip_prefix("E1 "))
+                .unwrap()
+                .parse()
+                .unwrap();
+            assert!((e1 - e).abs() < 1e-4, "{prefix}{id}: E1 {e1}, e1 {e}");
+        }
+    }
+    // CSV: the e1_mm column.
+    let csv = text("commands.csv");
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let column = header.iter().position(|c| *c == "e1_mm").expect("e1_mm");
+    for line in lines {
+        let fields: Vec<&str> = line.split(',').collect();
+        let id: i64 = fields[0].parse().unwrap();
+        let e1: f64 = fields[column].parse().unwrap();
+        assert_eq!(e1, carriage[&id], "target_id {id}");
+    }
+
+    // FANUC: each joint-form position of a target, J1 … J6 and E1.
+    let spec =
+        egcal::robot::RobotSpec::load(&common::root().join("jobs/robots/irb1600_145_track.toml"))
+            .unwrap();
+    let robot = egcal::robot::Robot::new(spec.clone());
+    let truth = egcal::table::parameters::load_model(
+        &common::root().join("jobs/truth/irb1600_track.parquet"),
+        egcal::table::parameters::ModelName::Elastogeometric,
+        &egcal::robot::ParamValues::nominal(&spec),
+    )
+    .unwrap()
+    .values;
+    // The job's simulated cell, its gearboxes' transmission error included,
+    // without tracker noise.
+    let settings = egcal::rig::simulator::SimulatorSettings {
+        tracker_noise_mm: 0.0,
+        encoder_noise_deg: 0.0,
+        transmission_error_deg: 0.02,
+        ..Default::default()
+    };
+    let mut cell = egcal::rig::simulator::Simulator::new(robot, truth, settings, 1).unwrap();
+    let targets = read(&common::root().join("jobs/targets/track_grid.parquet"));
+    let target_at: HashMap<i64, [f64; 3]> = i64s(&targets, "target_id")
+        .into_iter()
+        .zip(
+            f64s(&targets, "x_mm")
+                .into_iter()
+                .zip(f64s(&targets, "y_mm"))
+                .zip(f64s(&targets, "z_mm"))
+                .map(|((x, y), z)| [x, y, z]),
+        )
+        .collect();
+    let fanuc = text("TRACKGRID.ls");
+    let mut errors = Vec::new();
+    for block in fanuc.split("P[").skip(1) {
+        let Some(id) = block
+            .split('"')
+            .nth(1)
+            .and_then(|label| label.strip_prefix("target "))
+        else {
+            continue;
+        };
+        if !block.contains("J1=") {
+            continue; // the Cartesian position of the same target
+        }
+        let id: i64 = id.parse().unwrap();
+        let value = |name: &str| -> f64 {
+            let after = block.split(&format!("{name}=")).nth(1).unwrap();
+            after.split_whitespace().next().unwrap().parse().unwrap()
+        };
+        let q: [f64; 6] = std::array::from_fn(|j| value(&format!("J{}", j + 1)));
+        let e1 = value("E1");
+        assert!((e1 - carriage[&id]).abs() < 1e-3, "target {id}: E1 {e1}");
+        use egcal::rig::Rig;
+        cell.move_track(id, e1).unwrap();
+        cell.move_joints(id, q).unwrap();
+        let p = cell.measure().unwrap();
+        let target = target_at[&id];
+        errors.push(
+            (0..3)
+                .map(|k| (p[k] - target[k]).powi(2))
+                .sum::<f64>()
+                .sqrt(),
+        );
+    }
+    assert_eq!(
+        errors.len(),
+        carriage.len(),
+        "one joint position per ok command"
+    );
+    let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+    let max = errors.iter().copied().fold(0.0, f64::max);
+    assert!(
+        mean < 0.15 && max < 0.3,
+        "mean {mean:.4} mm, max {max:.4} mm"
+    );
 }
 
 /// A small track campaign's rows, designed by the shipped job's stages.

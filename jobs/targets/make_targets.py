@@ -12,7 +12,14 @@ the calibration measured.
 * drilling.parquet: a 5 x 4 pattern of holes, 100 mm apart, on a plate through
   the cube's centre, square to the tracker's line of sight; the tool axis along
   the plate's normal and a 100 N drilling thrust: the plate pushes the tool back
-  along its axis, fz = -100 N in tool axes.
+  along its axis, fz = -100 N in tool axes;
+* track_grid.parquet, for jobs/track_sim.toml (the same arm on a 3 m linear
+  track along the base x axis): a 3 x 3 x 3 grid with a 400 mm edge around the
+  calibration cube's centre, with the carriage at 375, 1125, 1875 and 2625 mm
+  (between the campaign's stations), each target facing the tracker and giving
+  its carriage position in `e1_mm`. The world frame is the base's with the
+  carriage at 0, so a point p of the base at the carriage position e is at
+  p + (e, 0, 0) in the base at 0 (the carriage nominally only translates).
 
 The world frame is the robot file's nominal [world]: world <- base =
 Rot(x, -180 deg) . Trans(1326, 1362, -1476), so p_world = R (p_base + t) and the
@@ -57,9 +64,14 @@ def upright_facing(facing):
     return np.column_stack([np.cross(y, z), y, z])
 
 
-def write(name, points_base, wrench):
+def write(name, points_base, wrench, track_mm=None):
+    """`points_base` in the base frame at the carriage positions `track_mm`
+    (one per point; none without a track)."""
     rows = {k: [] for k in ["target_id", "x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg",
                             "fx_n", "fy_n", "fz_n", "mx_nm", "my_nm", "mz_nm"]}
+    if track_mm is not None:
+        rows["e1_mm"] = []
+        points_base = [np.asarray(p) + [e, 0.0, 0.0] for p, e in zip(points_base, track_mm)]
     for i, p in enumerate(points_base):
         base_from_tool = upright_facing(TRACKER_BASE - np.asarray(p))
         rx, ry, rz = euler_xyz_deg(R_WORLD @ base_from_tool)
@@ -69,6 +81,8 @@ def write(name, points_base, wrench):
             rows[key].append(float(value))
         for key, value in zip(["fx_n", "fy_n", "fz_n", "mx_nm", "my_nm", "mz_nm"], wrench):
             rows[key].append(float(value))
+        if track_mm is not None:
+            rows["e1_mm"].append(float(track_mm[i]))
     schema = pa.schema([("target_id", pa.int64())] + [(k, pa.float64()) for k in list(rows)[1:]])
     pq.write_table(pa.table(rows, schema=schema), HERE / name)
 
@@ -81,6 +95,16 @@ def main():
     holes = [CENTRE_BASE + u * plate[:, 0] + v * plate[:, 1]
              for v in np.linspace(-150.0, 150.0, 4) for u in np.linspace(-200.0, 200.0, 5)]
     write("drilling.parquet", holes, [0.0, 0.0, -100.0, 0.0, 0.0, 0.0])
+    write_track_grid()
+
+
+def write_track_grid():
+    axis = np.linspace(-200.0, 200.0, 3)
+    stations = [375.0, 1125.0, 1875.0, 2625.0]
+    cube = [CENTRE_BASE + [dx, dy, dz] for dx in axis for dy in axis for dz in axis]
+    points = [p for _ in stations for p in cube]
+    track = [e for e in stations for _ in cube]
+    write("track_grid.parquet", points, [0.0] * 6, track)
 
 
 if __name__ == "__main__":

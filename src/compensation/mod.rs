@@ -64,7 +64,7 @@ use rayon::prelude::*;
 use crate::robot::frame::{Frame, rot_x, rot_y, rot_z};
 use crate::robot::ik::{self, IkError, IkSolution, NumericOptions};
 use crate::robot::jacobian::deflected_tool_and_joints;
-use crate::robot::{JOINTS, ParamId, ParamValues, Robot, Wrench};
+use crate::robot::{JOINTS, ParamId, ParamValues, PreparedRobot, Robot, Wrench};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
@@ -81,6 +81,9 @@ pub struct Target {
     /// The set's target (0-based, [`crate::robot::ParamId::target_translation`])
     /// whose tool translation is aimed: 0 for a one-target set.
     pub tool: usize,
+    /// Where a linear track's carriage stands for this target (mm; 0
+    /// without a track): the arm reaches the target from there.
+    pub track_mm: f64,
 }
 
 impl Target {
@@ -97,7 +100,13 @@ impl Target {
             wrench,
             hint_deg,
             tool: 0,
+            track_mm: 0.0,
         }
+    }
+
+    /// The same target reached with the track's carriage at `track_mm`.
+    pub fn at_track(self, track_mm: f64) -> Self {
+        Target { track_mm, ..self }
     }
 
     /// The same target for the set's tool `tool` (0-based).
@@ -241,9 +250,27 @@ enum Candidates {
     None,
 }
 
-/// `aimed` is the set aimed at the target's tool ([`ParamValues::aimed_at`]).
-fn candidates(robot: &Robot, aimed: &ParamValues, target: &Target) -> Candidates {
-    let flange = ik::flange_target_in_base(robot, aimed, &target.tool_in_world);
+/// The pose the arm must give its tool, with its base where the world frame
+/// alone puts it, for `target` to be reached with the carriage at the
+/// target's position: `W·C(e)⁻¹·W⁻¹·T`, the carriage's calibrated
+/// transform `C(e)` taken out. The solvers place the arm by the world frame
+/// `W`; the carriage moves the whole arm rigidly (loads in tool axes,
+/// gravity in the base frame), so this target is exact. The target itself
+/// without a track.
+fn arm_target(prepared: &PreparedRobot, target: &Target) -> Frame {
+    match prepared.carriage(target.track_mm) {
+        None => target.tool_in_world,
+        Some(_) => prepared
+            .world_from_base
+            .compose(&prepared.world_from_base_at(target.track_mm).inverse())
+            .compose(&target.tool_in_world),
+    }
+}
+
+/// `aimed` is the set aimed at the target's tool ([`ParamValues::aimed_at`]);
+/// `tool_in_world` the pose its arm must reach ([`arm_target`]).
+fn candidates(robot: &Robot, aimed: &ParamValues, tool_in_world: &Frame) -> Candidates {
+    let flange = ik::flange_target_in_base(robot, aimed, tool_in_world);
     match ik::solve(robot, &flange) {
         Ok(solutions) => Candidates::Found(solutions),
         Err(IkError::Singular(_)) => Candidates::Singular,
@@ -306,6 +333,7 @@ pub fn command_rows(
         .map(|(target, command)| crate::robot::ConfWrench {
             target: target.tool,
             approach,
+            track_mm: target.track_mm,
             ..crate::robot::ConfWrench::new(command.q_deg, target.wrench)
         })
         .collect()
@@ -341,23 +369,29 @@ pub fn compensate(
         .map(|k| declared_tool_model(robot, calibrated, k))
         .collect();
     let declared_prepared: Vec<_> = declared.iter().map(|v| robot.prepare(v)).collect();
+    let arm_targets: Vec<Frame> = targets
+        .iter()
+        .map(|t| arm_target(&calibrated_prepared[t.tool], t))
+        .collect();
     let found: Vec<Candidates> = targets
         .par_iter()
-        .map(|t| candidates(robot, &aimed[t.tool], t))
+        .zip(&arm_targets)
+        .map(|(t, arm_target)| candidates(robot, &aimed[t.tool], arm_target))
         .collect();
     let seeds = seeds(robot, targets, &found);
     targets
         .par_iter()
+        .zip(&arm_targets)
         .zip(&found)
         .zip(&seeds)
-        .map(|((target, found), seed)| {
+        .map(|(((target, arm_target), found), seed)| {
             let values = &aimed[target.tool];
             let iterate = ik::solve_loaded_iterate(
                 robot,
                 values,
                 &target.wrench,
                 &options.approach,
-                &target.tool_in_world,
+                arm_target,
                 seed,
                 &options.solver,
             );
@@ -390,10 +424,11 @@ pub fn compensate(
                 .transform_point(&unloaded.origin_mm)
                 - tool.origin_mm)
                 .norm();
+            // The controller's carriage is the nominal one: a translation.
             let controller = &controller_prepared[target.tool];
             let controller_tool = controller.chain(&q, &[0.0; JOINTS]).tool;
             let correction_mm = (controller
-                .world_from_base
+                .world_from_base_at(target.track_mm)
                 .transform_point(&controller_tool.origin_mm)
                 - target.tool_in_world.origin_mm)
                 .norm();
@@ -500,6 +535,7 @@ mod tests {
             wrench,
             hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0]),
             tool: 0,
+            track_mm: 0.0,
         };
         let options = Options {
             solver: NumericOptions {
@@ -524,5 +560,75 @@ mod tests {
         let done = compensate(&robot, &truth, &[target], &options)[0];
         assert_eq!(done.status, Status::Ok, "{done:?}");
         assert!(done.q_deg.iter().zip(&q).all(|(a, b)| (a - b).abs() < 1e-6));
+    }
+
+    /// On a track, the command puts the loaded tool on the target through the
+    /// calibrated carriage at the target's position, and the correction is
+    /// measured from where the controller's perfect carriage puts the tool.
+    #[test]
+    fn on_a_track_the_command_reaches_the_target_through_the_carriage() {
+        use crate::robot::ConfWrench;
+        use crate::robot::test_support::irb1600_on_track;
+        let robot = irb1600_on_track();
+        let mut truth = truth_params(&robot);
+        for (name, value) in [
+            ("track_scale", 0.4),
+            ("track_y2", -2.0),
+            ("track_z1", 1.2),
+            ("track_pitch1", 0.08),
+            ("track_yaw2", -0.04),
+        ] {
+            truth.set(ParamId::from_name(name).unwrap(), value);
+        }
+        let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
+        let wrench = Wrench::from_array([50.0, -80.0, 100.0, 5.0, 0.0, -5.0]);
+        let row = ConfWrench {
+            track_mm: 1800.0,
+            ..ConfWrench::new(q, wrench)
+        };
+        let target = Target {
+            tool_in_world: robot.tool_in_world_of_row(&truth, &row),
+            wrench,
+            hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0]),
+            tool: 0,
+            track_mm: 1800.0,
+        };
+        let options = Options {
+            solver: NumericOptions::default(),
+            singular_sigma_min_mm_per_rad: 3.5,
+            approach: [0; JOINTS],
+        };
+        let command = compensate(&robot, &truth, &[target], &options)[0];
+        assert_eq!(command.status, Status::Ok, "{command:?}");
+        assert!(
+            command
+                .q_deg
+                .iter()
+                .zip(&q)
+                .all(|(a, b)| (a - b).abs() < 1e-6),
+            "{:?}",
+            command.q_deg
+        );
+        // The controller: nominal arm and tool, the calibrated world frame, a
+        // carriage that only translates by e along the base's x axis.
+        let controller = controller_model(&robot, &truth, 0);
+        let prepared = robot.prepare(&controller);
+        let flange_tool = prepared.chain(&q, &[0.0; JOINTS]).tool;
+        let controller_tool = prepared
+            .world_from_base
+            .transform_point(&(flange_tool.origin_mm + Vector3::new(1800.0, 0.0, 0.0)));
+        let expected = (controller_tool - target.tool_in_world.origin_mm).norm();
+        assert!(
+            (command.correction_mm - expected).abs() < 1e-6,
+            "{} against {expected}",
+            command.correction_mm
+        );
+        // Without the carriage's errors the same command misses by millimetres.
+        let mut perfect = truth;
+        for id in ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER) {
+            perfect.set(id, 0.0);
+        }
+        let perfect_rail = robot.tool_in_world_of_row(&perfect, &row);
+        assert!((perfect_rail.origin_mm - target.tool_in_world.origin_mm).norm() > 0.5);
     }
 }

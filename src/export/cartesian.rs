@@ -86,6 +86,9 @@ pub struct Stop {
     /// reaches it from the command's approach direction (backlash); `None`
     /// without pre-positioning or without a direction.
     pub pre_position_q_deg: Option<[f64; JOINTS]>,
+    /// The track's carriage position at every move of the stop (mm): the
+    /// arm's poses are in the base frame riding on it. `None` without a track.
+    pub track_mm: Option<f64>,
 }
 
 /// Why a program's Cartesian moves cannot be written.
@@ -178,6 +181,7 @@ pub fn stops(
                 target: pose(&target_frame, c.q_deg),
                 approach,
                 pre_position_q_deg,
+                track_mm: c.track_mm,
             })
         })
         .collect()
@@ -330,6 +334,7 @@ mod tests {
             envelope_distance: None,
             u95_mm: None,
             approach: [0; JOINTS],
+            track_mm: None,
         }
     }
 

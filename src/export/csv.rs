@@ -17,7 +17,7 @@ use crate::robot::JOINTS;
 
 use super::{
     JOINT_DECIMALS, POSITION_DECIMALS, Program, QUATERNION_DECIMALS, fixed, header_lines,
-    printed_precision, skipped_lines, tool_lines, warning_lines,
+    printed_precision, skipped_lines, tool_lines, track_lines, warning_lines,
 };
 
 /// Column names, as in the `commands` table.
@@ -36,6 +36,7 @@ struct Optional {
     u95_mm: bool,
     approach: bool,
     pre_position: bool,
+    track: bool,
 }
 
 impl Optional {
@@ -47,6 +48,7 @@ impl Optional {
             u95_mm: any(&|c| c.u95_mm.is_some()),
             approach: any(&|c| c.has_approach()),
             pre_position: program.stops.iter().any(|s| s.pre_position_q_deg.is_some()),
+            track: any(&|c| c.track_mm.is_some()),
         }
     }
 }
@@ -80,6 +82,9 @@ pub fn table(program: &Program) -> String {
     }
     if optional.pre_position {
         out.push_str(",pre_q1_deg,pre_q2_deg,pre_q3_deg,pre_q4_deg,pre_q5_deg,pre_q6_deg");
+    }
+    if optional.track {
+        out.push_str(",e1_mm");
     }
     out.push('\n');
     let ok = program.commands.iter().filter(|c| c.is_ok());
@@ -124,6 +129,9 @@ pub fn table(program: &Program) -> String {
                 None => fields.extend(std::iter::repeat_n(String::new(), JOINTS)),
             }
         }
+        if optional.track {
+            fields.push(number(c.track_mm));
+        }
         out.push_str(&fields.join(","));
         out.push('\n');
     }
@@ -142,6 +150,7 @@ pub fn notes(program: &Program) -> String {
         "targets, for the tool below.".into(),
     ]);
     lines.extend(tool_lines(program, &names));
+    lines.extend(track_lines(program, "column e1_mm"));
     lines.extend(warning_lines(program));
     lines.extend(skipped_lines(&program.commands));
     let mut out = lines.join("\n");

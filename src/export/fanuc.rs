@@ -35,7 +35,7 @@
 use super::moves::{self, Destination, Move};
 use super::{
     MASS_DECIMALS, MotionSettings, Program, fixed, header_lines, narrow_comment_lines,
-    rotation_from_quaternion, skipped_lines, tool_lines, tool_names, warning_lines,
+    rotation_from_quaternion, skipped_lines, tool_lines, tool_names, track_lines, warning_lines,
     wrist_placement, zyx_angles,
 };
 use crate::robot::{JOINTS, Robot};
@@ -150,7 +150,12 @@ fn position(robot: &Robot, index: usize, step: &Move, frames: &FanucFrames) -> S
             )
         }
     };
-    format!("{label}{{\n   GP1:\n{body}\n}};\n")
+    // The track: group 1's extended axis E1, in mm.
+    let track = step
+        .track_mm
+        .map(|e| format!(",\n\tE1= {}  mm", fixed(e, DECIMALS)))
+        .unwrap_or_default();
+    format!("{label}{{\n   GP1:\n{body}{track}\n}};\n")
 }
 
 /// The lines that put `program`'s tool `tool` into `UTOOL[t]`.
@@ -206,6 +211,7 @@ pub fn program(
     remarks.push(
         "Frame: UFRAME_NUM=0, the world frame, which must be the robot file's base frame.".into(),
     );
+    remarks.extend(track_lines(program, "E1 of group 1 (not integrated)"));
     if robot.spec().controller.j3_from_j2 != 0.0 {
         remarks.push(format!(
             "J3 is FANUC's, from the horizontal: J3 = q3 + {} * q2 of the robot file.",

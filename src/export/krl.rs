@@ -37,7 +37,7 @@ use super::cartesian::Pose;
 use super::{
     EULER_DECIMALS, JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload,
     Program, ProgramTool, fixed, header_lines, printed_precision, rotation_from_quaternion,
-    skipped_lines, tool_lines, tool_names, warning_lines, wrist_placement, zyx_angles,
+    skipped_lines, tool_lines, tool_names, track_lines, warning_lines, wrist_placement, zyx_angles,
 };
 use crate::robot::{JOINTS, Robot};
 
@@ -126,6 +126,7 @@ fn header(out: &mut String, program: &Program, kind: &str) {
             "the robot root ($ROBROOT = $WORLD: KUKA's default without a linear unit or other external".into(),
             "kinematics); $IPO_MODE = #BASE: the tool is on the flange.".into(),
         ])
+        .chain(&track_lines(program, "E1 ($ROBROOT stays at $WORLD)"))
         .chain(&load_lines)
         .chain(&[
             "Status/Turn from the nominal arm at each joint command; Status bit 4 (absolutely accurate) is 0.".into(),
@@ -164,9 +165,8 @@ pub fn dat(robot: &Robot, program: &Program, motion: &MotionSettings) -> String 
             frame_fields(tool.tcp_mm(), tool.quaternion_wxyz())
         ));
     }
-    let externals = "E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0";
     // The controller's joint values (the robot file's `[controller]`).
-    let e6axis = |q_deg: &[f64; JOINTS]| {
+    let e6axis = |q_deg: &[f64; JOINTS], externals: &str| {
         let q_deg = robot.spec().controller_joints_deg(q_deg);
         let axes: Vec<String> = (0..JOINTS)
             .map(|i| format!("A{} {}", i + 1, fixed(q_deg[i], JOINT_DECIMALS)))
@@ -174,18 +174,24 @@ pub fn dat(robot: &Robot, program: &Program, motion: &MotionSettings) -> String 
         format!("{{{},{externals}}}", axes.join(","))
     };
     for stop in &program.stops {
+        // The track is E1 (mm); the other external axes are unused.
+        let e1 = stop
+            .track_mm
+            .map_or_else(|| "0.0".to_string(), |e| fixed(e, POSITION_DECIMALS));
+        let externals = format!("E1 {e1},E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0");
+        let externals = externals.as_str();
         if let Some(q) = &stop.pre_position_q_deg {
             out.push_str(&format!(
                 "DECL E6AXIS {}={}\n",
                 data_name(PRE_POSITION_PREFIX, stop.target_id),
-                e6axis(q)
+                e6axis(q, externals)
             ));
         }
         if motion.motions.joint {
             out.push_str(&format!(
                 "DECL E6AXIS {}={}\n",
                 data_name("XJ_", stop.target_id),
-                e6axis(&stop.target.q_deg)
+                e6axis(&stop.target.q_deg, externals)
             ));
         }
         if motion.motions.linear {

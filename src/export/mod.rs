@@ -83,6 +83,10 @@ pub struct Command {
     /// dir6`, −1, 0 or +1): the one the model's backlash was compensated for;
     /// all 0 when the table has none.
     pub approach: [i8; JOINTS],
+    /// A linear track's carriage position for the command (`e1_mm`, mm):
+    /// the programs move it as the first external axis. `None` without a
+    /// track.
+    pub track_mm: Option<f64>,
 }
 
 impl Command {
@@ -94,6 +98,20 @@ impl Command {
     pub fn is_ok(&self) -> bool {
         self.status == STATUS_OK
     }
+}
+
+/// The header line of a program for a robot on a track: which external
+/// axis (`axis`, the format's name and how it is declared) carries the
+/// carriage, and the frame the Cartesian positions are in. None without a
+/// track.
+pub fn track_lines(program: &Program, axis: &str) -> Vec<String> {
+    if program.commands.iter().all(|c| c.track_mm.is_none()) {
+        return Vec::new();
+    }
+    vec![
+        format!("Track: the carriage is {axis}, in mm, an external axis the arm's kinematics"),
+        "do not carry: each Cartesian position is in the base frame riding on the carriage.".into(),
+    ]
 }
 
 /// What every file's header states besides its format's own lines.
@@ -382,6 +400,7 @@ pub fn unprintable(program: &Program, motion: &MotionSettings) -> Option<String>
             values.push((row("correction_mm"), c.correction_mm));
             values.push((row("elastic_mm"), c.elastic_mm));
         }
+        values.extend(c.track_mm.map(|v| (row("e1_mm"), v)));
         values.extend(c.envelope_distance.map(|v| (row("envelope_distance"), v)));
         values.extend(c.u95_mm.map(|v| (row("u95_mm"), v)));
     }
@@ -743,6 +762,7 @@ pub(crate) mod test_support {
                 envelope_distance: None,
                 u95_mm: None,
                 approach: [0; JOINTS],
+                track_mm: None,
             })
             .collect();
         let tool = ProgramTool {
@@ -883,6 +903,7 @@ mod tests {
             envelope_distance: None,
             u95_mm: None,
             approach: [0; JOINTS],
+            track_mm: None,
         };
         let lines = skipped_lines(std::slice::from_ref(&command));
         assert_eq!(lines[1], "  target_id 3: unreachable MoveAbsJ jt_1");

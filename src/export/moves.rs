@@ -58,6 +58,9 @@ pub struct Move {
     /// Linear (FANUC `L`, Yaskawa `MOVL`) rather than joint-interpolated.
     pub linear: bool,
     pub destination: Destination,
+    /// The track's carriage position (mm), the first external axis; `None`
+    /// without a track.
+    pub track_mm: Option<f64>,
 }
 
 /// The joint path: joint moves to every `ok` row's command.
@@ -70,6 +73,7 @@ pub fn joint_path(program: &Program) -> Vec<Move> {
             role,
             linear: false,
             destination: Destination::Joints(q_deg),
+            track_mm: stop.track_mm,
         };
         if let Some(q) = stop.pre_position_q_deg {
             moves.push(joint_move(Role::PrePosition, q));
@@ -89,6 +93,7 @@ pub fn linear_path(program: &Program) -> Vec<Move> {
             role,
             linear,
             destination,
+            track_mm: stop.track_mm,
         };
         // The first move of the path is joint-interpolated: where the robot
         // starts is unknown.

@@ -28,7 +28,7 @@ use super::cartesian::Pose;
 use super::{
     JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload, Program,
     ProgramTool, QUATERNION_DECIMALS, Stop, fixed, header_lines, printed_precision, skipped_lines,
-    tool_lines, tool_names, warning_lines, wrist_placement,
+    tool_lines, tool_names, track_lines, warning_lines, wrist_placement,
 };
 use crate::robot::{JOINTS, Robot};
 
@@ -66,14 +66,21 @@ pub fn confdata(robot: &Robot, q_deg: &[f64; JOINTS]) -> ConfData {
 }
 
 /// A `jointtarget` value: the controller's six joint values (the robot
-/// file's `[controller]`), external axes unused.
-fn jointtarget(robot: &Robot, q_deg: &[f64; JOINTS]) -> String {
+/// file's `[controller]`) and the track's position.
+fn jointtarget(robot: &Robot, q_deg: &[f64; JOINTS], track_mm: Option<f64>) -> String {
     let q = robot
         .spec()
         .controller_joints_deg(q_deg)
         .map(|v| fixed(v, JOINT_DECIMALS))
         .join(", ");
-    format!("[[{q}], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]]")
+    format!("[[{q}], {}]", extjoint(track_mm))
+}
+
+/// An `extjoint` value: the track's position in `eax_a` (mm), the other
+/// external axes unused (9E9).
+fn extjoint(track_mm: Option<f64>) -> String {
+    let eax_a = track_mm.map_or_else(|| "9E9".to_string(), |e| fixed(e, POSITION_DECIMALS));
+    format!("[{eax_a}, 9E9, 9E9, 9E9, 9E9, 9E9]")
 }
 
 /// Name of a target's data: `<prefix><id>`, `n` for a minus sign.
@@ -118,7 +125,7 @@ pub fn tooldata(tool: &ProgramTool, payload: Option<&Payload>) -> String {
     format!("[TRUE, [[{tcp}], [{orientation}]], {load}]")
 }
 
-fn robtarget(robot: &Robot, pose: &Pose) -> String {
+fn robtarget(robot: &Robot, pose: &Pose, track_mm: Option<f64>) -> String {
     let p = pose
         .position_mm
         .map(|v| fixed(v, POSITION_DECIMALS))
@@ -128,8 +135,12 @@ fn robtarget(robot: &Robot, pose: &Pose) -> String {
         .join(", ");
     let conf = confdata(robot, &pose.q_deg);
     format!(
-        "[[{p}], [{q}], [{}, {}, {}, {}], [9E9, 9E9, 9E9, 9E9, 9E9, 9E9]]",
-        conf.cf1, conf.cf4, conf.cf6, conf.cfx
+        "[[{p}], [{q}], [{}, {}, {}, {}], {}]",
+        conf.cf1,
+        conf.cf4,
+        conf.cf6,
+        conf.cfx,
+        extjoint(track_mm)
     )
 }
 
@@ -170,6 +181,7 @@ pub fn module(
             "the controller's world frame, which must coincide with the robot base: ABB's default for a".into(),
             "floor-mounted robot without track or positioner).".into(),
         ])
+        .chain(&track_lines(program, "eax_a (not coordinated)"))
         .chain(&load_lines)
         .chain(&[
             "The tool and work object get their values again in main: a PERS of the same name in another".into(),
@@ -215,7 +227,7 @@ pub fn module(
                 &format!(
                     "  CONST jointtarget {} := {};",
                     data_name("jp_", stop.target_id),
-                    jointtarget(robot, q)
+                    jointtarget(robot, q, stop.track_mm)
                 ),
             );
         }
@@ -227,7 +239,7 @@ pub fn module(
                 &format!(
                     "  CONST jointtarget {} := {};",
                     data_name("jt_", stop.target_id),
-                    jointtarget(robot, &stop.target.q_deg)
+                    jointtarget(robot, &stop.target.q_deg, stop.track_mm)
                 ),
             );
         }
@@ -240,7 +252,7 @@ pub fn module(
                     &format!(
                         "  CONST robtarget {} := {};",
                         data_name("pa_", stop.target_id),
-                        robtarget(robot, approach)
+                        robtarget(robot, approach, stop.track_mm)
                     ),
                 );
             }
@@ -249,7 +261,7 @@ pub fn module(
                 &format!(
                     "  CONST robtarget {} := {};",
                     data_name("pt_", stop.target_id),
-                    robtarget(robot, &stop.target)
+                    robtarget(robot, &stop.target, stop.track_mm)
                 ),
             );
         }

@@ -176,6 +176,18 @@ pub fn robot_urdf(robot: &Robot, p: &ParamValues, source: &UrdfSource) -> String
             "is a placeholder, not the arm's (large, so that no motion is refused on it).".into(),
         );
     }
+    if let Some(track) = &spec.track {
+        comment.push(format!(
+            "WARNING: the arm rides a linear track (travel {} to {} mm) that this file does not hold:",
+            track.travel_mm[0], track.travel_mm[1]
+        ));
+        comment.push(
+            "the world -> base_link joint is the base with the carriage at 0, and the track's calibrated".into(),
+        );
+        comment.push(
+            "errors along its travel (track_* parameters) are not in it; use egcal's model for the cell.".into(),
+        );
+    }
     let mut out = String::from("<?xml version=\"1.0\"?>\n<!--\n");
     for line in comment {
         out.push_str(&format!("  {}\n", comment_safe(&line)));

@@ -24,6 +24,14 @@
 //! written in another frame (or unit): the stage refuses it, naming the frame
 //! it assumed, instead of writing a table of failures with exit 0.
 //!
+//! **A robot on a linear track** (robot file `[track]`). Each target gives
+//! the carriage position to reach it from (`e1_mm`, required); the command
+//! is the arm's joints with the carriage there, solved through the
+//! calibrated carriage (its straightness, angles and scale), and `commands`
+//! and `conf_wrenches` carry the same `e1_mm`. `base` is the base with the
+//! carriage at 0 (the frame fixed to the floor that the world frame
+//! places), and user frames are given in it.
+//!
 //! **Tools** (spec §8). A row aims the parameters' target named by its
 //! `tool_id` column, else by the setting `tool`. A several-target set needs one
 //! of them on every row; a name the set does not know is refused, naming the
@@ -171,7 +179,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Load-aware compensation: joint commands that put the calibrated, loaded tool on each target, and corrected Cartesian targets for the nominal controller",
-    code_version: 6,
+    code_version: 7,
     inputs: &[
         TableSlot {
             name: "targets",
@@ -416,7 +424,8 @@ impl Stage for CompensateStage {
             .collect();
 
         let tool_names = tool_names(set.as_ref(), settings, &rows, &tools);
-        let mut commands_table = commands_frame(&rows.ids, &commands);
+        let on_track = ctx.robot.spec().track.is_some();
+        let mut commands_table = commands_frame(&rows.ids, &commands, on_track.then_some(&targets));
         let extra = [
             Column::new("tool_id".into(), tool_names),
             Column::new("envelope_distance".into(), distances),
@@ -463,7 +472,7 @@ impl Stage for CompensateStage {
         outputs.tables.insert("commands".into(), commands_table);
         outputs.tables.insert(
             "conf_wrenches".into(),
-            conf_wrenches_frame(&rows.ids, &targets, &commands, &approach),
+            conf_wrenches_frame(&rows.ids, &targets, &commands, &approach, on_track),
         );
         outputs
             .facts
@@ -537,6 +546,7 @@ fn world_targets(
             wrench: rows.wrenches[k],
             hint_deg: rows.hints[k],
             tool: tools[k],
+            track_mm: rows.track_mm[k],
         })
         .collect()
 }
@@ -666,6 +676,8 @@ struct TargetRows {
     tool_ids: Vec<Option<String>>,
     wrenches: Vec<Wrench>,
     hints: Vec<Option<[f64; JOINTS]>>,
+    /// Each row's carriage position (`e1_mm`; zeros without a track).
+    track_mm: Vec<f64>,
 }
 
 /// Values of an optional utf8 column: `None` where absent or null (a column
@@ -714,6 +726,7 @@ fn target_rows(
     let hint = optional(&JOINT_COLUMNS)?;
     let frame_column = optional_str(df, "frame", file)?;
     let tool_ids = optional_str(df, "tool_id", file)?;
+    let track_mm = super::track_positions(df, file, robot.spec())?;
     let bad = |row: usize, message: String| {
         StageError::Invalid(format!(
             "{}: row {row} (target_id {}): {message}",
@@ -728,6 +741,7 @@ fn target_rows(
         tool_ids: Vec::with_capacity(ids.len()),
         wrenches: Vec::with_capacity(ids.len()),
         hints: Vec::with_capacity(ids.len()),
+        track_mm,
     };
     for row in 0..ids.len() {
         let frame_name = frame_column[row]
@@ -912,7 +926,13 @@ fn refuse_mostly_unreachable(
     )))
 }
 
-fn commands_frame(ids: &[i64], commands: &[Command]) -> DataFrame {
+/// The `commands` table; with `track_targets` (a robot on a track), each
+/// command's carriage position in `e1_mm`, its target's.
+fn commands_frame(
+    ids: &[i64],
+    commands: &[Command],
+    track_targets: Option<&[Target]>,
+) -> DataFrame {
     let mut columns = vec![Column::new("target_id".into(), ids.to_vec())];
     let float = |name: &str, f: &dyn Fn(&Command) -> f64| {
         Column::new(name.into(), commands.iter().map(f).collect::<Vec<f64>>())
@@ -936,6 +956,12 @@ fn commands_frame(ids: &[i64], commands: &[Command]) -> DataFrame {
     for (k, name) in COMMAND_QUATERNION_COLUMNS.iter().enumerate() {
         columns.push(float(name, &|c| c.quaternion_wxyz_cmd[k]));
     }
+    if let Some(targets) = track_targets {
+        columns.push(Column::new(
+            schema::TRACK_COLUMN.into(),
+            targets.iter().map(|t| t.track_mm).collect::<Vec<_>>(),
+        ));
+    }
     frame(columns)
 }
 
@@ -947,6 +973,7 @@ fn conf_wrenches_frame(
     targets: &[Target],
     commands: &[Command],
     approach: &[i8; JOINTS],
+    on_track: bool,
 ) -> DataFrame {
     let ok: Vec<usize> = (0..ids.len())
         .filter(|&k| commands[k].status == Status::Ok)
@@ -975,6 +1002,12 @@ fn conf_wrenches_frame(
         for (joint, name) in schema::APPROACH_COLUMNS.iter().enumerate() {
             columns.push(Column::new((*name).into(), vec![approach[joint]; ok.len()]));
         }
+    }
+    if on_track {
+        columns.push(Column::new(
+            schema::TRACK_COLUMN.into(),
+            ok.iter().map(|&k| targets[k].track_mm).collect::<Vec<_>>(),
+        ));
     }
     frame(columns)
 }

@@ -211,7 +211,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Programs for the controller from joint commands: ABB RAPID (.mod), KUKA KRL (.src/.dat), CSV, and a URDF of the calibrated geometry",
-    code_version: 4,
+    code_version: 5,
     inputs: &[
         TableSlot {
             name: "commands",
@@ -258,6 +258,17 @@ impl Stage for ExportProgramStage {
             problems.push(SettingsProblem::new(
                 &format!("formats[{i}]"),
                 "format `urdf` needs the input `parameters` (the calibrated geometry)",
+            ));
+        }
+        if let Some(i) = formats.iter().position(|f| *f == ProgramFormat::Yaskawa)
+            && ctx.robot.track.is_some()
+        {
+            problems.push(SettingsProblem::new(
+                &format!("formats[{i}]"),
+                format!(
+                    "the robot file {} has a [track], and format `yaskawa` does not write a base axis (BC) yet: a job without the carriage's position would move the arm at the wrong place; use fanuc, rapid, krl or csv",
+                    ctx.robot.path.display()
+                ),
             ));
         }
         let rapid = formats.contains(&ProgramFormat::Rapid);
@@ -389,8 +400,16 @@ impl Stage for ExportProgramStage {
         settings: &ExportProgramSettings,
     ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("commands")?;
-        let commands = read_commands(&input.df, &input.path)?;
+        let mut commands = read_commands(&input.df, &input.path)?;
         check_commands(ctx.robot, &commands, &input.path)?;
+        // A robot on a track: each command's carriage position, required and
+        // within the travel (and refused for a robot without one).
+        let track_mm = super::track_positions(&input.df, &input.path, ctx.robot.spec())?;
+        if ctx.robot.spec().track.is_some() {
+            for (command, e_mm) in commands.iter_mut().zip(track_mm) {
+                command.track_mm = Some(e_mm);
+            }
+        }
         if !commands.iter().any(Command::is_ok) {
             let mut statuses = std::collections::BTreeMap::<&str, usize>::new();
             for command in &commands {
@@ -983,6 +1002,8 @@ pub fn read_commands(
             envelope_distance: at(&envelope_distance, row),
             u95_mm: at(&u95_mm, row),
             approach: approach[row],
+            // Read and checked against the robot file by the stage.
+            track_mm: None,
         });
     }
     Ok(rows)
@@ -1011,6 +1032,7 @@ mod tests {
             envelope_distance: Some(3.0),
             u95_mm: Some(0.2),
             approach: [0; 6],
+            track_mm: None,
         }
     }
 

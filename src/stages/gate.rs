@@ -76,7 +76,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: Some("in_service"),
     summary: "Compare the night's calibration with the one in service; publish it only when it is better or the old one drifted",
-    code_version: 3,
+    code_version: 4,
     inputs: &[
         TableSlot {
             name: "measurements",

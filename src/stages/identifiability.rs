@@ -39,7 +39,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Rank analysis: which parameters the candidate rows can identify, and what dependent ones combine with",
-    code_version: 3,
+    code_version: 4,
     inputs: &[TableSlot {
         name: "candidates",
         schema: schema::conf_wrenches,

@@ -418,6 +418,8 @@ const TRACK_STAGES: &[&str] = &[
     "poses",
     "wrenches",
     "measure",
+    "compensate",
+    "export_program",
     "identifiability",
     "select",
     "import_measurements",
@@ -678,7 +680,7 @@ pub fn conf_wrench_rows(
         .map(|c| f64_values(&input.df, c, path))
         .collect::<Result<Vec<_>, _>>()?;
     let approach = crate::table::schema::approach_values(&input.df, path)?;
-    let track = track_positions(input, robot)?;
+    let track = track_positions(&input.df, &input.path, robot)?;
     let rows = (0..ids.len())
         .map(|k| crate::robot::ConfWrench {
             q_deg: std::array::from_fn(|i| joints[i][k]),
@@ -696,14 +698,14 @@ pub fn conf_wrench_rows(
 /// nothing would read is a table meant for another cell), and within the
 /// travel. Zeros without a track.
 pub(crate) fn track_positions(
-    input: &InputTable,
+    df: &DataFrame,
+    path: &Path,
     robot: &crate::robot::RobotSpec,
 ) -> Result<Vec<f64>, StageError> {
     use crate::table::schema::{TRACK_COLUMN, track_values};
-    let path = &input.path;
-    let values = track_values(&input.df, path)?;
+    let values = track_values(df, path)?;
     match (&robot.track, values) {
-        (None, None) => Ok(vec![0.0; input.df.height()]),
+        (None, None) => Ok(vec![0.0; df.height()]),
         (None, Some(_)) => Err(StageError::Invalid(format!(
             "{}: column `{TRACK_COLUMN}` gives a track position, but the robot file {} has no [track]: add it, or use the table of this robot",
             path.display(),

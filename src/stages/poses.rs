@@ -160,7 +160,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: true,
     updates_input: None,
     summary: "Robot configurations in the workspace box, SMR facing the tracker, collision-free",
-    code_version: 4,
+    code_version: 5,
     inputs: &[TableSlot {
         name: "targets",
         schema: schema::targets,

@@ -81,7 +81,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: true,
     updates_input: None,
     summary: "Feasible cable-robot wrenches per configuration: the conf-wrench candidates",
-    code_version: 3,
+    code_version: 4,
     inputs: &[TableSlot {
         name: "poses",
         schema: schema::poses,
@@ -123,7 +123,7 @@ impl Stage for WrenchesStage {
             .collect::<Result<Vec<_>, _>>()?;
         // The carriage rides with the cable robot (both in the base frame):
         // each configuration's position passes through to its wrenches.
-        let positions = super::track_positions(input, ctx.robot.spec())?;
+        let positions = super::track_positions(&input.df, &input.path, ctx.robot.spec())?;
         let track_mm = ctx.robot.spec().track.is_some().then_some(positions);
         let force = Normal::new(0.0, settings.sigma_force_n)
             .map_err(|e| StageError::Invalid(format!("setting `sigma_force_n`: {e}")))?;

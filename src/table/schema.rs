@@ -1588,6 +1588,7 @@ pub fn targets() -> TableSchema {
         false,
         "which target (SMR nest, tool) of the parameters' set must be on the pose (spec §8); null or absent: the stage's `tool` setting; needed with a several-target set",
     ));
+    columns.push(track_column());
     TableSchema {
         kind: "targets",
         description: "Where the tool must be (spec §7, §8): what a `compensate` stage reads. Stages that compare with tracker measurements (accuracy, iso9283) take world-frame rows only.",
@@ -1691,6 +1692,7 @@ pub fn commands() -> TableSchema {
             "direction this joint must reach the command from for the model's backlash to hold: -1 or +1 (0: any); a program moves so with a pre-positioning move (spec §8); absent when no direction was used",
         ));
     }
+    columns.push(track_column());
     TableSchema {
         kind: "commands",
         description: "Joint commands per target and the corrected Cartesian targets (spec §7): what `compensate` writes.",
