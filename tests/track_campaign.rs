@@ -401,3 +401,110 @@ fn track_stations_are_checked_against_the_robot_file() {
         "{log}"
     );
 }
+
+/// A driver of a robot on a track that answers like a rig, reads its
+/// carriage in the unit `argv[2]` (1 for mm, 0.001 for metres) and dies
+/// after `argv[1]` `measure` calls, standing in for a crashed lab driver.
+const TRACK_DRIVER: &str = r#"
+import json, sys
+limit, unit = int(sys.argv[1]), float(sys.argv[2])
+measured = 0
+for line in sys.stdin:
+    request = json.loads(line)
+    method, rid = request["method"], request["id"]
+    result = {}
+    if method == "hello":
+        result = {"protocol": 1, "name": "track test driver",
+                  "capabilities": ["move_joints", "read_joints", "read_wrench", "apply_wrench",
+                                   "release_wrench", "measure", "move_track", "read_track"]}
+    elif method == "move_track":
+        e = request["params"]["e_mm"]
+    elif method == "read_track":
+        result = {"e_mm": e * unit}
+    elif method == "move_joints":
+        q = request["params"]["q_deg"]
+    elif method == "read_joints":
+        result = {"q_deg": q}
+    elif method == "read_wrench":
+        result = {"wrench": [0.0] * 6}
+    elif method == "measure":
+        if measured == limit:
+            sys.exit(3)
+        measured += 1
+        result = {"position_mm": [1000.0 + e, sum(q), 2.0], "measured_at_us": 0}
+    elif method == "shutdown":
+        print(json.dumps({"id": rid, "result": {}}), flush=True)
+        break
+    print(json.dumps({"id": rid, "result": result}), flush=True)
+"#;
+
+fn track_driver_job(dir: &Path, limit: usize, unit: f64) -> std::path::PathBuf {
+    let script = dir.join("driver.py");
+    std::fs::write(&script, TRACK_DRIVER).unwrap();
+    small_campaign(
+        dir,
+        &format!(
+            "driver = \"external\"\nretries = 0\ncommand = [\"python3\", \"{}\", \"{limit}\", \"{unit}\"]",
+            script.display()
+        ),
+    )
+}
+
+#[test]
+fn a_track_campaign_resumes_with_each_row_s_carriage_position() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = track_driver_job(dir.path(), 5, 1.0);
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 3, "{stderr}");
+    assert!(
+        stderr.contains("the 5 rows measured so far are kept"),
+        "{stderr}"
+    );
+    let job = track_driver_job(dir.path(), 100, 1.0);
+    let (code, _, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stderr.contains("resuming: 5 of 24 rows already measured"),
+        "{stderr}"
+    );
+    let out = dir.path().join("out/track_sim");
+    let candidates = read(&out.join("wrenches/candidates.parquet"));
+    let commanded: HashMap<i64, f64> = i64s(&candidates, "cw_id")
+        .into_iter()
+        .zip(f64s(&candidates, "e1_mm"))
+        .collect();
+    let measurements = read(&out.join("measure/measurements.parquet"));
+    assert_eq!(measurements.height(), 24);
+    let positions = f64s(&measurements, "x_mm");
+    for ((cw, e), x) in i64s(&measurements, "cw_id")
+        .iter()
+        .zip(f64s(&measurements, "e1_mm"))
+        .zip(positions)
+    {
+        assert_eq!(e, commanded[cw], "cw_id {cw}: the journal's e1_mm");
+        assert_eq!(
+            x,
+            1000.0 + e,
+            "cw_id {cw}: measured with the carriage there"
+        );
+    }
+}
+
+#[test]
+fn a_carriage_read_in_metres_fails_its_rows_with_the_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = track_driver_job(dir.path(), 100, 0.001);
+    let (code, stdout, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    let out = dir.path().join("out/track_sim/measure");
+    let failures = read(&out.join("measurement_failures.parquet"));
+    let reasons = strings(&failures, "reason");
+    // The 8 rows at the travel's start read 0 m = 0 mm, right by chance; the
+    // 16 at 1500 and 3000 mm fail.
+    assert_eq!(failures.height(), 16, "{code}: {stdout}\n{stderr}");
+    assert!(
+        reasons
+            .iter()
+            .all(|r| r.contains("e1_mm") && r.contains("max_track_error_mm = 1 mm")),
+        "{reasons:?}"
+    );
+}
