@@ -219,6 +219,8 @@ fn the_programs_move_the_carriage_to_each_target(out: &Path) {
         assert_eq!(e1, carriage[&id], "target_id {id}");
     }
 
+    yaskawa_moves_the_carriage_as_its_base_axis(out, &commands);
+
     // FANUC: each joint-form position of a target, J1 … J6 and E1.
     let spec =
         egcal::robot::RobotSpec::load(&common::root().join("jobs/robots/irb1600_145_track.toml"))
@@ -295,6 +297,92 @@ fn the_programs_move_the_carriage_to_each_target(out: &Path) {
         mean < 0.15 && max < 0.3,
         "mean {mean:.4} mm, max {max:.4} mm"
     );
+}
+
+/// The grid's commands as a Yaskawa job (Cartesian moves): the carriage is
+/// the base axis, one `BC` position in pulses beside each robot position
+/// and named in its move; without the robot file's base-axis pulse ratio the
+/// format is refused, naming the key.
+fn yaskawa_moves_the_carriage_as_its_base_axis(out: &Path, commands: &DataFrame) {
+    let dir = tempfile::tempdir().unwrap();
+    let shipped = common::root().join("jobs/robots/irb1600_145_track.toml");
+    let text = std::fs::read_to_string(&shipped).unwrap();
+    assert!(
+        text.trim_end().ends_with("polynomial_order = 2"),
+        "[track] is last"
+    );
+    let robot = dir.path().join("track_with_pulses.toml");
+    std::fs::write(&robot, format!("{text}pulses_per_mm = -800.0\n")).unwrap();
+    let settings = dir.path().join("settings.toml");
+    std::fs::write(
+        &settings,
+        "formats = [\"yaskawa\"]\nmodule_name = \"TRACKGRID\"\nmotion = \"linear\"\npre_position_deg = 0.0\n",
+    )
+    .unwrap();
+    let run = |robot: &Path| {
+        let args = [
+            "stage".to_string(),
+            "export_program".into(),
+            "--robot".into(),
+            robot.display().to_string(),
+            "--settings".into(),
+            settings.display().to_string(),
+            "--out".into(),
+            dir.path().join("out").display().to_string(),
+            "--input".into(),
+            format!(
+                "commands={}",
+                out.join("compensate_grid/commands.parquet").display()
+            ),
+            "--input".into(),
+            format!(
+                "parameters={}",
+                out.join("identify/parameters.parquet").display()
+            ),
+        ];
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (code, stdout, stderr) = common::run(&args, dir.path());
+        (code, format!("{stdout}{stderr}"))
+    };
+    let (code, log) = run(&shipped);
+    assert_ne!(code, 0, "{log}");
+    assert!(
+        log.contains("pulses_per_mm") && log.contains("base axis"),
+        "{log}"
+    );
+
+    let (code, log) = run(&robot);
+    assert_eq!(code, 0, "{log}");
+    let job = std::fs::read_to_string(dir.path().join("out/TRACKGRID.jbi")).unwrap();
+    let ok: Vec<f64> = f64s(commands, "e1_mm")
+        .into_iter()
+        .zip(strings(commands, "status"))
+        .filter(|(_, status)| status == "ok")
+        .map(|(e, _)| e)
+        .collect();
+    let n = ok.len();
+    assert!(job.contains(&format!("///NPOS {n},{n},0,0,0,0\n")), "{job}");
+    assert!(job.contains("///GROUP1 RB1,BS1\n"));
+    for (k, e) in ok.iter().enumerate() {
+        let pulses: f64 = job
+            .lines()
+            .find_map(|l| l.strip_prefix(&format!("BC{k:05}=")))
+            .unwrap_or_else(|| panic!("no BC{k:05}"))
+            .parse()
+            .unwrap();
+        assert!(
+            (pulses / -800.0 - e).abs() <= 0.5 / 800.0,
+            "BC{k:05}: {pulses} for {e} mm"
+        );
+        // The first move is joint-interpolated (where the robot starts is
+        // unknown), the others linear.
+        let step = if k == 0 {
+            format!("MOVJ C{k:05} BC{k:05} VJ=")
+        } else {
+            format!("MOVL C{k:05} BC{k:05} V=")
+        };
+        assert!(job.lines().any(|l| l.starts_with(&step)), "no `{step}`");
+    }
 }
 
 /// A small track campaign's rows, designed by the shipped job's stages.

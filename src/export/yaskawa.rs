@@ -24,11 +24,17 @@
 //!
 //! Every move ends in `PL=0` (positioning): `PL` levels are not radii, so
 //! the stage refuses a zone for this format.
+//!
+//! A robot on a linear track moves its carriage as the base axis (`///GROUP1
+//! RB1,BS1`): one `BCnnnnn` beside each `Cnnnnn`, in pulses of the robot
+//! file's `[track] pulses_per_mm` (required then), named in each move
+//! (`MOVJ C00000 BC00000 …`); the Cartesian positions stay in the robot
+//! coordinate system riding on the carriage.
 
 use super::moves::{self, Destination, Move};
 use super::{
     MASS_DECIMALS, MotionSettings, Program, fixed, header_lines, narrow_comment_lines,
-    rotation_from_quaternion, skipped_lines, tool_lines, tool_names, warning_lines,
+    rotation_from_quaternion, skipped_lines, tool_lines, tool_names, track_lines, warning_lines,
     wrist_placement, zyx_angles,
 };
 use crate::robot::{JOINTS, Robot};
@@ -52,6 +58,10 @@ pub enum JobError {
         "the rows use {tools} tools, and a Yaskawa job cannot set a tool file: Cartesian moves take one tool; export each target's rows separately, or use joint moves"
     )]
     SeveralTools { tools: usize },
+    #[error(
+        "the robot rides a track, which a Yaskawa job moves as its base axis in pulses (`BCnnnnn`), and the robot file's [track] gives no `pulses_per_mm` (the controller's pulse ratio of the base axis); add it"
+    )]
+    NoTrackPulseRatio,
 }
 
 /// The manipulator type of a Cartesian position (`RCONF`).
@@ -137,6 +147,16 @@ fn read_back(robot: &Robot, q_deg: &[f64; JOINTS]) -> [f64; JOINTS] {
     }
 }
 
+/// Base-axis pulses of the carriage position `track_mm`.
+fn track_pulses(robot: &Robot, track_mm: f64) -> Result<i64, JobError> {
+    let ratio = robot
+        .spec()
+        .track
+        .and_then(|t| t.pulses_per_mm)
+        .ok_or(JobError::NoTrackPulseRatio)?;
+    Ok((track_mm * ratio).round() as i64)
+}
+
 /// The `//POS` line of position `index`.
 fn position(robot: &Robot, index: usize, step: &Move) -> Result<String, JobError> {
     Ok(match &step.destination {
@@ -216,11 +236,33 @@ pub fn job(
         ),
         None => "WARNING: the robot file gives no payload mass; set the real tool's load in the tool file before running.".into(),
     });
+    // A track is the robot's base axis: one `BCnnnnn` (pulses) beside each
+    // `Cnnnnn`, moved together.
+    let base_axis: Option<Vec<i64>> = if steps.iter().any(|s| s.track_mm.is_some()) {
+        Some(
+            steps
+                .iter()
+                .map(|s| track_pulses(robot, s.track_mm.unwrap_or(0.0)))
+                .collect::<Result<_, _>>()?,
+        )
+    } else {
+        None
+    };
+    remarks.extend(track_lines(program, "the base axis BS1 (BC data, pulses)"));
+    if let Some(ratio) = robot.spec().track.and_then(|t| t.pulses_per_mm)
+        && base_axis.is_some()
+    {
+        remarks.push(format!(
+            "Base axis: {ratio} pulses/mm; whole pulses place the carriage within {} mm.",
+            fixed(0.5 / ratio.abs(), 4)
+        ));
+    }
     remarks.extend(warning_lines(program));
     remarks.extend(skipped_lines(&program.commands));
 
+    let base_count = base_axis.as_ref().map_or(0, Vec::len);
     let mut out = format!(
-        "/JOB\n//NAME {}\n//POS\n///NPOS {},0,0,0,0,0\n///TOOL {tool_file}\n",
+        "/JOB\n//NAME {}\n//POS\n///NPOS {},{base_count},0,0,0,0\n///TOOL {tool_file}\n",
         motion.name,
         steps.len()
     );
@@ -241,17 +283,35 @@ pub fn job(
         out.push_str(&position(robot, k, step)?);
         out.push('\n');
     }
-    out.push_str("//INST\n///ATTR SC,RW\n///GROUP1 RB1\nNOP\n");
+    if let Some(base_axis) = &base_axis {
+        if current_type != Some(true) {
+            out.push_str("///POSTYPE PULSE\n///PULSE\n");
+        }
+        for (k, pulses) in base_axis.iter().enumerate() {
+            out.push_str(&format!("BC{k:05}={pulses}\n"));
+        }
+    }
+    let group = if base_axis.is_some() {
+        "RB1,BS1"
+    } else {
+        "RB1"
+    };
+    out.push_str(&format!("//INST\n///ATTR SC,RW\n///GROUP1 {group}\nNOP\n"));
     for text in narrow_comment_lines(&remarks, COMMENT_WIDTH, &[]) {
         out.push_str(&format!("'{text}\n"));
     }
     let joint_speed = fixed(motion.joint_speed_percent, 2);
     let linear_speed = fixed(motion.speed_mm_s, 1);
     for (k, step) in steps.iter().enumerate() {
-        out.push_str(&if step.linear {
-            format!("MOVL C{k:05} V={linear_speed} PL=0\n")
+        let base = if base_axis.is_some() {
+            format!(" BC{k:05}")
         } else {
-            format!("MOVJ C{k:05} VJ={joint_speed} PL=0\n")
+            String::new()
+        };
+        out.push_str(&if step.linear {
+            format!("MOVL C{k:05}{base} V={linear_speed} PL=0\n")
+        } else {
+            format!("MOVJ C{k:05}{base} VJ={joint_speed} PL=0\n")
         });
     }
     out.push_str("END\n");

@@ -354,6 +354,18 @@ impl RobotSpec {
                     ),
                 ));
             }
+            if let Some(expected) = track
+                .pulses_per_mm
+                .and_then(|ratio| Bound::PulseRatio.violated_by(ratio))
+            {
+                return Err(invalid(
+                    "track.pulses_per_mm".into(),
+                    format!(
+                        "expected {expected}, found {}",
+                        track.pulses_per_mm.unwrap_or_default()
+                    ),
+                ));
+            }
             if !(1..=super::track::MAX_TRACK_ORDER).contains(&track.polynomial_order) {
                 return Err(invalid(
                     "track.polynomial_order".into(),
@@ -587,6 +599,33 @@ mod tests {
         );
         let spec = RobotSpec::parse(&text, Path::new("r.toml")).unwrap();
         assert_eq!(spec.joints[0].pulses_per_deg, Some(-1341.5));
+    }
+
+    #[test]
+    fn a_track_s_keys_are_checked_naming_them() {
+        let parse = |track: &str| {
+            RobotSpec::parse(
+                &format!("{IRB1600}\n[track]\n{track}\n"),
+                Path::new("r.toml"),
+            )
+        };
+        for (track, key) in [
+            ("travel_mm = [3000.0, 0.0]", "track.travel_mm"),
+            ("travel_mm = [0.0, 1e9]", "track.travel_mm"),
+            (
+                "travel_mm = [0.0, 3000.0]\npolynomial_order = 4",
+                "track.polynomial_order",
+            ),
+            (
+                "travel_mm = [0.0, 3000.0]\npulses_per_mm = 0.001",
+                "track.pulses_per_mm",
+            ),
+        ] {
+            let err = parse(track).unwrap_err().to_string();
+            assert!(err.contains(key), "{track}: {err}");
+        }
+        let spec = parse("travel_mm = [0.0, 3000.0]\npulses_per_mm = -812.5").unwrap();
+        assert_eq!(spec.track.and_then(|t| t.pulses_per_mm), Some(-812.5));
     }
 
     #[test]

@@ -49,6 +49,11 @@ pub struct TrackSpec {
     /// calibration fits (1 … 3; 1: misalignment and linear twist only).
     #[serde(default = "default_order")]
     pub polynomial_order: usize,
+    /// Encoder pulses per millimetre of the carriage as the controller
+    /// counts them, signed (a Yaskawa controller's base-axis pulse ratio).
+    /// Optional; only Yaskawa jobs need it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pulses_per_mm: Option<f64>,
 }
 
 fn default_order() -> usize {

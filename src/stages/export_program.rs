@@ -260,17 +260,6 @@ impl Stage for ExportProgramStage {
                 "format `urdf` needs the input `parameters` (the calibrated geometry)",
             ));
         }
-        if let Some(i) = formats.iter().position(|f| *f == ProgramFormat::Yaskawa)
-            && ctx.robot.track.is_some()
-        {
-            problems.push(SettingsProblem::new(
-                &format!("formats[{i}]"),
-                format!(
-                    "the robot file {} has a [track], and format `yaskawa` does not write a base axis (BC) yet: a job without the carriage's position would move the arm at the wrong place; use fanuc, rapid, krl or csv",
-                    ctx.robot.path.display()
-                ),
-            ));
-        }
         let rapid = formats.contains(&ProgramFormat::Rapid);
         let krl = formats.contains(&ProgramFormat::Krl);
         let mut name_checks: Vec<(&str, &str, usize, &str)> = Vec::new();
