@@ -1176,7 +1176,9 @@ fn parameters_section(out: &mut String, data: &ReportData) {
             present.push(name);
         }
     }
+    // The spec's order, a track's terms after the arm's.
     let mut names: Vec<&str> = ParamId::all()
+        .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
         .map(|id| id.name())
         .filter(|n| present.contains(n))
         .collect();
