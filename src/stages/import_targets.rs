@@ -13,8 +13,11 @@
 //! Required: `x_mm, y_mm, z_mm, rx_deg, ry_deg, rz_deg` (every row needs them).
 //! Optional, empty cells null: the wrench (null is no load), the branch hint
 //! `q1_deg … q6_deg` (all six or none mapped; a row with some cells empty is
-//! refused by `compensate`, naming it), `frame` and `tool_id`. `target_id`
-//! (whole numbers, unique) defaults to the 0-based data row number.
+//! refused by `compensate`, naming it), `frame` and `tool_id`, and a linear
+//! track's carriage position `e1_mm` (in `length_unit`; when mapped, every
+//! row needs one, and `compensate` checks it against the robot file's
+//! travel). `target_id` (whole numbers, unique) defaults to the 0-based
+//! data row number.
 //!
 //! Frame names are checked by the `compensate` stage that reads the table,
 //! since the user frames are its settings. The file's content hash is part of
@@ -94,6 +97,10 @@ pub struct TargetColumns {
     /// The parameters' target (SMR nest, tool) the row aims.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tool_id: Option<String>,
+    /// A linear track's carriage position to reach the target from
+    /// (`length_unit`; the robot file's `[track]` then needs it on every row).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub e1_mm: Option<String>,
 }
 
 impl TargetColumns {
@@ -120,6 +127,7 @@ impl TargetColumns {
             "q6_deg" => &self.q6_deg,
             "frame" => &self.frame,
             "tool_id" => &self.tool_id,
+            "e1_mm" => &self.e1_mm,
             _ => &None,
         };
         value.as_deref()
@@ -213,7 +221,7 @@ static INFO: StageInfo = StageInfo {
 };
 
 /// Every contract column, in output order.
-const CONTRACT: [(&str, Kind); 21] = [
+const CONTRACT: [(&str, Kind); 22] = [
     ("target_id", Kind::Integer),
     ("x_mm", Kind::Position),
     ("y_mm", Kind::Position),
@@ -235,6 +243,7 @@ const CONTRACT: [(&str, Kind); 21] = [
     ("q6_deg", Kind::Joint),
     ("frame", Kind::Text),
     ("tool_id", Kind::Text),
+    ("e1_mm", Kind::Position),
 ];
 
 const REQUIRED: [&str; 6] = ["x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"];
@@ -501,6 +510,15 @@ fn build(
             columns.push(Column::new(name.into(), vec![value.trim().to_string(); n]));
         }
     }
+    if let Some(m) = find("e1_mm") {
+        let factor = settings.factor(Kind::Position);
+        let values: Vec<f64> = source
+            .floats(m, rows.clone())?
+            .into_iter()
+            .map(|v| v * factor)
+            .collect();
+        columns.push(Column::new(schema::TRACK_COLUMN.into(), values));
+    }
     Ok(crate::table::frame(columns))
 }
 
@@ -528,6 +546,34 @@ rz_deg = "c"
 fz_n = "force"
 frame = "in"
 "#;
+
+    #[test]
+    fn a_carriage_column_is_read_in_the_length_unit_and_needed_on_every_row() {
+        let dir = tempfile::tempdir().unwrap();
+        let with_track = format!("path = \"t.csv\"\n{POSE}e1_mm = \"rail\"\n");
+        std::fs::write(
+            dir.path().join("t.csv"),
+            "id;x;y;z;a;b;c;force;in;rail\n7;0,9;0;1;0;0;0;;;1,5\n8;1;0;1;0;0;0;;;0,25\n",
+        )
+        .unwrap();
+        let (df, _, _) = import(&settings(&with_track), dir.path()).unwrap();
+        assert_eq!(
+            schema::f64_values(&df, "e1_mm", Path::new("t")).unwrap(),
+            [1500.0, 250.0]
+        );
+        std::fs::write(
+            dir.path().join("t.csv"),
+            "id;x;y;z;a;b;c;force;in;rail\n7;0,9;0;1;0;0;0;;;1,5\n8;1;0;1;0;0;0;;;\n",
+        )
+        .unwrap();
+        let err = import(&settings(&with_track), dir.path())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("line 3") && err.contains("columns.e1_mm") && err.contains("empty cell"),
+            "{err}"
+        );
+    }
 
     #[test]
     fn a_csv_with_a_bom_crlf_and_decimal_commas_is_read_in_contract_units() {
