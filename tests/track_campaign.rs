@@ -150,6 +150,94 @@ fn the_track_campaign_designs_measures_and_calibrates_the_cell() {
     assert_eq!(identified, 10);
 
     the_programs_move_the_carriage_to_each_target(&out);
+    a_carriage_beyond_the_calibrated_stations_is_outside_the_envelope(&out);
+}
+
+/// Compensation trusts the track's polynomials between the positions the
+/// calibration rows were measured at, not beyond: with the envelope of the
+/// rows at 0 … 1500 mm only, the targets at 1875 and 2625 mm are
+/// `outside_envelope`, with how far beyond in `track_beyond_mm`; within the
+/// job's own envelope (all five stations) nothing is beyond.
+fn a_carriage_beyond_the_calibrated_stations_is_outside_the_envelope(out: &Path) {
+    let job_commands = read(&out.join("compensate_grid/commands.parquet"));
+    assert!(
+        f64s(&job_commands, "track_beyond_mm")
+            .iter()
+            .all(|b| *b == 0.0)
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let measurements = read(&out.join("measure/measurements.parquet"));
+    let near: Vec<usize> = f64s(&measurements, "e1_mm")
+        .iter()
+        .enumerate()
+        .filter(|(_, e)| **e <= 1500.0)
+        .map(|(k, _)| k)
+        .collect();
+    let pick = |values: Vec<f64>| -> Vec<f64> { near.iter().map(|&k| values[k]).collect() };
+    let ids = i64s(&measurements, "cw_id");
+    let mut columns = vec![polars::prelude::Column::new(
+        "cw_id".into(),
+        near.iter().map(|&k| ids[k]).collect::<Vec<i64>>(),
+    )];
+    for name in [
+        "q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg", "e1_mm",
+    ] {
+        columns.push(polars::prelude::Column::new(
+            name.into(),
+            pick(f64s(&measurements, name)),
+        ));
+    }
+    let envelope = dir.path().join("envelope.parquet");
+    table::write_parquet(&mut table::frame(columns), &envelope, None).unwrap();
+    let settings = dir.path().join("settings.toml");
+    std::fs::write(&settings, "").unwrap();
+    let args = [
+        "stage".to_string(),
+        "compensate".into(),
+        "--robot".into(),
+        common::root()
+            .join("jobs/robots/irb1600_145_track.toml")
+            .display()
+            .to_string(),
+        "--settings".into(),
+        settings.display().to_string(),
+        "--out".into(),
+        dir.path().join("out").display().to_string(),
+        "--input".into(),
+        format!(
+            "targets={}",
+            common::root()
+                .join("jobs/targets/track_grid.parquet")
+                .display()
+        ),
+        "--input".into(),
+        format!(
+            "parameters={}",
+            out.join("identify/parameters.parquet").display()
+        ),
+        "--input".into(),
+        format!("envelope={}", envelope.display()),
+    ];
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (code, stdout, stderr) = common::run(&args, dir.path());
+    assert_eq!(code, 0, "{stdout}{stderr}");
+    let commands = read(&dir.path().join("out/commands.parquet"));
+    let statuses = strings(&commands, "status");
+    let job_statuses = strings(&job_commands, "status");
+    let mut flagged = 0;
+    for (k, (e, beyond)) in f64s(&commands, "e1_mm")
+        .iter()
+        .zip(f64s(&commands, "track_beyond_mm"))
+        .enumerate()
+    {
+        assert_eq!(beyond, (e - 1500.0).max(0.0), "row {k}");
+        if job_statuses[k] == "ok" && beyond > 0.0 {
+            assert_eq!(statuses[k], "outside_envelope", "row {k} at {e} mm");
+            flagged += 1;
+        }
+    }
+    assert!(flagged >= 10, "{flagged} commands flagged");
 }
 
 /// The grid's programs, read back as the controllers would: every position

@@ -20,6 +20,13 @@
 //! into [−180°, 180°]: the model (geometry and gravity) repeats every turn of a
 //! joint, so a row at q6 = −350° measured the same arm as q6 = 10°.
 //!
+//! **On a track** the carriage is one more axis of the calibration's reach:
+//! the track's errors are polynomials of its position fitted on the
+//! positions the rows were measured at, and a polynomial extrapolates
+//! badly. Between the measured positions they interpolate, so the check is
+//! how far a command's carriage position lies beyond the rows' range (mm),
+//! not its distance to the nearest row.
+//!
 //! Cost: `O(rows × 6)` per configuration with an early exit per row, in the
 //! caller's parallel loop; 10⁴ rows × 10³ targets is well under a second.
 
@@ -33,20 +40,30 @@ pub struct EnvelopeLimits {
     pub max_distance_deg: f64,
     /// Largest predicted 95 % position uncertainty of an `ok` command (mm).
     pub max_u95_mm: f64,
+    /// Largest [`JointEnvelope::track_beyond_mm`] of an `ok` command (mm).
+    pub max_track_beyond_mm: f64,
+}
+
+/// What the envelope says of one command; `None` where not computed.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct EnvelopeMeasures {
+    pub distance_deg: Option<f64>,
+    pub u95_mm: Option<f64>,
+    pub track_beyond_mm: Option<f64>,
 }
 
 /// The status of a command after the envelope check: an `ok` command beyond
 /// either limit is `outside_envelope`; every other status stays (it says
 /// something worse). A value not computed (`None`: no envelope rows, no
 /// covariance) checks nothing; the stage says so.
-pub fn judged(
-    status: Status,
-    distance_deg: Option<f64>,
-    u95_mm: Option<f64>,
-    limits: &EnvelopeLimits,
-) -> Status {
-    let beyond = distance_deg.is_some_and(|d| d > limits.max_distance_deg)
-        || u95_mm.is_some_and(|u| u > limits.max_u95_mm);
+pub fn judged(status: Status, measures: &EnvelopeMeasures, limits: &EnvelopeLimits) -> Status {
+    let beyond = measures
+        .distance_deg
+        .is_some_and(|d| d > limits.max_distance_deg)
+        || measures.u95_mm.is_some_and(|u| u > limits.max_u95_mm)
+        || measures
+            .track_beyond_mm
+            .is_some_and(|b| b > limits.max_track_beyond_mm);
     if status == Status::Ok && beyond {
         Status::OutsideEnvelope
     } else {
@@ -54,16 +71,40 @@ pub fn judged(
     }
 }
 
-/// The joint configurations (deg) of the calibration rows.
+/// The joint configurations (deg) of the calibration rows, and on a track
+/// the range of their carriage positions (mm).
 #[derive(Debug, Clone, PartialEq)]
 pub struct JointEnvelope {
     rows_deg: Vec<[f64; JOINTS]>,
+    track_range_mm: Option<[f64; 2]>,
 }
 
 impl JointEnvelope {
     /// `None` without rows: an envelope of nothing checks nothing.
     pub fn new(rows_deg: Vec<[f64; JOINTS]>) -> Option<Self> {
-        (!rows_deg.is_empty()).then_some(JointEnvelope { rows_deg })
+        (!rows_deg.is_empty()).then_some(JointEnvelope {
+            rows_deg,
+            track_range_mm: None,
+        })
+    }
+
+    /// The same rows measured at the carriage positions `track_mm` (one per
+    /// row, or none without a track).
+    pub fn with_track(self, track_mm: &[f64]) -> Self {
+        let range = track_mm.iter().fold(None, |range: Option<[f64; 2]>, e| {
+            Some(range.map_or([*e, *e], |[lo, hi]| [lo.min(*e), hi.max(*e)]))
+        });
+        JointEnvelope {
+            track_range_mm: range,
+            ..self
+        }
+    }
+
+    /// How far (mm) the carriage position `e_mm` lies beyond the rows'
+    /// positions (0 within them); `None` without a track.
+    pub fn track_beyond_mm(&self, e_mm: f64) -> Option<f64> {
+        self.track_range_mm
+            .map(|[lo, hi]| (lo - e_mm).max(e_mm - hi).max(0.0))
     }
 
     pub fn len(&self) -> usize {
@@ -133,8 +174,16 @@ mod tests {
         let limits = EnvelopeLimits {
             max_distance_deg: 30.0,
             max_u95_mm: 0.5,
+            max_track_beyond_mm: 50.0,
         };
-        let judge = |status, d, u| judged(status, d, u, &limits);
+        let judge = |status, distance_deg, u95_mm| {
+            let measures = EnvelopeMeasures {
+                distance_deg,
+                u95_mm,
+                track_beyond_mm: None,
+            };
+            judged(status, &measures, &limits)
+        };
         assert_eq!(judge(Status::Ok, Some(30.0), Some(0.5)), Status::Ok);
         assert_eq!(
             judge(Status::Ok, Some(30.1), Some(0.1)),
@@ -148,6 +197,32 @@ mod tests {
         assert_eq!(
             judge(Status::JointLimit, Some(90.0), None),
             Status::JointLimit
+        );
+    }
+
+    #[test]
+    fn a_carriage_beyond_the_rows_positions_is_outside_the_envelope() {
+        let envelope = JointEnvelope::new(vec![[0.0; JOINTS]; 3])
+            .expect("rows")
+            .with_track(&[750.0, 0.0, 1500.0]);
+        assert_eq!(envelope.track_beyond_mm(375.0), Some(0.0), "between rows");
+        assert_eq!(envelope.track_beyond_mm(1600.0), Some(100.0));
+        assert_eq!(envelope.track_beyond_mm(-20.0), Some(20.0));
+        let untracked = JointEnvelope::new(vec![[0.0; JOINTS]]).expect("rows");
+        assert_eq!(untracked.track_beyond_mm(1600.0), None);
+        let limits = EnvelopeLimits {
+            max_distance_deg: 30.0,
+            max_u95_mm: 0.5,
+            max_track_beyond_mm: 50.0,
+        };
+        let at = |e_mm| EnvelopeMeasures {
+            track_beyond_mm: envelope.track_beyond_mm(e_mm),
+            ..EnvelopeMeasures::default()
+        };
+        assert_eq!(judged(Status::Ok, &at(1540.0), &limits), Status::Ok);
+        assert_eq!(
+            judged(Status::Ok, &at(1600.0), &limits),
+            Status::OutsideEnvelope
         );
     }
 

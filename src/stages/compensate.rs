@@ -49,7 +49,9 @@
 //! command, `sqrt(χ²₃(0.95)·λmax(J·Σ·Jᵀ))` (the longest semi-axis of the 95 %
 //! ellipsoid, as `accuracy_map` reports it), and `commands` also carries
 //! `cov_xx_mm2 … cov_zz_mm2` (spec §7). An `ok` command beyond
-//! `max_envelope_distance_deg` or `max_u95_mm` becomes `outside_envelope`,
+//! `max_envelope_distance_deg` or `max_u95_mm` (or, on a track, whose carriage
+//! position lies more than `max_track_beyond_mm` beyond the rows' positions,
+//! `track_beyond_mm`) becomes `outside_envelope`,
 //! which an exported program treats like every other status but `ok`
 //! (`on_failed`). A calibrated model compensated without `envelope` (or
 //! without `covariance`) is not checked: the column is null and the stage says
@@ -70,7 +72,7 @@ use super::{
 };
 use crate::calibration::accuracy_map::u95_mm;
 use crate::calibration::row_checks::{MAX_POSITION_MM, compact, joints_problem, wrench_problem};
-use crate::compensation::envelope::{self, EnvelopeLimits, JointEnvelope};
+use crate::compensation::envelope::{self, EnvelopeLimits, EnvelopeMeasures, JointEnvelope};
 use crate::compensation::{self, Command, Options, Status, Target, pose_frame};
 use crate::robot::ik::NumericOptions;
 use crate::robot::{ConfWrench, Frame, JOINTS, ParamId, ParamValues, Robot, Wrench};
@@ -140,6 +142,13 @@ pub struct CompensateSettings {
     /// them, reach 0.68 mm.
     #[schemars(range(min = 0.0, max = 1000.0))]
     pub max_u95_mm: f64,
+    /// A robot on a track: an `ok` command whose carriage position lies
+    /// farther than this (mm) beyond the calibration rows' positions
+    /// (`track_beyond_mm`) is `outside_envelope`, since the track's
+    /// polynomials extrapolate badly; between the rows' positions they
+    /// interpolate. The default, 50 mm, is a margin, not an extrapolation.
+    #[schemars(range(min = 0.0, max = 100_000.0))]
+    pub max_track_beyond_mm: f64,
     /// When more than this share of the targets is `unreachable`, the stage
     /// refuses the table, naming the frame it assumed (a table written in
     /// another frame or unit); 1 never refuses.
@@ -168,6 +177,7 @@ impl Default for CompensateSettings {
             tool: None,
             max_envelope_distance_deg: 40.0,
             max_u95_mm: 0.5,
+            max_track_beyond_mm: 50.0,
             max_unreachable_fraction: 0.5,
             approach: None,
         }
@@ -410,16 +420,34 @@ impl Stage for CompensateStage {
                 vec![None; commands.len()]
             }
         };
+        // On a track, how far each carriage position lies beyond the rows'.
+        let track_beyond: Option<Vec<Option<f64>>> = envelope
+            .as_ref()
+            .filter(|_| ctx.robot.spec().track.is_some())
+            .map(|envelope| {
+                targets
+                    .iter()
+                    .map(|t| envelope.track_beyond_mm(t.track_mm))
+                    .collect()
+            });
         let limits = EnvelopeLimits {
             max_distance_deg: settings.max_envelope_distance_deg,
             max_u95_mm: settings.max_u95_mm,
+            max_track_beyond_mm: settings.max_track_beyond_mm,
         };
         let commands: Vec<Command> = commands
             .into_iter()
-            .zip(distances.iter().zip(&u95))
-            .map(|(command, (distance, u95))| Command {
-                status: envelope::judged(command.status, *distance, *u95, &limits),
-                ..command
+            .enumerate()
+            .map(|(k, command)| {
+                let measures = EnvelopeMeasures {
+                    distance_deg: distances[k],
+                    u95_mm: u95[k],
+                    track_beyond_mm: track_beyond.as_ref().and_then(|b| b[k]),
+                };
+                Command {
+                    status: envelope::judged(command.status, &measures, &limits),
+                    ..command
+                }
             })
             .collect();
 
@@ -449,8 +477,11 @@ impl Stage for CompensateStage {
         } else {
             Vec::new()
         };
+        let track_beyond_column =
+            track_beyond.map(|values| Column::new(schema::TRACK_BEYOND_COLUMN.into(), values));
         for column in extra
             .into_iter()
+            .chain(track_beyond_column)
             .chain(covariance_columns)
             .chain(approach_columns)
         {
@@ -620,13 +651,18 @@ fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError
         .map(|s| ids_with_role(s, "calibration"))
         .transpose()?;
     let (ids, rows) = conf_wrench_rows_of(table)?;
-    let configurations: Vec<[f64; JOINTS]> = ids
-        .iter()
-        .zip(&rows)
-        .filter(|(id, _)| keep.as_ref().is_none_or(|k| k.contains(id)))
-        .map(|(_, q)| *q)
+    // The carriage positions of the rows, on a track (zeros without one).
+    let track_mm = super::track_positions(&table.df, &table.path, ctx.robot.spec())?;
+    let kept: Vec<usize> = (0..ids.len())
+        .filter(|&k| keep.as_ref().is_none_or(|kept| kept.contains(&ids[k])))
         .collect();
-    JointEnvelope::new(configurations).map(Some).ok_or_else(|| {
+    let configurations: Vec<[f64; JOINTS]> = kept.iter().map(|&k| rows[k]).collect();
+    let positions: Vec<f64> = match ctx.robot.spec().track {
+        Some(_) => kept.iter().map(|&k| track_mm[k]).collect(),
+        None => Vec::new(),
+    };
+    let envelope = JointEnvelope::new(configurations).map(|e| e.with_track(&positions));
+    envelope.map(Some).ok_or_else(|| {
         StageError::Invalid(format!(
             "{}: no calibration rows for the envelope (the table is empty, or the selection marks none of its cw_id as calibration)",
             table.path.display()

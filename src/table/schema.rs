@@ -1513,6 +1513,10 @@ pub const APPROACH_COLUMNS: [&str; 6] = ["dir1", "dir2", "dir3", "dir4", "dir5",
 /// The carriage's position on the robot's linear track (issue #30).
 pub const TRACK_COLUMN: &str = "e1_mm";
 
+/// How far a command's carriage position lies beyond the calibration rows'
+/// positions (`commands`, a robot on a track with an envelope).
+pub const TRACK_BEYOND_COLUMN: &str = "track_beyond_mm";
+
 /// The optional [`TRACK_COLUMN`] of a table of rows.
 fn track_column() -> ColumnSpec {
     col(
@@ -1681,6 +1685,13 @@ pub fn commands() -> TableSchema {
         "mm",
         false,
         "radius of the predicted position's 95 % uncertainty, sqrt(χ²₃(0.95)·λmax(J·Σ·Jᵀ)) (spec §8); null without a covariance",
+    ));
+    columns.push(col(
+        TRACK_BEYOND_COLUMN,
+        ColumnType::Float64,
+        "mm",
+        false,
+        "a robot on a linear track: how far the command's carriage position lies beyond the calibration rows' positions (0 between them); absent without a track or an envelope",
     ));
     position_covariance_columns(&mut columns);
     for name in APPROACH_COLUMNS {
