@@ -684,3 +684,42 @@ fn a_carriage_read_in_metres_fails_its_rows_with_the_reason() {
         "{reasons:?}"
     );
 }
+
+/// Designed for the work on a track: the points near each target are placed
+/// with the carriage where the target is reached from, in the target's IK
+/// branch, beside the box at each station.
+#[test]
+fn points_near_the_work_stand_at_each_target_s_carriage_position() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = common::shipped_job_in(dir.path(), "track_sim", |text| {
+        let design = text
+            .split("[[stages]]\nid = \"wrenches\"")
+            .next()
+            .unwrap()
+            .replace("points_per_axis = 5", "points_per_axis = 2")
+            .replace("track_stations = 5", "track_stations = 3");
+        let targets = common::root().join("jobs/targets/track_grid.parquet");
+        design.replace(
+            "kind = \"poses\"\n",
+            &format!(
+                "kind = \"poses\"\ninputs = {{ targets = \"{}\" }}\nnear_work_points = 2\n",
+                targets.display()
+            ),
+        )
+    });
+    let (code, stdout, stderr) = common::run(&["run", job.to_str().unwrap()], dir.path());
+    assert_eq!(code, 0, "{stdout}\n{stderr}");
+    let poses = read(&dir.path().join("out/track_sim/poses/poses.parquet"));
+    let ids = i64s(&poses, "config_id");
+    assert_eq!(
+        ids.iter().collect::<BTreeSet<_>>().len(),
+        ids.len(),
+        "unique ids"
+    );
+    let positions: BTreeSet<i64> = f64s(&poses, "e1_mm").iter().map(|e| *e as i64).collect();
+    // The box at the 3 stations, and points near the targets at theirs.
+    for e in [0, 1500, 3000, 375, 1125, 1875, 2625] {
+        assert!(positions.contains(&e), "no pose at {e} mm: {positions:?}");
+    }
+    assert_eq!(positions.len(), 7, "{positions:?}");
+}

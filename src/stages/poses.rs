@@ -105,7 +105,8 @@ pub struct PosesSettings {
     pub cable_radius_mm: f64,
     /// With `targets`: points added around each work target's tool position
     /// (nominal IK), whose configurations must be in the target's IK branch,
-    /// so that the campaign can measure the arm where and how it works.
+    /// so that the campaign can measure the arm where and how it works; on a
+    /// track, with the carriage at the target's `e1_mm`.
     #[schemars(range(min = 0, max = 10_000))]
     pub near_work_points: usize,
     /// With `targets`: radius (mm) of the ball around each target's tool
@@ -327,8 +328,19 @@ impl Stage for PosesStage {
             None => Vec::new(),
         };
         let stations = track_stations_mm(ctx.robot.spec(), settings);
-        let points_per_station = settings.target_points() + near_work.len();
-        let points = points_per_station * stations.len();
+        let near_work_count = near_work.len();
+        let passes = passes(&stations, near_work);
+        let points: usize = passes
+            .iter()
+            .map(|p| {
+                p.near_work.len()
+                    + if p.with_box {
+                        settings.target_points()
+                    } else {
+                        0
+                    }
+            })
+            .sum();
         if points >= LONG_RUN_POINTS {
             ctx.progress.note(&format!(
                 "{points} target points with up to {} orientation attempts each: this takes a while",
@@ -343,13 +355,17 @@ impl Stage for PosesStage {
         };
         let mut outcome = PoseOutcome::default();
         let mut station_of_pose = Vec::new();
-        for (s, station_mm) in stations.iter().enumerate() {
+        let mut id_offset = 0;
+        for (s, pass) in passes.iter().enumerate() {
             // At a station the carriage stands at `e` (nominally a translation
             // along the base's x axis), so the tracker is `e` nearer in x.
             let mut at_station = problem.clone();
-            let seed = match station_mm {
+            if !pass.with_box {
+                at_station.sampling = Sampling::Random { count: 0 };
+            }
+            let seed = match pass.station_mm {
                 Some(e_mm) => {
-                    at_station.cell.tracker -= Vector3::new(*e_mm, 0.0, 0.0);
+                    at_station.cell.tracker -= Vector3::new(e_mm, 0.0, 0.0);
                     ctx.seed ^ (s as u64 + 1).wrapping_mul(TRACK_STATION_SEED)
                 }
                 None => ctx.seed,
@@ -358,16 +374,16 @@ impl Stage for PosesStage {
                 ctx.robot,
                 &nominal,
                 &at_station,
-                &near_work,
+                &pass.near_work,
                 seed,
                 &on_point,
             );
-            let id_offset = (s * points_per_station) as i64;
             for mut pose in station.poses {
                 pose.config_id += id_offset;
                 outcome.poses.push(pose);
-                station_of_pose.push(*station_mm);
+                station_of_pose.push(pass.station_mm);
             }
+            id_offset += station.targets as i64;
             for (reason, count) in station.rejections {
                 *outcome.rejections.entry(reason).or_default() += count;
             }
@@ -450,10 +466,10 @@ impl Stage for PosesStage {
                 .facts
                 .insert("track_stations".into(), stations.len().to_string());
         }
-        if !near_work.is_empty() {
+        if near_work_count > 0 {
             outputs
                 .facts
-                .insert("near_work_points".into(), near_work.len().to_string());
+                .insert("near_work_points".into(), near_work_count.to_string());
         }
         for (reason, count) in &outcome.rejections {
             outputs
@@ -472,6 +488,51 @@ impl Stage for PosesStage {
 
 /// Seed offset of each track station's draws, apart from the others'.
 const TRACK_STATION_SEED: u64 = 0x7472_6163_6b73_7461;
+
+/// One call of the pose generator: the box (or not) and points near the
+/// work, at one carriage position (`None` without a track).
+struct Pass {
+    station_mm: Option<f64>,
+    with_box: bool,
+    near_work: Vec<BranchPoint>,
+}
+
+/// The generator's calls: without a track, the box and every point near the
+/// work at once; on a track, the box at each station, then the points near
+/// the work at each target's own carriage position (in position order).
+fn passes(stations: &[Option<f64>], near_work: Vec<(BranchPoint, f64)>) -> Vec<Pass> {
+    if stations.iter().all(Option::is_none) {
+        return vec![Pass {
+            station_mm: None,
+            with_box: true,
+            near_work: near_work.into_iter().map(|(p, _)| p).collect(),
+        }];
+    }
+    let mut passes: Vec<Pass> = stations
+        .iter()
+        .map(|station_mm| Pass {
+            station_mm: *station_mm,
+            with_box: true,
+            near_work: Vec::new(),
+        })
+        .collect();
+    let mut by_position: BTreeMap<i64, (f64, Vec<BranchPoint>)> = BTreeMap::new();
+    for (point, e_mm) in near_work {
+        // Keyed by the position in µm: exact for the positions a table holds.
+        let key = (e_mm * 1000.0).round() as i64;
+        by_position
+            .entry(key)
+            .or_insert((e_mm, Vec::new()))
+            .1
+            .push(point);
+    }
+    passes.extend(by_position.into_values().map(|(e_mm, near_work)| Pass {
+        station_mm: Some(e_mm),
+        with_box: false,
+        near_work,
+    }));
+    passes
+}
 
 /// Carriage stations a track campaign uses by default: enough for the
 /// highest polynomial order (3) with one to spare.
@@ -497,7 +558,7 @@ fn track_stations_mm(
 }
 
 /// `track_stations` only with a track, and enough of them for its
-/// polynomials; work targets are not placed on a track yet.
+/// polynomials.
 fn track_problems(settings: &PosesSettings, ctx: &SettingsContext) -> Vec<SettingsProblem> {
     let robot = ctx.robot;
     let mut problems = Vec::new();
@@ -522,15 +583,6 @@ fn track_problems(settings: &PosesSettings, ctx: &SettingsContext) -> Vec<Settin
                     ),
                 ));
             }
-            if ctx.bound_inputs.contains(&"targets") {
-                problems.push(SettingsProblem::new(
-                    "inputs.targets",
-                    format!(
-                        "points near the work are not placed on a track yet: the robot file {} has a [track]; unbind `targets`",
-                        robot.path.display()
-                    ),
-                ));
-            }
         }
         (None, None) => {}
     }
@@ -542,19 +594,21 @@ const NEAR_WORK_SEED: u64 = 0x6e65_6172_776f_726b;
 
 /// `near_work_points` points in a ball of `near_work_radius_mm` around each
 /// `ok` target's tool position (base frame, nominal loaded IK as `compensate`
-/// with `model = "nominal"`), each wanting that configuration's IK branch.
+/// with `model = "nominal"`), each wanting that configuration's IK branch,
+/// with the target's carriage position (0 without a track).
 fn near_work_points(
     ctx: &StageContext,
     settings: &PosesSettings,
     input: &super::InputTable,
     nominal: &ParamValues,
-) -> Result<Vec<BranchPoint>, StageError> {
-    let (ids, _, commands) =
+) -> Result<Vec<(BranchPoint, f64)>, StageError> {
+    let (ids, targets, commands) =
         nominal_target_commands(ctx.robot, &settings.frame, &settings.frames, input)?;
-    let ok: Vec<&[f64; JOINTS]> = commands
+    let ok: Vec<(&[f64; JOINTS], f64)> = commands
         .iter()
-        .filter(|c| c.status == Status::Ok)
-        .map(|c| &c.q_deg)
+        .zip(&targets)
+        .filter(|(c, _)| c.status == Status::Ok)
+        .map(|(c, t)| (&c.q_deg, t.track_mm))
         .collect();
     if ok.is_empty() {
         return Err(StageError::Invalid(format!(
@@ -574,7 +628,7 @@ fn near_work_points(
     let mut rng = StdRng::seed_from_u64(ctx.seed ^ NEAR_WORK_SEED);
     let radius = settings.near_work_radius_mm;
     let mut points = Vec::with_capacity(ok.len() * settings.near_work_points);
-    for q in ok {
+    for (q, track_mm) in ok {
         let (_, tool) = ctx.robot.frames_in_base(nominal, q);
         let branch = ik::branch_of(ctx.robot, q);
         for _ in 0..settings.near_work_points {
@@ -587,10 +641,13 @@ fn near_work_points(
                 }
             };
             let distance = radius * rng.random_range(0.0..=1.0f64).cbrt();
-            points.push(BranchPoint {
-                position_mm: tool.origin_mm + direction * distance,
-                branch,
-            });
+            points.push((
+                BranchPoint {
+                    position_mm: tool.origin_mm + direction * distance,
+                    branch,
+                },
+                track_mm,
+            ));
         }
     }
     Ok(points)
