@@ -190,38 +190,21 @@ fn a_carriage_beyond_the_calibrated_stations_is_outside_the_envelope(out: &Path)
     }
     let envelope = dir.path().join("envelope.parquet");
     table::write_parquet(&mut table::frame(columns), &envelope, None).unwrap();
-    let settings = dir.path().join("settings.toml");
-    std::fs::write(&settings, "").unwrap();
-    let args = [
-        "stage".to_string(),
-        "compensate".into(),
-        "--robot".into(),
-        common::root()
-            .join("jobs/robots/irb1600_145_track.toml")
-            .display()
-            .to_string(),
-        "--settings".into(),
-        settings.display().to_string(),
-        "--out".into(),
-        dir.path().join("out").display().to_string(),
-        "--input".into(),
-        format!(
-            "targets={}",
-            common::root()
-                .join("jobs/targets/track_grid.parquet")
-                .display()
-        ),
-        "--input".into(),
-        format!(
-            "parameters={}",
-            out.join("identify/parameters.parquet").display()
-        ),
-        "--input".into(),
-        format!("envelope={}", envelope.display()),
-    ];
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let (code, stdout, stderr) = common::run(&args, dir.path());
-    assert_eq!(code, 0, "{stdout}{stderr}");
+    let (code, log) = run_stage(
+        dir.path(),
+        "compensate",
+        &common::root().join("jobs/robots/irb1600_145_track.toml"),
+        "",
+        &[
+            (
+                "targets",
+                common::root().join("jobs/targets/track_grid.parquet"),
+            ),
+            ("parameters", out.join("identify/parameters.parquet")),
+            ("envelope", envelope),
+        ],
+    );
+    assert_eq!(code, 0, "{log}");
     let commands = read(&dir.path().join("out/commands.parquet"));
     let statuses = strings(&commands, "status");
     let job_statuses = strings(&job_commands, "status");
@@ -401,36 +384,17 @@ fn yaskawa_moves_the_carriage_as_its_base_axis(out: &Path, commands: &DataFrame)
     );
     let robot = dir.path().join("track_with_pulses.toml");
     std::fs::write(&robot, format!("{text}pulses_per_mm = -800.0\n")).unwrap();
-    let settings = dir.path().join("settings.toml");
-    std::fs::write(
-        &settings,
-        "formats = [\"yaskawa\"]\nmodule_name = \"TRACKGRID\"\nmotion = \"linear\"\npre_position_deg = 0.0\n",
-    )
-    .unwrap();
     let run = |robot: &Path| {
-        let args = [
-            "stage".to_string(),
-            "export_program".into(),
-            "--robot".into(),
-            robot.display().to_string(),
-            "--settings".into(),
-            settings.display().to_string(),
-            "--out".into(),
-            dir.path().join("out").display().to_string(),
-            "--input".into(),
-            format!(
-                "commands={}",
-                out.join("compensate_grid/commands.parquet").display()
-            ),
-            "--input".into(),
-            format!(
-                "parameters={}",
-                out.join("identify/parameters.parquet").display()
-            ),
-        ];
-        let args: Vec<&str> = args.iter().map(String::as_str).collect();
-        let (code, stdout, stderr) = common::run(&args, dir.path());
-        (code, format!("{stdout}{stderr}"))
+        run_stage(
+            dir.path(),
+            "export_program",
+            robot,
+            "formats = [\"yaskawa\"]\nmodule_name = \"TRACKGRID\"\nmotion = \"linear\"\npre_position_deg = 0.0\n",
+            &[
+                ("commands", out.join("compensate_grid/commands.parquet")),
+                ("parameters", out.join("identify/parameters.parquet")),
+            ],
+        )
     };
     let (code, log) = run(&shipped);
     assert_ne!(code, 0, "{log}");
@@ -471,6 +435,36 @@ fn yaskawa_moves_the_carriage_as_its_base_axis(out: &Path, commands: &DataFrame)
         };
         assert!(job.lines().any(|l| l.starts_with(&step)), "no `{step}`");
     }
+}
+
+/// `egcal stage <kind>` in `dir` for `robot` with the settings `settings`
+/// and the bound inputs, writing to `dir/out`: its exit code and output.
+fn run_stage(
+    dir: &Path,
+    kind: &str,
+    robot: &Path,
+    settings: &str,
+    inputs: &[(&str, std::path::PathBuf)],
+) -> (i32, String) {
+    let settings_file = dir.join("settings.toml");
+    std::fs::write(&settings_file, settings).unwrap();
+    let mut args = vec![
+        "stage".to_string(),
+        kind.into(),
+        "--robot".into(),
+        robot.display().to_string(),
+        "--settings".into(),
+        settings_file.display().to_string(),
+        "--out".into(),
+        dir.join("out").display().to_string(),
+    ];
+    for (name, path) in inputs {
+        args.push("--input".into());
+        args.push(format!("{name}={}", path.display()));
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (code, stdout, stderr) = common::run(&args, dir);
+    (code, format!("{stdout}{stderr}"))
 }
 
 /// A small track campaign's rows, designed by the shipped job's stages.
