@@ -37,6 +37,7 @@ fn candidates(count: usize, seed: u64) -> Candidates {
             target: 0,
             approach: [0; 6],
             track_mm: 0.0,
+            positioner_deg: None,
         })
         .collect();
     let parameters = Selection::spec_identifiable();

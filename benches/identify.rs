@@ -64,6 +64,7 @@ fn campaign(
             target: 0,
             approach: [0; 6],
             track_mm: 0.0,
+            positioner_deg: None,
         });
         measured.push(Vector3::from(p));
     }

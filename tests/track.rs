@@ -66,6 +66,7 @@ fn rows_on_track(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
     (0..n)
         .map(|_| ConfWrench {
             track_mm: rng.random_range(0.0..3000.0),
+            positioner_deg: None,
             ..ConfWrench::new(
                 std::array::from_fn(|i| {
                     let [lo, hi] = robot.limits_deg(i);
@@ -163,6 +164,7 @@ fn the_track_s_errors_are_recovered_and_ignoring_them_is_several_times_worse() {
         .iter()
         .map(|r| ConfWrench {
             track_mm: 0.0,
+            positioner_deg: None,
             ..*r
         })
         .collect();
@@ -186,6 +188,7 @@ fn the_track_s_errors_are_recovered_and_ignoring_them_is_several_times_worse() {
         .iter()
         .map(|r| ConfWrench {
             track_mm: 0.0,
+            positioner_deg: None,
             ..*r
         })
         .collect();
@@ -276,6 +279,7 @@ fn the_stage_reads_track_positions_and_refuses_tables_without_them() {
         .iter()
         .map(|r| ConfWrench {
             track_mm: 0.0,
+            positioner_deg: None,
             ..*r
         })
         .collect();
@@ -320,6 +324,7 @@ fn forward_kinematics_on_the_track_matches_an_independent_numpy_chain() {
     for (q, e, expected) in cases {
         let row = ConfWrench {
             track_mm: e,
+            positioner_deg: None,
             ..ConfWrench::new(q, Wrench::zero())
         };
         let got = robot.prepare(&values).predict_row(&row).position_mm;

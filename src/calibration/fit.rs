@@ -1038,6 +1038,7 @@ mod tests {
                 target: 0,
                 approach: [0; 6],
                 track_mm: 0.0,
+                positioner_deg: None,
             })
             .collect()
     }

@@ -71,6 +71,12 @@ impl HoldOptions {
                 "deg" => Some((self.max_std_error_deg, "deg")),
                 _ => Some((self.max_std_error_mm, "mm")),
             },
+            // The positioner's base is a frame, like the world's.
+            ParamKind::Positioner(term) => match (term.axis(), term.unit()) {
+                (None, _) => None,
+                (Some(_), "deg") => Some((self.max_std_error_deg, "deg")),
+                (Some(_), _) => Some((self.max_std_error_mm, "mm")),
+            },
         }
     }
 }

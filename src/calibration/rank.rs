@@ -68,6 +68,8 @@ fn priority(id: ParamId, tool_rotation_first: bool) -> usize {
         } => 80 + 2 * (joint * MAX_HARMONIC_ORDER + order - 1) + usize::from(cosine),
         // After every joint term (80 + 2·6·3).
         ParamKind::Track(term) => 120 + term.slot(),
+        // After the track's; the base (a frame) before the axes' errors.
+        ParamKind::Positioner(term) => 120 + crate::robot::track::TRACK_TERM_COUNT + term.slot(),
     }
 }
 
@@ -210,6 +212,7 @@ mod tests {
                 target: 0,
                 approach: [0; 6],
                 track_mm: 0.0,
+                positioner_deg: None,
             })
             .collect();
         let all: Vec<ParamId> = ParamId::all().collect();
@@ -254,6 +257,7 @@ mod tests {
                 target: 0,
                 approach: [0; 6],
                 track_mm: 0.0,
+                positioner_deg: None,
             })
             .collect();
         let all: Vec<ParamId> = ParamId::all().collect();

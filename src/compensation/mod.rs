@@ -334,6 +334,7 @@ pub fn command_rows(
             target: target.tool,
             approach,
             track_mm: target.track_mm,
+            positioner_deg: None,
             ..crate::robot::ConfWrench::new(command.q_deg, target.wrench)
         })
         .collect()
@@ -584,6 +585,7 @@ mod tests {
         let wrench = Wrench::from_array([50.0, -80.0, 100.0, 5.0, 0.0, -5.0]);
         let row = ConfWrench {
             track_mm: 1800.0,
+            positioner_deg: None,
             ..ConfWrench::new(q, wrench)
         };
         let target = Target {

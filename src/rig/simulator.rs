@@ -349,6 +349,7 @@ impl Simulator {
             .predict_row(&ConfWrench {
                 approach: self.approach,
                 track_mm: self.commanded_track_mm,
+                positioner_deg: None,
                 ..ConfWrench::new(actual, wrench)
             })
             .position_mm;

@@ -144,6 +144,10 @@ pub struct RobotSpec {
     /// carriage's position `e1_mm`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub track: Option<super::track::TrackSpec>,
+    /// A one- or two-axis positioner carrying the work (optional); rows
+    /// then record its axes' values `p1_deg`, `p2_deg`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub positioner: Option<super::positioner::PositionerSpec>,
 }
 
 fn default_gravity() -> [f64; 3] {
@@ -377,6 +381,11 @@ impl RobotSpec {
                 ));
             }
         }
+        if let Some(positioner) = &self.positioner {
+            positioner_problem(positioner).map_or(Ok(()), |(key, message)| {
+                Err(invalid(format!("positioner.{key}"), message))
+            })?;
+        }
         if ![-1.0, 0.0, 1.0].contains(&self.controller.j3_from_j2) {
             return Err(invalid(
                 "controller.j3_from_j2".into(),
@@ -442,6 +451,81 @@ const MAX_JOINT_TORQUE_NM: f64 = 1.0e6;
 const MAX_GEAR_RATIO: f64 = 10_000.0;
 /// Largest pulse ratio that is not a typo (pulses per degree of the axis).
 const MAX_PULSES_PER_DEG: f64 = 1.0e6;
+
+/// The first problem of a `[positioner]` table: its key (below
+/// `positioner.`) and what was expected.
+fn positioner_problem(spec: &super::positioner::PositionerSpec) -> Option<(String, String)> {
+    use super::positioner::{MAX_POSITIONER_AXES, MAX_POSITIONER_NESTS};
+    if !(1..=MAX_POSITIONER_AXES).contains(&spec.axes.len()) {
+        return Some((
+            "axes".into(),
+            format!(
+                "expected 1 to {MAX_POSITIONER_AXES} axes, found {}",
+                spec.axes.len()
+            ),
+        ));
+    }
+    let b = &spec.base;
+    let mut checks: Vec<(String, f64, Bound)> = vec![
+        ("base.x_mm".into(), b.x_mm, Bound::Length),
+        ("base.y_mm".into(), b.y_mm, Bound::Length),
+        ("base.z_mm".into(), b.z_mm, Bound::Length),
+        ("base.alpha_deg".into(), b.alpha_deg, Bound::Angle),
+        ("base.beta_deg".into(), b.beta_deg, Bound::Angle),
+        ("base.gamma_deg".into(), b.gamma_deg, Bound::Angle),
+    ];
+    for (k, axis) in spec.axes.iter().enumerate() {
+        let key = |name: &str| format!("axes[{k}].{name}");
+        checks.push((key("alpha_deg"), axis.alpha_deg, Bound::Angle));
+        checks.push((key("a_mm"), axis.a_mm, Bound::Length));
+        checks.push((key("theta_offset_deg"), axis.theta_offset_deg, Bound::Angle));
+        checks.push((key("d_mm"), axis.d_mm, Bound::Length));
+        checks.push((key("limits_deg"), axis.limits_deg[0], Bound::Travel));
+        checks.push((key("limits_deg"), axis.limits_deg[1], Bound::Travel));
+    }
+    if let Some((key, value, expected)) = checks
+        .into_iter()
+        .find_map(|(key, value, bound)| bound.violated_by(value).map(|e| (key, value, e)))
+    {
+        return Some((key, format!("expected {expected}, found {value}")));
+    }
+    if let Some((k, [lo, hi])) = spec
+        .axes
+        .iter()
+        .map(|a| a.limits_deg)
+        .enumerate()
+        .find(|(_, [lo, hi])| lo >= hi)
+    {
+        return Some((
+            format!("axes[{k}].limits_deg"),
+            format!("expected [min, max] with min < max, found [{lo}, {hi}]"),
+        ));
+    }
+    if !(1..=MAX_POSITIONER_NESTS).contains(&spec.nests.len()) {
+        return Some((
+            "nests".into(),
+            format!(
+                "expected the target ids of 1 to {MAX_POSITIONER_NESTS} SMR nests on the table, found {}",
+                spec.nests.len()
+            ),
+        ));
+    }
+    for (k, nest) in spec.nests.iter().enumerate() {
+        if nest.trim().is_empty() || nest.trim() != nest {
+            return Some((
+                format!("nests[{k}]"),
+                format!("expected a target id without surrounding spaces, found {nest:?}"),
+            ));
+        }
+        if spec.nests[..k].contains(nest) {
+            return Some((
+                format!("nests[{k}]"),
+                format!("the nest {nest:?} is listed twice"),
+            ));
+        }
+    }
+    None
+}
 
 /// What a number of the robot file must satisfy besides being finite.
 #[derive(Debug, Clone, Copy)]
@@ -626,6 +710,69 @@ mod tests {
         }
         let spec = parse("travel_mm = [0.0, 3000.0]\npulses_per_mm = -812.5").unwrap();
         assert_eq!(spec.track.and_then(|t| t.pulses_per_mm), Some(-812.5));
+    }
+
+    /// A tilt-and-turn positioner's table, with `{}` replaced by one change.
+    const POSITIONER: &str = r#"
+[positioner]
+base = { x_mm = 1200.0, y_mm = 0.0, z_mm = 400.0, alpha_deg = 90.0, beta_deg = 0.0, gamma_deg = 0.0 }
+nests = ["table_a", "table_b"]
+[[positioner.axes]]
+alpha_deg = 0.0
+a_mm = 0.0
+theta_offset_deg = 0.0
+d_mm = 0.0
+limits_deg = [-95.0, 95.0]
+[[positioner.axes]]
+alpha_deg = -90.0
+a_mm = 0.0
+theta_offset_deg = 0.0
+d_mm = 350.0
+limits_deg = [-360.0, 360.0]
+"#;
+
+    #[test]
+    fn a_positioner_s_keys_are_checked_naming_them() {
+        let parse =
+            |text: &str| RobotSpec::parse(&format!("{IRB1600}\n{text}"), Path::new("r.toml"));
+        let spec = parse(POSITIONER).unwrap();
+        let positioner = spec.positioner.unwrap();
+        assert_eq!(positioner.axes.len(), 2);
+        assert_eq!(positioner.nests, ["table_a", "table_b"]);
+        for (from, to, key) in [
+            ("d_mm = 350.0", "d_mm = 3.5e9", "positioner.axes[1].d_mm"),
+            (
+                "[-95.0, 95.0]",
+                "[95.0, -95.0]",
+                "positioner.axes[0].limits_deg",
+            ),
+            ("\"table_b\"]", "\"table_a\"]", "positioner.nests[1]"),
+            (
+                "nests = [\"table_a\", \"table_b\"]",
+                "nests = []",
+                "positioner.nests",
+            ),
+            (
+                "alpha_deg = 90.0",
+                "alpha_deg = 900.0",
+                "positioner.base.alpha_deg",
+            ),
+            ("d_mm = 0.0\n", "d_mm = 0.0\nspeed = 1\n", "speed"),
+        ] {
+            assert!(POSITIONER.contains(from), "{from}");
+            let err = parse(&POSITIONER.replacen(from, to, 1))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(key), "{to}: {err}");
+        }
+        let three_axes = format!(
+            "{POSITIONER}[[positioner.axes]]\nalpha_deg = 0.0\na_mm = 0.0\ntheta_offset_deg = 0.0\nd_mm = 0.0\nlimits_deg = [-1.0, 1.0]\n"
+        );
+        let err = parse(&three_axes).unwrap_err().to_string();
+        assert!(
+            err.contains("positioner.axes") && err.contains("1 to 2"),
+            "{err}"
+        );
     }
 
     #[test]

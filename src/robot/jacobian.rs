@@ -18,6 +18,7 @@ use rayon::prelude::*;
 use super::frame::Frame;
 use super::model::{Chain, JOINTS, LoadedChains, Loads, Prediction, PreparedRobot, Robot, Wrench};
 use super::params::{ParamId, ParamKind, ParamValues};
+use super::positioner::{MAX_POSITIONER_AXES, PositionerChain};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 const MM: f64 = 1e-3;
@@ -119,7 +120,8 @@ impl PreparedRobot<'_> {
             | ParamKind::Compliance(_)
             | ParamKind::Backlash(_)
             | ParamKind::Harmonic { .. }
-            | ParamKind::Track(_) => {
+            | ParamKind::Track(_)
+            | ParamKind::Positioner(_) => {
                 return None;
             }
         })
@@ -268,6 +270,9 @@ impl PreparedRobot<'_> {
         if let Some(angular) = angular.as_ref() {
             assert_eq!(selected.len(), angular.len(), "one angular column each");
         }
+        if let Some((chain, nest_mm)) = self.positioner_nest(row) {
+            return self.positioner_jacobian_row(row, &chain, &nest_mm, selected, columns, angular);
+        }
         let LoadedChains {
             undeflected,
             loads,
@@ -313,6 +318,8 @@ impl PreparedRobot<'_> {
                     // A robot without a track: its terms move nothing.
                     None => Vector3::zeros(),
                 },
+                // The positioner carries the work, not the arm's SMR.
+                ParamKind::Positioner(_) => Vector3::zeros(),
                 ParamKind::WorldRotation(r) => {
                     rotation_deg = self.world_rotation_axes[r];
                     self.world_rotation_axes[r].cross(&position_mm) * DEG
@@ -369,6 +376,58 @@ impl PreparedRobot<'_> {
     }
 }
 
+impl PreparedRobot<'_> {
+    /// The Jacobian row of a positioner row (its SMR a nest on the table):
+    /// only the world frame, the positioner's terms and the nest's own
+    /// translation move it. The table's rotation stands for the row's
+    /// orientation, which no parameter but those turns.
+    fn positioner_jacobian_row(
+        &self,
+        row: &ConfWrench,
+        chain: &PositionerChain,
+        nest_mm: &Vector3<f64>,
+        selected: &[ParamId],
+        columns: &mut [Vector3<f64>],
+        mut angular: Option<&mut [Vector3<f64>]>,
+    ) -> (Prediction, Matrix3<f64>) {
+        let world = &self.world_from_base;
+        let position_mm = world.transform_point(nest_mm);
+        let positioner = self
+            .positioner
+            .as_ref()
+            .expect("a positioner row has a positioner");
+        for (j, (column, &id)) in columns.iter_mut().zip(selected).enumerate() {
+            let mut rotation_deg = Vector3::zeros();
+            *column = match id.kind() {
+                ParamKind::WorldTranslation(t) => world.axis(t),
+                ParamKind::WorldRotation(r) => {
+                    rotation_deg = self.world_rotation_axes[r];
+                    self.world_rotation_axes[r].cross(&position_mm) * DEG
+                }
+                ParamKind::Positioner(term) => {
+                    rotation_deg = world.rotation * positioner.angular_rate(chain, term);
+                    world.rotation * positioner.rate(chain, term, nest_mm)
+                }
+                ParamKind::ToolTranslation { target, axis } if target == row.target => {
+                    world.rotation * chain.table().axis(axis)
+                }
+                _ => Vector3::zeros(),
+            };
+            if let Some(angular) = angular.as_mut() {
+                angular[j] = rotation_deg;
+            }
+        }
+        (
+            Prediction {
+                position_mm,
+                torques_nm: [0.0; JOINTS],
+                deflections_deg: [0.0; JOINTS],
+            },
+            world.rotation * chain.table().rotation,
+        )
+    }
+}
+
 /// How much of a joint-error term's angle a row carries: the approach
 /// direction for a backlash, sin(n·q) or cos(n·q) for a harmonic.
 fn joint_term_factor(id: ParamId, q_deg: f64, approach: i8) -> f64 {
@@ -394,6 +453,11 @@ pub struct ConfWrench {
     /// The carriage's position on the robot's track (mm, the row's
     /// `e1_mm`); 0 without a track.
     pub track_mm: f64,
+    /// The positioner's axis values (deg, the row's `p1_deg`, `p2_deg`)
+    /// when the measured SMR is a nest on its table; `None` when the SMR is
+    /// on the arm. A positioner row's position depends on the positioner,
+    /// the world frame and its nest's translation only.
+    pub positioner_deg: Option<[f64; MAX_POSITIONER_AXES]>,
 }
 
 impl ConfWrench {
@@ -405,6 +469,7 @@ impl ConfWrench {
             target: 0,
             approach: [0; JOINTS],
             track_mm: 0.0,
+            positioner_deg: None,
         }
     }
 }
@@ -513,15 +578,17 @@ mod tests {
     use crate::robot::params::{BASE_PARAM_COUNT, MAX_TARGETS, PARAM_COUNT};
 
     /// Every slot: the 42, the further targets' translations, the joint
-    /// terms, the track's terms.
+    /// terms, the track's terms, the positioner's.
     fn every_slot() -> Vec<ParamId> {
         ParamId::all_with_targets(MAX_TARGETS)
             .chain(ParamId::joint_terms())
             .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
+            .chain(ParamId::positioner_terms(MAX_POSITIONER_AXES))
             .collect()
     }
 
-    /// A row with random joints, load, target and approach directions.
+    /// A row with random joints, load, target and approach directions; every
+    /// third a positioner row at random axis values.
     fn random_row(robot: &Robot, trial: usize, rng: &mut StdRng) -> ConfWrench {
         ConfWrench {
             q_deg: random_q(robot, rng),
@@ -529,10 +596,16 @@ mod tests {
             target: trial % MAX_TARGETS,
             approach: std::array::from_fn(|_| rng.random_range(-1..=1)),
             track_mm: rng.random_range(-200.0..3000.0),
+            positioner_deg: (trial % 3 == 2).then(|| {
+                [
+                    rng.random_range(-90.0..90.0),
+                    rng.random_range(-360.0..360.0),
+                ]
+            }),
         }
     }
     use crate::robot::test_support::{
-        irb1600, irb1600_on_track, random_q, random_wrench, truth_params,
+        irb1600, irb1600_in_full_cell, random_q, random_wrench, truth_params,
     };
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
@@ -572,6 +645,8 @@ mod tests {
                 p.0[id.index()] = rng.random_range(-0.05..0.05);
             } else if id.is_track_term() {
                 p.0[id.index()] = rng.random_range(-0.5..0.5);
+            } else if id.is_positioner_term() {
+                p.0[id.index()] += rng.random_range(-2.0..2.0);
             } else if id.index() >= BASE_PARAM_COUNT {
                 p.0[id.index()] += rng.random_range(-80.0..80.0);
             }
@@ -581,7 +656,7 @@ mod tests {
 
     #[test]
     fn analytic_jacobian_matches_central_differences_for_every_slot() {
-        let robot = irb1600_on_track();
+        let robot = irb1600_in_full_cell();
         let all = every_slot();
         assert_eq!(all.len(), PARAM_COUNT);
         let mut rng = StdRng::seed_from_u64(7);
@@ -615,7 +690,7 @@ mod tests {
     /// columns are those of `jacobian_row`, bit for bit.
     #[test]
     fn orientation_columns_match_central_differences_for_every_slot() {
-        let robot = irb1600_on_track();
+        let robot = irb1600_in_full_cell();
         let all = every_slot();
         let mut rng = StdRng::seed_from_u64(8);
         for trial in 0..40 {
@@ -655,6 +730,9 @@ mod tests {
                     (fd - analytic).norm() <= 1e-6 * scale + 1e-9,
                     "trial {trial} {id}: analytic {analytic:?} fd {fd:?}"
                 );
+            }
+            if row.positioner_deg.is_some() {
+                continue;
             }
             // Every kind of parameter turns the tool somewhere, except translations.
             for name in [

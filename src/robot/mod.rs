@@ -8,6 +8,7 @@ pub mod ik;
 pub mod jacobian;
 pub mod model;
 pub mod params;
+pub mod positioner;
 pub mod track;
 
 pub use file::RobotSpec;
@@ -36,6 +37,22 @@ pub(crate) mod test_support {
             include_str!("../../jobs/robots/irb1600_145.toml")
         );
         Robot::new(RobotSpec::parse(&text, Path::new("irb1600_track.toml")).unwrap())
+    }
+
+    /// The IRB 1600 with the shipped tilt-and-turn positioner in front of it.
+    pub fn irb1600_with_positioner() -> Robot {
+        let text = include_str!("../../jobs/robots/irb1600_145_positioner.toml");
+        Robot::new(RobotSpec::parse(text, Path::new("irb1600_145_positioner.toml")).unwrap())
+    }
+
+    /// The IRB 1600 on the track with the positioner too: every slot of the
+    /// model moves some row.
+    pub fn irb1600_in_full_cell() -> Robot {
+        let text = format!(
+            "{}\n[track]\ntravel_mm = [0.0, 3000.0]\n",
+            include_str!("../../jobs/robots/irb1600_145_positioner.toml")
+        );
+        Robot::new(RobotSpec::parse(&text, Path::new("irb1600_full_cell.toml")).unwrap())
     }
 
     /// The shipped UR10 file: an arm without a spherical wrist.

@@ -17,6 +17,9 @@ use super::file::RobotSpec;
 use super::frame::{Frame, rot_x};
 use super::jacobian::ConfWrench;
 use super::params::{MAX_HARMONIC_ORDER, MAX_TARGETS, PARAM_COUNT, ParamId, ParamValues};
+use super::positioner::{
+    MAX_POSITIONER_AXES, POSITIONER_TERM_COUNT, PositionerChain, PositionerModel, PositionerTerm,
+};
 use super::track::{Carriage, TrackErrors, TrackTerm};
 
 /// Number of joints; the model is for six-axis arms only.
@@ -194,6 +197,12 @@ impl Robot {
                     v[ParamId::track(TrackTerm::of_slot(slot)).index()]
                 }),
             }),
+            positioner: self.spec.positioner.as_ref().map(|spec| {
+                let values: [f64; POSITIONER_TERM_COUNT] = std::array::from_fn(|slot| {
+                    v[ParamId::positioner(PositionerTerm::of_slot(slot)).index()]
+                });
+                PositionerModel::new(spec, &values)
+            }),
         }
     }
 
@@ -265,9 +274,16 @@ impl Robot {
 
     /// [`Self::tool_in_world`] for a row: its target's tool (spec §7), its
     /// approach directions and, on a track, its carriage position.
+    /// A positioner row's frame is the table's, moved to its nest.
     pub fn tool_in_world_of_row(&self, p: &ParamValues, row: &ConfWrench) -> Frame {
         let aimed = p.aimed_at(row.target);
         let prepared = self.prepare(&aimed);
+        if let Some((chain, nest_mm)) = prepared.positioner_nest(row) {
+            return prepared.world_from_base.compose(&Frame {
+                rotation: chain.table().rotation,
+                origin_mm: nest_mm,
+            });
+        }
         prepared
             .world_from_base_at(row.track_mm)
             .compose(&prepared.loaded_chain(&row.q_deg, &row.wrench, &row.approach))
@@ -401,6 +417,8 @@ pub struct PreparedRobot<'r> {
     pub(crate) joint_terms: JointTerms,
     /// The track's errors, when the robot file has a track.
     pub(crate) track: Option<TrackErrors>,
+    /// The positioner, when the robot file has one.
+    pub(crate) positioner: Option<PositionerModel>,
 }
 
 impl<'r> PreparedRobot<'r> {
@@ -420,6 +438,26 @@ impl<'r> PreparedRobot<'r> {
             Some(carriage) => self.world_from_base.compose(&carriage.frame),
             None => self.world_from_base,
         }
+    }
+
+    /// For a positioner row (its SMR a nest on the table): the positioner's
+    /// frames at the row's axis values and the nest's position, robot base
+    /// (the nest's translation is in the table's frame). `None` for a row
+    /// on the arm, or without a positioner.
+    pub(crate) fn positioner_nest(
+        &self,
+        row: &ConfWrench,
+    ) -> Option<(PositionerChain, Vector3<f64>)> {
+        let q_deg: [f64; MAX_POSITIONER_AXES] = row.positioner_deg?;
+        let chain = self.positioner.as_ref()?.chain(&q_deg);
+        let t = |axis| {
+            self.values
+                .get(ParamId::target_translation(row.target, axis))
+        };
+        let nest_mm = chain
+            .table()
+            .transform_point(&Vector3::new(t(0), t(1), t(2)));
+        Some((chain, nest_mm))
     }
 
     /// Compliance of joint `i`, deg/(N·m).
@@ -530,7 +568,15 @@ impl<'r> PreparedRobot<'r> {
 
     /// [`Self::predict`] for a row: its target's SMR (spec §7) and its
     /// approach directions (spec §8).
+    /// A positioner row's SMR is its nest on the table; nothing loads it.
     pub fn predict_row(&self, row: &ConfWrench) -> Prediction {
+        if let Some((_, nest_mm)) = self.positioner_nest(row) {
+            return Prediction {
+                position_mm: self.world_from_base.transform_point(&nest_mm),
+                torques_nm: [0.0; JOINTS],
+                deflections_deg: [0.0; JOINTS],
+            };
+        }
         let chains = self.loaded_chains(row);
         Prediction {
             position_mm: self

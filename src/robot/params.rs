@@ -36,11 +36,15 @@ const JOINT_TERM_COUNT: usize = JOINTS + 2 * JOINTS * MAX_HARMONIC_ORDER;
 /// First slot of the track's error terms (issue #30).
 const TRACK_START: usize = TARGETED_PARAM_COUNT + JOINT_TERM_COUNT;
 
+/// First slot of the positioner's terms (issue #30).
+const POSITIONER_START: usize = TRACK_START + TRACK_TERM_COUNT;
+
 /// Value slots: the 42, one translation triple per further target, the
-/// joint-error terms, then the track's error terms.
-pub const PARAM_COUNT: usize = TRACK_START + TRACK_TERM_COUNT;
+/// joint-error terms, the track's error terms, then the positioner's.
+pub const PARAM_COUNT: usize = POSITIONER_START + POSITIONER_TERM_COUNT;
 
 use super::model::JOINTS;
+use super::positioner::{POSITIONER_TERM_COUNT, PositionerTerm};
 use super::track::{TRACK_TERM_COUNT, TrackTerm};
 
 /// One of the parameters, by its slot: the spec's 42 in its order, then the
@@ -81,6 +85,8 @@ pub enum ParamKind {
     },
     /// A coefficient of the track's errors along its travel (mm or deg).
     Track(TrackTerm),
+    /// The positioner's base frame or an error of one of its axes.
+    Positioner(PositionerTerm),
 }
 
 const NAMES: [&str; BASE_PARAM_COUNT] = [
@@ -126,6 +132,13 @@ static TRACK_TERM_NAMES: std::sync::LazyLock<Vec<String>> = std::sync::LazyLock:
         .collect()
 });
 
+/// Names of the positioner's terms, in slot order.
+static POSITIONER_TERM_NAMES: std::sync::LazyLock<Vec<String>> = std::sync::LazyLock::new(|| {
+    (0..POSITIONER_TERM_COUNT)
+        .map(|slot| PositionerTerm::of_slot(slot).name())
+        .collect()
+});
+
 /// Tool-translation parameter names by axis.
 pub const TOOL_TRANSLATION_NAMES: [&str; 3] = ["x_t", "y_t", "z_t"];
 
@@ -136,11 +149,31 @@ impl ParamId {
     }
 
     /// The 42, then the terms of the robot file's track (to its polynomial
-    /// order) when it has one: every parameter of the cell's geometry and
-    /// compliance, for rank analyses and designs.
+    /// order) and of its positioner when it has them: every parameter of the
+    /// cell's geometry and compliance, for rank analyses and designs.
     pub fn of_robot(spec: &RobotSpec) -> impl Iterator<Item = ParamId> + use<> {
         let order = spec.track.map_or(0, |t| t.polynomial_order);
-        ParamId::all().chain(ParamId::track_terms(order))
+        let axes = spec.positioner.as_ref().map(|p| p.axes.len());
+        ParamId::all()
+            .chain(ParamId::track_terms(order))
+            .chain(axes.into_iter().flat_map(ParamId::positioner_terms))
+    }
+
+    /// The positioner's base and the errors of its first `axes` axes, in
+    /// slot order.
+    pub fn positioner_terms(axes: usize) -> impl Iterator<Item = ParamId> {
+        (0..POSITIONER_TERM_COUNT)
+            .filter(move |slot| {
+                PositionerTerm::of_slot(*slot)
+                    .axis()
+                    .is_none_or(|k| k < axes)
+            })
+            .map(|slot| ParamId((POSITIONER_START + slot) as u8))
+    }
+
+    /// The parameter of one positioner term.
+    pub fn positioner(term: PositionerTerm) -> ParamId {
+        ParamId((POSITIONER_START + term.slot()) as u8)
     }
 
     /// The 42 and the translations of targets 1..`targets`.
@@ -234,6 +267,12 @@ impl ParamId {
                     .position(|n| n == name)
                     .map(|slot| ParamId((TRACK_START + slot) as u8))
             })
+            .or_else(|| {
+                POSITIONER_TERM_NAMES
+                    .iter()
+                    .position(|n| n == name)
+                    .map(|slot| ParamId((POSITIONER_START + slot) as u8))
+            })
     }
 
     /// Every name [`Self::from_name`] knows, for suggestions.
@@ -243,6 +282,7 @@ impl ParamId {
             .copied()
             .chain(JOINT_TERM_NAMES.iter().map(String::as_str))
             .chain(TRACK_TERM_NAMES.iter().map(String::as_str))
+            .chain(POSITIONER_TERM_NAMES.iter().map(String::as_str))
     }
 
     /// The spec's name; a further target's translation is `x_t[#k]` until a table
@@ -253,7 +293,8 @@ impl ParamId {
             Some(name) => name,
             None if i < TARGETED_PARAM_COUNT => &TARGET_NAMES[i - BASE_PARAM_COUNT],
             None if i < TRACK_START => &JOINT_TERM_NAMES[i - TARGETED_PARAM_COUNT],
-            None => &TRACK_TERM_NAMES[i - TRACK_START],
+            None if i < POSITIONER_START => &TRACK_TERM_NAMES[i - TRACK_START],
+            None => &POSITIONER_TERM_NAMES[i - POSITIONER_START],
         }
     }
 
@@ -272,6 +313,9 @@ impl ParamId {
             24..=29 => ParamKind::A(i - 24),
             30..=35 => ParamKind::D(i - 30),
             36..=41 => ParamKind::Compliance(i - 36),
+            _ if i >= POSITIONER_START => {
+                ParamKind::Positioner(PositionerTerm::of_slot(i - POSITIONER_START))
+            }
             _ if i >= TRACK_START => ParamKind::Track(TrackTerm::of_slot(i - TRACK_START)),
             _ if i >= TARGETED_PARAM_COUNT + JOINTS => {
                 let slot = i - TARGETED_PARAM_COUNT - JOINTS;
@@ -304,7 +348,13 @@ impl ParamId {
             | ParamKind::Harmonic { .. } => "deg",
             ParamKind::Compliance(_) => "deg/(N·m)",
             ParamKind::Track(term) => term.unit(),
+            ParamKind::Positioner(term) => term.unit(),
         }
+    }
+
+    /// A term of the positioner (its base or an axis's error).
+    pub fn is_positioner_term(self) -> bool {
+        matches!(self.kind(), ParamKind::Positioner(_))
     }
 
     /// A coefficient of the track's errors.
@@ -371,6 +421,12 @@ impl ParamValues {
         for target in 1..MAX_TARGETS {
             for axis in 0..3 {
                 values[ParamId::target_translation(target, axis).index()] = values[6 + axis];
+            }
+        }
+        if let Some(positioner) = &robot.positioner {
+            for slot in 0..POSITIONER_TERM_COUNT {
+                let term = PositionerTerm::of_slot(slot);
+                values[ParamId::positioner(term).index()] = term.nominal(positioner);
             }
         }
         ParamValues(values)
@@ -539,10 +595,18 @@ mod tests {
         let terms: Vec<ParamId> = ParamId::joint_terms().collect();
         assert_eq!(terms.len(), 6 + 2 * 6 * MAX_HARMONIC_ORDER);
         assert_eq!(terms.last().unwrap().index(), TRACK_START - 1);
-        // The track's terms follow, to the last slot.
+        // The track's terms follow, then the positioner's to the last slot.
         let track: Vec<ParamId> = ParamId::track_terms(3).collect();
         assert_eq!(track.len(), TRACK_TERM_COUNT);
-        assert_eq!(track.last().unwrap().index(), PARAM_COUNT - 1);
+        assert_eq!(track.last().unwrap().index(), POSITIONER_START - 1);
+        let positioner: Vec<ParamId> = ParamId::positioner_terms(2).collect();
+        assert_eq!(positioner.len(), POSITIONER_TERM_COUNT);
+        assert_eq!(positioner.last().unwrap().index(), PARAM_COUNT - 1);
+        assert_eq!(ParamId::positioner_terms(1).count(), 10);
+        assert!(positioner.iter().all(|p| p.is_positioner_term()));
+        assert_eq!(ParamId::from_name("dalpha_p2"), Some(positioner[11]));
+        assert_eq!(positioner[2].name(), "z_p");
+        assert_eq!(positioner[12].unit(), "mm");
         assert_eq!(ParamId::track_terms(1).count(), 6);
         assert!(
             track

@@ -688,6 +688,7 @@ pub fn conf_wrench_rows(
             target: 0,
             approach: approach[k],
             track_mm: track[k],
+            positioner_deg: None,
         })
         .collect();
     Ok((ids, rows))

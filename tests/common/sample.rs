@@ -33,6 +33,7 @@ pub fn random_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
             target: 0,
             approach: [0; 6],
             track_mm: 0.0,
+            positioner_deg: None,
         })
         .collect()
 }
