@@ -30,7 +30,7 @@ fn identify_registered(
     options: &CalibrationOptions,
 ) -> ModelResult {
     let nominal = ParamValues::nominal(robot.spec());
-    let (start, _) = registered_start(robot, &nominal, data, options.targets).unwrap();
+    let (start, _) = registered_start(robot, &nominal, data).unwrap();
     calibrate(robot, model, data, &start, options).unwrap()
 }
 
@@ -269,7 +269,7 @@ fn re_registration_recovers_a_moved_tracker_and_leaves_the_robot_untouched() {
     let measured = noisy(&positions(&robot, &moved, &rows), 0.02, 62);
     let data = Observations::new(&rows, &measured);
     let options = all_candidates();
-    let (start, _) = registered_start(&robot, &truth, &data, 1).unwrap();
+    let (start, _) = registered_start(&robot, &truth, &data).unwrap();
     let result = calibrate(&robot, ModelName::Reregistered, &data, &start, &options).unwrap();
     assert!(result.converged);
     for p in ParamId::all() {

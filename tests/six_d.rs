@@ -95,7 +95,7 @@ fn six_d_rows_recover_a_known_tool_rotation_within_two_standard_errors() {
 
     // The closed-form start already has the mounting, to within the arm's
     // own errors (a few tenths of a degree).
-    let (start, registration) = registered_start(&robot, &nominal, &six_d, 1).unwrap();
+    let (start, registration) = registered_start(&robot, &nominal, &six_d).unwrap();
     let rms_deg = registration.orientation_rms_deg.unwrap();
     assert!(rms_deg < 0.5, "{rms_deg}");
     for (name, value) in TOOL_ROTATION_DEG {
@@ -143,7 +143,7 @@ fn six_d_rows_recover_a_known_tool_rotation_within_two_standard_errors() {
 
     // Positions alone cannot tell the mounting from the tool translation.
     let positions_only = Observations::new(&rows, &measured);
-    let (start, _) = registered_start(&robot, &nominal, &positions_only, 1).unwrap();
+    let (start, _) = registered_start(&robot, &nominal, &positions_only).unwrap();
     let result = calibrate(
         &robot,
         ModelName::Elastogeometric,

@@ -214,6 +214,21 @@ pub fn calibrate(
         ) => ParamId::track_terms(track.polynomial_order).collect(),
         _ => Vec::new(),
     };
+    // A positioner's base is a frame, registered like the world's; its axes'
+    // errors are geometry, fitted with the arm's (issue #30).
+    let positioner_terms: Vec<ParamId> = match &robot.spec().positioner {
+        Some(positioner) => ParamId::positioner_terms(positioner.axes.len())
+            .filter(|id| match (model, id.kind()) {
+                (ModelName::Nominal, _) => false,
+                (
+                    ModelName::Registered | ModelName::Reregistered,
+                    crate::robot::params::ParamKind::Positioner(term),
+                ) => term.axis().is_none(),
+                _ => true,
+            })
+            .collect(),
+        None => Vec::new(),
+    };
     let candidates: Vec<ParamId> = ParamId::all_with_targets(targets)
         .filter(allowed)
         .filter(|p| match model {
@@ -231,6 +246,7 @@ pub fn calibrate(
             joint_terms
                 .into_iter()
                 .chain(track_terms)
+                .chain(positioner_terms)
                 .filter(|id| !options.fixed.iter().any(|(f, _)| f == id)),
         )
         .collect();
@@ -498,17 +514,31 @@ const REGISTRATION_ROWS: usize = 10_000;
 /// ([`registration::tool_rotation`]), which positions cannot see.
 ///
 /// The flange frames are those of `values`' robot under each row's load.
+///
+/// Rows of a positioner's nests (issue #30) do not see the flange: the world
+/// frame and the arm's targets come from the arm's rows, then the
+/// positioner's base and its nests from the nests' rows the same way, their
+/// table frames standing for the flange ([`register_positioner`]).
 pub fn registered_start(
     robot: &Robot,
     values: &ParamValues,
     data: &Observations<'_>,
-    targets: usize,
 ) -> Result<(ParamValues, registration::Registration), registration::RegistrationError> {
     let prepared = robot.prepare(values);
     let stride = data.rows.len().div_ceil(REGISTRATION_ROWS).max(1);
-    let used: Vec<usize> = (0..data.rows.len())
+    let weighted: Vec<usize> = (0..data.rows.len())
         .step_by(stride)
         .filter(|k| data.scale_of(*k).iter().any(|s| *s != 0.0))
+        .collect();
+    let (used, nest_rows): (Vec<usize>, Vec<usize>) = weighted
+        .into_iter()
+        .partition(|k| data.rows[*k].positioner_deg.is_none());
+    // The arm's targets, numbered as the registration counts them.
+    let arm_targets: Vec<usize> = used
+        .iter()
+        .map(|k| data.rows[*k].target)
+        .collect::<std::collections::BTreeSet<usize>>()
+        .into_iter()
         .collect();
     let flange: Vec<Frame> = used
         .iter()
@@ -523,7 +553,15 @@ pub fn registered_start(
         })
         .collect();
     let measured: Vec<Vector3<f64>> = used.iter().map(|k| data.measured_mm[*k]).collect();
-    let target_of_row: Vec<usize> = used.iter().map(|k| data.rows[*k].target).collect();
+    let target_of_row: Vec<usize> = used
+        .iter()
+        .map(|k| {
+            arm_targets
+                .iter()
+                .position(|t| *t == data.rows[*k].target)
+                .unwrap_or_default()
+        })
+        .collect();
     // Isotropic weight per row: the mean of its axes' 1/σ².
     let weights: Option<Vec<f64>> = data.row_scale.map(|_| {
         used.iter()
@@ -542,14 +580,15 @@ pub fn registered_start(
     let target_translation = |target: usize| {
         Vector3::from_fn(|axis, _| values.get(ParamId::target_translation(target, axis)))
     };
-    let initial: Vec<Vector3<f64>> = (0..targets)
-        .map(|t| tool_rotation * target_translation(t))
+    let initial: Vec<Vector3<f64>> = arm_targets
+        .iter()
+        .map(|t| tool_rotation * target_translation(*t))
         .collect();
     let mut found = registration::register_world_and_tools(
         &flange,
         &measured,
         &target_of_row,
-        targets,
+        arm_targets.len(),
         &initial,
         weights.as_deref(),
     )?;
@@ -587,11 +626,95 @@ pub fn registered_start(
         found.orientation_rms_deg = Some(rms_deg);
         rotation
     };
-    for (target, in_flange) in found.tool_translations_mm.iter().enumerate() {
+    for (target, in_flange) in arm_targets.iter().zip(&found.tool_translations_mm) {
         let t = tool_rotation.transpose() * in_flange;
         for axis in 0..3 {
-            start.set(ParamId::target_translation(target, axis), t[axis]);
+            start.set(ParamId::target_translation(*target, axis), t[axis]);
         }
     }
+    if !nest_rows.is_empty() {
+        found.positioner_rms_mm = register_positioner(robot, &mut start, data, &nest_rows, &found);
+    }
     Ok((start, found))
+}
+
+/// The positioner's base and its nests' translations registered onto the
+/// nests' rows (`nest_rows`, each weighted as the arm's) in the registered
+/// world frame `world`: the table frames at each row's axis values (in the
+/// positioner's base, on `start`'s axes) stand for the flange frames, so
+/// the closed form that registers the world and the tools registers robot
+/// base ← positioner base and the nests. Returns its RMS (mm), or `None`
+/// where the rows cannot determine it (a one-axis positioner turns its
+/// nests about one axis only): `start` then keeps the robot file's base and
+/// the nests their start, for the fit to move.
+fn register_positioner(
+    robot: &Robot,
+    start: &mut ParamValues,
+    data: &Observations<'_>,
+    nest_rows: &[usize],
+    world: &registration::Registration,
+) -> Option<f64> {
+    use crate::robot::positioner::PositionerTerm;
+    let prepared = robot.prepare(start);
+    let positioner = prepared.positioner.as_ref()?;
+    let base_inverse = positioner.base().inverse();
+    let nests: Vec<usize> = nest_rows
+        .iter()
+        .map(|k| data.rows[*k].target)
+        .collect::<std::collections::BTreeSet<usize>>()
+        .into_iter()
+        .collect();
+    let mut tables = Vec::with_capacity(nest_rows.len());
+    for k in nest_rows {
+        let q = data.rows[*k].positioner_deg?;
+        tables.push(base_inverse.compose(&positioner.chain(&q).table()));
+    }
+    let in_base: Vec<Vector3<f64>> = nest_rows
+        .iter()
+        .map(|k| world.rotation.transpose() * (data.measured_mm[*k] - world.translation_mm))
+        .collect();
+    let nest_of_row: Vec<usize> = nest_rows
+        .iter()
+        .map(|k| {
+            nests
+                .iter()
+                .position(|t| *t == data.rows[*k].target)
+                .unwrap_or_default()
+        })
+        .collect();
+    let initial: Vec<Vector3<f64>> = nests
+        .iter()
+        .map(|t| Vector3::from_fn(|axis, _| start.get(ParamId::target_translation(*t, axis))))
+        .collect();
+    let weights: Option<Vec<f64>> = data.row_scale.map(|_| {
+        nest_rows
+            .iter()
+            .map(|k| data.scale_of(*k).norm_squared() / 3.0)
+            .collect()
+    });
+    let found = registration::register_world_and_tools(
+        &tables,
+        &in_base,
+        &nest_of_row,
+        nests.len(),
+        &initial,
+        weights.as_deref(),
+    )
+    .ok()?;
+    let base_term = |slot: usize| ParamId::positioner(PositionerTerm::of_slot(slot));
+    let nominal_angles = [3, 4, 5].map(|slot| start.get(base_term(slot)));
+    let base = registration::world_params_from_frame(
+        &found.rotation,
+        &found.translation_mm,
+        nominal_angles,
+    );
+    for (slot, value) in base.iter().enumerate() {
+        start.set(base_term(slot), *value);
+    }
+    for (target, on_table) in nests.iter().zip(&found.tool_translations_mm) {
+        for axis in 0..3 {
+            start.set(ParamId::target_translation(*target, axis), on_table[axis]);
+        }
+    }
+    Some(found.rms_mm)
 }

@@ -48,8 +48,19 @@ pub struct RankAnalysis {
 
 /// Priority of a parameter when choosing which of a dependent group to keep;
 /// `tool_rotation_first` for rows with measured orientations (module doc).
-fn priority(id: ParamId, tool_rotation_first: bool) -> usize {
-    match id.kind() {
+///
+/// A positioner's base (issue #30) comes right after the tool translations:
+/// the world frame, the arm's first joint and the positioner's base share
+/// one freedom (moving the robot's base frame moves the positioner's with
+/// it), and with the base kept the arm's first-joint terms are held as the
+/// spec holds them for the arm alone.
+fn priority(id: ParamId, tool_rotation_first: bool) -> (usize, usize) {
+    if let ParamKind::Positioner(term) = id.kind()
+        && term.axis().is_none()
+    {
+        return (8, 1 + term.slot());
+    }
+    let rank = match id.kind() {
         ParamKind::ToolRotation(i) if tool_rotation_first => 9 + i,
         ParamKind::WorldTranslation(i) => i,
         ParamKind::WorldRotation(i) => 3 + i,
@@ -68,9 +79,10 @@ fn priority(id: ParamId, tool_rotation_first: bool) -> usize {
         } => 80 + 2 * (joint * MAX_HARMONIC_ORDER + order - 1) + usize::from(cosine),
         // After every joint term (80 + 2·6·3).
         ParamKind::Track(term) => 120 + term.slot(),
-        // After the track's; the base (a frame) before the axes' errors.
+        // The axes' errors after the track's.
         ParamKind::Positioner(term) => 120 + crate::robot::track::TRACK_TERM_COUNT + term.slot(),
-    }
+    };
+    (rank, 0)
 }
 
 /// Rank analysis of `candidates` over `rows` at parameter values `at`.

@@ -93,6 +93,8 @@ pub struct Registration {
     /// With orientations registered ([`tool_rotation`]): the RMS angle (deg)
     /// between measured and registered tool orientations; `None` without.
     pub orientation_rms_deg: Option<f64>,
+    /// With a positioner's nests registered too (issue #30): their RMS, mm.
+    pub positioner_rms_mm: Option<f64>,
 }
 
 impl Registration {
@@ -280,6 +282,7 @@ fn register(
         iterations,
         converged,
         orientation_rms_deg: None,
+        positioner_rms_mm: None,
     })
 }
 

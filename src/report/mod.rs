@@ -1176,9 +1176,12 @@ fn parameters_section(out: &mut String, data: &ReportData) {
             present.push(name);
         }
     }
-    // The spec's order, a track's terms after the arm's.
+    // The spec's order, a track's terms after the arm's, then a positioner's.
     let mut names: Vec<&str> = ParamId::all()
         .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
+        .chain(ParamId::positioner_terms(
+            crate::robot::positioner::MAX_POSITIONER_AXES,
+        ))
         .map(|id| id.name())
         .filter(|n| present.contains(n))
         .collect();

@@ -238,6 +238,11 @@ impl PositionerModel {
         self.axes
     }
 
+    /// Robot base ← positioner base.
+    pub fn base(&self) -> Frame {
+        self.base
+    }
+
     /// The frames at axis values `q_deg` (the second ignored on a one-axis
     /// positioner).
     pub fn chain(&self, q_deg: &[f64; MAX_POSITIONER_AXES]) -> PositionerChain {

@@ -76,7 +76,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: Some("in_service"),
     summary: "Compare the night's calibration with the one in service; publish it only when it is better or the old one drifted",
-    code_version: 4,
+    code_version: 5,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -558,6 +558,9 @@ fn changed_parameters(
 ) -> Vec<(ParamId, f64, Option<f64>)> {
     ParamId::all()
         .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
+        .chain(ParamId::positioner_terms(
+            crate::robot::positioner::MAX_POSITIONER_AXES,
+        ))
         .filter(|id| {
             candidate.status[id.index()] == ParamStatus::Identified
                 || in_service.status[id.index()] == ParamStatus::Identified

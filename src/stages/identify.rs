@@ -376,7 +376,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 9,
+    code_version: 10,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -963,17 +963,10 @@ impl Stage for IdentifyStage {
                 crate::table::schema::JOINT_COLUMNS.join(", "),
             )));
         }
-        let registered = register(
-            ctx,
-            "robot file",
-            &nominal,
-            &observations,
-            &options,
-            &mut outputs,
-        );
+        let registered = register(ctx, "robot file", &nominal, &observations, &mut outputs);
         let reregistered = start_set
             .as_ref()
-            .map(|start| register(ctx, "start", start, &observations, &options, &mut outputs));
+            .map(|start| register(ctx, "start", start, &observations, &mut outputs));
         for (what, registration) in [
             ("robot file", Some(&registered)),
             ("start", reregistered.as_ref()),
@@ -1222,7 +1215,6 @@ fn register(
     what: &str,
     values: &ParamValues,
     data: &Observations<'_>,
-    options: &CalibrationOptions,
     outputs: &mut StageOutputs,
 ) -> (ParamValues, Option<f64>) {
     let key = if what == "start" {
@@ -1230,7 +1222,7 @@ fn register(
     } else {
         "registration"
     };
-    match registered_start(ctx.robot, values, data, options.targets) {
+    match registered_start(ctx.robot, values, data) {
         Ok((start, found)) => {
             let fact = format!(
                 "frames of the {what} registered in closed form: rms {:.3} mm after {} rounds{}",
@@ -1240,7 +1232,10 @@ fn register(
                     .orientation_rms_deg
                     .map(|deg| format!("; tool rotation from the orientations: rms {deg:.4} deg"))
                     .unwrap_or_default()
-            );
+            ) + &found
+                .positioner_rms_mm
+                .map(|mm| format!("; the positioner's base and nests: rms {mm:.3} mm"))
+                .unwrap_or_default();
             ctx.progress.note(&fact);
             outputs.facts.insert(key.into(), fact);
             (start, Some(found.rms_mm))
@@ -1291,6 +1286,11 @@ fn implausible_parameter(
                 ParamKind::Theta(_) | ParamKind::Alpha(_) | ParamKind::ToolRotation(_) => {
                     beyond(settings.plausible_angle_deg, "plausible_angle_deg", "deg")
                 }
+                // A positioner's axes are bounded as the arm's; its base is a frame.
+                ParamKind::Positioner(term) if term.axis().is_some() => match term.unit() {
+                    "mm" => beyond(settings.plausible_length_mm, "plausible_length_mm", "mm"),
+                    _ => beyond(settings.plausible_angle_deg, "plausible_angle_deg", "deg"),
+                },
                 ParamKind::Compliance(_) if value < -3.0 * std_error && value < 0.0 => Some(format!(
                     "`{}` = {value:.3e} deg/(N·m) ± {std_error:.1e}: a negative compliance (the joint would bend against its load); the load columns' sign or frame, or the robot file's masses, are wrong",
                     set.name_of(id)

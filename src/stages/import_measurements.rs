@@ -132,6 +132,13 @@ pub struct ColumnMap {
     /// `[track]`), in `length_unit`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub e1_mm: Option<String>,
+    /// The positioner's first axis (robot file `[positioner]`), in
+    /// `joint_unit`, on every row.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub p1_deg: Option<String>,
+    /// The positioner's second axis, in `joint_unit`, on every row.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub p2_deg: Option<String>,
     /// Which SMR (nest) each row measured: a long table, one row per target reading.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub target_id: Option<String>,
@@ -228,7 +235,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "A tracker export (CSV or Parquet) as the measurements table, units converted",
-    code_version: 4,
+    code_version: 5,
     inputs: &[],
     outputs: &[TableSlot {
         name: "measurements",
@@ -239,7 +246,7 @@ static INFO: StageInfo = StageInfo {
 };
 
 /// Every contract column a source column can be mapped to, in output order.
-const CONTRACT: [(&str, Kind); 36] = [
+const CONTRACT: [(&str, Kind); 38] = [
     ("cw_id", Kind::Integer),
     ("q1_deg", Kind::Joint),
     ("q2_deg", Kind::Joint),
@@ -272,6 +279,8 @@ const CONTRACT: [(&str, Kind); 36] = [
     ("dir5", Kind::Integer),
     ("dir6", Kind::Integer),
     ("e1_mm", Kind::Position),
+    ("p1_deg", Kind::Joint),
+    ("p2_deg", Kind::Joint),
     ("target_id", Kind::Text),
     ("config_id", Kind::Integer),
     ("robot_id", Kind::Text),
@@ -317,6 +326,8 @@ impl ColumnMap {
             "dir5" => &self.dir5,
             "dir6" => &self.dir6,
             "e1_mm" => &self.e1_mm,
+            "p1_deg" => &self.p1_deg,
+            "p2_deg" => &self.p2_deg,
             "target_id" => &self.target_id,
             "config_id" => &self.config_id,
             "robot_id" => &self.robot_id,
@@ -729,7 +740,8 @@ fn build(
         .chain(&schema::SIGMA_COLUMNS)
         .chain(&schema::ORIENTATION_COLUMNS)
         .chain(&schema::ORIENTATION_SIGMA_COLUMNS)
-        .chain(std::iter::once(&schema::TRACK_COLUMN));
+        .chain(std::iter::once(&schema::TRACK_COLUMN))
+        .chain(&schema::POSITIONER_COLUMNS);
     for name in float_names {
         let values = match find(name) {
             Some(m) => {
@@ -881,6 +893,22 @@ z_mm = "z"
         let df = import(&settings(&toml), dir.path()).unwrap().measurements;
         assert_eq!(f64s(&df, "e1_mm"), [2250.0]);
         assert_eq!(f64s(&df, "x_mm"), [1000.0]);
+    }
+
+    #[test]
+    fn positioner_axes_are_imported_in_the_joint_unit() {
+        let dir = tempfile::tempdir().unwrap();
+        write(
+            dir.path(),
+            "p.csv",
+            "a1,a2,a3,a4,a5,a6,x,y,z,t,tilt,turn\n0,0,0,0,0,0,1.0,0.0,0.5,table_a,0.5,-1.5\n",
+        );
+        let toml = format!(
+            "path = \"p.csv\"\njoint_unit = \"rad\"\n{JOINTS_XYZ}target_id = \"t\"\np1_deg = \"tilt\"\np2_deg = \"turn\"\n"
+        );
+        let df = import(&settings(&toml), dir.path()).unwrap().measurements;
+        assert!((f64s(&df, "p1_deg")[0] - 0.5_f64.to_degrees()).abs() < 1e-12);
+        assert!((f64s(&df, "p2_deg")[0] + 1.5_f64.to_degrees()).abs() < 1e-12);
     }
 
     #[test]

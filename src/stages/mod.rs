@@ -23,6 +23,7 @@ pub mod iso9283;
 pub mod iso_cube;
 pub mod measure;
 pub mod poses;
+mod positioner_rows;
 pub mod predict;
 pub mod report;
 pub mod residual_rung;
@@ -681,6 +682,7 @@ pub fn conf_wrench_rows(
         .collect::<Result<Vec<_>, _>>()?;
     let approach = crate::table::schema::approach_values(&input.df, path)?;
     let track = track_positions(&input.df, &input.path, robot)?;
+    let positioner = positioner_rows::positioner_axes_of_rows(&input.df, &input.path, robot)?;
     let rows = (0..ids.len())
         .map(|k| crate::robot::ConfWrench {
             q_deg: std::array::from_fn(|i| joints[i][k]),
@@ -688,7 +690,7 @@ pub fn conf_wrench_rows(
             target: 0,
             approach: approach[k],
             track_mm: track[k],
-            positioner_deg: None,
+            positioner_deg: positioner[k],
         })
         .collect();
     Ok((ids, rows))

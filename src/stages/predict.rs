@@ -45,7 +45,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Forward model: SMR position, load torques and deflections for conf-wrench rows",
-    code_version: 4,
+    code_version: 5,
     inputs: &[
         TableSlot {
             name: "conf_wrenches",

@@ -94,7 +94,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Calibration and validation rows of measured data (alternate rows, halves, or whole groups by region, configuration, load or time)",
-    code_version: 2,
+    code_version: 3,
     inputs: &[TableSlot {
         name: "measurements",
         schema: schema::measurements,

@@ -56,7 +56,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Validation errors per model, statistics (Table III) and pairwise hypothesis tests",
-    code_version: 6,
+    code_version: 7,
     inputs: &[
         TableSlot {
             name: "measurements",

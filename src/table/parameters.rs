@@ -192,6 +192,9 @@ impl ParameterSet {
     pub fn ids(&self) -> impl Iterator<Item = ParamId> + use<> {
         let used: Vec<ParamId> = ParamId::joint_terms()
             .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
+            .chain(ParamId::positioner_terms(
+                crate::robot::positioner::MAX_POSITIONER_AXES,
+            ))
             .filter(|id| {
                 self.status[id.index()] != ParamStatus::Fixed || self.values.get(*id) != 0.0
             })

@@ -404,6 +404,7 @@ pub fn measurements() -> TableSchema {
         ));
     }
     columns.push(track_column());
+    columns.extend(positioner_columns());
     TableSchema {
         kind: "measurements",
         description: "Complete measured rows (spec §6). Incomplete rows go to measurement_failures, never here.",
@@ -1516,6 +1517,30 @@ pub const TRACK_COLUMN: &str = "e1_mm";
 /// How far a command's carriage position lies beyond the calibration rows'
 /// positions (`commands`, a robot on a track with an envelope).
 pub const TRACK_BEYOND_COLUMN: &str = "track_beyond_mm";
+
+/// A positioner's axis values (robot file `[positioner]`), deg.
+pub const POSITIONER_COLUMNS: [&str; crate::robot::positioner::MAX_POSITIONER_AXES] =
+    ["p1_deg", "p2_deg"];
+
+/// The optional [`POSITIONER_COLUMNS`] of a table of rows.
+fn positioner_columns() -> [ColumnSpec; crate::robot::positioner::MAX_POSITIONER_AXES] {
+    [
+        col(
+            POSITIONER_COLUMNS[0],
+            ColumnType::Float64,
+            "deg",
+            false,
+            "value of the positioner's first axis (robot file `[positioner]`) when the row was measured; required on rows whose `target_id` is one of the positioner's `nests`, within the axis's `limits_deg`; only allowed when the robot file has a positioner",
+        ),
+        col(
+            POSITIONER_COLUMNS[1],
+            ColumnType::Float64,
+            "deg",
+            false,
+            "value of the positioner's second axis, as `p1_deg`; only allowed for a two-axis positioner",
+        ),
+    ]
+}
 
 /// The optional [`TRACK_COLUMN`] of a table of rows.
 fn track_column() -> ColumnSpec {
