@@ -335,3 +335,158 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
         "{log}"
     );
 }
+
+/// Runs `egcal stage <kind>` with `settings` and `inputs` (name, path).
+fn stage(
+    dir: &Path,
+    kind: &str,
+    settings: &str,
+    inputs: &[(&str, &Path)],
+) -> (i32, String, PathBuf) {
+    let settings_path = dir.join(format!("{kind}.toml"));
+    std::fs::write(&settings_path, settings).unwrap();
+    let out = dir.join(format!("out_{kind}"));
+    let mut args: Vec<String> = [
+        "stage",
+        kind,
+        "--robot",
+        robot_file().to_str().unwrap(),
+        "--settings",
+        settings_path.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]
+    .map(String::from)
+    .to_vec();
+    for (name, path) in inputs {
+        args.push("--input".into());
+        args.push(format!("{name}={}", path.display()));
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (code, stdout, stderr) = common::run(&args, dir);
+    (code, format!("{stdout}{stderr}"), out)
+}
+
+/// The user's path for work on the table: calibrate arm and positioner
+/// from the tracker's rows, then compensate targets given on the table at
+/// its axis values. The commands, run on the true cell, put the SMR on the
+/// targets where the true table holds them; the commands carry the axis
+/// values; and a program is refused rather than written without them.
+#[test]
+fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let spec = RobotSpec::load(&robot_file()).unwrap();
+    let robot = Robot::new(spec.clone());
+    let truth = truth(&spec);
+    let rows: Vec<ConfWrench> = arm_rows(&robot, 21, 300)
+        .into_iter()
+        .chain(nest_rows(22, 30))
+        .collect();
+    let measured = noisy(&positions(&robot, &truth, &rows), 0.02, 23);
+    let input = dir.path().join("measurements.parquet");
+    write_cell_measurements(&input, &rows, &measured, &["p1_deg", "p2_deg"]);
+    let (code, log, identified) = stage(
+        dir.path(),
+        "identify",
+        "models = [\"elastogeometric\"]\n",
+        &[("measurements", &input)],
+    );
+    assert_eq!(code, 0, "{log}");
+
+    // Points 50 mm above the table, the tool pointing down onto it, at
+    // several tilts and turns.
+    let cases: [([f64; 3], [f64; 2]); 5] = [
+        ([100.0, 50.0, 50.0], [0.0, 0.0]),
+        ([-80.0, 120.0, 50.0], [15.0, 90.0]),
+        ([150.0, -100.0, 50.0], [-20.0, 45.0]),
+        ([0.0, 0.0, 50.0], [25.0, -120.0]),
+        ([60.0, -60.0, 50.0], [-10.0, 200.0]),
+    ];
+    let n = cases.len();
+    let float = |name: &str, f: &dyn Fn(usize) -> f64| {
+        Column::new(name.into(), (0..n).map(f).collect::<Vec<f64>>())
+    };
+    let mut targets = egcal::table::frame(vec![
+        Column::new("target_id".into(), (0..n as i64).collect::<Vec<_>>()),
+        float("x_mm", &|k| cases[k].0[0]),
+        float("y_mm", &|k| cases[k].0[1]),
+        float("z_mm", &|k| cases[k].0[2]),
+        float("rx_deg", &|_| 180.0),
+        float("ry_deg", &|_| 0.0),
+        float("rz_deg", &|_| 0.0),
+        Column::new("frame".into(), vec!["positioner"; n]),
+        float("p1_deg", &|k| cases[k].1[0]),
+        float("p2_deg", &|k| cases[k].1[1]),
+    ]);
+    let targets_path = dir.path().join("targets.parquet");
+    egcal::table::write_parquet(&mut targets, &targets_path, None).unwrap();
+    let parameters = identified.join("parameters.parquet");
+    let (code, log, out) = stage(
+        dir.path(),
+        "compensate",
+        "model = \"elastogeometric\"\ntool = \"arm\"\n",
+        &[("targets", &targets_path), ("parameters", &parameters)],
+    );
+    assert_eq!(code, 0, "{log}");
+    let commands = egcal::table::read_parquet(&out.join("commands.parquet")).unwrap();
+    let f = |name: &str| egcal::table::schema::f64_values(&commands, name, Path::new("c")).unwrap();
+    let q: Vec<Vec<f64>> = egcal::table::schema::JOINT_COLUMNS
+        .iter()
+        .map(|c| f(c))
+        .collect();
+    let status = egcal::table::schema::str_values(&commands, "status", Path::new("c")).unwrap();
+    let (p1, p2) = (f("p1_deg"), f("p2_deg"));
+    for k in 0..n {
+        assert_eq!(status[k].as_deref(), Some("ok"), "target {k}");
+        assert_eq!([p1[k], p2[k]], cases[k].1);
+        // Where the true arm puts the SMR under the command, and where the
+        // true table holds the target (the target as a nest of the truth).
+        let command = ConfWrench::new(std::array::from_fn(|i| q[i][k]), Wrench::zero());
+        let reached = positions(&robot, &truth, &[command])[0];
+        let mut on_table = truth;
+        for axis in 0..3 {
+            on_table.set(ParamId::target_translation(1, axis), cases[k].0[axis]);
+        }
+        let target = positions(
+            &robot,
+            &on_table,
+            &[ConfWrench {
+                target: 1,
+                positioner_deg: Some(cases[k].1),
+                ..ConfWrench::new([0.0; 6], Wrench::zero())
+            }],
+        )[0];
+        let miss = (reached - target).norm();
+        eprintln!("target {k} at {:?}: {miss:.4} mm", cases[k].1);
+        assert!(miss < 0.1, "target {k}: {miss} mm");
+    }
+    // A program is refused rather than written without the positioner's moves.
+    let commands_path = out.join("commands.parquet");
+    let (code, log, _) = stage(
+        dir.path(),
+        "export_program",
+        "formats = [\"csv\"]\n",
+        &[("commands", &commands_path)],
+    );
+    assert_eq!(code, 2, "{log}");
+    assert!(
+        log.contains("p1_deg") && log.contains("positioner"),
+        "{log}"
+    );
+    // A target on the table without its axis values.
+    let mut partial = egcal::table::read_parquet(&targets_path).unwrap();
+    partial.drop_in_place("p2_deg").unwrap();
+    let partial_path = dir.path().join("partial.parquet");
+    egcal::table::write_parquet(&mut partial, &partial_path, None).unwrap();
+    let (code, log, _) = stage(
+        dir.path(),
+        "compensate",
+        "model = \"elastogeometric\"\ntool = \"arm\"\n",
+        &[("targets", &partial_path), ("parameters", &parameters)],
+    );
+    assert_eq!(code, 2, "{log}");
+    assert!(
+        log.contains("p1_deg, p2_deg") && log.contains("row 0"),
+        "{log}"
+    );
+}

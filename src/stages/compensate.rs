@@ -32,6 +32,14 @@
 //! carriage at 0 (the frame fixed to the floor that the world frame
 //! places), and user frames are given in it.
 //!
+//! **Targets on a positioner** (robot file `[positioner]`). A row in the
+//! frame `positioner` is a pose on the positioner's table at the axis values
+//! its `p1_deg`, `p2_deg` give (required on such rows, within the limits):
+//! it reaches the world through the chosen set's positioner (its base and
+//! axes, calibrated with the nests), so the part's targets follow where the
+//! table really is. `commands` carries each row's axis values, the
+//! positioner's commands beside the arm's.
+//!
 //! **Tools** (spec §8). A row aims the parameters' target named by its
 //! `tool_id` column, else by the setting `tool`. A several-target set needs one
 //! of them on every row; a name the set does not know is refused, naming the
@@ -75,6 +83,7 @@ use crate::calibration::row_checks::{MAX_POSITION_MM, compact, joints_problem, w
 use crate::compensation::envelope::{self, EnvelopeLimits, EnvelopeMeasures, JointEnvelope};
 use crate::compensation::{self, Command, Options, Status, Target, pose_frame};
 use crate::robot::ik::NumericOptions;
+use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{ConfWrench, Frame, JOINTS, ParamId, ParamValues, Robot, Wrench};
 use crate::table::frame;
 use crate::table::parameters::{ModelName, ParameterSet};
@@ -89,6 +98,8 @@ pub struct CompensateStage;
 pub const WORLD_FRAME: &str = "world";
 /// The robot's base frame.
 pub const BASE_FRAME: &str = "base";
+/// The table of the robot file's positioner at the row's `p1_deg`, `p2_deg`.
+pub const POSITIONER_FRAME: &str = "positioner";
 
 /// Settings of `compensate`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -189,7 +200,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Load-aware compensation: joint commands that put the calibrated, loaded tool on each target, and corrected Cartesian targets for the nominal controller",
-    code_version: 7,
+    code_version: 8,
     inputs: &[
         TableSlot {
             name: "targets",
@@ -239,11 +250,13 @@ impl CompensateSettings {
     fn frame_problems(&self) -> Vec<SettingsProblem> {
         let mut problems = Vec::new();
         for (name, pose) in &self.frames {
-            if name == WORLD_FRAME || name == BASE_FRAME || name.trim().is_empty() {
+            if [WORLD_FRAME, BASE_FRAME, POSITIONER_FRAME].contains(&name.as_str())
+                || name.trim().is_empty()
+            {
                 problems.push(SettingsProblem::new(
                     &format!("frames.{name}"),
                     format!(
-                        "`{name}` cannot name a user frame (`world` and `base` are built in; a name must not be empty)"
+                        "`{name}` cannot name a user frame (`world`, `base` and `positioner` are built in; a name must not be empty)"
                     ),
                 ));
             }
@@ -266,16 +279,18 @@ impl CompensateSettings {
 
     /// Why `name` is no frame of these settings, or `None` when it is one.
     fn unknown_frame(&self, name: &str) -> Option<String> {
-        if name == WORLD_FRAME || name == BASE_FRAME || self.frames.contains_key(name) {
+        if [WORLD_FRAME, BASE_FRAME, POSITIONER_FRAME].contains(&name)
+            || self.frames.contains_key(name)
+        {
             return None;
         }
-        let known: Vec<&str> = [WORLD_FRAME, BASE_FRAME]
+        let known: Vec<&str> = [WORLD_FRAME, BASE_FRAME, POSITIONER_FRAME]
             .into_iter()
             .chain(
                 self.frames
                     .keys()
                     .map(String::as_str)
-                    .filter(|k| *k != WORLD_FRAME && *k != BASE_FRAME),
+                    .filter(|k| ![WORLD_FRAME, BASE_FRAME, POSITIONER_FRAME].contains(k)),
             )
             .collect();
         Some(format!(
@@ -342,7 +357,7 @@ impl Stage for CompensateStage {
         let rows = target_rows(ctx.robot, settings, &input.df, &input.path)?;
         let tools = tool_indices(set.as_ref(), settings, &rows, &input.path)?;
         let world_from_base = ctx.robot.world_from_base(&values);
-        let targets = world_targets(settings, &world_from_base, &rows, &tools);
+        let targets = world_targets(settings, ctx.robot, &values, &rows, &tools);
         let approach = settings.approach_for(&values);
         let residual = match &set {
             Some(set) => super::residual_rung::bound_residual(ctx, set)?,
@@ -453,7 +468,13 @@ impl Stage for CompensateStage {
 
         let tool_names = tool_names(set.as_ref(), settings, &rows, &tools);
         let on_track = ctx.robot.spec().track.is_some();
-        let mut commands_table = commands_frame(&rows.ids, &commands, on_track.then_some(&targets));
+        let positioner_axes = ctx.robot.spec().positioner.as_ref().map(|p| p.axes.len());
+        let mut commands_table = commands_frame(
+            &rows.ids,
+            &commands,
+            on_track.then_some(&targets),
+            positioner_axes.map(|axes| (axes, rows.positioner_deg.as_slice())),
+        );
         let extra = [
             Column::new("tool_id".into(), tool_names),
             Column::new("envelope_distance".into(), distances),
@@ -551,8 +572,7 @@ pub(super) fn nominal_target_commands(
     };
     let rows = target_rows(robot, &settings, &input.df, &input.path)?;
     let values = ParamValues::nominal(robot.spec());
-    let world_from_base = robot.world_from_base(&values);
-    let targets = world_targets(&settings, &world_from_base, &rows, &vec![0; rows.ids.len()]);
+    let targets = world_targets(&settings, robot, &values, &rows, &vec![0; rows.ids.len()]);
     let commands = compensation::compensate(
         robot,
         &values,
@@ -564,16 +584,31 @@ pub(super) fn nominal_target_commands(
 
 /// The targets of `rows` in the world frame, each with its row's load,
 /// branch hint and tool (`tools`, one per row).
+///
+/// `values` place the frames: the world frame, and on a positioner its base
+/// and axes at each row's axis values.
 fn world_targets(
     settings: &CompensateSettings,
-    world_from_base: &Frame,
+    robot: &Robot,
+    values: &ParamValues,
     rows: &TargetRows,
     tools: &[usize],
 ) -> Vec<Target> {
+    let prepared = robot.prepare(values);
+    let world_from_base = prepared.world_from_base;
+    let base_from_table = |k: usize| {
+        let positioner = prepared.positioner.as_ref()?;
+        Some(positioner.chain(&rows.positioner_deg[k]?).table())
+    };
     (0..rows.ids.len())
         .map(|k| Target {
-            tool_in_world: world_from(settings, world_from_base, &rows.frames[k])
-                .compose(&rows.poses[k]),
+            tool_in_world: match rows.frames[k].as_str() {
+                POSITIONER_FRAME => {
+                    world_from_base.compose(&base_from_table(k).unwrap_or_else(Frame::identity))
+                }
+                name => world_from(settings, &world_from_base, name),
+            }
+            .compose(&rows.poses[k]),
             wrench: rows.wrenches[k],
             hint_deg: rows.hints[k],
             tool: tools[k],
@@ -714,6 +749,10 @@ struct TargetRows {
     hints: Vec<Option<[f64; JOINTS]>>,
     /// Each row's carriage position (`e1_mm`; zeros without a track).
     track_mm: Vec<f64>,
+    /// Each row's positioner axis values (`p1_deg`, `p2_deg`; `None` where
+    /// not given), checked against the limits; given on every row in the
+    /// frame `positioner`.
+    positioner_deg: Vec<Option<[f64; MAX_POSITIONER_AXES]>>,
 }
 
 /// Values of an optional utf8 column: `None` where absent or null (a column
@@ -763,6 +802,8 @@ fn target_rows(
     let frame_column = optional_str(df, "frame", file)?;
     let tool_ids = optional_str(df, "tool_id", file)?;
     let track_mm = super::track_positions(df, file, robot.spec())?;
+    let positioner_deg =
+        super::positioner_rows::positioner_axes_of_targets(df, file, robot.spec())?;
     let bad = |row: usize, message: String| {
         StageError::Invalid(format!(
             "{}: row {row} (target_id {}): {message}",
@@ -778,6 +819,7 @@ fn target_rows(
         wrenches: Vec::with_capacity(ids.len()),
         hints: Vec::with_capacity(ids.len()),
         track_mm,
+        positioner_deg,
     };
     for row in 0..ids.len() {
         let frame_name = frame_column[row]
@@ -786,6 +828,28 @@ fn target_rows(
             .unwrap_or(&settings.frame);
         if let Some(problem) = settings.unknown_frame(frame_name) {
             return Err(bad(row, format!("column `frame`: {problem}")));
+        }
+        if frame_name == POSITIONER_FRAME {
+            if robot.spec().positioner.is_none() {
+                return Err(bad(
+                    row,
+                    format!(
+                        "frame `{POSITIONER_FRAME}`, but the robot file {} has no [positioner]",
+                        robot.spec().path.display()
+                    ),
+                ));
+            }
+            if rows.positioner_deg[row].is_none() {
+                return Err(bad(
+                    row,
+                    format!(
+                        "a target in the frame `{POSITIONER_FRAME}` needs the positioner's axis values ({})",
+                        schema::POSITIONER_COLUMNS
+                            [..robot.spec().positioner.as_ref().map_or(1, |p| p.axes.len())]
+                            .join(", ")
+                    ),
+                ));
+            }
         }
         let position_mm: [f64; 3] = std::array::from_fn(|i| position[i][row]);
         let distance = nalgebra::Vector3::from(position_mm).norm();
@@ -968,6 +1032,7 @@ fn commands_frame(
     ids: &[i64],
     commands: &[Command],
     track_targets: Option<&[Target]>,
+    positioner: Option<(usize, &[Option<[f64; MAX_POSITIONER_AXES]>])>,
 ) -> DataFrame {
     let mut columns = vec![Column::new("target_id".into(), ids.to_vec())];
     let float = |name: &str, f: &dyn Fn(&Command) -> f64| {
@@ -997,6 +1062,18 @@ fn commands_frame(
             schema::TRACK_COLUMN.into(),
             targets.iter().map(|t| t.track_mm).collect::<Vec<_>>(),
         ));
+    }
+    // The positioner's commands beside the arm's, where the targets gave them.
+    if let Some((axes, values)) = positioner.filter(|(_, v)| v.iter().any(Option::is_some)) {
+        for (axis, name) in schema::POSITIONER_COLUMNS[..axes].iter().enumerate() {
+            columns.push(Column::new(
+                (*name).into(),
+                values
+                    .iter()
+                    .map(|v| v.map(|v| v[axis]))
+                    .collect::<Vec<Option<f64>>>(),
+            ));
+        }
     }
     frame(columns)
 }

@@ -211,7 +211,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Programs for the controller from joint commands: ABB RAPID (.mod), KUKA KRL (.src/.dat), CSV, and a URDF of the calibrated geometry",
-    code_version: 5,
+    code_version: 6,
     inputs: &[
         TableSlot {
             name: "commands",
@@ -398,6 +398,21 @@ impl Stage for ExportProgramStage {
             for (command, e_mm) in commands.iter_mut().zip(track_mm) {
                 command.track_mm = Some(e_mm);
             }
+        }
+        // Commands at positioner axis values: a program without the
+        // positioner's moves would reach each target wherever the table
+        // happens to stand.
+        let positioner = super::positioner_rows::positioner_axes_of_targets(
+            &input.df,
+            &input.path,
+            ctx.robot.spec(),
+        )?;
+        if let Some(row) = positioner.iter().position(Option::is_some) {
+            return Err(StageError::Invalid(format!(
+                "{}: row {row} and others command the positioner ({}): egcal does not yet write a positioner's axes into programs, and a program without them would reach each target wherever the table stands; move the positioner from the commands table, or export the targets off the positioner",
+                input.path.display(),
+                crate::table::schema::POSITIONER_COLUMNS.join(", ")
+            )));
         }
         if !commands.iter().any(Command::is_ok) {
             let mut statuses = std::collections::BTreeMap::<&str, usize>::new();

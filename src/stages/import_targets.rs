@@ -101,6 +101,14 @@ pub struct TargetColumns {
     /// (`length_unit`; the robot file's `[track]` then needs it on every row).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub e1_mm: Option<String>,
+    /// The positioner's first axis for a target on its table (robot file
+    /// `[positioner]`, frame `positioner`), in `joint_unit`; empty cells
+    /// for targets off the table.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub p1_deg: Option<String>,
+    /// The positioner's second axis, as `p1_deg`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub p2_deg: Option<String>,
 }
 
 impl TargetColumns {
@@ -128,6 +136,8 @@ impl TargetColumns {
             "frame" => &self.frame,
             "tool_id" => &self.tool_id,
             "e1_mm" => &self.e1_mm,
+            "p1_deg" => &self.p1_deg,
+            "p2_deg" => &self.p2_deg,
             _ => &None,
         };
         value.as_deref()
@@ -210,7 +220,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "A file of tool poses (CSV or Parquet) as the targets table for compensate, units converted",
-    code_version: 2,
+    code_version: 3,
     inputs: &[],
     outputs: &[TableSlot {
         name: "targets",
@@ -221,7 +231,7 @@ static INFO: StageInfo = StageInfo {
 };
 
 /// Every contract column, in output order.
-const CONTRACT: [(&str, Kind); 22] = [
+const CONTRACT: [(&str, Kind); 24] = [
     ("target_id", Kind::Integer),
     ("x_mm", Kind::Position),
     ("y_mm", Kind::Position),
@@ -244,6 +254,8 @@ const CONTRACT: [(&str, Kind); 22] = [
     ("frame", Kind::Text),
     ("tool_id", Kind::Text),
     ("e1_mm", Kind::Position),
+    ("p1_deg", Kind::Joint),
+    ("p2_deg", Kind::Joint),
 ];
 
 const REQUIRED: [&str; 6] = ["x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"];
@@ -519,6 +531,17 @@ fn build(
             .collect();
         columns.push(Column::new(schema::TRACK_COLUMN.into(), values));
     }
+    for name in schema::POSITIONER_COLUMNS {
+        if let Some(m) = find(name) {
+            let factor = settings.factor(Kind::Joint);
+            let values: Vec<Option<f64>> = source
+                .optional_floats(m, rows.clone())?
+                .into_iter()
+                .map(|v| v.map(|v| v * factor))
+                .collect();
+            columns.push(Column::new(name.into(), values));
+        }
+    }
     Ok(crate::table::frame(columns))
 }
 
@@ -573,6 +596,23 @@ frame = "in"
             err.contains("line 3") && err.contains("columns.e1_mm") && err.contains("empty cell"),
             "{err}"
         );
+    }
+
+    #[test]
+    fn positioner_axes_are_read_in_the_joint_unit_and_may_be_empty() {
+        let dir = tempfile::tempdir().unwrap();
+        let toml = format!(
+            "path = \"t.csv\"\njoint_unit = \"rad\"\n{POSE}p1_deg = \"tilt\"\np2_deg = \"turn\"\n"
+        );
+        std::fs::write(
+            dir.path().join("t.csv"),
+            "id;x;y;z;a;b;c;force;in;tilt;turn\n7;0,9;0;1;0;0;0;;positioner;0,5;-1\n8;1;0;1;0;0;0;;;;\n",
+        )
+        .unwrap();
+        let (df, _, _) = import(&settings(&toml), dir.path()).unwrap();
+        let p1 = df.column("p1_deg").unwrap().f64().unwrap().clone();
+        assert!((p1.get(0).unwrap() - 0.5_f64.to_degrees()).abs() < 1e-12);
+        assert_eq!(p1.get(1), None);
     }
 
     #[test]

@@ -1530,7 +1530,7 @@ fn positioner_columns() -> [ColumnSpec; crate::robot::positioner::MAX_POSITIONER
             ColumnType::Float64,
             "deg",
             false,
-            "value of the positioner's first axis (robot file `[positioner]`) when the row was measured; required on rows whose `target_id` is one of the positioner's `nests`, within the axis's `limits_deg`; only allowed when the robot file has a positioner",
+            "value of the positioner's first axis (robot file `[positioner]`), within its `limits_deg`: in measurements, the axis when the row was measured (required on rows whose `target_id` is one of the positioner's `nests`); in targets and commands, the axis the target on the table is reached at (required on targets in the frame `positioner`); only allowed when the robot file has a positioner",
         ),
         col(
             POSITIONER_COLUMNS[1],
@@ -1618,6 +1618,7 @@ pub fn targets() -> TableSchema {
         "which target (SMR nest, tool) of the parameters' set must be on the pose (spec §8); null or absent: the stage's `tool` setting; needed with a several-target set",
     ));
     columns.push(track_column());
+    columns.extend(positioner_columns());
     TableSchema {
         kind: "targets",
         description: "Where the tool must be (spec §7, §8): what a `compensate` stage reads. Stages that compare with tracker measurements (accuracy, iso9283) take world-frame rows only.",
@@ -1729,6 +1730,7 @@ pub fn commands() -> TableSchema {
         ));
     }
     columns.push(track_column());
+    columns.extend(positioner_columns());
     TableSchema {
         kind: "commands",
         description: "Joint commands per target and the corrected Cartesian targets (spec §7): what `compensate` writes.",
