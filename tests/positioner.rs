@@ -26,6 +26,9 @@ use rand::{Rng, SeedableRng};
 
 use common::measured::{noisy, positions, write_measurements};
 
+/// `identify`'s settings for the stage tests.
+const IDENTIFY: &str = "models = [\"registered\", \"elastogeometric\"]\n";
+
 const NESTS: [&str; 3] = ["table_a", "table_b", "table_c"];
 
 fn robot_file() -> PathBuf {
@@ -236,29 +239,36 @@ fn write_cell_measurements(
     egcal::table::write_parquet(&mut df, path, None).unwrap();
 }
 
-fn identify_stage(dir: &Path, robot_file: &Path, input: &Path) -> (i32, String, PathBuf) {
-    let settings = dir.join("settings.toml");
-    std::fs::write(
-        &settings,
-        "models = [\"registered\", \"elastogeometric\"]\n",
-    )
-    .unwrap();
-    let out = dir.join("out");
-    let (code, stdout, stderr) = common::run(
-        &[
-            "stage",
-            "identify",
-            "--robot",
-            robot_file.to_str().unwrap(),
-            "--settings",
-            settings.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--input",
-            &format!("measurements={}", input.display()),
-        ],
-        dir,
-    );
+/// Runs `egcal stage <kind>` for the robot file `robot` with `settings`
+/// and `inputs` (name, path).
+fn stage(
+    dir: &Path,
+    robot: &Path,
+    kind: &str,
+    settings: &str,
+    inputs: &[(&str, &Path)],
+) -> (i32, String, PathBuf) {
+    let settings_path = dir.join(format!("{kind}.toml"));
+    std::fs::write(&settings_path, settings).unwrap();
+    let out = dir.join(format!("out_{kind}"));
+    let mut args: Vec<String> = [
+        "stage",
+        kind,
+        "--robot",
+        robot.to_str().unwrap(),
+        "--settings",
+        settings_path.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]
+    .map(String::from)
+    .to_vec();
+    for (name, path) in inputs {
+        args.push("--input".into());
+        args.push(format!("{name}={}", path.display()));
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (code, stdout, stderr) = common::run(&args, dir);
     (code, format!("{stdout}{stderr}"), out)
 }
 
@@ -275,7 +285,13 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
     let measured = noisy(&positions(&robot, &truth, &rows), 0.02, 13);
     let input = dir.path().join("measurements.parquet");
     write_cell_measurements(&input, &rows, &measured, &["p1_deg", "p2_deg"]);
-    let (code, log, out) = identify_stage(dir.path(), &robot_file(), &input);
+    let (code, log, out) = stage(
+        dir.path(),
+        &robot_file(),
+        "identify",
+        IDENTIFY,
+        &[("measurements", &input)],
+    );
     assert_eq!(code, 0, "{log}");
     assert!(
         log.contains("the positioner's base and nests: rms"),
@@ -313,14 +329,26 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
     // for a robot file without a positioner.
     let bad = dir.path().join("bad.parquet");
     write_cell_measurements(&bad, &rows, &measured, &["p1_deg"]);
-    let (code, log, _) = identify_stage(dir.path(), &robot_file(), &bad);
+    let (code, log, _) = stage(
+        dir.path(),
+        &robot_file(),
+        "identify",
+        IDENTIFY,
+        &[("measurements", &bad)],
+    );
     assert_eq!(code, 2, "{log}");
     assert!(log.contains("p2_deg") && log.contains("table_"), "{log}");
     let mut beyond = rows.clone();
     let k = 205;
     beyond[k].positioner_deg = Some([95.0, 0.0]);
     write_cell_measurements(&bad, &beyond, &measured, &["p1_deg", "p2_deg"]);
-    let (code, log, _) = identify_stage(dir.path(), &robot_file(), &bad);
+    let (code, log, _) = stage(
+        dir.path(),
+        &robot_file(),
+        "identify",
+        IDENTIFY,
+        &[("measurements", &bad)],
+    );
     assert_eq!(code, 2, "{log}");
     assert!(
         log.contains("p1_deg") && log.contains(&format!("row {k}")) && log.contains("limits"),
@@ -328,43 +356,18 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
     );
     write_cell_measurements(&bad, &rows, &measured, &["p1_deg", "p2_deg"]);
     let plain = common::root().join("jobs/robots/irb1600_145.toml");
-    let (code, log, _) = identify_stage(dir.path(), &plain, &bad);
+    let (code, log, _) = stage(
+        dir.path(),
+        &plain,
+        "identify",
+        IDENTIFY,
+        &[("measurements", &bad)],
+    );
     assert_eq!(code, 2, "{log}");
     assert!(
         log.contains("p1_deg") && log.contains("no [positioner]"),
         "{log}"
     );
-}
-
-/// Runs `egcal stage <kind>` with `settings` and `inputs` (name, path).
-fn stage(
-    dir: &Path,
-    kind: &str,
-    settings: &str,
-    inputs: &[(&str, &Path)],
-) -> (i32, String, PathBuf) {
-    let settings_path = dir.join(format!("{kind}.toml"));
-    std::fs::write(&settings_path, settings).unwrap();
-    let out = dir.join(format!("out_{kind}"));
-    let mut args: Vec<String> = [
-        "stage",
-        kind,
-        "--robot",
-        robot_file().to_str().unwrap(),
-        "--settings",
-        settings_path.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]
-    .map(String::from)
-    .to_vec();
-    for (name, path) in inputs {
-        args.push("--input".into());
-        args.push(format!("{name}={}", path.display()));
-    }
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let (code, stdout, stderr) = common::run(&args, dir);
-    (code, format!("{stdout}{stderr}"), out)
 }
 
 /// The user's path for work on the table: calibrate arm and positioner
@@ -387,6 +390,7 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
     write_cell_measurements(&input, &rows, &measured, &["p1_deg", "p2_deg"]);
     let (code, log, identified) = stage(
         dir.path(),
+        &robot_file(),
         "identify",
         "models = [\"elastogeometric\"]\n",
         &[("measurements", &input)],
@@ -423,6 +427,7 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
     let parameters = identified.join("parameters.parquet");
     let (code, log, out) = stage(
         dir.path(),
+        &robot_file(),
         "compensate",
         "model = \"elastogeometric\"\ntool = \"arm\"\n",
         &[("targets", &targets_path), ("parameters", &parameters)],
@@ -464,6 +469,7 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
     let commands_path = out.join("commands.parquet");
     let (code, log, _) = stage(
         dir.path(),
+        &robot_file(),
         "export_program",
         "formats = [\"csv\"]\n",
         &[("commands", &commands_path)],
@@ -480,6 +486,7 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
     egcal::table::write_parquet(&mut partial, &partial_path, None).unwrap();
     let (code, log, _) = stage(
         dir.path(),
+        &robot_file(),
         "compensate",
         "model = \"elastogeometric\"\ntool = \"arm\"\n",
         &[("targets", &partial_path), ("parameters", &parameters)],
