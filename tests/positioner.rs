@@ -370,11 +370,209 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
     );
 }
 
+/// The commands exported as programs and read back as each controller
+/// would: RAPID's `eax_a`, `eax_b`, KRL's `E1`, `E2`, the CSV's `p1_deg`,
+/// `p2_deg` and Yaskawa's station pulses equal each command's axis values;
+/// the FANUC joint positions of group 1 with group 2's `J1`, `J2`, run on
+/// the true cell, put the SMR on the targets where the true table holds
+/// them.
+fn the_programs_move_the_positioner_to_each_target(
+    dir: &Path,
+    robot: &Robot,
+    truth: &ParamValues,
+    commands: &Path,
+    on_table_mm: &[[f64; 3]],
+    table_at: &[[f64; 2]],
+) {
+    let (code, log, out) = stage(
+        dir,
+        &robot_file(),
+        "export_program",
+        "formats = [\"rapid\", \"krl\", \"fanuc\", \"csv\"]\nmodule_name = \"TABLE\"\nmotion = \"both\"\n",
+        &[("commands", commands)],
+    );
+    assert_eq!(code, 0, "{log}");
+    let text = |name: &str| std::fs::read_to_string(out.join(name)).unwrap();
+    let close = |read: &[f64], k: usize, what: &str| {
+        assert!(
+            (read[0] - table_at[k][0]).abs() < 1e-4 && (read[1] - table_at[k][1]).abs() < 1e-4,
+            "{what}: {read:?}, commanded {:?}",
+            table_at[k]
+        );
+    };
+    // RAPID: jointtarget jt_<id> and robtarget pt_<id>, the axes in eax_a,
+    // eax_b of their extjoint (the last bracket).
+    let rapid = text("TABLE.mod");
+    assert!(rapid.contains("are eax_a, eax_b (deg)"), "{rapid}");
+    for prefix in ["jt_", "pt_"] {
+        for k in 0..table_at.len() {
+            let line = rapid
+                .lines()
+                .find(|l| l.contains(&format!(" {prefix}{k} := ")))
+                .unwrap_or_else(|| panic!("RAPID: no {prefix}{k}"));
+            let extjoint = line.rsplit('[').next().unwrap();
+            let axes: Vec<f64> = extjoint
+                .split(',')
+                .take(2)
+                .map(|v| v.trim().parse().unwrap())
+                .collect();
+            close(&axes, k, &format!("RAPID {prefix}{k}"));
+        }
+    }
+    // KRL: E6AXIS XJ_<id> and E6POS XP_<id> with E1, E2.
+    let krl = text("TABLE.dat");
+    for prefix in ["XJ_", "XP_"] {
+        for k in 0..table_at.len() {
+            let line = krl
+                .lines()
+                .find(|l| l.contains(&format!(" {prefix}{k}={{")))
+                .unwrap_or_else(|| panic!("KRL: no {prefix}{k}"));
+            let axes: Vec<f64> = ["E1 ", "E2 "]
+                .iter()
+                .map(|name| {
+                    line.split([',', '}'])
+                        .find_map(|field| field.trim().strip_prefix(name))
+                        .unwrap()
+                        .parse()
+                        .unwrap()
+                })
+                .collect();
+            close(&axes, k, &format!("KRL {prefix}{k}"));
+        }
+    }
+    // CSV: the p1_deg, p2_deg columns.
+    let csv = text("commands.csv");
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|c| *c == name).expect(name);
+    let (p1, p2) = (column("p1_deg"), column("p2_deg"));
+    for line in lines {
+        let fields: Vec<&str> = line.split(',').collect();
+        let k: usize = fields[0].parse().unwrap();
+        let axes = [fields[p1].parse().unwrap(), fields[p2].parse().unwrap()];
+        close(&axes, k, "CSV");
+    }
+    // FANUC: each target's joint-form position, group 1's J1 … J6 and group
+    // 2's J1, J2, run on the true cell.
+    let fanuc = text("TABLE.ls");
+    assert!(fanuc.contains("DEFAULT_GROUP\t= 1,1,*,*,*;"), "{fanuc}");
+    let mut reached = 0;
+    for block in fanuc.split("P[").skip(1) {
+        let Some(k) = block
+            .split('"')
+            .nth(1)
+            .and_then(|label| label.strip_prefix("target "))
+        else {
+            continue;
+        };
+        let (group1, group2) = block.split_once("GP2:").expect("GP2");
+        if !group1.contains("J1=") {
+            continue; // the Cartesian position of the same target
+        }
+        let k: usize = k.parse().unwrap();
+        let value = |text: &str, name: &str| -> f64 {
+            let after = text.split(&format!("{name}=")).nth(1).unwrap();
+            after.split_whitespace().next().unwrap().parse().unwrap()
+        };
+        let q: [f64; 6] = std::array::from_fn(|j| value(group1, &format!("J{}", j + 1)));
+        let axes = [value(group2, "J1"), value(group2, "J2")];
+        assert!(
+            (axes[0] - table_at[k][0]).abs() < 1e-3 && (axes[1] - table_at[k][1]).abs() < 1e-3,
+            "FANUC target {k}: {axes:?}"
+        );
+        let smr = positions(robot, truth, &[ConfWrench::new(q, Wrench::zero())])[0];
+        let mut on_table = *truth;
+        for axis in 0..3 {
+            on_table.set(ParamId::target_translation(1, axis), on_table_mm[k][axis]);
+        }
+        let nest = ConfWrench {
+            target: 1,
+            positioner_deg: Some(axes),
+            ..ConfWrench::new([0.0; 6], Wrench::zero())
+        };
+        let target = positions(robot, &on_table, &[nest])[0];
+        let miss = (smr - target).norm();
+        assert!(miss < 0.1, "FANUC target {k}: {miss} mm from the target");
+        reached += 1;
+    }
+    assert_eq!(reached, table_at.len(), "one joint position per command");
+
+    // Yaskawa: the positioner is the station, in pulses of each axis's
+    // ratio; refused naming the key without them.
+    let yaskawa = "formats = [\"yaskawa\"]\nmodule_name = \"TABLE\"\nmotion = \"linear\"\npre_position_deg = 0.0\n";
+    let (code, log, _) = stage(
+        dir,
+        &robot_file(),
+        "export_program",
+        yaskawa,
+        &[("commands", commands)],
+    );
+    assert_ne!(code, 0, "{log}");
+    assert!(log.contains("positioner.axes[0].pulses_per_deg"), "{log}");
+    let shipped = std::fs::read_to_string(robot_file()).unwrap();
+    let ratios = [1000.0, -500.0];
+    let with_pulses = shipped
+        .replacen(
+            "limits_deg = [-90.0, 90.0]\n",
+            &format!(
+                "limits_deg = [-90.0, 90.0]\npulses_per_deg = {:?}\n",
+                ratios[0]
+            ),
+            1,
+        )
+        .replacen(
+            "limits_deg = [-360.0, 360.0]",
+            &format!(
+                "limits_deg = [-360.0, 360.0]\npulses_per_deg = {:?}",
+                ratios[1]
+            ),
+            1,
+        );
+    assert_eq!(with_pulses.matches("pulses_per_deg").count(), 2);
+    let robot_path = dir.join("positioner_with_pulses.toml");
+    std::fs::write(&robot_path, with_pulses).unwrap();
+    let (code, log, out) = stage(
+        dir,
+        &robot_path,
+        "export_program",
+        yaskawa,
+        &[("commands", commands)],
+    );
+    assert_eq!(code, 0, "{log}");
+    let job = std::fs::read_to_string(out.join("TABLE.jbi")).unwrap();
+    let n = table_at.len();
+    assert!(job.contains(&format!("///NPOS {n},0,{n},0,0,0\n")), "{job}");
+    assert!(job.contains("///GROUP1 RB1,ST1\n"), "{job}");
+    for (k, at) in table_at.iter().enumerate() {
+        let pulses: Vec<f64> = job
+            .lines()
+            .find_map(|l| l.strip_prefix(&format!("EC{k:05}=")))
+            .unwrap_or_else(|| panic!("no EC{k:05}"))
+            .split(',')
+            .map(|v| v.parse().unwrap())
+            .collect();
+        for axis in 0..2 {
+            assert!(
+                (pulses[axis] / ratios[axis] - at[axis]).abs() <= 0.5 / ratios[axis].abs(),
+                "EC{k:05} axis {axis}: {} pulses for {} deg",
+                pulses[axis],
+                at[axis]
+            );
+        }
+        assert!(
+            job.lines()
+                .any(|l| l.starts_with(&format!("MOV"))
+                    && l.contains(&format!("C{k:05} EC{k:05} V"))),
+            "no move to C{k:05} EC{k:05}"
+        );
+    }
+}
+
 /// The user's path for work on the table: calibrate arm and positioner
 /// from the tracker's rows, then compensate targets given on the table at
 /// its axis values. The commands, run on the true cell, put the SMR on the
 /// targets where the true table holds them; the commands carry the axis
-/// values; and a program is refused rather than written without them.
+/// values; and the programs move the positioner with the arm.
 #[test]
 fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
     let dir = tempfile::tempdir().unwrap();
@@ -465,19 +663,14 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
         eprintln!("target {k} at {:?}: {miss:.4} mm", cases[k].1);
         assert!(miss < 0.1, "target {k}: {miss} mm");
     }
-    // A program is refused rather than written without the positioner's moves.
-    let commands_path = out.join("commands.parquet");
-    let (code, log, _) = stage(
+    let table_at: Vec<[f64; 2]> = cases.iter().map(|c| c.1).collect();
+    the_programs_move_the_positioner_to_each_target(
         dir.path(),
-        &robot_file(),
-        "export_program",
-        "formats = [\"csv\"]\n",
-        &[("commands", &commands_path)],
-    );
-    assert_eq!(code, 2, "{log}");
-    assert!(
-        log.contains("p1_deg") && log.contains("positioner"),
-        "{log}"
+        &robot,
+        &truth,
+        &out.join("commands.parquet"),
+        &cases.map(|c| c.0),
+        &table_at,
     );
     // A target on the table without its axis values.
     let mut partial = egcal::table::read_parquet(&targets_path).unwrap();

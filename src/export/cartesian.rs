@@ -15,6 +15,7 @@ use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 
 use super::Command;
 use crate::robot::ik;
+use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{Frame, JOINTS, ParamValues, Robot};
 
 /// The tool a program declares and whose point its Cartesian targets are: flange
@@ -89,6 +90,9 @@ pub struct Stop {
     /// The track's carriage position at every move of the stop (mm): the
     /// arm's poses are in the base frame riding on it. `None` without a track.
     pub track_mm: Option<f64>,
+    /// The positioner's axis values at every move of the stop (deg); `None`
+    /// when the program does not move it.
+    pub positioner_deg: Option<[f64; MAX_POSITIONER_AXES]>,
 }
 
 /// Why a program's Cartesian moves cannot be written.
@@ -182,6 +186,7 @@ pub fn stops(
                 approach,
                 pre_position_q_deg,
                 track_mm: c.track_mm,
+                positioner_deg: c.positioner_deg,
             })
         })
         .collect()
@@ -335,6 +340,7 @@ mod tests {
             u95_mm: None,
             approach: [0; JOINTS],
             track_mm: None,
+            positioner_deg: None,
         }
     }
 

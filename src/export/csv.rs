@@ -3,7 +3,9 @@
 //! it is; in the `commands` table's column order and names, then the optional
 //! columns the table had (`tool_id`, `envelope_distance`, `u95_mm`, `dir1 …
 //! dir6`), and `pre_q1_deg … pre_q6_deg`, the configuration to move to before
-//! the row (empty where none), when the program pre-positions. What every
+//! the row (empty where none), when the program pre-positions; `e1_mm` on a
+//! track and `p1_deg`, `p2_deg` when the program moves a positioner (a row
+//! off the table repeats where the table stands). What every
 //! exported file says in its header (provenance, assumptions, the tool the
 //! Cartesian columns are poses of, the rows left out) goes to the notes file
 //! beside it ([`notes`], `commands.csv.txt`).
@@ -13,11 +15,13 @@
 //! [`super::cartesian`]); they equal the table's when the table was computed
 //! for that tool, and the notes warn when it was not.
 
-use crate::robot::JOINTS;
+use crate::robot::{JOINTS, Robot};
+use crate::table::schema::POSITIONER_COLUMNS;
 
 use super::{
     JOINT_DECIMALS, POSITION_DECIMALS, Program, QUATERNION_DECIMALS, fixed, header_lines,
-    printed_precision, skipped_lines, tool_lines, track_lines, warning_lines,
+    positioner_axis_count, positioner_lines, printed_precision, skipped_lines, tool_lines,
+    track_lines, warning_lines,
 };
 
 /// Column names, as in the `commands` table.
@@ -37,10 +41,13 @@ struct Optional {
     approach: bool,
     pre_position: bool,
     track: bool,
+    /// How many positioner axis columns: the robot file's axes when the
+    /// program moves the positioner, else 0.
+    positioner_axes: usize,
 }
 
 impl Optional {
-    fn of(program: &Program) -> Self {
+    fn of(robot: &Robot, program: &Program) -> Self {
         let any = |f: &dyn Fn(&super::Command) -> bool| program.commands.iter().any(f);
         Optional {
             tool_id: any(&|c| c.tool_id.is_some()),
@@ -49,6 +56,11 @@ impl Optional {
             approach: any(&|c| c.has_approach()),
             pre_position: program.stops.iter().any(|s| s.pre_position_q_deg.is_some()),
             track: any(&|c| c.track_mm.is_some()),
+            positioner_axes: if any(&|c| c.positioner_deg.is_some()) {
+                positioner_axis_count(robot)
+            } else {
+                0
+            },
         }
     }
 }
@@ -64,8 +76,8 @@ fn field(text: &str) -> String {
 }
 
 /// The CSV text: header line, then the `ok` rows.
-pub fn table(program: &Program) -> String {
-    let optional = Optional::of(program);
+pub fn table(robot: &Robot, program: &Program) -> String {
+    let optional = Optional::of(robot, program);
     let mut out = String::from(COLUMNS);
     for (present, name) in [
         (optional.tool_id, "tool_id"),
@@ -85,6 +97,10 @@ pub fn table(program: &Program) -> String {
     }
     if optional.track {
         out.push_str(",e1_mm");
+    }
+    for name in &POSITIONER_COLUMNS[..optional.positioner_axes] {
+        out.push(',');
+        out.push_str(name);
     }
     out.push('\n');
     let ok = program.commands.iter().filter(|c| c.is_ok());
@@ -132,6 +148,13 @@ pub fn table(program: &Program) -> String {
         if optional.track {
             fields.push(number(c.track_mm));
         }
+        if let Some(p_deg) = c.positioner_deg {
+            fields.extend(
+                p_deg[..optional.positioner_axes]
+                    .iter()
+                    .map(|v| fixed(*v, JOINT_DECIMALS)),
+            );
+        }
         out.push_str(&fields.join(","));
         out.push('\n');
     }
@@ -139,7 +162,7 @@ pub fn table(program: &Program) -> String {
 }
 
 /// The notes file: what the CSV is, its tool, and the rows it leaves out.
-pub fn notes(program: &Program) -> String {
+pub fn notes(robot: &Robot, program: &Program) -> String {
     // The CSV declares no names; a tool is told apart by its target.
     let names = vec!["of the Cartesian columns".to_string(); program.tools.len()];
     let mut lines = header_lines(&program.provenance, "commands.csv", printed_precision());
@@ -151,6 +174,13 @@ pub fn notes(program: &Program) -> String {
     ]);
     lines.extend(tool_lines(program, &names));
     lines.extend(track_lines(program, "column e1_mm"));
+    lines.extend(positioner_lines(
+        program,
+        &format!(
+            "columns {} (deg)",
+            POSITIONER_COLUMNS[..positioner_axis_count(robot)].join(", ")
+        ),
+    ));
     lines.extend(warning_lines(program));
     lines.extend(skipped_lines(&program.commands));
     let mut out = lines.join("\n");

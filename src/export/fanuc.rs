@@ -29,14 +29,18 @@
 //! must be the robot file's base. The payload cannot be set from a TP
 //! program: the header names the schedule's values to select.
 //!
+//! A positioner is motion group 2 (`DEFAULT_GROUP = 1,1,*,*,*`): each
+//! position carries `GP2:` with its axes as `J1`, `J2` in deg, so every move
+//! moves the table with the arm.
+//!
 //! Every move ends in `FINE`: FANUC's `CNT` is not a radius, so the stage
 //! refuses a zone for this format.
 
 use super::moves::{self, Destination, Move};
 use super::{
     MASS_DECIMALS, MotionSettings, Program, fixed, header_lines, narrow_comment_lines,
-    rotation_from_quaternion, skipped_lines, tool_lines, tool_names, track_lines, warning_lines,
-    wrist_placement, zyx_angles,
+    positioner_axis_count, positioner_lines, rotation_from_quaternion, skipped_lines, tool_lines,
+    tool_names, track_lines, warning_lines, wrist_placement, zyx_angles,
 };
 use crate::robot::{JOINTS, Robot};
 
@@ -155,7 +159,19 @@ fn position(robot: &Robot, index: usize, step: &Move, frames: &FanucFrames) -> S
         .track_mm
         .map(|e| format!(",\n\tE1= {}  mm", fixed(e, DECIMALS)))
         .unwrap_or_default();
-    format!("{label}{{\n   GP1:\n{body}{track}\n}};\n")
+    // The positioner: motion group 2's joints J1, J2 in deg.
+    let positioner = step
+        .positioner_deg
+        .map(|p_deg| {
+            let joints: Vec<String> = p_deg[..positioner_axis_count(robot)]
+                .iter()
+                .enumerate()
+                .map(|(k, v)| format!("J{}= {} deg", k + 1, fixed(*v, DECIMALS)))
+                .collect();
+            format!("\n   GP2:\n{frame_line}\n\t{}", joints.join(",\t"))
+        })
+        .unwrap_or_default();
+    format!("{label}{{\n   GP1:\n{body}{track}{positioner}\n}};\n")
 }
 
 /// The lines that put `program`'s tool `tool` into `UTOOL[t]`.
@@ -212,6 +228,14 @@ pub fn program(
         "Frame: UFRAME_NUM=0, the world frame, which must be the robot file's base frame.".into(),
     );
     remarks.extend(track_lines(program, "E1 of group 1 (not integrated)"));
+    remarks.extend(positioner_lines(
+        program,
+        &format!(
+            "group 2's J1 ... J{} (deg, DEFAULT_GROUP 1,1)",
+            positioner_axis_count(robot)
+        ),
+    ));
+    let moves_positioner = program.commands.iter().any(|c| c.positioner_deg.is_some());
     if robot.spec().controller.j3_from_j2 != 0.0 {
         remarks.push(format!(
             "J3 is FANUC's, from the horizontal: J3 = q3 + {} * q2 of the robot file.",
@@ -268,7 +292,11 @@ pub fn program(
         "      BUSY_LAMP_OFF\t= 0,".into(),
         "      ABORT_REQUEST\t= 0,".into(),
         "      PAUSE_REQUEST\t= 0;".into(),
-        "DEFAULT_GROUP\t= 1,*,*,*,*;".into(),
+        if moves_positioner {
+            "DEFAULT_GROUP\t= 1,1,*,*,*;".into()
+        } else {
+            "DEFAULT_GROUP\t= 1,*,*,*,*;".into()
+        },
         "CONTROL_CODE\t= 00000000 00000000;".into(),
     ] {
         out.push_str(&line);

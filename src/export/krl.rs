@@ -32,12 +32,18 @@
 //! `.src` assigns them to `$TOOL` and `$BASE` (and the robot file's payload to
 //! `$LOAD`) before the first move, rather than assuming what `TOOL_DATA` or
 //! `$NULLFRAME` hold.
+//!
+//! External axes are `E1` … in every `E6AXIS` and `E6POS`
+//! ([`super::external_axes`]): the track's carriage (mm), then the
+//! positioner's axes (deg); unused ones are 0.0.
 
 use super::cartesian::Pose;
 use super::{
     EULER_DECIMALS, JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload,
-    Program, ProgramTool, fixed, header_lines, printed_precision, rotation_from_quaternion,
-    skipped_lines, tool_lines, tool_names, track_lines, warning_lines, wrist_placement, zyx_angles,
+    Program, ProgramTool, external_axes, fixed, header_lines, positioner_axis_count,
+    positioner_lines, printed_precision,
+    rotation_from_quaternion, skipped_lines, tool_lines, tool_names, track_lines, warning_lines,
+    wrist_placement, zyx_angles,
 };
 use crate::robot::{JOINTS, Robot};
 
@@ -105,7 +111,7 @@ fn load_value(payload: &Payload, tool: &ProgramTool) -> String {
     )
 }
 
-fn header(out: &mut String, program: &Program, kind: &str) {
+fn header(out: &mut String, robot: &Robot, program: &Program, kind: &str) {
     let tools = tool_names(TOOL_NAME, program.tools.len());
     let load_lines: Vec<String> = match &program.payload {
         Some(payload) => vec![format!(
@@ -127,6 +133,13 @@ fn header(out: &mut String, program: &Program, kind: &str) {
             "kinematics); $IPO_MODE = #BASE: the tool is on the flange.".into(),
         ])
         .chain(&track_lines(program, "E1 ($ROBROOT stays at $WORLD)"))
+        .chain(&positioner_lines(program, &{
+            let first = 1 + usize::from(robot.spec().track.is_some());
+            let names: Vec<String> = (0..positioner_axis_count(robot))
+                .map(|k| format!("E{}", first + k))
+                .collect();
+            format!("{} (deg)", names.join(", "))
+        }))
         .chain(&load_lines)
         .chain(&[
             "Status/Turn from the nominal arm at each joint command; Status bit 4 (absolutely accurate) is 0.".into(),
@@ -151,7 +164,7 @@ fn e6pos(robot: &Robot, pose: &Pose, externals: &str) -> String {
 /// (and an approach `E6POS`) per `ok` row.
 pub fn dat(robot: &Robot, program: &Program, motion: &MotionSettings) -> String {
     let mut out = format!("DEFDAT {}\n", motion.name);
-    header(&mut out, program, "KUKA KRL data list");
+    header(&mut out, robot, program, "KUKA KRL data list");
     out.push_str(&format!(
         "DECL FRAME {BASE_NAME}={{{}}}\n",
         frame_fields([0.0; 3], [1.0, 0.0, 0.0, 0.0])
@@ -174,11 +187,18 @@ pub fn dat(robot: &Robot, program: &Program, motion: &MotionSettings) -> String 
         format!("{{{},{externals}}}", axes.join(","))
     };
     for stop in &program.stops {
-        // The track is E1 (mm); the other external axes are unused.
-        let e1 = stop
-            .track_mm
-            .map_or_else(|| "0.0".to_string(), |e| fixed(e, POSITION_DECIMALS));
-        let externals = format!("E1 {e1},E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0");
+        // The track (mm) and the positioner (deg) from E1 on; the other
+        // external axes are unused.
+        let external = external_axes(robot, stop.track_mm, stop.positioner_deg);
+        let externals: Vec<String> = (0..6)
+            .map(|k| {
+                let value = external
+                    .get(k)
+                    .map_or_else(|| "0.0".to_string(), |v| fixed(*v, POSITION_DECIMALS));
+                format!("E{} {value}", k + 1)
+            })
+            .collect();
+        let externals = externals.join(",");
         let externals = externals.as_str();
         if let Some(q) = &stop.pre_position_q_deg {
             out.push_str(&format!(
@@ -216,9 +236,9 @@ pub fn dat(robot: &Robot, program: &Program, motion: &MotionSettings) -> String 
 /// The `.src` file: settings, the base, tool and load, then the motions to the
 /// `ok` rows; with several tools, `$TOOL` (and `$LOAD`) change before the first
 /// move of a row with another tool.
-pub fn src(program: &Program, motion: &MotionSettings) -> String {
+pub fn src(robot: &Robot, program: &Program, motion: &MotionSettings) -> String {
     let mut out = format!("DEF {}( )\n", motion.name);
-    header(&mut out, program, "KUKA KRL program");
+    header(&mut out, robot, program, "KUKA KRL program");
     // KUKA's standard initialisation: accelerations, orientation control and
     // the other motion variables a program must set before its first move get
     // the controller's defaults; the lines after it set what egcal chooses.
@@ -387,7 +407,7 @@ mod tests {
         assert!(dat_text.contains(
             "DECL FRAME XTOOL={X 22.0000,Y 50.0000,Z 150.0000,A 0.000000,B 0.000000,C 0.000000}\n"
         ));
-        let src_text = src(&program, &motion);
+        let src_text = src(&robot, &program, &motion);
         let body: Vec<&str> = src_text.lines().filter(|l| !l.starts_with(';')).collect();
         let first_move = body.iter().position(|l| l.starts_with("PTP")).unwrap();
         for expected in [
@@ -434,7 +454,7 @@ mod tests {
             dat.contains("DECL E6AXIS XB_3={A1 9.000000,A2 21.000000,A3 -30.000000,A4 40.000000,A5 50.000000,A6 60.000000,E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}"),
             "{dat}"
         );
-        let moves: Vec<String> = src(&program, &motion)
+        let moves: Vec<String> = src(&robot, &program, &motion)
             .lines()
             .filter(|l| l.starts_with("PTP") || l.starts_with("LIN"))
             .map(String::from)

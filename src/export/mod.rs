@@ -39,6 +39,7 @@ pub mod yaskawa;
 
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
+use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{Frame, JOINTS, ParamValues, Robot};
 pub use cartesian::{Payload, ProgramTool, Stop};
 
@@ -87,6 +88,10 @@ pub struct Command {
     /// the programs move it as the first external axis. `None` without a
     /// track.
     pub track_mm: Option<f64>,
+    /// The positioner's axis values for the command (`p1_deg`, `p2_deg`,
+    /// deg; the robot file's axes, the rest 0): the programs move it with
+    /// the arm. `None` when no command of the program moves it.
+    pub positioner_deg: Option<[f64; MAX_POSITIONER_AXES]>,
 }
 
 impl Command {
@@ -111,6 +116,46 @@ pub fn track_lines(program: &Program, axis: &str) -> Vec<String> {
     vec![
         format!("Track: the carriage is {axis}, in mm, an external axis the arm's kinematics"),
         "do not carry: each Cartesian position is in the base frame riding on the carriage.".into(),
+    ]
+}
+
+/// The values of a move's external axes in the order RAPID's `eax_a …` and
+/// KRL's `E1 …` number them on a controller configured with exactly these
+/// axes: the track's carriage (mm) first when the robot rides one, then the
+/// positioner's axes (deg) when the program moves it.
+pub fn external_axes(
+    robot: &Robot,
+    track_mm: Option<f64>,
+    positioner_deg: Option<[f64; MAX_POSITIONER_AXES]>,
+) -> Vec<f64> {
+    let axes = positioner_axis_count(robot);
+    track_mm
+        .into_iter()
+        .chain(
+            positioner_deg
+                .iter()
+                .flat_map(|p| p[..axes].iter().copied()),
+        )
+        .collect()
+}
+
+/// How many axes the robot file's positioner has (0 without one).
+pub fn positioner_axis_count(robot: &Robot) -> usize {
+    robot.spec().positioner.as_ref().map_or(0, |p| p.axes.len())
+}
+
+/// The header lines of a program that moves a positioner: which of the
+/// format's axes carry it (`axes`, e.g. "eax_a, eax_b (deg)"), and what the
+/// Cartesian positions mean with it. None when no command moves it.
+pub fn positioner_lines(program: &Program, axes: &str) -> Vec<String> {
+    if program.commands.iter().all(|c| c.positioner_deg.is_none()) {
+        return Vec::new();
+    }
+    vec![
+        format!("Positioner: its axes are {axes}, moved with the arm but not coordinated:"),
+        "each Cartesian position is in the robot base frame with the table at the command's axis"
+            .into(),
+        "values; a target off the table keeps the table where the move before left it.".into(),
     ]
 }
 
@@ -401,6 +446,12 @@ pub fn unprintable(program: &Program, motion: &MotionSettings) -> Option<String>
             values.push((row("elastic_mm"), c.elastic_mm));
         }
         values.extend(c.track_mm.map(|v| (row("e1_mm"), v)));
+        values.extend(
+            c.positioner_deg
+                .iter()
+                .flatten()
+                .map(|v| (row("positioner axis"), *v)),
+        );
         values.extend(c.envelope_distance.map(|v| (row("envelope_distance"), v)));
         values.extend(c.u95_mm.map(|v| (row("u95_mm"), v)));
     }
@@ -763,6 +814,7 @@ pub(crate) mod test_support {
                 u95_mm: None,
                 approach: [0; JOINTS],
                 track_mm: None,
+                positioner_deg: None,
             })
             .collect();
         let tool = ProgramTool {
@@ -904,6 +956,7 @@ mod tests {
             u95_mm: None,
             approach: [0; JOINTS],
             track_mm: None,
+            positioner_deg: None,
         };
         let lines = skipped_lines(std::slice::from_ref(&command));
         assert_eq!(lines[1], "  target_id 3: unreachable MoveAbsJ jt_1");

@@ -13,6 +13,7 @@
 
 use super::cartesian::{Pose, tool_in_base};
 use super::{MotionSettings, Program};
+use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{JOINTS, Robot};
 
 /// Where a move goes.
@@ -61,6 +62,9 @@ pub struct Move {
     /// The track's carriage position (mm), the first external axis; `None`
     /// without a track.
     pub track_mm: Option<f64>,
+    /// The positioner's axis values (deg); `None` when the program does not
+    /// move it.
+    pub positioner_deg: Option<[f64; MAX_POSITIONER_AXES]>,
 }
 
 /// The joint path: joint moves to every `ok` row's command.
@@ -74,6 +78,7 @@ pub fn joint_path(program: &Program) -> Vec<Move> {
             linear: false,
             destination: Destination::Joints(q_deg),
             track_mm: stop.track_mm,
+            positioner_deg: stop.positioner_deg,
         };
         if let Some(q) = stop.pre_position_q_deg {
             moves.push(joint_move(Role::PrePosition, q));
@@ -94,6 +99,7 @@ pub fn linear_path(program: &Program) -> Vec<Move> {
             linear,
             destination,
             track_mm: stop.track_mm,
+            positioner_deg: stop.positioner_deg,
         };
         // The first move of the path is joint-interpolated: where the robot
         // starts is unknown.

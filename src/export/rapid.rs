@@ -23,12 +23,18 @@
 //! the robot base as a work object (`PERS wobjdata`, identity frames), and every
 //! move names both; `tool0`, ABB's flange, is never used, since it cannot be
 //! redefined and the robtargets are not poses of the flange.
+//!
+//! External axes fill `extjoint` from `eax_a` on ([`super::external_axes`]):
+//! the track's carriage (mm), then the positioner's axes (deg), as a
+//! controller with exactly these axes numbers them; unused ones are 9E9.
 
 use super::cartesian::Pose;
 use super::{
     JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload, Program,
-    ProgramTool, QUATERNION_DECIMALS, Stop, fixed, header_lines, printed_precision, skipped_lines,
-    tool_lines, tool_names, track_lines, warning_lines, wrist_placement,
+    ProgramTool, QUATERNION_DECIMALS, Stop, external_axes, fixed, header_lines, positioner_axis_count,
+    positioner_lines,
+    printed_precision, skipped_lines, tool_lines, tool_names, track_lines, warning_lines,
+    wrist_placement,
 };
 use crate::robot::{JOINTS, Robot};
 
@@ -66,21 +72,37 @@ pub fn confdata(robot: &Robot, q_deg: &[f64; JOINTS]) -> ConfData {
 }
 
 /// A `jointtarget` value: the controller's six joint values (the robot
-/// file's `[controller]`) and the track's position.
-fn jointtarget(robot: &Robot, q_deg: &[f64; JOINTS], track_mm: Option<f64>) -> String {
+/// file's `[controller]`) and the external axes ([`external_axes`]).
+fn jointtarget(robot: &Robot, q_deg: &[f64; JOINTS], external: &[f64]) -> String {
     let q = robot
         .spec()
         .controller_joints_deg(q_deg)
         .map(|v| fixed(v, JOINT_DECIMALS))
         .join(", ");
-    format!("[[{q}], {}]", extjoint(track_mm))
+    format!("[[{q}], {}]", extjoint(external))
 }
 
-/// An `extjoint` value: the track's position in `eax_a` (mm), the other
-/// external axes unused (9E9).
-fn extjoint(track_mm: Option<f64>) -> String {
-    let eax_a = track_mm.map_or_else(|| "9E9".to_string(), |e| fixed(e, POSITION_DECIMALS));
-    format!("[{eax_a}, 9E9, 9E9, 9E9, 9E9, 9E9]")
+/// The names of RAPID's external axes, `eax_a` … `eax_f`.
+const EXTERNAL_AXIS_NAMES: [&str; 6] = ["eax_a", "eax_b", "eax_c", "eax_d", "eax_e", "eax_f"];
+
+/// The `eax_…` names of the positioner's axes: those after the track's.
+fn positioner_axis_names(robot: &Robot) -> String {
+    let first = usize::from(robot.spec().track.is_some());
+    let names = &EXTERNAL_AXIS_NAMES[first..first + positioner_axis_count(robot)];
+    format!("{} (deg)", names.join(", "))
+}
+
+/// An `extjoint` value: the external axes in order from `eax_a` (the
+/// track's mm, the positioner's deg), the rest unused (9E9).
+fn extjoint(external: &[f64]) -> String {
+    let values: Vec<String> = (0..EXTERNAL_AXIS_NAMES.len())
+        .map(|k| {
+            external
+                .get(k)
+                .map_or_else(|| "9E9".to_string(), |v| fixed(*v, POSITION_DECIMALS))
+        })
+        .collect();
+    format!("[{}]", values.join(", "))
 }
 
 /// Name of a target's data: `<prefix><id>`, `n` for a minus sign.
@@ -125,7 +147,7 @@ pub fn tooldata(tool: &ProgramTool, payload: Option<&Payload>) -> String {
     format!("[TRUE, [[{tcp}], [{orientation}]], {load}]")
 }
 
-fn robtarget(robot: &Robot, pose: &Pose, track_mm: Option<f64>) -> String {
+fn robtarget(robot: &Robot, pose: &Pose, external: &[f64]) -> String {
     let p = pose
         .position_mm
         .map(|v| fixed(v, POSITION_DECIMALS))
@@ -140,7 +162,7 @@ fn robtarget(robot: &Robot, pose: &Pose, track_mm: Option<f64>) -> String {
         conf.cf4,
         conf.cf6,
         conf.cfx,
-        extjoint(track_mm)
+        extjoint(external)
     )
 }
 
@@ -182,6 +204,7 @@ pub fn module(
             "floor-mounted robot without track or positioner).".into(),
         ])
         .chain(&track_lines(program, "eax_a (not coordinated)"))
+        .chain(&positioner_lines(program, &positioner_axis_names(robot)))
         .chain(&load_lines)
         .chain(&[
             "The tool and work object get their values again in main: a PERS of the same name in another".into(),
@@ -220,6 +243,7 @@ pub fn module(
         None => "fine".to_string(),
     };
     let stops = &program.stops;
+    let external = |stop: &Stop| external_axes(robot, stop.track_mm, stop.positioner_deg);
     for stop in stops {
         if let Some(q) = &stop.pre_position_q_deg {
             line(
@@ -227,7 +251,7 @@ pub fn module(
                 &format!(
                     "  CONST jointtarget {} := {};",
                     data_name("jp_", stop.target_id),
-                    jointtarget(robot, q, stop.track_mm)
+                    jointtarget(robot, q, &external(stop))
                 ),
             );
         }
@@ -239,7 +263,7 @@ pub fn module(
                 &format!(
                     "  CONST jointtarget {} := {};",
                     data_name("jt_", stop.target_id),
-                    jointtarget(robot, &stop.target.q_deg, stop.track_mm)
+                    jointtarget(robot, &stop.target.q_deg, &external(stop))
                 ),
             );
         }
@@ -252,7 +276,7 @@ pub fn module(
                     &format!(
                         "  CONST robtarget {} := {};",
                         data_name("pa_", stop.target_id),
-                        robtarget(robot, approach, stop.track_mm)
+                        robtarget(robot, approach, &external(stop))
                     ),
                 );
             }
@@ -261,7 +285,7 @@ pub fn module(
                 &format!(
                     "  CONST robtarget {} := {};",
                     data_name("pt_", stop.target_id),
-                    robtarget(robot, &stop.target, stop.track_mm)
+                    robtarget(robot, &stop.target, &external(stop))
                 ),
             );
         }

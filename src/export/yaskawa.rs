@@ -30,13 +30,19 @@
 //! file's `[track] pulses_per_mm` (required then), named in each move
 //! (`MOVJ C00000 BC00000 …`); the Cartesian positions stay in the robot
 //! coordinate system riding on the carriage.
+//!
+//! A positioner is the job's station (`///GROUP1 RB1,ST1`, or
+//! `RB1,BS1,ST1` on a track): one `ECnnnnn` beside each `Cnnnnn`, in pulses
+//! of each axis's `positioner.axes[k].pulses_per_deg` (required then), named
+//! in each move (`MOVL C00001 EC00001 …`).
 
 use super::moves::{self, Destination, Move};
 use super::{
     MASS_DECIMALS, MotionSettings, Program, fixed, header_lines, narrow_comment_lines,
-    rotation_from_quaternion, skipped_lines, tool_lines, tool_names, track_lines, warning_lines,
-    wrist_placement, zyx_angles,
+    positioner_lines, rotation_from_quaternion, skipped_lines, tool_lines, tool_names, track_lines,
+    warning_lines, wrist_placement, zyx_angles,
 };
+use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{JOINTS, Robot};
 
 /// Longest job name (DX100 and later).
@@ -62,6 +68,10 @@ pub enum JobError {
         "the robot rides a track, which a Yaskawa job moves as its base axis in pulses (`BCnnnnn`), and the robot file's [track] gives no `pulses_per_mm` (the controller's pulse ratio of the base axis); add it"
     )]
     NoTrackPulseRatio,
+    #[error(
+        "the commands move the positioner, which a Yaskawa job moves as its station axes in pulses (`ECnnnnn`), and the robot file's `positioner.axes[{axis}].pulses_per_deg` (the controller's pulse ratio of that axis) is missing; add it"
+    )]
+    NoStationPulseRatio { axis: usize },
 }
 
 /// The manipulator type of a Cartesian position (`RCONF`).
@@ -157,6 +167,25 @@ fn track_pulses(robot: &Robot, track_mm: f64) -> Result<i64, JobError> {
     Ok((track_mm * ratio).round() as i64)
 }
 
+/// Station-axis pulses of the positioner's axis values `p_deg`.
+fn station_pulses(robot: &Robot, p_deg: &[f64; MAX_POSITIONER_AXES]) -> Result<Vec<i64>, JobError> {
+    let axes = robot
+        .spec()
+        .positioner
+        .as_ref()
+        .map_or(&[][..], |p| &p.axes[..]);
+    axes.iter()
+        .zip(p_deg)
+        .enumerate()
+        .map(|(axis, (spec, value))| {
+            let ratio = spec
+                .pulses_per_deg
+                .ok_or(JobError::NoStationPulseRatio { axis })?;
+            Ok((value * ratio).round() as i64)
+        })
+        .collect()
+}
+
 /// The `//POS` line of position `index`.
 fn position(robot: &Robot, index: usize, step: &Move) -> Result<String, JobError> {
     Ok(match &step.destination {
@@ -195,7 +224,7 @@ pub fn job(
         let rounding_mm =
             moves::largest_rounding_mm(robot, program, &steps, |q| read_back(robot, q));
         format!(
-            " joints in whole pulses, which move the tool by at most {} mm at these commands on the nominal arm",
+            ", joints in whole pulses, which move the tool by at most {} mm at these commands on the nominal arm",
             fixed(rounding_mm, 4)
         )
     } else {
@@ -205,7 +234,7 @@ pub fn job(
         &program.provenance,
         "Yaskawa INFORM job",
         format!(
-            "Printed precision: positions {POSITION_DECIMALS} decimals (mm), angles {ANGLE_DECIMALS} decimals (deg),{rounding}."
+            "Printed precision: positions {POSITION_DECIMALS} decimals (mm), angles {ANGLE_DECIMALS} decimals (deg){rounding}."
         ),
     );
     remarks.extend(tool_lines(
@@ -257,12 +286,45 @@ pub fn job(
             fixed(0.5 / ratio.abs(), 4)
         ));
     }
+    // A positioner is the station: one `ECnnnnn` (pulses) beside each
+    // `Cnnnnn`, in the job's control group.
+    let station: Option<Vec<Vec<i64>>> = steps
+        .iter()
+        .map(|s| s.positioner_deg.map(|p| station_pulses(robot, &p)))
+        .collect::<Option<Result<_, _>>>()
+        .transpose()?;
+    remarks.extend(positioner_lines(
+        program,
+        "the station ST1's (EC data, in pulses)",
+    ));
+    if station.is_some() {
+        remarks.push(
+            "The job's control group must be the robot with its station (and base axis): R1+S1 or R1+B1+S1."
+                .into(),
+        );
+        for (k, axis) in robot
+            .spec()
+            .positioner
+            .iter()
+            .flat_map(|p| &p.axes)
+            .enumerate()
+        {
+            if let Some(ratio) = axis.pulses_per_deg {
+                remarks.push(format!(
+                    "Station axis {}: {ratio} pulses/deg; whole pulses place it within {} deg.",
+                    k + 1,
+                    fixed(0.5 / ratio.abs(), 6)
+                ));
+            }
+        }
+    }
     remarks.extend(warning_lines(program));
     remarks.extend(skipped_lines(&program.commands));
 
     let base_count = base_axis.as_ref().map_or(0, Vec::len);
+    let station_count = station.as_ref().map_or(0, Vec::len);
     let mut out = format!(
-        "/JOB\n//NAME {}\n//POS\n///NPOS {},{base_count},0,0,0,0\n///TOOL {tool_file}\n",
+        "/JOB\n//NAME {}\n//POS\n///NPOS {},{base_count},{station_count},0,0,0\n///TOOL {tool_file}\n",
         motion.name,
         steps.len()
     );
@@ -290,11 +352,22 @@ pub fn job(
         for (k, pulses) in base_axis.iter().enumerate() {
             out.push_str(&format!("BC{k:05}={pulses}\n"));
         }
+        current_type = Some(true);
     }
-    let group = if base_axis.is_some() {
-        "RB1,BS1"
-    } else {
-        "RB1"
+    if let Some(station) = &station {
+        if current_type != Some(true) {
+            out.push_str("///POSTYPE PULSE\n///PULSE\n");
+        }
+        for (k, pulses) in station.iter().enumerate() {
+            let pulses: Vec<String> = pulses.iter().map(i64::to_string).collect();
+            out.push_str(&format!("EC{k:05}={}\n", pulses.join(",")));
+        }
+    }
+    let group = match (base_axis.is_some(), station.is_some()) {
+        (false, false) => "RB1",
+        (true, false) => "RB1,BS1",
+        (false, true) => "RB1,ST1",
+        (true, true) => "RB1,BS1,ST1",
     };
     out.push_str(&format!("//INST\n///ATTR SC,RW\n///GROUP1 {group}\nNOP\n"));
     for text in narrow_comment_lines(&remarks, COMMENT_WIDTH, &[]) {
@@ -303,11 +376,14 @@ pub fn job(
     let joint_speed = fixed(motion.joint_speed_percent, 2);
     let linear_speed = fixed(motion.speed_mm_s, 1);
     for (k, step) in steps.iter().enumerate() {
-        let base = if base_axis.is_some() {
+        let mut base = if base_axis.is_some() {
             format!(" BC{k:05}")
         } else {
             String::new()
         };
+        if station.is_some() {
+            base.push_str(&format!(" EC{k:05}"));
+        }
         out.push_str(&if step.linear {
             format!("MOVL C{k:05}{base} V={linear_speed} PL=0\n")
         } else {

@@ -482,6 +482,9 @@ fn positioner_problem(spec: &super::positioner::PositionerSpec) -> Option<(Strin
         checks.push((key("d_mm"), axis.d_mm, Bound::Length));
         checks.push((key("limits_deg"), axis.limits_deg[0], Bound::Travel));
         checks.push((key("limits_deg"), axis.limits_deg[1], Bound::Travel));
+        if let Some(ratio) = axis.pulses_per_deg {
+            checks.push((key("pulses_per_deg"), ratio, Bound::PulseRatio));
+        }
     }
     if let Some((key, value, expected)) = checks
         .into_iter()
@@ -758,6 +761,11 @@ limits_deg = [-360.0, 360.0]
                 "positioner.base.alpha_deg",
             ),
             ("d_mm = 0.0\n", "d_mm = 0.0\nspeed = 1\n", "speed"),
+            (
+                "d_mm = 350.0\n",
+                "d_mm = 350.0\npulses_per_deg = 0.0\n",
+                "positioner.axes[1].pulses_per_deg",
+            ),
         ] {
             assert!(POSITIONER.contains(from), "{from}");
             let err = parse(&POSITIONER.replacen(from, to, 1))

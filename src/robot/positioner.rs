@@ -61,6 +61,10 @@ pub struct PositionerAxisSpec {
     pub d_mm: f64,
     /// Software limits `[min, max]`, degrees.
     pub limits_deg: [f64; 2],
+    /// The controller's pulse ratio of the axis (pulses per degree, signed):
+    /// a Yaskawa job gives station axes in pulses (`EC` data), and needs it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pulses_per_deg: Option<f64>,
 }
 
 /// The robot file's optional `[positioner]` table.
@@ -320,6 +324,7 @@ mod tests {
             theta_offset_deg: 0.0,
             d_mm,
             limits_deg: [-180.0, 180.0],
+            pulses_per_deg: None,
         };
         PositionerSpec {
             base: TransformSpec {

@@ -25,6 +25,7 @@ use crate::export::cartesian::{self, Payload, ProgramTool};
 use crate::export::{
     self, Command, MotionSettings, Motions, Program, Provenance, fanuc, krl, rapid, urdf, yaskawa,
 };
+use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{Frame, Robot};
 use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
@@ -211,7 +212,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Programs for the controller from joint commands: ABB RAPID (.mod), KUKA KRL (.src/.dat), CSV, and a URDF of the calibrated geometry",
-    code_version: 6,
+    code_version: 7,
     inputs: &[
         TableSlot {
             name: "commands",
@@ -399,20 +400,18 @@ impl Stage for ExportProgramStage {
                 command.track_mm = Some(e_mm);
             }
         }
-        // Commands at positioner axis values: a program without the
-        // positioner's moves would reach each target wherever the table
-        // happens to stand.
+        // Commands at positioner axis values: the programs move the
+        // positioner with the arm, since a target on the table is reached
+        // only with the table where compensate put it.
         let positioner = super::positioner_rows::positioner_axes_of_targets(
             &input.df,
             &input.path,
             ctx.robot.spec(),
         )?;
-        if let Some(row) = positioner.iter().position(Option::is_some) {
-            return Err(StageError::Invalid(format!(
-                "{}: row {row} and others command the positioner ({}): egcal does not yet write a positioner's axes into programs, and a program without them would reach each target wherever the table stands; move the positioner from the commands table, or export the targets off the positioner",
-                input.path.display(),
-                crate::table::schema::POSITIONER_COLUMNS.join(", ")
-            )));
+        if let Some(held) = positioner_holds(&positioner) {
+            for (command, p_deg) in commands.iter_mut().zip(held) {
+                command.positioner_deg = Some(p_deg);
+            }
         }
         if !commands.iter().any(Command::is_ok) {
             let mut statuses = std::collections::BTreeMap::<&str, usize>::new();
@@ -537,7 +536,7 @@ impl Stage for ExportProgramStage {
                         .insert(format!("{name}.mod"), text.into_bytes());
                 }
                 ProgramFormat::Krl => {
-                    let src = krl::src(&program, &motion);
+                    let src = krl::src(ctx.robot, &program, &motion);
                     let dat = krl::dat(ctx.robot, &program, &motion);
                     outputs
                         .files
@@ -572,11 +571,11 @@ impl Stage for ExportProgramStage {
                 ProgramFormat::Csv => {
                     outputs.files.insert(
                         "commands.csv".into(),
-                        export::csv::table(&program).into_bytes(),
+                        export::csv::table(ctx.robot, &program).into_bytes(),
                     );
                     outputs.files.insert(
                         export::csv::NOTES_FILE.into(),
-                        export::csv::notes(&program).into_bytes(),
+                        export::csv::notes(ctx.robot, &program).into_bytes(),
                     );
                 }
                 ProgramFormat::Urdf => {
@@ -1008,9 +1007,32 @@ pub fn read_commands(
             approach: approach[row],
             // Read and checked against the robot file by the stage.
             track_mm: None,
+            positioner_deg: None,
         });
     }
     Ok(rows)
+}
+
+/// Each command's positioner axis values when some command moves the
+/// positioner: a row off the table (no axis values) keeps the table where
+/// the row before left it, and rows before the first on the table where
+/// that one needs it, so the positioner never moves for a target it does
+/// not carry. `None` when no row moves it.
+fn positioner_holds(
+    rows: &[Option<[f64; MAX_POSITIONER_AXES]>],
+) -> Option<Vec<[f64; MAX_POSITIONER_AXES]>> {
+    let first = rows.iter().flatten().next().copied()?;
+    let mut held = first;
+    Some(
+        rows.iter()
+            .map(|row| {
+                if let Some(p_deg) = row {
+                    held = *p_deg;
+                }
+                held
+            })
+            .collect(),
+    )
 }
 
 /// How far from 1 a quaternion's norm may be: the table stores a unit
@@ -1037,7 +1059,18 @@ mod tests {
             u95_mm: Some(0.2),
             approach: [0; 6],
             track_mm: None,
+            positioner_deg: None,
         }
+    }
+
+    #[test]
+    fn rows_off_the_table_hold_the_positioner_where_it_stands() {
+        assert_eq!(positioner_holds(&[None, None]), None);
+        let (a, b) = ([10.0, 20.0], [-5.0, 90.0]);
+        assert_eq!(
+            positioner_holds(&[None, Some(a), None, Some(b), None]),
+            Some(vec![a, a, a, b, b])
+        );
     }
 
     fn problem(rows: &[Command]) -> String {
