@@ -325,6 +325,29 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
     assert!((x_p - truth.get(ParamId::from_name("x_p").unwrap())).abs() < 1.0);
     assert_eq!(value_of("registered", "da_p2"), None);
 
+    // The accuracy map is the arm's: it is built around the 200 arm rows,
+    // not the nests the arm's SMR never stood at.
+    let map = |target: &str| {
+        stage(
+            dir.path(),
+            &robot_file(),
+            "accuracy_map",
+            &format!("points_per_axis = 3\nslices = 1\ntarget = \"{target}\"\n"),
+            &[
+                ("measurements", &input),
+                ("parameters", &out.join("parameters.parquet")),
+                ("covariance", &out.join("covariance.parquet")),
+            ],
+        )
+    };
+    let (code, log, _) = map("table_a");
+    assert_eq!(code, 2, "{log}");
+    assert!(log.contains("nest on the positioner's table"), "{log}");
+    let (code, log, mapped) = map("arm");
+    assert_eq!(code, 0, "{log}");
+    let around = egcal::table::read_parquet(&mapped.join("calibration_positions.parquet")).unwrap();
+    assert_eq!(around.height(), 200);
+
     // A nest row without its axis values, a value beyond the limits, axes
     // for a robot file without a positioner.
     let bad = dir.path().join("bad.parquet");

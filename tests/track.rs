@@ -346,7 +346,7 @@ fn stages_that_do_not_handle_a_track_refuse_it() {
     let (code, stdout, stderr) = common::run(
         &[
             "stage",
-            "iso_cube",
+            "accuracy_map",
             "--robot",
             file.to_str().unwrap(),
             "--settings",
@@ -360,8 +360,74 @@ fn stages_that_do_not_handle_a_track_refuse_it() {
     assert_eq!(code, 2, "{log}");
     assert!(
         log.contains("[track]")
-            && log.contains("`iso_cube` does not handle")
+            && log.contains("`accuracy_map` does not handle")
             && log.contains("identify"),
         "{log}"
+    );
+}
+
+/// The ISO 9283 cube on a track runs at one carriage position: `iso_cube`
+/// needs it (`track_mm`, within the travel) and writes it as every
+/// target's `e1_mm`, which `compensate` solves at; a robot without a track
+/// refuses the setting.
+#[test]
+fn the_iso_cube_on_a_track_runs_at_one_carriage_position() {
+    let dir = tempfile::tempdir().unwrap();
+    let on_track = track_robot_file(dir.path(), 1);
+    let stage = |kind: &str, robot: &Path, settings: &str, inputs: &[String]| {
+        let path = dir.path().join(format!("{kind}.toml"));
+        std::fs::write(&path, settings).unwrap();
+        let out = dir.path().join(format!("out_{kind}"));
+        let mut args = vec![
+            "stage".to_string(),
+            kind.into(),
+            "--robot".into(),
+            robot.to_str().unwrap().into(),
+            "--settings".into(),
+            path.to_str().unwrap().into(),
+            "--out".into(),
+            out.to_str().unwrap().into(),
+        ];
+        for input in inputs {
+            args.push("--input".into());
+            args.push(input.clone());
+        }
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (code, stdout, stderr) = common::run(&args, dir.path());
+        (code, format!("{stdout}{stderr}"), out)
+    };
+    let (code, log, _) = stage("iso_cube", &on_track, "", &[]);
+    assert_eq!(code, 2, "{log}");
+    assert!(log.contains("track_mm") && log.contains("e1_mm"), "{log}");
+    let (code, log, _) = stage("iso_cube", &on_track, "track_mm = 3500.0\n", &[]);
+    assert_eq!(code, 2, "{log}");
+    assert!(log.contains("outside the track's travel"), "{log}");
+    let arm_only = common::root().join("jobs/robots/irb1600_145.toml");
+    let (code, log, _) = stage("iso_cube", &arm_only, "track_mm = 1500.0\n", &[]);
+    assert_eq!(code, 2, "{log}");
+    assert!(log.contains("has no [track]"), "{log}");
+
+    let cube = "track_mm = 1500.0\ncentre_mm = [900.0, 0.0, 900.0]\nedge_mm = 300.0\ntool_orientation_deg = [180.0, 0.0, 0.0]\ncycles = 2\n";
+    let (code, log, out) = stage("iso_cube", &on_track, cube, &[]);
+    assert_eq!(code, 0, "{log}");
+    let targets = out.join("targets.parquet");
+    let df = egcal::table::read_parquet(&targets).unwrap();
+    let e1 = egcal::table::schema::f64_values(&df, "e1_mm", &targets).unwrap();
+    assert_eq!(e1, vec![1500.0; 10]);
+    let (code, log, out) = stage(
+        "compensate",
+        &on_track,
+        "model = \"nominal\"\n",
+        &[format!("targets={}", targets.display())],
+    );
+    assert_eq!(code, 0, "{log}");
+    let commands = out.join("commands.parquet");
+    let df = egcal::table::read_parquet(&commands).unwrap();
+    let e1 = egcal::table::schema::f64_values(&df, "e1_mm", &commands).unwrap();
+    let status = egcal::table::schema::str_values(&df, "status", &commands).unwrap();
+    assert_eq!(e1, vec![1500.0; 10]);
+    assert!(
+        status.iter().all(|s| s.as_deref() == Some("ok")),
+        "{status:?}"
     );
 }

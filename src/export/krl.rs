@@ -41,9 +41,8 @@ use super::cartesian::Pose;
 use super::{
     EULER_DECIMALS, JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload,
     Program, ProgramTool, external_axes, fixed, header_lines, positioner_axis_count,
-    positioner_lines, printed_precision,
-    rotation_from_quaternion, skipped_lines, tool_lines, tool_names, track_lines, warning_lines,
-    wrist_placement, zyx_angles,
+    positioner_lines, printed_precision, rotation_from_quaternion, skipped_lines, tool_lines,
+    tool_names, track_lines, warning_lines, wrist_placement, zyx_angles,
 };
 use crate::robot::{JOINTS, Robot};
 

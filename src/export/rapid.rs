@@ -31,10 +31,9 @@
 use super::cartesian::Pose;
 use super::{
     JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload, Program,
-    ProgramTool, QUATERNION_DECIMALS, Stop, external_axes, fixed, header_lines, positioner_axis_count,
-    positioner_lines,
-    printed_precision, skipped_lines, tool_lines, tool_names, track_lines, warning_lines,
-    wrist_placement,
+    ProgramTool, QUATERNION_DECIMALS, Stop, external_axes, fixed, header_lines,
+    positioner_axis_count, positioner_lines, printed_precision, skipped_lines, tool_lines,
+    tool_names, track_lines, warning_lines, wrist_placement,
 };
 use crate::robot::{JOINTS, Robot};
 

@@ -65,7 +65,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Predicted 95 % position uncertainty (J·Σ·Jᵀ) over a grid around the calibration rows, for the report's accuracy map",
-    code_version: 3,
+    code_version: 4,
     inputs: &[
         TableSlot {
             name: "parameters",
@@ -151,6 +151,15 @@ impl Stage for AccuracyMapStage {
         let measurements = ctx.input("measurements")?;
         let (ids, mut rows) = conf_wrench_rows(measurements, ctx.robot.spec())?;
         super::aim_rows(measurements, &set, &mut rows)?;
+        if let Some(positioner) = &ctx.robot.spec().positioner
+            && positioner.nests.contains(&settings.target)
+        {
+            return Err(StageError::Invalid(format!(
+                "setting `target`: `{}` is a nest on the positioner's table (robot file {}), not a tool of the arm; name the arm's target",
+                settings.target,
+                ctx.robot.spec().path.display()
+            )));
+        }
         let (mapped_values, mapped_free) =
             tool_of_target(&set, &covariance.free, &settings.target)?;
         let keep = ctx
@@ -162,6 +171,9 @@ impl Stage for AccuracyMapStage {
             .iter()
             .zip(&rows)
             .filter(|(id, _)| keep.as_ref().is_none_or(|k| k.contains(id)))
+            // The arm's workspace: a positioner's nest rows were not measured
+            // with the arm's SMR.
+            .filter(|(_, row)| row.positioner_deg.is_none())
             .map(|(id, row)| (*id, *row))
             .unzip();
         let calibration_q: Vec<_> = calibration_rows.iter().map(|r| r.q_deg).collect();

@@ -16,7 +16,10 @@ use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot};
+use super::{
+    SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
+    TableSlot,
+};
 use crate::design::poses::xyz_euler_deg;
 use crate::iso9283::{CYCLE_ORDER, Cube, POINTS};
 use crate::robot::ParamValues;
@@ -69,6 +72,11 @@ pub struct IsoCubeSettings {
     /// Test cycles (the standard: 30).
     #[schemars(range(min = 2, max = 100_000))]
     pub cycles: usize,
+    /// For a robot on a linear track: the carriage position the test runs
+    /// at (mm, the targets' `e1_mm`; the standard tests at one base
+    /// position). Required then, refused without a track. The `base` frame
+    /// is the base with the carriage at 0, as `compensate`'s.
+    pub track_mm: Option<f64>,
 }
 
 impl Default for IsoCubeSettings {
@@ -81,6 +89,7 @@ impl Default for IsoCubeSettings {
             tool_orientation_deg: [0.0; 3],
             wrench_n_nm: [0.0; 6],
             cycles: 30,
+            track_mm: None,
         }
     }
 }
@@ -90,7 +99,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "ISO 9283 test cube: P1–P5 and the pose test's cycles (P5, P4, P3, P2, P1 each) as targets for compensate",
-    code_version: 1,
+    code_version: 2,
     inputs: &[],
     outputs: &[TableSlot {
         name: "targets",
@@ -105,6 +114,47 @@ impl Stage for IsoCubeStage {
 
     fn info(&self) -> &'static StageInfo {
         &INFO
+    }
+
+    fn check_settings(
+        &self,
+        settings: &IsoCubeSettings,
+        ctx: &SettingsContext,
+    ) -> Vec<SettingsProblem> {
+        let robot = ctx.robot;
+        match (robot.track, settings.track_mm) {
+            (None, Some(_)) => vec![SettingsProblem::new(
+                "track_mm",
+                format!(
+                    "the robot file {} has no [track]: remove `track_mm`, or use the robot file of the arm on its track",
+                    robot.path.display()
+                ),
+            )],
+            (Some(track), None) => vec![SettingsProblem::new(
+                "track_mm",
+                format!(
+                    "the robot file {} has a [track] (travel {} to {} mm): give the carriage position the test runs at, `track_mm`, since compensate needs each target's e1_mm",
+                    robot.path.display(),
+                    track.travel_mm[0],
+                    track.travel_mm[1]
+                ),
+            )],
+            (Some(track), Some(e_mm)) => {
+                let [lo, hi] = track.travel_mm;
+                if e_mm.is_finite() && (lo..=hi).contains(&e_mm) {
+                    Vec::new()
+                } else {
+                    vec![SettingsProblem::new(
+                        "track_mm",
+                        format!(
+                            "{e_mm} mm is outside the track's travel [{lo}, {hi}] mm (robot file {})",
+                            robot.path.display()
+                        ),
+                    )]
+                }
+            }
+            (None, None) => Vec::new(),
+        }
     }
 
     fn run(
@@ -162,6 +212,12 @@ impl Stage for IsoCubeStage {
             columns.push(Column::new(
                 (*name).into(),
                 vec![settings.wrench_n_nm[i]; visits.len()],
+            ));
+        }
+        if let Some(e_mm) = settings.track_mm {
+            columns.push(Column::new(
+                schema::TRACK_COLUMN.into(),
+                vec![e_mm; visits.len()],
             ));
         }
         columns.push(Column::new(

@@ -412,9 +412,10 @@ impl<S: Stage> StageKind for S {
 /// The stage kinds that handle a robot on a linear track (issue #30): those
 /// that read measured or commanded rows with their `e1_mm` and evaluate
 /// the model through the carriage, and the campaign's design and measurement
-/// (poses at carriage stations, wrenches, the rig moving the carriage). The
-/// others (compensating targets, programs, grids) would place the arm as if
-/// the carriage stood at 0, so they refuse such a robot.
+/// (poses at carriage stations, wrenches, the rig moving the carriage); the
+/// ISO 9283 test at one carriage position. The others (the accuracy map's
+/// grid, logs) would place the arm as if the carriage stood at 0, so they
+/// refuse such a robot.
 const TRACK_STAGES: &[&str] = &[
     "poses",
     "wrenches",
@@ -432,6 +433,8 @@ const TRACK_STAGES: &[&str] = &[
     "predict",
     "accuracy",
     "report",
+    "iso_cube",
+    "iso9283",
 ];
 
 /// Why stage `kind` cannot run for `robot`: a track it does not handle yet.
