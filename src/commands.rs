@@ -677,11 +677,12 @@ pub fn sim_driver(
     use crate::rig::simulator::{Simulator, SimulatorSettings};
     let robot = Robot::new(RobotSpec::load(robot_file)?);
     let nominal = crate::robot::ParamValues::nominal(robot.spec());
-    let values = match truth {
-        None => nominal,
+    let (values, targets) = match truth {
+        None => (nominal, Vec::new()),
         Some(path) => {
             let model = truth_model.parse().map_err(CommandError::Usage)?;
-            table::parameters::load_model(path, model, &nominal)?.values
+            let set = table::parameters::load_model(path, model, &nominal)?;
+            (set.values, set.targets)
         }
     };
     let settings: SimulatorSettings = match settings_file {
@@ -719,16 +720,24 @@ pub fn sim_driver(
         }
     };
     let robot_has_track = robot.spec().track.is_some();
-    let mut simulator =
-        Simulator::new(robot, values, settings, seed).map_err(CommandError::Usage)?;
+    let robot_has_positioner = robot.spec().positioner.is_some();
+    let mut simulator = Simulator::new(robot, values, settings, seed)
+        .map_err(CommandError::Usage)?
+        .with_targets(targets);
     let stdin = std::io::stdin();
     let stdout = std::io::stdout();
-    // The track's methods only for a robot on a track.
+    // The track's and the positioner's methods only for a cell with them.
     let all: Vec<String> = crate::rig::protocol::METHODS
         .iter()
         .chain(
             robot_has_track
-                .then_some(&crate::rig::protocol::TRACK_METHODS)
+                .then_some(&crate::rig::protocol::TRACK_METHODS[..])
+                .into_iter()
+                .flatten(),
+        )
+        .chain(
+            robot_has_positioner
+                .then_some(&crate::rig::protocol::POSITIONER_METHODS[..])
                 .into_iter()
                 .flatten(),
         )

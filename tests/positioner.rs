@@ -505,8 +505,8 @@ fn the_programs_move_the_positioner_to_each_target(
         );
         let smr = positions(robot, truth, &[ConfWrench::new(q, Wrench::zero())])[0];
         let mut on_table = *truth;
-        for axis in 0..3 {
-            on_table.set(ParamId::target_translation(1, axis), on_table_mm[k][axis]);
+        for (axis, value) in on_table_mm[k].iter().enumerate() {
+            on_table.set(ParamId::target_translation(1, axis), *value);
         }
         let nest = ConfWrench {
             target: 1,
@@ -584,8 +584,7 @@ fn the_programs_move_the_positioner_to_each_target(
         }
         assert!(
             job.lines()
-                .any(|l| l.starts_with(&format!("MOV"))
-                    && l.contains(&format!("C{k:05} EC{k:05} V"))),
+                .any(|l| l.starts_with("MOV") && l.contains(&format!("C{k:05} EC{k:05} V"))),
             "no move to C{k:05} EC{k:05}"
         );
     }
@@ -712,4 +711,180 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
         log.contains("p1_deg, p2_deg") && log.contains("row 0"),
         "{log}"
     );
+}
+
+/// Writes `rows` as a conf_wrenches table (the arm's rows with target
+/// `arm`, the nests' with their ids and axis values) and the cell's truth
+/// as a parameters table naming its four targets.
+fn write_campaign(dir: &Path, spec: &RobotSpec, rows: &[ConfWrench]) -> (PathBuf, PathBuf) {
+    let conf_wrenches = dir.join("conf_wrenches.parquet");
+    let unmeasured = vec![Vector3::zeros(); rows.len()];
+    write_cell_measurements(&conf_wrenches, rows, &unmeasured, &["p1_deg", "p2_deg"]);
+    let mut df = egcal::table::read_parquet(&conf_wrenches).unwrap();
+    for name in egcal::table::schema::POSITION_COLUMNS {
+        df.drop_in_place(name).unwrap();
+    }
+    egcal::table::write_parquet(&mut df, &conf_wrenches, None).unwrap();
+    let mut set =
+        egcal::table::parameters::ParameterSet::fixed(ModelName::Elastogeometric, truth(spec));
+    set.targets = std::iter::once("arm")
+        .chain(NESTS)
+        .map(String::from)
+        .collect();
+    let nominal = ParamValues::nominal(spec);
+    let mut table = egcal::table::parameters::to_frame(&nominal, &[set]);
+    let truth_path = dir.join("truth.parquet");
+    egcal::table::write_parquet(&mut table, &truth_path, None).unwrap();
+    (conf_wrenches, truth_path)
+}
+
+/// A campaign measures the nests on the rig: the tracker is pointed at
+/// each row's SMR, the table moved to the row's axes, and the rows come
+/// back with their `target_id` and the axes as read, which `identify`
+/// calibrates the cell from. An external `sim-driver` gives the same rows;
+/// a driver without the positioner's methods is refused before any row.
+#[test]
+fn a_campaign_measures_the_nests_where_the_table_stands() {
+    let dir = tempfile::tempdir().unwrap();
+    let spec = RobotSpec::load(&robot_file()).unwrap();
+    let robot = Robot::new(spec.clone());
+    let rows: Vec<ConfWrench> = arm_rows(&robot, 31, 200)
+        .into_iter()
+        .chain(nest_rows(32, 20))
+        .collect();
+    let (conf_wrenches, truth_path) = write_campaign(dir.path(), &spec, &rows);
+    let inputs = [("conf_wrenches", &*conf_wrenches), ("truth", &*truth_path)];
+    let (code, log, out) = stage(dir.path(), &robot_file(), "measure", "", &inputs);
+    assert_eq!(code, 0, "{log}");
+    let measured_path = out.join("measurements.parquet");
+    let measured = egcal::table::read_parquet(&measured_path).unwrap();
+    assert_eq!(measured.height(), rows.len());
+    let ids = egcal::table::schema::str_values(&measured, "target_id", &measured_path).unwrap();
+    let p1 = egcal::table::schema::optional_f64_values(&measured, "p1_deg", &measured_path)
+        .unwrap()
+        .unwrap();
+    let position: Vec<Vec<f64>> = egcal::table::schema::POSITION_COLUMNS
+        .iter()
+        .map(|c| egcal::table::schema::f64_values(&measured, c, &measured_path).unwrap())
+        .collect();
+    // Each row where the truth puts its SMR, within the tracker's noise.
+    let truth = truth(&spec);
+    let expected = positions(&robot, &truth, &rows);
+    for (k, row) in rows.iter().enumerate() {
+        match row.positioner_deg {
+            Some(p) => {
+                assert_eq!(ids[k].as_deref(), Some(NESTS[row.target - 1]));
+                assert_eq!(p1[k], Some(p[0]));
+            }
+            None => {
+                assert_eq!(ids[k].as_deref(), Some("arm"));
+                assert_eq!(p1[k], None);
+            }
+        }
+        let miss = (0..3)
+            .map(|axis| (position[axis][k] - expected[k][axis]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(miss < 0.2, "row {k}: {miss} mm from the truth");
+    }
+    // The measured campaign calibrates the positioner.
+    let (code, log, identified) = stage(
+        dir.path(),
+        &robot_file(),
+        "identify",
+        IDENTIFY,
+        &[("measurements", &measured_path)],
+    );
+    assert_eq!(code, 0, "{log}");
+    let set = egcal::table::parameters::load_model(
+        &identified.join("parameters.parquet"),
+        ModelName::Elastogeometric,
+        &ParamValues::nominal(&spec),
+    )
+    .unwrap();
+    for name in ["x_p", "gamma_p", "dalpha_p2", "da_p2"] {
+        let id = ParamId::from_name(name).unwrap();
+        let tolerance = if id.unit() == "deg" { 0.01 } else { 0.1 };
+        assert!(
+            (set.values.get(id) - truth.get(id)).abs() < tolerance,
+            "{name}: {} vs {}",
+            set.values.get(id),
+            truth.get(id)
+        );
+    }
+
+    // The same rows through `egcal sim-driver`, over the protocol.
+    let root = common::root();
+    let driver = |robot: &Path| {
+        let command = [
+            env!("CARGO_BIN_EXE_egcal").to_string(),
+            "sim-driver".into(),
+            "--robot".into(),
+            robot.display().to_string(),
+            "--truth".into(),
+            truth_path.display().to_string(),
+        ];
+        let quoted: Vec<String> = command.iter().map(|a| format!("{a:?}")).collect();
+        format!(
+            "driver = \"external\"\ncommand = [{}]\nseed = 0\n",
+            quoted.join(", ")
+        )
+    };
+    let external = tempfile::tempdir().unwrap();
+    let (code, log, out) = stage(
+        external.path(),
+        &robot_file(),
+        "measure",
+        &driver(&robot_file()),
+        &inputs,
+    );
+    assert_eq!(code, 0, "{log}");
+    let over_protocol = egcal::table::read_parquet(&out.join("measurements.parquet")).unwrap();
+    let without_time = |df: &polars::prelude::DataFrame| {
+        let mut df = df.clone();
+        df.drop_in_place("measured_at").unwrap();
+        egcal::table::content_hash(&df)
+    };
+    assert_eq!(without_time(&over_protocol), without_time(&measured));
+    // A driver of the arm alone announces no positioner.
+    let arm_only = root.join("jobs/robots/irb1600_145.toml");
+    let refused = tempfile::tempdir().unwrap();
+    let (code, log, out) = stage(
+        refused.path(),
+        &robot_file(),
+        "measure",
+        &driver(&arm_only),
+        &inputs,
+    );
+    assert_ne!(code, 0, "{log}");
+    assert!(
+        log.contains("does not announce select_target, move_positioner, read_positioner"),
+        "{log}"
+    );
+    assert!(!out.join("measurements.parquet").exists());
+
+    // Every row of a nest campaign names its SMR.
+    let mut unnamed = egcal::table::read_parquet(&conf_wrenches).unwrap();
+    let ids: Vec<Option<String>> = rows
+        .iter()
+        .enumerate()
+        .map(|(k, r)| match r.positioner_deg {
+            Some(_) => Some(NESTS[r.target - 1].to_string()),
+            None => (k != 7).then(|| "arm".to_string()),
+        })
+        .collect();
+    unnamed
+        .with_column(Column::new("target_id".into(), ids))
+        .unwrap();
+    let unnamed_path = refused.path().join("unnamed.parquet");
+    egcal::table::write_parquet(&mut unnamed, &unnamed_path, None).unwrap();
+    let (code, log, _) = stage(
+        refused.path(),
+        &robot_file(),
+        "measure",
+        "",
+        &[("conf_wrenches", &unnamed_path), ("truth", &truth_path)],
+    );
+    assert_eq!(code, 2, "{log}");
+    assert!(log.contains("row 7 is empty"), "{log}");
 }

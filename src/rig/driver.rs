@@ -19,6 +19,7 @@ use std::time::Duration;
 
 use super::protocol::{Call, PROTOCOL_VERSION, Reply, ReplyResult, Request};
 use super::{Rig, RigError};
+use crate::robot::positioner::MAX_POSITIONER_AXES;
 
 /// A running driver process.
 pub struct ExternalDriver {
@@ -33,6 +34,9 @@ pub struct ExternalDriver {
     pub name: String,
     /// The methods `hello` announced (empty when it announced none).
     pub capabilities: Vec<String>,
+    /// How many axis values `move_positioner` sends and `read_positioner`
+    /// expects: the robot file's positioner's.
+    positioner_axes: usize,
 }
 
 impl ExternalDriver {
@@ -116,6 +120,7 @@ impl ExternalDriver {
             last_sigma_mm: None,
             name: String::new(),
             capabilities: Vec::new(),
+            positioner_axes: 0,
         };
         let at_start =
             |problem: String| RigError::Fatal(format!("starting driver `{shown}`: {problem}"));
@@ -226,6 +231,21 @@ impl ExternalDriver {
             .iter()
             .all(|m| self.capabilities.iter().any(|c| c == m))
     }
+
+    /// The robot file's positioner axes count, for `move_positioner` and
+    /// `read_positioner`.
+    pub fn with_positioner_axes(mut self, axes: usize) -> Self {
+        self.positioner_axes = axes;
+        self
+    }
+
+    /// Whether `hello` announced every method of a campaign measuring a
+    /// positioner's nests.
+    pub fn drives_a_positioner(&self) -> bool {
+        super::protocol::POSITIONER_METHODS
+            .iter()
+            .all(|m| self.capabilities.iter().any(|c| c == m))
+    }
 }
 
 impl Rig for ExternalDriver {
@@ -278,6 +298,39 @@ impl Rig for ExternalDriver {
         self.call(Call::ReadTrack {})?
             .e_mm
             .ok_or_else(|| Self::missing("read_track", "e_mm"))
+    }
+
+    fn select_target(&mut self, target_id: &str) -> Result<(), RigError> {
+        self.call(Call::SelectTarget {
+            target_id: target_id.to_string(),
+        })
+        .map(|_| ())
+    }
+
+    fn move_positioner(
+        &mut self,
+        cw_id: i64,
+        p_deg: [f64; MAX_POSITIONER_AXES],
+    ) -> Result<(), RigError> {
+        let p_deg = p_deg[..self.positioner_axes].to_vec();
+        self.call(Call::MovePositioner { cw_id, p_deg }).map(|_| ())
+    }
+
+    fn read_positioner(&mut self) -> Result<[f64; MAX_POSITIONER_AXES], RigError> {
+        let read = self
+            .call(Call::ReadPositioner {})?
+            .p_deg
+            .ok_or_else(|| Self::missing("read_positioner", "p_deg"))?;
+        if read.len() != self.positioner_axes {
+            return Err(RigError::Fatal(format!(
+                "driver replied to read_positioner with {} value(s), expected one per axis of the robot file's positioner ({})",
+                read.len(),
+                self.positioner_axes
+            )));
+        }
+        let mut p_deg = [0.0; MAX_POSITIONER_AXES];
+        p_deg[..read.len()].copy_from_slice(&read);
+        Ok(p_deg)
     }
 
     fn release_wrench(&mut self) -> Result<(), RigError> {
@@ -418,6 +471,22 @@ pub fn serve(
             Call::ReadJoints {} => rig.read_joints().map(|q| result.q_deg = Some(q)),
             Call::MoveTrack { cw_id, e_mm } => rig.move_track(cw_id, e_mm),
             Call::ReadTrack {} => rig.read_track().map(|e| result.e_mm = Some(e)),
+            Call::SelectTarget { target_id } => rig.select_target(&target_id),
+            Call::MovePositioner { cw_id, p_deg } => {
+                if p_deg.is_empty() || p_deg.len() > MAX_POSITIONER_AXES {
+                    Err(RigError::Fatal(format!(
+                        "move_positioner: {} axis value(s), expected 1 to {MAX_POSITIONER_AXES}",
+                        p_deg.len()
+                    )))
+                } else {
+                    let mut padded = [0.0; MAX_POSITIONER_AXES];
+                    padded[..p_deg.len()].copy_from_slice(&p_deg);
+                    rig.move_positioner(cw_id, padded)
+                }
+            }
+            Call::ReadPositioner {} => rig
+                .read_positioner()
+                .map(|p| result.p_deg = Some(p[..rig.positioner_axes()].to_vec())),
             Call::Measure {} => rig.measure().map(|p| {
                 result.position_mm = Some(p);
                 result.measured_at_us = Some(rig.measured_at_us());

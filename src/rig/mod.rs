@@ -15,6 +15,8 @@ use std::time::Duration;
 
 use protocol::ErrorCode;
 
+use crate::robot::positioner::MAX_POSITIONER_AXES;
+
 /// Why a rig operation failed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RigError {
@@ -115,6 +117,32 @@ pub trait Rig {
     fn read_track(&mut self) -> Result<f64, RigError> {
         Err(RigError::Fatal(NO_TRACK.into()))
     }
+    /// Points the tracker at SMR `target_id` for the following
+    /// [`Rig::measure`]s: the arm's SMR or a nest on the positioner's table
+    /// (campaigns that measure a positioner's nests).
+    fn select_target(&mut self, target_id: &str) -> Result<(), RigError> {
+        let _ = target_id;
+        Err(RigError::Fatal(NO_POSITIONER.into()))
+    }
+    /// Moves the positioner's axes to `p_deg` (deg; the robot file's axes,
+    /// the rest 0) for conf-wrench row `cw_id`.
+    fn move_positioner(
+        &mut self,
+        cw_id: i64,
+        p_deg: [f64; MAX_POSITIONER_AXES],
+    ) -> Result<(), RigError> {
+        let _ = (cw_id, p_deg);
+        Err(RigError::Fatal(NO_POSITIONER.into()))
+    }
+    /// How many axes the rig's positioner has (0 without one): the values
+    /// `read_positioner` answers over the protocol.
+    fn positioner_axes(&self) -> usize {
+        0
+    }
+    /// The positioner's axis encoders (deg; the robot file's axes, the rest 0).
+    fn read_positioner(&mut self) -> Result<[f64; MAX_POSITIONER_AXES], RigError> {
+        Err(RigError::Fatal(NO_POSITIONER.into()))
+    }
     /// Timestamp of the last tracker reading, µs since the epoch (UTC).
     fn measured_at_us(&self) -> i64;
     /// The tracker's own 1-σ uncertainty of the last reading (mm), when it gives one.
@@ -133,6 +161,9 @@ pub trait Rig {
 /// Why a rig without a track axis refuses the track's methods.
 const NO_TRACK: &str =
     "this rig has no linear track axis (move_track, read_track), and the robot file has a [track]";
+
+/// Why a rig without a positioner refuses its methods.
+const NO_POSITIONER: &str = "this rig cannot measure a positioner's nests (select_target, move_positioner, read_positioner), and the rows measure them";
 
 /// Per-request time limit of external drivers.
 pub fn timeout_from_seconds(seconds: f64) -> Duration {

@@ -44,6 +44,16 @@ pub enum Call {
     MoveTrack { cw_id: i64, e_mm: f64 },
     /// Read the track's position encoder (mm).
     ReadTrack {},
+    /// Point the tracker at the SMR `target_id` for the following `measure`s:
+    /// the arm's SMR or a nest on the positioner's table (campaigns that
+    /// measure a positioner's nests; sent first in every row).
+    SelectTarget { target_id: String },
+    /// Move the positioner's axes to `p_deg` (deg, one per axis) for row
+    /// `cw_id` (rows measuring a nest; sent before `move_joints`); reply
+    /// when settled.
+    MovePositioner { cw_id: i64, p_deg: Vec<f64> },
+    /// Read the positioner's axis encoders (deg, one per axis).
+    ReadPositioner {},
     /// Park and exit.
     Shutdown {},
 }
@@ -81,6 +91,9 @@ pub struct ReplyResult {
     /// read_track: the carriage's position (mm).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub e_mm: Option<f64>,
+    /// read_positioner: the axes' positions (deg, one per axis).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub p_deg: Option<Vec<f64>>,
     /// measure.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub position_mm: Option<[f64; 3]>,
@@ -175,7 +188,12 @@ impl ErrorCode {
 /// announces them in `hello`'s capabilities.
 pub const TRACK_METHODS: [&str; 2] = ["move_track", "read_track"];
 
-/// Method names, as capabilities (the track's are [`TRACK_METHODS`]).
+/// The methods of a campaign that measures a positioner's nests: a driver
+/// of such a cell announces them in `hello`'s capabilities.
+pub const POSITIONER_METHODS: [&str; 3] = ["select_target", "move_positioner", "read_positioner"];
+
+/// Method names, as capabilities (the track's are [`TRACK_METHODS`], the
+/// positioner's [`POSITIONER_METHODS`]).
 pub const METHODS: [&str; 8] = [
     "hello",
     "move_joints",

@@ -28,6 +28,7 @@ use std::collections::HashMap;
 use super::approach::step_direction;
 use super::{Rig, RigError};
 use crate::robot::params::{ParamId, ParamKind};
+use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{ConfWrench, JOINTS, ParamValues, Robot, Wrench};
 
 /// Noise and error settings of the simulator.
@@ -159,6 +160,15 @@ pub struct Simulator {
     commanded_q: Option<[f64; JOINTS]>,
     /// The track carriage's commanded position (mm); 0 without a track.
     commanded_track_mm: f64,
+    /// The positioner's commanded axes (deg); 0 without one.
+    commanded_positioner_deg: [f64; MAX_POSITIONER_AXES],
+    /// The truth's target ids when it has several (sorted, as the
+    /// parameters table holds them); empty for a one-target truth.
+    targets: Vec<String>,
+    /// The SMR the tracker measures ([`Rig::select_target`]): its slot in
+    /// the truth, and whether it is a nest on the positioner's table.
+    target_index: usize,
+    on_nest: bool,
     /// Where each joint approached its command from ([`super::approach`]).
     approach: [i8; JOINTS],
     /// The campaign's own approach directions by cw_id, so a resumed campaign
@@ -262,6 +272,10 @@ impl Simulator {
             cw_id: 0,
             commanded_q: None,
             commanded_track_mm: 0.0,
+            commanded_positioner_deg: [0.0; MAX_POSITIONER_AXES],
+            targets: Vec::new(),
+            target_index: 0,
+            on_nest: false,
             approach: [0; JOINTS],
             planned_approach: HashMap::new(),
             applied: [0.0; 6],
@@ -309,6 +323,13 @@ impl Simulator {
         self
     }
 
+    /// The truth's target ids (a parameters set's `targets`), so that
+    /// [`Rig::select_target`] finds each SMR's slot, the nests' included.
+    pub fn with_targets(mut self, targets: Vec<String>) -> Self {
+        self.targets = targets;
+        self
+    }
+
     fn gauss(&mut self, sigma: f64) -> f64 {
         if sigma <= 0.0 {
             return 0.0;
@@ -349,11 +370,13 @@ impl Simulator {
             .predict_row(&ConfWrench {
                 approach: self.approach,
                 track_mm: self.commanded_track_mm,
-                positioner_deg: None,
+                target: self.target_index,
+                positioner_deg: self.on_nest.then_some(self.commanded_positioner_deg),
                 ..ConfWrench::new(actual, wrench)
             })
             .position_mm;
-        let residual = if self.settings.residual_mm > 0.0 {
+        // The arm's unmodelled errors do not move a nest on the table.
+        let residual = if self.settings.residual_mm > 0.0 && !self.on_nest {
             self.residual.at(q)
         } else {
             [0.0; 3]
@@ -497,6 +520,76 @@ impl Rig for Simulator {
             Some(_) => Ok(self.commanded_track_mm),
             None => Err(RigError::Fatal(
                 "read_track: the simulated robot has no [track]".into(),
+            )),
+        }
+    }
+
+    fn select_target(&mut self, target_id: &str) -> Result<(), RigError> {
+        let on_nest = self
+            .robot
+            .spec()
+            .positioner
+            .as_ref()
+            .is_some_and(|p| p.nests.iter().any(|n| n == target_id));
+        let index = if self.targets.is_empty() && !on_nest {
+            Some(0)
+        } else {
+            self.targets.iter().position(|t| t == target_id)
+        };
+        let Some(index) = index else {
+            return Err(RigError::Fatal(format!(
+                "select_target: the simulator's truth has no target `{target_id}` (its targets: {}); give the truth parameters a position for it",
+                if self.targets.is_empty() {
+                    "one, unnamed".to_string()
+                } else {
+                    self.targets.join(", ")
+                }
+            )));
+        };
+        self.target_index = index;
+        self.on_nest = on_nest;
+        Ok(())
+    }
+
+    /// The positioner reaches its command exactly as its encoders count
+    /// it: where the table really stands is the truth's positioner terms.
+    fn move_positioner(
+        &mut self,
+        _cw_id: i64,
+        p_deg: [f64; MAX_POSITIONER_AXES],
+    ) -> Result<(), RigError> {
+        let Some(positioner) = &self.robot.spec().positioner else {
+            return Err(RigError::Fatal(format!(
+                "move_positioner: the simulated robot ({}) has no [positioner]",
+                self.robot.spec().path.display()
+            )));
+        };
+        for (k, (axis, value)) in positioner.axes.iter().zip(p_deg).enumerate() {
+            let [lo, hi] = axis.limits_deg;
+            if !(value >= lo && value <= hi) {
+                return Err(RigError::Row(format!(
+                    "move_positioner: axis {} to {value} deg is outside its limits [{lo}, {hi}] deg",
+                    k + 1
+                )));
+            }
+        }
+        self.commanded_positioner_deg = p_deg;
+        Ok(())
+    }
+
+    fn positioner_axes(&self) -> usize {
+        self.robot
+            .spec()
+            .positioner
+            .as_ref()
+            .map_or(0, |p| p.axes.len())
+    }
+
+    fn read_positioner(&mut self) -> Result<[f64; MAX_POSITIONER_AXES], RigError> {
+        match self.robot.spec().positioner {
+            Some(_) => Ok(self.commanded_positioner_deg),
+            None => Err(RigError::Fatal(
+                "read_positioner: the simulated robot has no [positioner]".into(),
             )),
         }
     }

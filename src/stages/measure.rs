@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
-    TableSlot, conf_wrench_rows, model_name_problem, model_values,
+    TableSlot, conf_wrench_rows, model_name_problem, model_set,
 };
 use crate::calibration::row_checks::JOINT_LIMIT_TOLERANCE_DEG;
 use crate::journal::Journal;
@@ -131,6 +131,11 @@ pub struct MeasureSettings {
     #[schemars(range(max = 1000.0))]
     #[schemars(extend("exclusiveMinimum" = 0.0))]
     pub max_track_error_mm: f64,
+    /// How far a positioner axis's reading may lie from its command (deg),
+    /// for rows measuring a nest on the positioner's table.
+    #[schemars(range(max = 90.0))]
+    #[schemars(extend("exclusiveMinimum" = 0.0))]
+    pub max_positioner_error_deg: f64,
 }
 
 impl Default for MeasureSettings {
@@ -156,6 +161,7 @@ impl Default for MeasureSettings {
             max_tracker_distance_mm: 40_000.0,
             pre_position_deg: 1.0,
             max_track_error_mm: 1.0,
+            max_positioner_error_deg: 0.1,
         }
     }
 }
@@ -165,7 +171,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Measurement campaign on a rig (simulator or external driver), resumable",
-    code_version: 3,
+    code_version: 4,
     inputs: &[
         TableSlot {
             name: "conf_wrenches",
@@ -226,6 +232,14 @@ pub(crate) struct Reading {
     /// A linear track's position reading (mm), for a robot on a track.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub track_mm: Option<f64>,
+    /// The SMR the tracker measured, in a campaign measuring a positioner's
+    /// nests (every row names its target there).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_id: Option<String>,
+    /// The positioner's axis readings (deg, one per axis) of a row
+    /// measuring a nest.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub positioner_deg: Option<Vec<f64>>,
 }
 
 impl Entry {
@@ -278,7 +292,21 @@ impl Stage for MeasureStage {
             .and_then(|c| c.i64().ok().map(|v| v.iter().collect::<Vec<_>>()));
         let seed = settings.seed.unwrap_or(ctx.seed);
 
-        let truth = model_values(ctx, "truth", "truth_model", &settings.truth_model)?;
+        let truth_set = model_set(ctx, "truth", "truth_model", &settings.truth_model)?;
+        let truth = truth_set.as_ref().map_or_else(
+            || crate::robot::ParamValues::nominal(ctx.robot.spec()),
+            |set| set.values,
+        );
+        let truth_targets = truth_set.map(|set| set.targets).unwrap_or_default();
+        // A campaign measuring a positioner's nests: every row says which
+        // SMR the tracker measures, the arm's or a nest's.
+        let row_targets = nest_campaign_targets(input, &rows)?;
+        let positioner_axes = ctx
+            .robot
+            .spec()
+            .positioner
+            .as_ref()
+            .map_or(0, |p| p.axes.len());
         // The direction each row must be reached from (spec §8), where given.
         let required = schema::approach_values(&input.df, &input.path)?;
         let pre_positioned = required.iter().flatten().any(|d| *d != 0);
@@ -304,6 +332,10 @@ impl Stage for MeasureStage {
                 hasher.update(&seed.to_le_bytes());
                 for v in truth.0 {
                     hasher.update(&v.to_le_bytes());
+                }
+                for target in &truth_targets {
+                    hasher.update(target.as_bytes());
+                    hasher.update(&[0]);
                 }
             }
             hasher.finalize().to_hex().to_string()
@@ -360,7 +392,8 @@ impl Stage for MeasureStage {
                         .map_err(|m| {
                             StageError::Invalid(format!("setting `simulator.clock_start`: {m}"))
                         })?
-                        .with_planned_approach(approach.clone()),
+                        .with_planned_approach(approach.clone())
+                        .with_targets(truth_targets.clone()),
                 )
             }
             DriverKind::External => {
@@ -378,7 +411,15 @@ impl Stage for MeasureStage {
                         crate::rig::protocol::TRACK_METHODS.join(" and ")
                     )));
                 }
-                Box::new(driver)
+                if row_targets.is_some() && !driver.drives_a_positioner() {
+                    return Err(StageError::Failed(format!(
+                        "the rows of {} measure the positioner's nests, and driver `{}` does not announce {} in its capabilities: it cannot point the tracker at a nest or move the table, so no nest would be measured where it was designed",
+                        input.path.display(),
+                        driver.name,
+                        crate::rig::protocol::POSITIONER_METHODS.join(", ")
+                    )));
+                }
+                Box::new(driver.with_positioner_axes(positioner_axes))
             }
         };
 
@@ -398,34 +439,64 @@ impl Stage for MeasureStage {
             let mut attempts = 0;
             let entry = loop {
                 attempts += 1;
-                // The carriage moves first, so the pre-position is where the row is.
-                let checked = (if on_track {
-                    rig.move_track(ids[k], rows[k].track_mm)
-                } else {
-                    Ok(())
-                })
-                .and_then(|()| {
-                    pre_positions[k].map_or(Ok(()), |q_deg| rig.move_joints(ids[k], q_deg))
-                })
-                .and_then(|()| measure_row(rig.as_mut(), ids[k], &rows[k], on_track))
-                .and_then(|reading| {
-                    bounds.check(
-                        &rows[k].q_deg,
-                        &rows[k].wrench.to_array(),
-                        &reading.q_deg,
-                        &reading.wrench,
-                        &reading.position_mm,
-                    )?;
-                    if let Some(fault) = reading.sigma_mm.as_ref().and_then(sigma_fault) {
-                        return Err(fault.into());
-                    }
-                    if let Some(fault) = reading.track_mm.and_then(|read| {
-                        track_fault(rows[k].track_mm, read, settings.max_track_error_mm)
-                    }) {
-                        return Err(fault.into());
-                    }
-                    Ok(reading)
-                });
+                // The tracker is pointed at the row's SMR and the table moved
+                // first; the carriage moves next, so the pre-position is where
+                // the row is.
+                let checked = row_targets
+                    .as_ref()
+                    .map_or(Ok(()), |targets| rig.select_target(&targets[k]))
+                    .and_then(|()| {
+                        rows[k]
+                            .positioner_deg
+                            .map_or(Ok(()), |p_deg| rig.move_positioner(ids[k], p_deg))
+                    })
+                    .and_then(|()| {
+                        if on_track {
+                            rig.move_track(ids[k], rows[k].track_mm)
+                        } else {
+                            Ok(())
+                        }
+                    })
+                    .and_then(|()| {
+                        pre_positions[k].map_or(Ok(()), |q_deg| rig.move_joints(ids[k], q_deg))
+                    })
+                    .and_then(|()| measure_row(rig.as_mut(), ids[k], &rows[k], on_track))
+                    .map(|mut reading| {
+                        reading.target_id = row_targets.as_ref().map(|t| t[k].clone());
+                        reading
+                    })
+                    .and_then(|mut reading| {
+                        if let Some(commanded) = rows[k].positioner_deg {
+                            let read = rig.read_positioner()?;
+                            if let Some(fault) = positioner_fault(
+                                &commanded[..positioner_axes],
+                                &read[..positioner_axes],
+                                settings.max_positioner_error_deg,
+                            ) {
+                                return Err(fault);
+                            }
+                            reading.positioner_deg = Some(read[..positioner_axes].to_vec());
+                        }
+                        Ok(reading)
+                    })
+                    .and_then(|reading| {
+                        bounds.check(
+                            &rows[k].q_deg,
+                            &rows[k].wrench.to_array(),
+                            &reading.q_deg,
+                            &reading.wrench,
+                            &reading.position_mm,
+                        )?;
+                        if let Some(fault) = reading.sigma_mm.as_ref().and_then(sigma_fault) {
+                            return Err(fault.into());
+                        }
+                        if let Some(fault) = reading.track_mm.and_then(|read| {
+                            track_fault(rows[k].track_mm, read, settings.max_track_error_mm)
+                        }) {
+                            return Err(fault.into());
+                        }
+                        Ok(reading)
+                    });
                 match checked {
                     Ok(reading) => break Entry::Measured(reading),
                     Err(e) => match e.disposition() {
@@ -601,7 +672,51 @@ pub(crate) fn measure_row(
         measured_at_us: rig.measured_at_us(),
         sigma_mm: rig.measured_sigma_mm(),
         track_mm,
+        target_id: None,
+        positioner_deg: None,
     })
+}
+
+/// Each row's target id when the rows measure a positioner's nests (some
+/// row is a nest row), so the tracker is pointed at each row's SMR; then
+/// every row must name its target. `None` for any other campaign, whose
+/// rows the tracker measures on the arm's one SMR.
+fn nest_campaign_targets(
+    input: &super::InputTable,
+    rows: &[ConfWrench],
+) -> Result<Option<Vec<String>>, StageError> {
+    if rows.iter().all(|r| r.positioner_deg.is_none()) {
+        return Ok(None);
+    }
+    let ids = schema::str_values(&input.df, "target_id", &input.path)?;
+    ids.into_iter()
+        .enumerate()
+        .map(|(row, id)| {
+            id.filter(|id| !id.trim().is_empty()).ok_or_else(|| {
+                StageError::Invalid(format!(
+                    "{}: column `target_id`, row {row} is empty: the rows measure the positioner's nests, so every row names the SMR the tracker measures (the arm's or a nest's)",
+                    input.path.display()
+                ))
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map(Some)
+}
+
+/// Why a positioner's axis reading cannot be the row's: farther than
+/// `max_error_deg` from its command, or not finite.
+fn positioner_fault(commanded: &[f64], read: &[f64], max_error_deg: f64) -> Option<RigError> {
+    commanded
+        .iter()
+        .zip(read)
+        .enumerate()
+        .find(|(_, (c, r))| !r.is_finite() || (*r - *c).abs() > max_error_deg)
+        .map(|(axis, (c, r))| {
+            RigError::Row(format!(
+                "the positioner's axis {} reads {r} deg for a command of {c} deg (max_positioner_error_deg = {max_error_deg}): it did not reach the row's position, or reports other units",
+                axis + 1
+            ))
+        })
 }
 
 fn now_us() -> i64 {
@@ -730,6 +845,25 @@ pub(crate) fn measurements_frame(
         let values: Vec<Option<f64>> = readings.iter().map(|(r, _)| r.track_mm).collect();
         columns.push(Column::new(schema::TRACK_COLUMN.into(), values));
     }
+    if readings.iter().any(|(r, _)| r.target_id.is_some()) {
+        let values: Vec<Option<&str>> = readings
+            .iter()
+            .map(|(r, _)| r.target_id.as_deref())
+            .collect();
+        columns.push(Column::new("target_id".into(), values));
+    }
+    let axes = readings
+        .iter()
+        .filter_map(|(r, _)| r.positioner_deg.as_ref().map(Vec::len))
+        .max()
+        .unwrap_or(0);
+    for (axis, name) in schema::POSITIONER_COLUMNS[..axes].iter().enumerate() {
+        let values: Vec<Option<f64>> = readings
+            .iter()
+            .map(|(r, _)| r.positioner_deg.as_ref().and_then(|p| p.get(axis).copied()))
+            .collect();
+        columns.push(Column::new((*name).into(), values));
+    }
     if with_config_id {
         columns.push(Column::new("config_id".into(), config));
     }
@@ -741,4 +875,23 @@ pub(crate) fn measurements_frame(
     }
     columns.push(timestamps("measured_at", at));
     frame(columns)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_positioner_reading_far_from_its_command_fails_the_row() {
+        assert!(positioner_fault(&[10.0, -45.0], &[10.02, -45.05], 0.1).is_none());
+        // Radians for degrees, and NaN, name the axis.
+        let fault = positioner_fault(&[10.0, -45.0], &[10.0, -0.785], 0.1)
+            .unwrap()
+            .to_string();
+        assert!(fault.contains("axis 2 reads -0.785 deg"), "{fault}");
+        let fault = positioner_fault(&[10.0], &[f64::NAN], 0.1)
+            .unwrap()
+            .to_string();
+        assert!(fault.contains("axis 1 reads NaN"), "{fault}");
+    }
 }
