@@ -897,3 +897,75 @@ fn a_campaign_measures_the_nests_where_the_table_stands() {
     assert_eq!(code, 2, "{log}");
     assert!(log.contains("row 7 is empty"), "{log}");
 }
+
+/// A one-axis positioner (the shipped file's tilt axis alone): the nests
+/// turn about one line, so the base's turn about it and its place along it
+/// are the nests' own; the fit holds what it cannot tell apart and still
+/// puts held-out nests within the tracker's noise.
+#[test]
+fn a_one_axis_positioner_is_calibrated_with_the_arm() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = std::fs::read_to_string(robot_file()).unwrap();
+    let second_axis = text.rfind("[[positioner.axes]]").unwrap();
+    let path = dir.path().join("tilt_table.toml");
+    std::fs::write(&path, &text[..second_axis]).unwrap();
+    let spec = RobotSpec::load(&path).unwrap();
+    assert_eq!(spec.positioner.as_ref().unwrap().axes.len(), 1);
+    let robot = Robot::new(spec.clone());
+    let mut truth =
+        ParamValues::load_overrides(&spec, &common::root().join("jobs/truth/irb1600_paper.toml"))
+            .unwrap();
+    for (name, delta) in [
+        ("x_p", 1.5),
+        ("y_p", -0.8),
+        ("z_p", 0.6),
+        ("alpha_p", 0.05),
+        ("beta_p", -0.04),
+    ] {
+        let id = ParamId::from_name(name).unwrap();
+        truth.set(id, truth.get(id) + delta);
+    }
+    for nest in 0..NESTS.len() {
+        for axis in 0..3 {
+            truth.set(
+                ParamId::target_translation(nest + 1, axis),
+                nest_on_table(nest)[axis],
+            );
+        }
+    }
+    let sigma_mm = 0.02;
+    let one_axis = |rows: Vec<ConfWrench>| -> Vec<ConfWrench> {
+        rows.into_iter()
+            .map(|mut r| {
+                r.positioner_deg = r.positioner_deg.map(|p| [p[0], 0.0]);
+                r
+            })
+            .collect()
+    };
+    let rows: Vec<ConfWrench> = arm_rows(&robot, 41, 300)
+        .into_iter()
+        .chain(one_axis(nest_rows(42, 30)))
+        .collect();
+    let measured = noisy(&positions(&robot, &truth, &rows), sigma_mm, 43);
+    let input = dir.path().join("measurements.parquet");
+    write_cell_measurements(&input, &rows, &measured, &["p1_deg"]);
+    let (code, log, out) = stage(
+        dir.path(),
+        &path,
+        "identify",
+        IDENTIFY,
+        &[("measurements", &input)],
+    );
+    assert_eq!(code, 0, "{log}");
+    let set = egcal::table::parameters::load_model(
+        &out.join("parameters.parquet"),
+        ModelName::Elastogeometric,
+        &ParamValues::nominal(&spec),
+    )
+    .unwrap();
+    let held_out = one_axis(nest_rows(44, 20));
+    let held_out_measured = noisy(&positions(&robot, &truth, &held_out), sigma_mm, 45);
+    let error_mm = mean_error_mm(&robot, &set.values, &held_out, &held_out_measured);
+    eprintln!("one-axis positioner, held-out nests: {error_mm:.4} mm from the calibrated cell");
+    assert!(error_mm < 2.5 * sigma_mm * 3f64.sqrt(), "{error_mm}");
+}
