@@ -969,3 +969,136 @@ fn a_one_axis_positioner_is_calibrated_with_the_arm() {
     eprintln!("one-axis positioner, held-out nests: {error_mm:.4} mm from the calibrated cell");
     assert!(error_mm < 2.5 * sigma_mm * 3f64.sqrt(), "{error_mm}");
 }
+
+/// A lab's driver of a nest campaign, in Python: it keeps which SMR the
+/// tracker measures and where the table stands, and measures a nest at
+/// x = 1000 + p1 (the arm's SMR at the sum of its joints); it dies before
+/// its `limit + 1`-th measurement and reads the positioner's axes times
+/// `unit` (0.0174… for a driver answering in radians).
+const NEST_DRIVER: &str = r#"
+import json, sys
+limit, unit = int(sys.argv[1]), float(sys.argv[2])
+methods = ["hello", "move_joints", "apply_wrench", "release_wrench", "read_wrench",
+           "read_joints", "measure", "shutdown", "select_target", "move_positioner",
+           "read_positioner"]
+measured, target, p, q, w = 0, None, [0.0, 0.0], [0.0] * 6, [0.0] * 6
+for line in sys.stdin:
+    request = json.loads(line)
+    rid, method, params = request["id"], request["method"], request.get("params") or {}
+    result = {}
+    if method == "hello":
+        result = {"protocol": 1, "name": "nest test driver", "capabilities": methods}
+    elif method == "move_joints":
+        q = params["q_deg"]
+    elif method == "apply_wrench":
+        w = params["wrench"]
+    elif method == "read_wrench":
+        result = {"wrench": w}
+    elif method == "read_joints":
+        result = {"q_deg": q}
+    elif method == "select_target":
+        target = params["target_id"]
+    elif method == "move_positioner":
+        p = params["p_deg"]
+    elif method == "read_positioner":
+        result = {"p_deg": [v * unit for v in p]}
+    elif method == "measure":
+        if measured == limit:
+            sys.exit(3)
+        measured += 1
+        x = 1000.0 + p[0] if target != "arm" else sum(q)
+        result = {"position_mm": [x, 0.0, 2.0], "measured_at_us": 0}
+    elif method == "shutdown":
+        print(json.dumps({"id": rid, "result": {}}), flush=True)
+        break
+    print(json.dumps({"id": rid, "result": result}), flush=True)
+"#;
+
+/// A nest campaign killed mid-way resumes with every row's target and axes
+/// (the journal keeps them); a driver reading the axes in radians fails the
+/// nest rows away from 0 with the reason.
+#[test]
+fn a_nest_campaign_resumes_with_each_row_s_target_and_axes() {
+    let dir = tempfile::tempdir().unwrap();
+    let spec = RobotSpec::load(&robot_file()).unwrap();
+    let robot = Robot::new(spec.clone());
+    // Nest rows first, so some are measured before the driver dies.
+    let rows: Vec<ConfWrench> = nest_rows(51, 2)
+        .into_iter()
+        .chain(arm_rows(&robot, 52, 10))
+        .collect();
+    let (conf_wrenches, _) = write_campaign(dir.path(), &spec, &rows);
+    let script = dir.path().join("driver.py");
+    std::fs::write(&script, NEST_DRIVER).unwrap();
+    let settings = |limit: usize, unit: f64| {
+        format!(
+            "driver = \"external\"\nretries = 0\ncommand = [\"python3\", {:?}, \"{limit}\", \"{unit}\"]\n",
+            script.display().to_string()
+        )
+    };
+    let inputs = [("conf_wrenches", &*conf_wrenches)];
+    let (code, log, _) = stage(
+        dir.path(),
+        &robot_file(),
+        "measure",
+        &settings(4, 1.0),
+        &inputs,
+    );
+    assert_ne!(code, 0, "{log}");
+    assert!(log.contains("the 4 rows measured so far are kept"), "{log}");
+    let (code, log, out) = stage(
+        dir.path(),
+        &robot_file(),
+        "measure",
+        &settings(100, 1.0),
+        &inputs,
+    );
+    assert_eq!(code, 0, "{log}");
+    assert!(log.contains("measured_this_run = 12"), "{log}");
+    let path = out.join("measurements.parquet");
+    let measured = egcal::table::read_parquet(&path).unwrap();
+    assert_eq!(measured.height(), rows.len());
+    let ids = egcal::table::schema::str_values(&measured, "target_id", &path).unwrap();
+    let p1 = egcal::table::schema::optional_f64_values(&measured, "p1_deg", &path)
+        .unwrap()
+        .unwrap();
+    let x = egcal::table::schema::f64_values(&measured, "x_mm", &path).unwrap();
+    for (k, row) in rows.iter().enumerate() {
+        match row.positioner_deg {
+            Some(p) => {
+                assert_eq!(ids[k].as_deref(), Some(NESTS[row.target - 1]), "row {k}");
+                assert_eq!(p1[k], Some(p[0]), "row {k}");
+                assert_eq!(
+                    x[k],
+                    1000.0 + p[0],
+                    "row {k}: measured with the table there"
+                );
+            }
+            None => {
+                assert_eq!(ids[k].as_deref(), Some("arm"), "row {k}");
+                assert_eq!(p1[k], None, "row {k}");
+            }
+        }
+    }
+
+    // Axes read in radians: every nest row fails, naming the setting.
+    let radians = tempfile::tempdir().unwrap();
+    let (code, log, out) = stage(
+        radians.path(),
+        &robot_file(),
+        "measure",
+        &settings(100, 1.0_f64.to_radians()),
+        &inputs,
+    );
+    assert_eq!(code, 0, "{log}");
+    let failures_path = out.join("measurement_failures.parquet");
+    let failures = egcal::table::read_parquet(&failures_path).unwrap();
+    let reasons = egcal::table::schema::str_values(&failures, "reason", &failures_path).unwrap();
+    assert_eq!(failures.height(), 6, "{reasons:?}");
+    assert!(
+        reasons.iter().all(|r| r
+            .as_deref()
+            .is_some_and(|r| r.contains("max_positioner_error_deg"))),
+        "{reasons:?}"
+    );
+}
