@@ -272,19 +272,47 @@ fn stage(
     (code, format!("{stdout}{stderr}"), out)
 }
 
-#[test]
-fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
-    let dir = tempfile::tempdir().unwrap();
+/// The shipped cell measured by a tracker with 0.02 mm noise: `arm` arm
+/// rows and `per_nest` rows per nest (drawn from `seed`, `seed + 1`, the
+/// noise from `seed + 2`), written to `dir/measurements.parquet`.
+struct MeasuredCell {
+    robot: Robot,
+    truth: ParamValues,
+    rows: Vec<ConfWrench>,
+    measured: Vec<Vector3<f64>>,
+    input: PathBuf,
+}
+
+fn measured_cell(dir: &Path, seed: u64, arm: usize, per_nest: usize) -> MeasuredCell {
     let spec = RobotSpec::load(&robot_file()).unwrap();
     let robot = Robot::new(spec.clone());
     let truth = truth(&spec);
-    let rows: Vec<ConfWrench> = arm_rows(&robot, 11, 200)
+    let rows: Vec<ConfWrench> = arm_rows(&robot, seed, arm)
         .into_iter()
-        .chain(nest_rows(12, 20))
+        .chain(nest_rows(seed + 1, per_nest))
         .collect();
-    let measured = noisy(&positions(&robot, &truth, &rows), 0.02, 13);
-    let input = dir.path().join("measurements.parquet");
+    let measured = noisy(&positions(&robot, &truth, &rows), 0.02, seed + 2);
+    let input = dir.join("measurements.parquet");
     write_cell_measurements(&input, &rows, &measured, &["p1_deg", "p2_deg"]);
+    MeasuredCell {
+        robot,
+        truth,
+        rows,
+        measured,
+        input,
+    }
+}
+
+#[test]
+fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
+    let dir = tempfile::tempdir().unwrap();
+    let MeasuredCell {
+        truth,
+        rows,
+        measured,
+        input,
+        ..
+    } = measured_cell(dir.path(), 11, 200, 20);
     let (code, log, out) = stage(
         dir.path(),
         &robot_file(),
@@ -599,16 +627,12 @@ fn the_programs_move_the_positioner_to_each_target(
 #[test]
 fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
     let dir = tempfile::tempdir().unwrap();
-    let spec = RobotSpec::load(&robot_file()).unwrap();
-    let robot = Robot::new(spec.clone());
-    let truth = truth(&spec);
-    let rows: Vec<ConfWrench> = arm_rows(&robot, 21, 300)
-        .into_iter()
-        .chain(nest_rows(22, 30))
-        .collect();
-    let measured = noisy(&positions(&robot, &truth, &rows), 0.02, 23);
-    let input = dir.path().join("measurements.parquet");
-    write_cell_measurements(&input, &rows, &measured, &["p1_deg", "p2_deg"]);
+    let MeasuredCell {
+        robot,
+        truth,
+        input,
+        ..
+    } = measured_cell(dir.path(), 21, 300, 30);
     let (code, log, identified) = stage(
         dir.path(),
         &robot_file(),
