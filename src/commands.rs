@@ -558,7 +558,10 @@ fn run_on_files(
         CommandError::Usage(
             problems
                 .iter()
-                .map(|p| format!("{settings_name}: {}: {}", p.key, p.message))
+                .map(|p| match p.key.as_str() {
+                    "" => format!("{settings_name}: {}", p.message),
+                    key => format!("{settings_name}: {key}: {}", p.message),
+                })
                 .collect::<Vec<_>>()
                 .join("\n"),
         )

@@ -346,7 +346,7 @@ fn stages_that_do_not_handle_a_track_refuse_it() {
     let (code, stdout, stderr) = common::run(
         &[
             "stage",
-            "accuracy_map",
+            "simulate_logs",
             "--robot",
             file.to_str().unwrap(),
             "--settings",
@@ -360,7 +360,7 @@ fn stages_that_do_not_handle_a_track_refuse_it() {
     assert_eq!(code, 2, "{log}");
     assert!(
         log.contains("[track]")
-            && log.contains("`accuracy_map` does not handle")
+            && log.contains("`simulate_logs` does not handle")
             && log.contains("identify"),
         "{log}"
     );

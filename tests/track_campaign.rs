@@ -150,7 +150,80 @@ fn the_track_campaign_designs_measures_and_calibrates_the_cell() {
     assert_eq!(identified, 10);
 
     the_programs_move_the_carriage_to_each_target(&out);
+    the_accuracy_map_reaches_each_point_from_its_nearest_row_s_carriage(&out);
     a_carriage_beyond_the_calibrated_stations_is_outside_the_envelope(&out);
+}
+
+/// The accuracy map along the travel: each reachable grid point's
+/// configuration, at the carriage position of its nearest calibration row
+/// (one of the stations), puts the calibrated tool within the calibration's
+/// correction of the point (nominal inverse kinematics: a few mm), where the
+/// carriage left at 0 would miss by metres.
+fn the_accuracy_map_reaches_each_point_from_its_nearest_row_s_carriage(out: &Path) {
+    use egcal::robot::{ConfWrench, ParamValues, Robot, RobotSpec, Wrench};
+    use egcal::table::parameters::{ModelName, from_frame};
+    let spec = RobotSpec::load(&common::root().join("jobs/robots/irb1600_145_track.toml")).unwrap();
+    let robot = Robot::new(spec.clone());
+    let parameters_path = out.join("identify/parameters.parquet");
+    let fit = from_frame(
+        &read(&parameters_path),
+        &parameters_path,
+        &ParamValues::nominal(&spec),
+    )
+    .unwrap()
+    .into_iter()
+    .find(|s| s.model == ModelName::Elastogeometric)
+    .unwrap();
+    let map = read(&out.join("accuracy_map/accuracy_map.parquet"));
+    let reachable: Vec<usize> = strings(&map, "status")
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| *s == "reachable")
+        .map(|(k, _)| k)
+        .collect();
+    assert!(
+        reachable.len() > map.height() / 2,
+        "{} of {}",
+        reachable.len(),
+        map.height()
+    );
+    let cell = |name: &str| -> Vec<Option<f64>> {
+        schema::optional_f64_values(&map, name, Path::new(name))
+            .unwrap()
+            .unwrap()
+    };
+    let (e1, position) = (
+        cell("e1_mm"),
+        ["x_mm", "y_mm", "z_mm"].map(|c| f64s(&map, c)),
+    );
+    let joints: Vec<Vec<Option<f64>>> = schema::JOINT_COLUMNS.iter().map(|c| cell(c)).collect();
+    let stations: BTreeSet<i64> = reachable.iter().map(|k| e1[*k].unwrap() as i64).collect();
+    assert_eq!(stations, BTreeSet::from([0, 750, 1500, 2250, 3000]));
+    let mut worst_mm: f64 = 0.0;
+    for &k in &reachable {
+        let row = ConfWrench {
+            track_mm: e1[k].unwrap(),
+            ..ConfWrench::new(
+                std::array::from_fn(|i| joints[i][k].unwrap()),
+                Wrench::zero(),
+            )
+        };
+        let reached = robot.prepare(&fit.values).predict_row(&row).position_mm;
+        let point = nalgebra::Vector3::new(position[0][k], position[1][k], position[2][k]);
+        worst_mm = worst_mm.max((reached - point).norm());
+    }
+    eprintln!(
+        "accuracy map on the track: {} of {} points reachable, the calibrated tool within {worst_mm:.3} mm of each",
+        reachable.len(),
+        map.height()
+    );
+    assert!(worst_mm < 10.0, "{worst_mm}");
+    let u95 = cell("u95_mm");
+    assert!(
+        reachable
+            .iter()
+            .all(|k| u95[*k].is_some_and(|u| u > 0.0 && u < 1.0))
+    );
 }
 
 /// Compensation trusts the track's polynomials between the positions the

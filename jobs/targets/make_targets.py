@@ -20,12 +20,20 @@ the calibration measured.
   its carriage position in `e1_mm`. The world frame is the base's with the
   carriage at 0, so a point p of the base at the carriage position e is at
   p + (e, 0, 0) in the base at 0 (the carriage nominally only translates).
+* positioner_work.parquet, for jobs/positioner_sim.toml (the same arm with the
+  tilt-and-turn positioner of jobs/robots/irb1600_145_positioner.toml): a
+  3 x 3 pattern of points 100 mm apart, 40 mm above the positioner's table,
+  at three table configurations (tilt, turn) = (0, 0), (-20, 45) and
+  (20, -90) deg: targets in the frame `positioner` with their `p1_deg`,
+  `p2_deg`. The tool points down onto the table (rx = 180 deg in the
+  table's frame), as the work does: the tracker, behind the robot, cannot
+  see the arm's SMR there.
 
 The world frame is the robot file's nominal [world]: world <- base =
 Rot(x, -180 deg) . Trans(1326, 1362, -1476), so p_world = R (p_base + t) and the
 tracker (the world origin) is at -t in the base frame.
 
-    python3 jobs/targets/make_targets.py     # rewrites both files
+    python3 jobs/targets/make_targets.py     # rewrites all four files
 """
 import pathlib
 
@@ -96,6 +104,27 @@ def main():
              for v in np.linspace(-150.0, 150.0, 4) for u in np.linspace(-200.0, 200.0, 5)]
     write("drilling.parquet", holes, [0.0, 0.0, -100.0, 0.0, 0.0, 0.0])
     write_track_grid()
+    write_positioner_work()
+
+
+def write_positioner_work():
+    stands = [(0.0, 0.0), (-20.0, 45.0), (20.0, -90.0)]
+    pattern = [(u, v) for v in (-100.0, 0.0, 100.0) for u in (-100.0, 0.0, 100.0)]
+    rows = {"target_id": [], "x_mm": [], "y_mm": [], "z_mm": [], "rx_deg": [], "ry_deg": [],
+            "rz_deg": [], "frame": [], "p1_deg": [], "p2_deg": []}
+    for p1, p2 in stands:
+        for u, v in pattern:
+            rows["target_id"].append(len(rows["target_id"]) + 1)
+            for key, value in zip(["x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"],
+                                  [u, v, 40.0, 180.0, 0.0, 0.0]):
+                rows[key].append(value)
+            rows["frame"].append("positioner")
+            rows["p1_deg"].append(p1)
+            rows["p2_deg"].append(p2)
+    schema = pa.schema([("target_id", pa.int64())]
+                       + [(k, pa.float64()) for k in list(rows)[1:7]]
+                       + [("frame", pa.string()), ("p1_deg", pa.float64()), ("p2_deg", pa.float64())])
+    pq.write_table(pa.table(rows, schema=schema), HERE / "positioner_work.parquet")
 
 
 def write_track_grid():

@@ -12,7 +12,10 @@
 //! (placed by the set's world and tool frames) the one closest in joint space to
 //! that pose's configuration, so the map follows the calibration's branch. The
 //! tool carries no external wrench (gravity still loads the arm): the map is of
-//! the robot as it moves, not of one load case.
+//! the robot as it moves, not of one load case. On a linear track the grid
+//! spans the world positions the rows reached along the travel, and each
+//! point is reached with the carriage where its nearest calibration row had
+//! it.
 //!
 //! The uncertainty is [`super::uncertainty::position_covariances`] there, and
 //! its summary `u95 = sqrt(χ²₃(0.95)·λ_max)`: the longest semi-axis of the 95 %
@@ -28,6 +31,7 @@ use nalgebra::{Matrix3, Vector3};
 use super::uncertainty::{chi_squared_3_quantile, position_covariances};
 use crate::robot::frame::Frame;
 use crate::robot::ik::{self, IkError};
+use crate::robot::model::PreparedRobot;
 use crate::robot::{ConfWrench, JOINTS, ParamId, ParamValues, Robot, Wrench};
 
 /// The grid's shape.
@@ -74,11 +78,22 @@ pub struct MapPoint {
     pub status: PointStatus,
     /// The configuration used, when reachable.
     pub q_deg: Option<[f64; JOINTS]>,
+    /// The carriage position the point is reached from (mm; 0 without a
+    /// track): its nearest calibration row's.
+    pub track_mm: f64,
     /// `J·Σ·Jᵀ` (mm², world frame), when reachable.
     pub covariance_mm2: Option<Matrix3<f64>>,
 }
 
 impl MapPoint {
+    /// The point's configuration as an unloaded row, when reachable.
+    pub fn row(&self) -> Option<ConfWrench> {
+        self.q_deg.map(|q| ConfWrench {
+            track_mm: self.track_mm,
+            ..ConfWrench::new(q, Wrench::zero())
+        })
+    }
+
     /// `sqrt(χ²₃(0.95)·λ_max)` (mm), when reachable.
     pub fn u95_mm(&self) -> Option<f64> {
         self.covariance_mm2.map(|c| u95_mm(&c))
@@ -97,20 +112,26 @@ pub fn u95_mm(c: &Matrix3<f64>) -> f64 {
 #[derive(Debug, Clone, Copy)]
 pub struct CalibrationPose {
     pub q_deg: [f64; JOINTS],
+    /// The carriage's position on a track (mm; 0 without one).
+    pub track_mm: f64,
     pub tool_in_world: Frame,
 }
 
-/// The unloaded tool poses of the calibration configurations under `values`.
+/// The unloaded tool poses of the calibration rows' configurations (and
+/// carriage positions) under `values`.
 pub fn calibration_poses(
     robot: &Robot,
     values: &ParamValues,
-    q_deg: &[[f64; JOINTS]],
+    rows: &[ConfWrench],
 ) -> Vec<CalibrationPose> {
-    q_deg
-        .iter()
-        .map(|q| CalibrationPose {
-            q_deg: *q,
-            tool_in_world: robot.tool_in_world(values, q, &Wrench::zero(), &[0; JOINTS]),
+    let prepared = robot.prepare(values);
+    rows.iter()
+        .map(|row| CalibrationPose {
+            q_deg: row.q_deg,
+            track_mm: row.track_mm,
+            tool_in_world: prepared
+                .world_from_base_at(row.track_mm)
+                .compose(&prepared.loaded_chain(&row.q_deg, &Wrench::zero(), &[0; JOINTS])),
         })
         .collect()
 }
@@ -161,14 +182,16 @@ fn joint_distance_deg(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
         .sqrt()
 }
 
-/// The configuration for a grid point (module doc): orientation of the nearest
-/// calibration pose, IK branch closest to its configuration.
+/// The configuration for a grid point (module doc): orientation and carriage
+/// position of the nearest calibration pose, IK branch closest to its
+/// configuration.
 fn configuration(
     robot: &Robot,
     values: &ParamValues,
+    prepared: &PreparedRobot,
     poses: &[CalibrationPose],
     position_mm: &Vector3<f64>,
-) -> Result<[f64; JOINTS], PointStatus> {
+) -> Result<([f64; JOINTS], f64), PointStatus> {
     let nearest = poses
         .iter()
         .min_by(|a, b| {
@@ -180,6 +203,15 @@ fn configuration(
     let tool = Frame {
         rotation: nearest.tool_in_world.rotation,
         origin_mm: *position_mm,
+    };
+    // On a track the solver places the arm by the world frame: the target
+    // with the carriage's transform taken out, `W·C(e)⁻¹·W⁻¹·T`.
+    let tool = match prepared.carriage(nearest.track_mm) {
+        None => tool,
+        Some(_) => prepared
+            .world_from_base
+            .compose(&prepared.world_from_base_at(nearest.track_mm).inverse())
+            .compose(&tool),
     };
     let flange = ik::flange_target_in_base(robot, values, &tool);
     let solutions = match ik::solve(robot, &flange) {
@@ -194,12 +226,13 @@ fn configuration(
         .min_by(|a, b| {
             joint_distance_deg(a, &nearest.q_deg).total_cmp(&joint_distance_deg(b, &nearest.q_deg))
         })
+        .map(|q| (q, nearest.track_mm))
         .ok_or(PointStatus::Unreachable)
 }
 
 /// The accuracy map of the set `values` with covariance `covariance` (row-major
-/// over `free`) around the calibration configurations `calibration_q_deg`.
-/// Empty without calibration configurations.
+/// over `free`) around the calibration rows' configurations and carriage
+/// positions (their wrenches are not used). Empty without calibration rows.
 ///
 /// Cost: one inverse kinematics per grid point (µs for the closed form, ~1 ms
 /// for the numeric search) and one Jacobian row with `O(m²)` for the reachable.
@@ -208,10 +241,11 @@ pub fn accuracy_map(
     values: &ParamValues,
     free: &[ParamId],
     covariance: &[f64],
-    calibration_q_deg: &[[f64; JOINTS]],
+    calibration: &[ConfWrench],
     spec: &GridSpec,
 ) -> Vec<MapPoint> {
-    let poses = calibration_poses(robot, values, calibration_q_deg);
+    let poses = calibration_poses(robot, values, calibration);
+    let prepared = robot.prepare(values);
     let Some((lo, hi)) = bounding_box(&poses) else {
         return Vec::new();
     };
@@ -220,25 +254,23 @@ pub fn accuracy_map(
         .map(|(slice, position_mm)| {
             let inside_box =
                 (0..3).all(|i| position_mm[i] >= lo[i] - 1e-9 && position_mm[i] <= hi[i] + 1e-9);
-            let (status, q_deg) = match configuration(robot, values, &poses, &position_mm) {
-                Ok(q) => (PointStatus::Reachable, Some(q)),
-                Err(status) => (status, None),
-            };
+            let (status, q_deg, track_mm) =
+                match configuration(robot, values, &prepared, &poses, &position_mm) {
+                    Ok((q, track_mm)) => (PointStatus::Reachable, Some(q), track_mm),
+                    Err(status) => (status, None, 0.0),
+                };
             MapPoint {
                 slice,
                 position_mm,
                 inside_box,
                 status,
                 q_deg,
+                track_mm,
                 covariance_mm2: None,
             }
         })
         .collect();
-    let rows: Vec<ConfWrench> = points
-        .iter()
-        .filter_map(|p| p.q_deg)
-        .map(|q| ConfWrench::new(q, Wrench::zero()))
-        .collect();
+    let rows: Vec<ConfWrench> = points.iter().filter_map(MapPoint::row).collect();
     let mut covariances = position_covariances(robot, values, free, covariance, &rows).into_iter();
     for point in points.iter_mut().filter(|p| p.q_deg.is_some()) {
         point.covariance_mm2 = covariances.next();
@@ -253,6 +285,13 @@ mod tests {
 
     /// Calibration configurations around one working pose: small joint offsets,
     /// so their tool positions span a box a few hundred mm wide.
+    fn rows(q_deg: Vec<[f64; JOINTS]>) -> Vec<ConfWrench> {
+        q_deg
+            .into_iter()
+            .map(|q| ConfWrench::new(q, Wrench::zero()))
+            .collect()
+    }
+
     fn calibration_q() -> Vec<[f64; JOINTS]> {
         let mut q = Vec::new();
         for d1 in [-10.0, 0.0, 10.0] {
@@ -326,8 +365,15 @@ mod tests {
             slices: 3,
             margin_mm: 200.0,
         };
-        let map = accuracy_map(&robot, &values, &free, &sigma, &calibration_q(), &spec);
-        let poses = calibration_poses(&robot, &values, &calibration_q());
+        let map = accuracy_map(
+            &robot,
+            &values,
+            &free,
+            &sigma,
+            &rows(calibration_q()),
+            &spec,
+        );
+        let poses = calibration_poses(&robot, &values, &rows(calibration_q()));
         let point = map
             .iter()
             .find(|p| p.inside_box && p.status == PointStatus::Reachable)
@@ -378,7 +424,14 @@ mod tests {
             slices: 3,
             margin_mm: 150.0,
         };
-        let map = accuracy_map(&robot, &values, &free, &sigma, &calibration_q(), &spec);
+        let map = accuracy_map(
+            &robot,
+            &values,
+            &free,
+            &sigma,
+            &rows(calibration_q()),
+            &spec,
+        );
         let median = |inside: bool| {
             let mut u: Vec<f64> = map
                 .iter()

@@ -65,7 +65,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Predicted 95 % position uncertainty (J·Σ·Jᵀ) over a grid around the calibration rows, for the report's accuracy map",
-    code_version: 4,
+    code_version: 5,
     inputs: &[
         TableSlot {
             name: "parameters",
@@ -176,8 +176,7 @@ impl Stage for AccuracyMapStage {
             .filter(|(_, row)| row.positioner_deg.is_none())
             .map(|(id, row)| (*id, *row))
             .unzip();
-        let calibration_q: Vec<_> = calibration_rows.iter().map(|r| r.q_deg).collect();
-        if calibration_q.is_empty() {
+        if calibration_rows.is_empty() {
             return Err(StageError::Invalid(format!(
                 "{}: no calibration rows (the selection marks none, or the table is empty)",
                 measurements.path.display()
@@ -193,7 +192,7 @@ impl Stage for AccuracyMapStage {
             &mapped_values,
             &mapped_free,
             &covariance.matrix,
-            &calibration_q,
+            &calibration_rows,
             &spec,
         );
         // The eg_residual set's residual variance at each reachable point,
@@ -202,11 +201,7 @@ impl Stage for AccuracyMapStage {
             let reachable: Vec<usize> = (0..map.len())
                 .filter(|k| map[*k].q_deg.is_some() && map[*k].covariance_mm2.is_some())
                 .collect();
-            let rows: Vec<ConfWrench> = reachable
-                .iter()
-                .filter_map(|k| map[*k].q_deg)
-                .map(|q| ConfWrench::new(q, Wrench::zero()))
-                .collect();
+            let rows: Vec<ConfWrench> = reachable.iter().filter_map(|k| map[*k].row()).collect();
             let extra = super::residual_rung::predict_rows(&residual, &rows)?;
             let mut covariances: Vec<_> =
                 reachable.iter().map(|k| map[*k].covariance_mm2).collect();
@@ -216,16 +211,17 @@ impl Stage for AccuracyMapStage {
             }
         }
         let mut outputs = StageOutputs::default();
+        let on_track = ctx.robot.spec().track.is_some();
         outputs
             .tables
-            .insert("accuracy_map".into(), map_frame(&map));
+            .insert("accuracy_map".into(), map_frame(&map, on_track));
         // Each calibration row's own SMR, unloaded.
         let unloaded: Vec<ConfWrench> = calibration_rows
             .iter()
-            .map(|r| {
-                let mut row = ConfWrench::new(r.q_deg, Wrench::zero());
-                row.target = r.target;
-                row
+            .map(|r| ConfWrench {
+                target: r.target,
+                track_mm: r.track_mm,
+                ..ConfWrench::new(r.q_deg, Wrench::zero())
             })
             .collect();
         let positions: Vec<_> = batch_predict(ctx.robot, &set.values, &unloaded)
@@ -330,7 +326,8 @@ fn median_u95(map: &[MapPoint], inside: bool) -> Option<f64> {
     }
 }
 
-fn map_frame(map: &[MapPoint]) -> polars::prelude::DataFrame {
+/// The map's table; on a track each point's carriage position in `e1_mm`.
+fn map_frame(map: &[MapPoint], on_track: bool) -> polars::prelude::DataFrame {
     let mut columns = vec![
         Column::new("point_id".into(), (0..map.len() as i64).collect::<Vec<_>>()),
         Column::new(
@@ -353,6 +350,10 @@ fn map_frame(map: &[MapPoint]) -> polars::prelude::DataFrame {
     for (joint, name) in JOINT_COLUMNS.iter().enumerate() {
         let v: Vec<Option<f64>> = map.iter().map(|p| p.q_deg.map(|q| q[joint])).collect();
         columns.push(Column::new((*name).into(), v));
+    }
+    if on_track {
+        let e: Vec<Option<f64>> = map.iter().map(|p| p.q_deg.map(|_| p.track_mm)).collect();
+        columns.push(Column::new(schema::TRACK_COLUMN.into(), e));
     }
     let covariances: Vec<_> = map.iter().map(|p| p.covariance_mm2).collect();
     columns.extend(covariance_columns(&covariances));

@@ -1,14 +1,18 @@
 //! `identifiability`: which of the 42 parameters the candidate conf-wrench rows can
 //! identify, by rank analysis of the scaled identification Jacobian at nominal
 //! (paper §III.D; see `calibration::rank` for the method and tolerance).
+//! Candidates with several targets (the arm's SMR and a positioner's nests,
+//! by `target_id`) add each further target's translation, named `x_t[ID]`.
 
 use polars::prelude::Column;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+use super::target_slots::{aim_candidates, cell_parameters};
 use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, commanded_rows};
 use crate::calibration::{rank, stream};
-use crate::robot::{ParamId, ParamValues};
+use crate::robot::ParamValues;
+use crate::table::parameters::param_name;
 use crate::table::{frame, schema};
 
 pub struct IdentifiabilityStage;
@@ -39,12 +43,12 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Rank analysis: which parameters the candidate rows can identify, and what dependent ones combine with",
-    code_version: 4,
+    code_version: 5,
     inputs: &[TableSlot {
         name: "candidates",
         schema: schema::conf_wrenches,
         required: true,
-        meaning: "conf-wrench rows",
+        meaning: "conf-wrench rows; with `target_id`, each row's SMR (the arm's or a positioner's nest)",
     }],
     outputs: &[TableSlot {
         name: "identifiability",
@@ -66,8 +70,11 @@ impl Stage for IdentifiabilityStage {
         ctx: &StageContext,
         settings: &IdentifiabilitySettings,
     ) -> Result<StageOutputs, StageError> {
-        let (_, rows) = commanded_rows(ctx, ctx.input("candidates")?)?;
-        let candidates: Vec<ParamId> = ParamId::of_robot(ctx.robot.spec())
+        let input = ctx.input("candidates")?;
+        let (_, mut rows) = commanded_rows(ctx, input)?;
+        let targets = aim_candidates(input, &mut rows)?;
+        let candidates: Vec<_> = cell_parameters(ctx.robot.spec(), targets.count())
+            .into_iter()
             .filter(|p| !(settings.kinematic_only && p.is_compliance()))
             .collect();
         let nominal = ParamValues::nominal(ctx.robot.spec());
@@ -84,14 +91,16 @@ impl Stage for IdentifiabilityStage {
         let mut identifiable = Vec::new();
         let mut combined = Vec::new();
         for id in &candidates {
-            names.push(id.name());
+            names.push(param_name(*id, &targets.ids));
             units.push(id.unit());
             let partners = analysis.dependent.iter().find(|(d, _)| d == id);
             identifiable.push(partners.is_none());
-            combined.push(
-                partners
-                    .map(|(_, with)| with.iter().map(|p| p.name()).collect::<Vec<_>>().join(", ")),
-            );
+            combined.push(partners.map(|(_, with)| {
+                with.iter()
+                    .map(|p| param_name(*p, &targets.ids))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            }));
         }
         let mut outputs = StageOutputs::default();
         outputs.tables.insert(

@@ -17,6 +17,7 @@ use polars::prelude::{Column, DataFrame};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+use super::target_slots::TargetSlots;
 use super::{
     InputTable, SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo,
     StageOutputs, TableSlot, conf_wrench_rows, model_name_problem, settings_error,
@@ -376,7 +377,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 10,
+    code_version: 11,
     inputs: &[
         TableSlot {
             name: "measurements",
@@ -570,17 +571,6 @@ impl MeasuredRows {
         let keep: Vec<bool> = problems.iter().map(Option::is_none).collect();
         self.retain(&keep);
         Some(summary)
-    }
-
-    /// The sorted distinct target ids (empty without the column).
-    pub fn distinct_targets(&self) -> Vec<String> {
-        let ids: std::collections::BTreeSet<String> = self
-            .target_ids
-            .iter()
-            .flatten()
-            .map(|id| id.clone().unwrap_or_default())
-            .collect();
-        ids.into_iter().collect()
     }
 
     /// Sets each row's target index (no-op for an empty list).
@@ -845,7 +835,10 @@ impl Stage for IdentifyStage {
         let checked = check_rows(ctx, settings, measurements, &mut data, &mut excluded)?;
         outputs.facts.insert("rows_dropped".into(), checked);
 
-        let targets = data.distinct_targets();
+        let TargetSlots {
+            ids: targets,
+            slot_of_row: target_of_row,
+        } = TargetSlots::of_ids(data.target_ids.as_deref(), data.rows.len());
         if targets.len() > MAX_TARGETS {
             return Err(StageError::Invalid(format!(
                 "{}: {} targets ({}); at most {MAX_TARGETS} can be fitted jointly",
@@ -854,15 +847,6 @@ impl Stage for IdentifyStage {
                 targets.join(", ")
             )));
         }
-        let target_of_row: Vec<usize> = data
-            .target_ids
-            .iter()
-            .flatten()
-            .map(|id| {
-                let id = id.as_deref().unwrap_or_default();
-                targets.iter().position(|t| t == id).unwrap_or(0)
-            })
-            .collect();
         // A target's translation takes three equations: a target measured on one
         // row absorbs that row whole, and nothing checks it.
         if targets.len() > 1 {
@@ -1036,7 +1020,11 @@ impl Stage for IdentifyStage {
                                 "; strongest correlations: {}",
                                 d.correlations
                                     .iter()
-                                    .map(|(a, b, rho)| format!("{a}/{b} {rho:+.4}"))
+                                    .map(|(a, b, rho)| format!(
+                                        "{}/{} {rho:+.4}",
+                                        result.set.name_of(*a),
+                                        result.set.name_of(*b)
+                                    ))
                                     .collect::<Vec<_>>()
                                     .join(", ")
                             ))
@@ -1417,7 +1405,13 @@ fn model_facts(
             diagnostics
                 .correlations
                 .iter()
-                .map(|(a, b, rho)| format!("{a}/{b}={rho:+.4}"))
+                .map(|(a, b, rho)| {
+                    format!(
+                        "{}/{}={rho:+.4}",
+                        result.set.name_of(*a),
+                        result.set.name_of(*b)
+                    )
+                })
                 .collect::<Vec<_>>()
                 .join(","),
         ));

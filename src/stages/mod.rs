@@ -22,6 +22,7 @@ pub mod import_targets;
 pub mod iso9283;
 pub mod iso_cube;
 pub mod measure;
+pub mod nest_poses;
 pub mod poses;
 mod positioner_rows;
 pub mod predict;
@@ -32,6 +33,7 @@ pub mod select;
 pub mod settings_check;
 pub mod simulate_logs;
 pub mod split;
+mod target_slots;
 pub mod validate;
 pub mod wrenches;
 
@@ -418,6 +420,7 @@ impl<S: Stage> StageKind for S {
 /// refuse such a robot.
 const TRACK_STAGES: &[&str] = &[
     "poses",
+    "accuracy_map",
     "wrenches",
     "measure",
     "compensate",
@@ -470,6 +473,7 @@ pub fn registry() -> Vec<&'static dyn StageKind> {
         &poses::PosesStage,
         &wrenches::WrenchesStage,
         &identifiability::IdentifiabilityStage,
+        &nest_poses::NestPosesStage,
         &select::SelectStage,
         &measure::MeasureStage,
         &simulate_logs::SimulateLogsStage,

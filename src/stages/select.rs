@@ -21,6 +21,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::compensate::{WORLD_FRAME, nominal_target_commands, target_frame_problems};
+use super::target_slots::{aim_candidates, cell_parameters};
 use super::{
     SettingsContext, SettingsProblem, Stage, StageContext, StageError, StageInfo, StageOutputs,
     TableSlot, commanded_rows,
@@ -36,6 +37,7 @@ use crate::design::work_criterion::{
 };
 use crate::robot::{ConfWrench, JOINTS, ParamId, ParamValues, batch_jacobian, ik};
 use crate::table::frame;
+use crate::table::parameters::param_of_name;
 use crate::table::schema::{self, str_values};
 
 pub struct SelectStage;
@@ -165,7 +167,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "DETMAX selection of calibration rows by an observability index (O1 by default)",
-    code_version: 4,
+    code_version: 5,
     inputs: &[
         TableSlot {
             name: "candidates",
@@ -249,7 +251,8 @@ impl Stage for SelectStage {
         settings: &SelectSettings,
     ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("candidates")?;
-        let (ids, rows) = commanded_rows(ctx, input)?;
+        let (ids, mut rows) = commanded_rows(ctx, input)?;
+        let targets = aim_candidates(input, &mut rows)?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let parameters: Vec<ParamId> = match ctx.inputs.get("identifiability") {
             Some(table) => {
@@ -262,12 +265,18 @@ impl Stage for SelectStage {
                 let mut chosen = Vec::new();
                 for (row, (name, flag)) in names.iter().zip(flags).enumerate() {
                     let name = name.as_deref().unwrap_or_default();
-                    let id = ParamId::from_name(name).ok_or_else(|| {
+                    let id = param_of_name(name, &targets.ids).ok_or_else(|| {
                         StageError::Table(crate::table::TableError::BadValue {
                             file: table.path.clone(),
                             column: "name".into(),
                             row,
-                            message: format!("unknown parameter `{name}`"),
+                            message: format!(
+                                "unknown parameter `{name}` for candidates of {}",
+                                match targets.ids.len() {
+                                    0 | 1 => "one target".to_string(),
+                                    _ => format!("the targets {}", targets.ids.join(", ")),
+                                }
+                            ),
                         })
                     })?;
                     if flag == Some(true) {
@@ -277,7 +286,7 @@ impl Stage for SelectStage {
                 chosen
             }
             None => {
-                let all: Vec<ParamId> = ParamId::of_robot(ctx.robot.spec()).collect();
+                let all = cell_parameters(ctx.robot.spec(), targets.count());
                 rank::analyse(
                     ctx.robot,
                     &nominal,

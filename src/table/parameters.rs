@@ -204,12 +204,7 @@ impl ParameterSet {
 
     /// The table name of `id` in this set (`x_t[nest2]` with several targets).
     pub fn name_of(&self, id: ParamId) -> String {
-        match id.kind() {
-            ParamKind::ToolTranslation { target, axis } if self.targets.len() > 1 => {
-                format!("{}[{}]", TOOL_TRANSLATION_NAMES[axis], self.targets[target])
-            }
-            _ => id.name().to_string(),
-        }
+        param_name(id, &self.targets)
     }
 
     /// The target index of each of `rows` rows from their target ids (`None`:
@@ -370,6 +365,32 @@ pub fn implausible_row(
         }
     }
     Ok(None)
+}
+
+/// The table name of `id` in a set of `targets` (sorted ids): `x_t[nest2]`
+/// for a tool translation when there are several, the spec's name otherwise.
+pub fn param_name(id: ParamId, targets: &[String]) -> String {
+    match id.kind() {
+        ParamKind::ToolTranslation { target, axis } if targets.len() > 1 => {
+            format!("{}[{}]", TOOL_TRANSLATION_NAMES[axis], targets[target])
+        }
+        _ => id.name().to_string(),
+    }
+}
+
+/// The parameter [`param_name`] names `name` in a set of `targets`.
+pub fn param_of_name(name: &str, targets: &[String]) -> Option<ParamId> {
+    match parse_target_name(name) {
+        Some((axis, id)) if targets.len() > 1 => targets
+            .iter()
+            .position(|t| t == id)
+            .map(|target| ParamId::target_translation(target, axis)),
+        Some(_) => None,
+        // With several targets a bare `x_t` is ambiguous.
+        None => {
+            ParamId::from_name(name).filter(|id| targets.len() <= 1 || !id.is_tool_translation())
+        }
+    }
 }
 
 /// Splits `x_t[ID]` into the axis and the target id.

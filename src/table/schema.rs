@@ -311,6 +311,14 @@ pub fn conf_wrenches() -> TableSchema {
         ));
     }
     columns.push(track_column());
+    columns.push(col(
+        "target_id",
+        ColumnType::Utf8,
+        "",
+        false,
+        "which SMR the row measures (spec §7): the arm's, or a nest of the robot file's `[positioner]`, whose rows also give the positioner's axes; one target when absent",
+    ));
+    columns.extend(positioner_columns());
     TableSchema {
         kind: "conf_wrenches",
         description: "Joint configurations with the wrench applied at each (any table with these columns, e.g. candidates or measurements).",
@@ -1416,11 +1424,11 @@ pub fn candidates() -> TableSchema {
             name,
             ColumnType::Float64,
             "N",
-            true,
-            "cable tension (minimum-norm distribution)",
+            false,
+            "cable tension (minimum-norm distribution); null on a row measuring a positioner's nest, which the cable robot does not load",
         ));
     }
-    schema.columns.push(col("margin_n", ColumnType::Float64, "N", true, "capacity margin: distance of the wrench inside the available wrench set (moments scaled, see cdpr)"));
+    schema.columns.push(col("margin_n", ColumnType::Float64, "N", false, "capacity margin: distance of the wrench inside the available wrench set (moments scaled, see cdpr); null on a nest's row"));
     schema
 }
 
@@ -1947,6 +1955,13 @@ pub fn accuracy_map() -> TableSchema {
     for column in columns.iter_mut().filter(|c| c.name.starts_with('q')) {
         column.required = false;
     }
+    columns.push(col(
+        TRACK_COLUMN,
+        ColumnType::Float64,
+        "mm",
+        false,
+        "on a robot's linear track: the carriage position the point is reached from, its nearest calibration row's; null when not reachable, absent without a track",
+    ));
     position_covariance_columns(&mut columns);
     for column in columns.iter_mut().filter(|c| c.name.starts_with("cov_")) {
         column.meaning = "covariance of the position from the parameters' covariance alone (J·Σ·Jᵀ, world frame, no external wrench, measurement noise not included); null when not reachable";
