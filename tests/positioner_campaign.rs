@@ -382,6 +382,36 @@ fn nest_poses_adds_the_nests_and_refuses_what_it_cannot_do() {
     assert_eq!(f64s(&table, "q2_deg")[..3], [10.0, -5.0, 0.0]);
     assert_eq!(f64s(&table, "fx_n")[..3], [1.0, -2.0, 0.0]);
 
+    // The simulated daily check measures the arm's SMR only: a pool with
+    // the nests' rows is refused, naming the first.
+    let settings = dir.path().join("simulate_logs.toml");
+    std::fs::write(
+        &settings,
+        "robot_id = \"cell\"\nfirst_day = \"2026-11-02\"\ndays = 1\nrows_per_day = 2\n",
+    )
+    .unwrap();
+    let pool = format!("conf_wrenches={}", out.join("candidates.parquet").display());
+    let (code, stdout, stderr) = common::run(
+        &[
+            "stage",
+            "simulate_logs",
+            "--robot",
+            robot.to_str().unwrap(),
+            "--settings",
+            settings.to_str().unwrap(),
+            "--out",
+            dir.path().join("out_logs").to_str().unwrap(),
+            "--input",
+            &pool,
+        ],
+        dir.path(),
+    );
+    assert_ne!(code, 0, "{stdout}{stderr}");
+    assert!(
+        stderr.contains("row 2 (cw_id 10) measures a nest"),
+        "{stdout}{stderr}"
+    );
+
     let refusals: [(&Path, &str, &str); 4] = [
         (&robot, "arm_target = \"table_b\"\n", "arm_target"),
         (

@@ -346,7 +346,7 @@ fn stages_that_do_not_handle_a_track_refuse_it() {
     let (code, stdout, stderr) = common::run(
         &[
             "stage",
-            "simulate_logs",
+            "nest_poses",
             "--robot",
             file.to_str().unwrap(),
             "--settings",
@@ -360,7 +360,7 @@ fn stages_that_do_not_handle_a_track_refuse_it() {
     assert_eq!(code, 2, "{log}");
     assert!(
         log.contains("[track]")
-            && log.contains("`simulate_logs` does not handle")
+            && log.contains("`nest_poses` does not handle")
             && log.contains("identify"),
         "{log}"
     );
@@ -430,4 +430,150 @@ fn the_iso_cube_on_a_track_runs_at_one_carriage_position() {
         status.iter().all(|s| s.as_deref() == Some("ok")),
         "{status:?}"
     );
+}
+
+/// Runs `egcal stage <kind>` for the robot file `robot` with `settings` and
+/// `inputs`: exit code, log, output folder `dir/out_<kind>`.
+fn run_stage(
+    dir: &Path,
+    robot: &Path,
+    kind: &str,
+    settings: &str,
+    inputs: &[(&str, &Path)],
+) -> (i32, String, PathBuf) {
+    let settings_path = dir.join(format!("{kind}.toml"));
+    std::fs::write(&settings_path, settings).unwrap();
+    let out = dir.join(format!("out_{kind}"));
+    let _ = std::fs::remove_dir_all(&out);
+    let mut args: Vec<String> = ["stage", kind, "--robot"].map(String::from).to_vec();
+    args.push(robot.display().to_string());
+    args.extend(["--settings".into(), settings_path.display().to_string()]);
+    args.extend(["--out".into(), out.display().to_string()]);
+    for (name, path) in inputs {
+        args.extend(["--input".into(), format!("{name}={}", path.display())]);
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (code, stdout, stderr) = common::run(&args, dir);
+    (code, format!("{stdout}{stderr}"), out)
+}
+
+/// A robot on a track through the nightly path: `simulate_logs` moves the
+/// carriage to each pool row's `e1_mm` and logs the position read back,
+/// `scan_logs` keeps the column (and refuses, with `bad_data = "fail"`, logs
+/// without it), and `identify` calibrates the track from the scanned rows.
+#[test]
+fn the_logs_of_a_robot_on_a_track_carry_the_carriage() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = track_robot_file(dir.path(), 2);
+    let spec = RobotSpec::load(&file).unwrap();
+    let robot = Robot::new(spec.clone());
+    let pool_rows = rows_on_track(&robot, 61, 150);
+    let pool = dir.path().join("pool.parquet");
+    write_measurements(
+        &pool,
+        &pool_rows,
+        &vec![Vector3::zeros(); pool_rows.len()],
+        1,
+    );
+    let set =
+        egcal::table::parameters::ParameterSet::fixed(ModelName::Elastogeometric, truth(&spec));
+    let mut truth_table = egcal::table::parameters::to_frame(&ParamValues::nominal(&spec), &[set]);
+    let truth_path = dir.path().join("truth.parquet");
+    egcal::table::write_parquet(&mut truth_table, &truth_path, None).unwrap();
+
+    let (code, log, logs) = run_stage(
+        dir.path(),
+        &file,
+        "simulate_logs",
+        "robot_id = \"t1\"\nfirst_day = \"2026-11-02\"\ndays = 3\nrows_per_day = 120\n",
+        &[("conf_wrenches", &pool), ("truth", &truth_path)],
+    );
+    assert_eq!(code, 0, "{log}");
+    let commissioning_path = logs.join("commissioning.parquet");
+    let commissioning = egcal::table::read_parquet(&commissioning_path).unwrap();
+    let logged =
+        egcal::table::schema::f64_values(&commissioning, "e1_mm", &commissioning_path).unwrap();
+    for (row, e) in pool_rows.iter().zip(&logged) {
+        assert!(
+            (row.track_mm - e).abs() < 1e-9,
+            "{} logged as {e}",
+            row.track_mm
+        );
+    }
+
+    let scan_settings = format!(
+        "logs = \"{}\"\nrobot_id = \"t1\"\nfrom = \"2026-11-02\"\nto = \"2026-11-04\"\nholdout_days = 1\nbad_data = \"fail\"\n",
+        logs.display()
+    );
+    let (code, log, scanned) = run_stage(dir.path(), &file, "scan_logs", &scan_settings, &[]);
+    assert_eq!(code, 0, "{log}");
+    let measurements = scanned.join("measurements.parquet");
+    let table = egcal::table::read_parquet(&measurements).unwrap();
+    assert_eq!(table.height(), 360);
+    let positions = egcal::table::schema::f64_values(&table, "e1_mm", &measurements).unwrap();
+    assert!(positions.iter().all(|e| (0.0..=3000.0).contains(e)));
+    assert!(
+        table.column("target_id").is_err(),
+        "no empty optional column"
+    );
+
+    let (code, log, identified) = run_stage(
+        dir.path(),
+        &file,
+        "identify",
+        "models = [\"elastogeometric\"]\n",
+        &[("measurements", &measurements)],
+    );
+    assert_eq!(code, 0, "{log}");
+    let parameters = identified.join("parameters.parquet");
+    let fit = egcal::table::parameters::from_frame(
+        &egcal::table::read_parquet(&parameters).unwrap(),
+        &parameters,
+        &ParamValues::nominal(&spec),
+    )
+    .unwrap()
+    .remove(0);
+    let id = ParamId::from_name("track_scale").unwrap();
+    let se = fit.std_errors[id.index()].expect("track_scale identified");
+    eprintln!(
+        "track_scale from the scanned logs: {:.4} ± {se:.4} mm (truth 0.4)",
+        fit.values.get(id)
+    );
+    assert!((fit.values.get(id) - 0.4).abs() < 3.0 * se);
+
+    // The same logs for the arm without its track: the logged day files
+    // hold e1_mm, which the scan keeps and identify refuses, naming it.
+    let plain = common::root().join("jobs/robots/irb1600_145.toml");
+    let (code, log, scanned) = run_stage(dir.path(), &plain, "scan_logs", &scan_settings, &[]);
+    assert_eq!(code, 0, "{log}");
+    let (code, log, _) = run_stage(
+        dir.path(),
+        &plain,
+        "identify",
+        "",
+        &[("measurements", &scanned.join("measurements.parquet"))],
+    );
+    assert_ne!(code, 0, "{log}");
+    assert!(log.contains("e1_mm") && log.contains("no [track]"), "{log}");
+
+    // Logs without the carriage column, scanned for the robot on the track:
+    // every row is bad, and the scan says why.
+    let (code, log, plain_logs) = run_stage(
+        dir.path(),
+        &plain,
+        "simulate_logs",
+        "robot_id = \"t1\"\nfirst_day = \"2026-11-02\"\ndays = 1\nrows_per_day = 10\n",
+        &[(
+            "conf_wrenches",
+            &common::root().join("fixtures/predict/nominal/conf_wrenches.parquet"),
+        )],
+    );
+    assert_eq!(code, 0, "{log}");
+    let settings = format!(
+        "logs = \"{}\"\nrobot_id = \"t1\"\nfrom = \"2026-11-02\"\nto = \"2026-11-02\"\nholdout_days = 0\nbad_data = \"fail\"\n",
+        plain_logs.display()
+    );
+    let (code, log, _) = run_stage(dir.path(), &file, "scan_logs", &settings, &[]);
+    assert_ne!(code, 0, "{log}");
+    assert!(log.contains("null e1_mm"), "{log}");
 }

@@ -9,6 +9,13 @@
 //! logs (a half-written file, a NaN from a glitch, a file delivered twice): it is
 //! counted per reason and dropped, or fails the scan, as the caller chooses.
 //!
+//! Besides the contract's required columns, a scan keeps the optional ones
+//! that say where a row was measured: the SMR (`target_id`), the carriage on
+//! a track (`e1_mm`) and a positioner's axes (`p1_deg`, `p2_deg`). A file
+//! without one reads it as null, and a column null in every kept row is
+//! left out, so logs of a plain arm scan as before. For a robot on a track
+//! (`LogQuery::on_track`) `e1_mm` is required on every row.
+//!
 //! Symbolic links in a log folder: the log folder itself may be a link, links to
 //! files are read as the files, and links to folders are followed, except a link
 //! back to the log folder, to a folder above it or to a folder already walked
@@ -74,6 +81,9 @@ pub struct LogQuery {
     pub last_day: i64,
     /// Drop bad files and rows (counting them) instead of failing.
     pub skip_bad_data: bool,
+    /// The robot rides a linear track: each row needs its carriage position
+    /// (`e1_mm`), or is a bad row.
+    pub on_track: bool,
 }
 
 /// Why a scan failed.
@@ -149,6 +159,17 @@ fn float_columns() -> impl Iterator<Item = &'static str> {
         .into_iter()
         .chain(WRENCH_COLUMNS)
         .chain(POSITION_COLUMNS)
+}
+
+/// The optional columns a scan keeps when a file has them (module doc), with
+/// their types.
+fn optional_columns() -> [(&'static str, DataType); 4] {
+    [
+        ("target_id", DataType::String),
+        (schema::TRACK_COLUMN, DataType::Float64),
+        (schema::POSITIONER_COLUMNS[0], DataType::Float64),
+        (schema::POSITIONER_COLUMNS[1], DataType::Float64),
+    ]
 }
 
 /// One log file to open.
@@ -622,7 +643,8 @@ pub fn scan(query: &LogQuery, found: &Discovered) -> Result<LogScan, LogError> {
         rows
     };
     report.rows_in_window = rows.height();
-    let rows = drop_bad_rows(rows, query.skip_bad_data, &mut report)?;
+    let rows = drop_bad_rows(rows, query, &mut report)?;
+    let rows = without_empty_optional_columns(rows)?;
     let days = rows
         .column("measured_at")?
         .i64()?
@@ -675,6 +697,16 @@ fn open(
             Some(_) => columns.push(col(name)),
         }
     }
+    for (name, dtype) in optional_columns() {
+        columns.push(match schema.get(name) {
+            Some(found) if found == &dtype => col(name),
+            Some(found) if dtype == DataType::Float64 && found.is_primitive_numeric() => {
+                col(name).cast(DataType::Float64)
+            }
+            Some(found) => return Err(format!("column `{name}` is {found}, expected {dtype}")),
+            None => lit(NULL).cast(dtype).alias(name),
+        });
+    }
     columns.push(match schema.get("config_id") {
         Some(DataType::Int64) => col("config_id"),
         Some(other) => return Err(format!("column `config_id` is {other}, expected i64")),
@@ -716,19 +748,34 @@ fn open(
 fn empty_rows() -> DataFrame {
     let mut columns = vec![Column::new("cw_id".into(), Vec::<i64>::new())];
     columns.extend(float_columns().map(|n| Column::new(n.into(), Vec::<f64>::new())));
+    for (name, dtype) in optional_columns() {
+        columns.push(Column::new_empty(name.into(), &dtype));
+    }
     columns.push(Column::new("config_id".into(), Vec::<i64>::new()));
     columns.push(Column::new("robot_id".into(), Vec::<String>::new()));
     columns.push(Column::new("measured_at".into(), Vec::<i64>::new()));
     crate::table::frame(columns)
 }
 
-/// Removes rows with a null or non-finite required value and repeated `cw_id`s
-/// (the first, oldest row is kept), counting each row under its first problem.
+/// Leaves out the optional columns null in every row.
+fn without_empty_optional_columns(mut rows: DataFrame) -> Result<DataFrame, LogError> {
+    for (name, _) in optional_columns() {
+        if rows.column(name)?.null_count() == rows.height() {
+            rows.drop_in_place(name)?;
+        }
+    }
+    Ok(rows)
+}
+
+/// Removes rows with a null or non-finite required value (with `e1_mm` on a
+/// track) and repeated `cw_id`s (the first, oldest row is kept), counting
+/// each row under its first problem.
 fn drop_bad_rows(
     rows: DataFrame,
-    skip: bool,
+    query: &LogQuery,
     report: &mut ScanReport,
 ) -> Result<DataFrame, LogError> {
+    let skip = query.skip_bad_data;
     let height = rows.height();
     let mut reason: Vec<Option<String>> = vec![None; height];
     let ids = rows.column("cw_id")?.i64()?.clone();
@@ -740,7 +787,8 @@ fn drop_bad_rows(
             reason[row] = Some("null measured_at".into());
         }
     }
-    for name in float_columns() {
+    let track = query.on_track.then_some(schema::TRACK_COLUMN);
+    for name in float_columns().chain(track) {
         let values = rows.column(name)?.f64()?.clone();
         for (row, value) in values.iter().enumerate() {
             if reason[row].is_some() {
@@ -806,6 +854,7 @@ mod tests {
             first_day: crate::table::time::parse_date("2026-11-08").unwrap(),
             last_day: crate::table::time::parse_date("2026-11-21").unwrap(),
             skip_bad_data: true,
+            on_track: false,
         }
     }
 

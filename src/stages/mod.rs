@@ -415,12 +415,17 @@ impl<S: Stage> StageKind for S {
 /// that read measured or commanded rows with their `e1_mm` and evaluate
 /// the model through the carriage, and the campaign's design and measurement
 /// (poses at carriage stations, wrenches, the rig moving the carriage); the
-/// ISO 9283 test at one carriage position. The others (the accuracy map's
-/// grid, logs) would place the arm as if the carriage stood at 0, so they
-/// refuse such a robot.
+/// ISO 9283 test at one carriage position; the accuracy map (each grid point
+/// from its nearest row's carriage position) and the logs (simulated and
+/// scanned with `e1_mm`); `import_targets` (mapping `e1_mm`). `nest_poses`
+/// would write the nests' rows without a carriage position, so it refuses
+/// such a robot.
 const TRACK_STAGES: &[&str] = &[
     "poses",
     "accuracy_map",
+    "simulate_logs",
+    "scan_logs",
+    "import_targets",
     "wrenches",
     "measure",
     "compensate",

@@ -95,7 +95,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Logged measurements of one robot over a time window, split by day for validation",
-    code_version: 2,
+    code_version: 3,
     inputs: &[],
     outputs: &[
         TableSlot {
@@ -203,6 +203,7 @@ impl ScanLogsSettings {
             first_day,
             last_day,
             skip_bad_data: self.bad_data == BadData::Skip,
+            on_track: false,
         })
     }
 }
@@ -275,7 +276,10 @@ impl Stage for ScanLogsStage {
         ctx: &StageContext,
         settings: &ScanLogsSettings,
     ) -> Result<StageOutputs, StageError> {
-        let query = settings.query(ctx.job_dir, ctx.run_date)?;
+        let query = LogQuery {
+            on_track: ctx.robot.spec().track.is_some(),
+            ..settings.query(ctx.job_dir, ctx.run_date)?
+        };
         let found = logs::discover(&query).map_err(stage_error)?;
         let scan = logs::scan(&query, &found).map_err(stage_error)?;
         let window = format!(

@@ -9,6 +9,10 @@
 //! collision). A `commissioning` table holds the whole pool measured the day before
 //! the logs start, on the undrifted robot: the data of the calibration put in
 //! service first.
+//!
+//! On a linear track the carriage moves to each row's `e1_mm` and the logs
+//! carry the position read back. The daily check is the arm's: a pool row
+//! measuring a positioner's nest is refused.
 
 use std::collections::BTreeMap;
 
@@ -123,7 +127,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Daily check logs of a simulated robot whose parameters drift, as Hive-partitioned Parquet",
-    code_version: 2,
+    code_version: 3,
     inputs: &[
         TableSlot {
             name: "conf_wrenches",
@@ -308,7 +312,15 @@ impl Stage for SimulateLogsStage {
         let invalid = |m: String| StageError::Invalid(m);
         let first_day = settings.first_day().map_err(|p| settings_error(&[p]))?;
         let changes = settings.changes().map_err(|p| settings_error(&p))?;
-        let (pool_ids, pool) = super::commanded_rows(ctx, ctx.input("conf_wrenches")?)?;
+        let input = ctx.input("conf_wrenches")?;
+        let (pool_ids, pool) = super::commanded_rows(ctx, input)?;
+        if let Some(row) = pool.iter().position(|r| r.positioner_deg.is_some()) {
+            return Err(invalid(format!(
+                "{}: row {row} (cw_id {}) measures a nest on the positioner's table; the simulated daily check measures the arm's SMR only: leave the nests' rows out of the pool",
+                input.path.display(),
+                pool_ids[row]
+            )));
+        }
         let day_limit = ROWS_PER_DAY_LIMIT.min(pool.len());
         if settings.rows_per_day == 0 || settings.rows_per_day > day_limit {
             return Err(invalid(format!(
@@ -403,13 +415,18 @@ impl SimulateLogsStage {
         )
         .map_err(StageError::Invalid)?;
         let start_us = (settings.start_hour_utc * 3600e6) as i64;
+        let on_track = ctx.robot.spec().track.is_some();
         let mut readings = Vec::with_capacity(rows.len());
         for (k, &row) in rows.iter().enumerate() {
             let cw_id = day * ROWS_PER_DAY_LIMIT as i64 + k as i64;
             let mut attempts = 0;
             let mut reading = loop {
                 attempts += 1;
-                match measure_row(&mut rig, cw_id, &pool[row], false) {
+                let moved = match on_track {
+                    true => rig.move_track(cw_id, pool[row].track_mm),
+                    false => Ok(()),
+                };
+                match moved.and_then(|()| measure_row(&mut rig, cw_id, &pool[row], on_track)) {
                     Ok(reading) => break reading,
                     Err(e) if e.is_transient() && attempts < ATTEMPTS => {
                         rig.release_wrench()
