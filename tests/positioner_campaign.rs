@@ -200,6 +200,17 @@ fn the_positioner_campaign_designs_measures_calibrates_and_compensates_the_cell(
             .collect();
         assert_eq!(roles.len(), 2, "{nest}: {roles:?}");
     }
+    // The work's envelope is the arm's calibration rows: the nests' rows,
+    // with the arm parked and its SMR unmeasured, are not in it.
+    let arm_calibration_rows = i64s(&selection, "cw_id")
+        .iter()
+        .zip(strings(&selection, "role"))
+        .filter(|(id, role)| role == "calibration" && target_of[id] == "arm")
+        .count();
+    assert!(
+        stderr.contains(&format!("envelope_rows={arm_calibration_rows} ")),
+        "{arm_calibration_rows} arm calibration rows: {stderr}"
+    );
 
     // The nests are recovered within two standard errors; the positioner's
     // base lands where the truth's is in the tracker's frame (the robot's

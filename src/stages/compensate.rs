@@ -200,7 +200,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Load-aware compensation: joint commands that put the calibrated, loaded tool on each target, and corrected Cartesian targets for the nominal controller",
-    code_version: 8,
+    code_version: 9,
     inputs: &[
         TableSlot {
             name: "targets",
@@ -673,7 +673,9 @@ fn world_from(settings: &CompensateSettings, world_from_base: &Frame, name: &str
 }
 
 /// The calibration rows of the `envelope` input (a `selection`'s calibration
-/// rows when one is bound); `None` when it is not bound. No rows is refused:
+/// rows when one is bound), without the rows measuring a positioner's nest
+/// (the arm stood parked there, its SMR unmeasured); `None` when it is not
+/// bound. No rows is refused:
 /// an envelope of nothing would make every command `outside_envelope` for a
 /// reason the user cannot see.
 fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError> {
@@ -688,8 +690,11 @@ fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError
     let (ids, rows) = conf_wrench_rows_of(table)?;
     // The carriage positions of the rows, on a track (zeros without one).
     let track_mm = super::track_positions(&table.df, &table.path, ctx.robot.spec())?;
+    let nest_axes =
+        super::positioner_rows::positioner_axes_of_rows(&table.df, &table.path, ctx.robot.spec())?;
     let kept: Vec<usize> = (0..ids.len())
         .filter(|&k| keep.as_ref().is_none_or(|kept| kept.contains(&ids[k])))
+        .filter(|&k| nest_axes[k].is_none())
         .collect();
     let configurations: Vec<[f64; JOINTS]> = kept.iter().map(|&k| rows[k]).collect();
     let positions: Vec<f64> = match ctx.robot.spec().track {
