@@ -211,6 +211,11 @@ fn the_positioner_campaign_designs_measures_calibrates_and_compensates_the_cell(
         stderr.contains(&format!("envelope_rows={arm_calibration_rows} ")),
         "{arm_calibration_rows} arm calibration rows: {stderr}"
     );
+    // The job accepts the work beyond the default envelope, and says so.
+    assert!(
+        stderr.contains("warning: 27 ok command(s) lie more than 40 deg (the default envelope)"),
+        "{stderr}"
+    );
 
     // The nests are recovered within two standard errors; the positioner's
     // base lands where the truth's is in the tracker's frame (the robot's

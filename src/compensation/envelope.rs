@@ -33,6 +33,11 @@
 use super::Status;
 use crate::robot::JOINTS;
 
+/// `compensate`'s default [`EnvelopeLimits::max_distance_deg`] (deg): a job
+/// that raises it accepts commands the default would flag, and the stage
+/// and the report say how many.
+pub const DEFAULT_MAX_DISTANCE_DEG: f64 = 40.0;
+
 /// How far from the calibration a command may lie and still be `ok`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EnvelopeLimits {

@@ -2254,6 +2254,29 @@ mod tests {
         assert!(!block.contains("envelope_distance"));
     }
 
+    /// `ok` commands beyond compensate's default envelope (a job that raised
+    /// `max_envelope_distance_deg`) are a warning; those within it are not.
+    #[test]
+    fn ok_commands_beyond_the_default_envelope_warn() {
+        let mut data = sample();
+        let row = |target_id, distance| CommandRow {
+            target_id,
+            status: "ok".into(),
+            envelope_distance: Some(distance),
+            u95_mm: Some(0.1),
+        };
+        data.commands = Some(vec![row(1, 12.0), row(2, 55.5), row(3, 96.0)]);
+        let html = render(&data);
+        let block = verdict_block(&html);
+        assert!(block.contains(
+            "2 of 3 targets have an <code>ok</code> command more than 40° (compensate's default envelope) from the nearest calibration row, up to 96.0°"
+        ));
+        data.commands = Some(vec![row(1, 12.0)]);
+        let html = render(&data);
+        let block = verdict_block(&html);
+        assert!(!block.contains("default envelope"));
+    }
+
     #[test]
     fn real_data_get_no_paper_comparison() {
         let mut data = sample();

@@ -201,6 +201,9 @@ pub struct Warnings {
     pub rows_left_out: Option<(usize, usize)>,
     /// Targets whose command is not `ok`; `None` without a `commands` input.
     pub targets_not_ok: Option<Vec<CommandRow>>,
+    /// `ok` targets farther from the calibration rows than compensate's
+    /// default envelope (a job that raised `max_envelope_distance_deg`).
+    pub targets_beyond_default_envelope: Vec<CommandRow>,
     /// Rows of the `commands` input.
     pub targets: usize,
 }
@@ -212,6 +215,7 @@ impl Warnings {
             + self.not_converged.len()
             + usize::from(self.rows_left_out.is_some_and(|(c, r)| c + r > 0))
             + usize::from(self.targets_not_ok.as_ref().is_some_and(|t| !t.is_empty()))
+            + usize::from(!self.targets_beyond_default_envelope.is_empty())
     }
 }
 
@@ -298,6 +302,18 @@ fn warnings(data: &ReportData, model: &str) -> Warnings {
             .commands
             .as_ref()
             .map(|rows| rows.iter().filter(|r| r.status != "ok").cloned().collect()),
+        targets_beyond_default_envelope: data
+            .commands
+            .iter()
+            .flatten()
+            .filter(|r| {
+                r.status == "ok"
+                    && r.envelope_distance.is_some_and(|d| {
+                        d > crate::compensation::envelope::DEFAULT_MAX_DISTANCE_DEG
+                    })
+            })
+            .cloned()
+            .collect(),
         targets: data.commands.as_ref().map_or(0, Vec::len),
     }
 }
@@ -497,6 +513,21 @@ fn render_warnings(out: &mut String, w: &Warnings) {
             );
         }
         items.push(item);
+    }
+    if !w.targets_beyond_default_envelope.is_empty() {
+        let farthest = w
+            .targets_beyond_default_envelope
+            .iter()
+            .filter_map(|t| t.envelope_distance)
+            .fold(0.0, f64::max);
+        items.push(format!(
+            "{} of {} targets have an <code>ok</code> command more than {}° (compensate's default envelope) from the \
+             nearest calibration row, up to {farthest:.1}°: the job raised <code>max_envelope_distance_deg</code>, but \
+             no row was measured there, so the validation figures above do not vouch for them.",
+            w.targets_beyond_default_envelope.len(),
+            w.targets,
+            crate::compensation::envelope::DEFAULT_MAX_DISTANCE_DEG
+        ));
     }
     if items.is_empty() {
         out.push_str("<p class=\"clear\">None.</p>\n");

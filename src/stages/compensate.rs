@@ -186,7 +186,7 @@ impl Default for CompensateSettings {
             frame: WORLD_FRAME.to_string(),
             frames: BTreeMap::new(),
             tool: None,
-            max_envelope_distance_deg: 40.0,
+            max_envelope_distance_deg: envelope::DEFAULT_MAX_DISTANCE_DEG,
             max_u95_mm: 0.5,
             max_track_beyond_mm: 50.0,
             max_unreachable_fraction: 0.5,
@@ -466,6 +466,7 @@ impl Stage for CompensateStage {
             })
             .collect();
 
+        warnings.extend(beyond_default_envelope(&commands, &distances));
         let tool_names = tool_names(set.as_ref(), settings, &rows, &tools);
         let on_track = ctx.robot.spec().track.is_some();
         let positioner_axes = ctx.robot.spec().positioner.as_ref().map(|p| p.axes.len());
@@ -548,6 +549,28 @@ impl Stage for CompensateStage {
         }
         Ok(outputs)
     }
+}
+
+/// A warning when `ok` commands lie beyond the default envelope
+/// ([`envelope::DEFAULT_MAX_DISTANCE_DEG`]): a job that raised
+/// `max_envelope_distance_deg` accepts them, but no calibration row was
+/// measured there.
+fn beyond_default_envelope(commands: &[Command], distances_deg: &[Option<f64>]) -> Option<String> {
+    let beyond: Vec<f64> = commands
+        .iter()
+        .zip(distances_deg)
+        .filter(|(c, _)| c.status == Status::Ok)
+        .filter_map(|(_, d)| *d)
+        .filter(|d| *d > envelope::DEFAULT_MAX_DISTANCE_DEG)
+        .collect();
+    let farthest = beyond.iter().copied().fold(f64::NAN, f64::max);
+    (!beyond.is_empty()).then(|| {
+        format!(
+            "{} ok command(s) lie more than {} deg (the default envelope) from the nearest calibration row, up to {farthest:.1} deg: accepted by max_envelope_distance_deg, but no row was measured there, so the validation does not vouch for them",
+            beyond.len(),
+            envelope::DEFAULT_MAX_DISTANCE_DEG
+        )
+    })
 }
 
 /// Target ids, the targets in the world frame, and their nominal commands.

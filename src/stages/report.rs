@@ -138,7 +138,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Self-contained HTML report (report.html): verdict (PASS/FAIL against tolerance_mm, warnings), error statistics (Table III with compare_with_paper), histograms, poses, accuracy map, ISO 9283, parameters, traces, tests, provenance",
-    code_version: 9,
+    code_version: 10,
     inputs: &[
         TableSlot {
             name: "stats",
