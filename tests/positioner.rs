@@ -239,39 +239,6 @@ fn write_cell_measurements(
     egcal::table::write_parquet(&mut df, path, None).unwrap();
 }
 
-/// Runs `egcal stage <kind>` for the robot file `robot` with `settings`
-/// and `inputs` (name, path).
-fn stage(
-    dir: &Path,
-    robot: &Path,
-    kind: &str,
-    settings: &str,
-    inputs: &[(&str, &Path)],
-) -> (i32, String, PathBuf) {
-    let settings_path = dir.join(format!("{kind}.toml"));
-    std::fs::write(&settings_path, settings).unwrap();
-    let out = dir.join(format!("out_{kind}"));
-    let mut args: Vec<String> = [
-        "stage",
-        kind,
-        "--robot",
-        robot.to_str().unwrap(),
-        "--settings",
-        settings_path.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]
-    .map(String::from)
-    .to_vec();
-    for (name, path) in inputs {
-        args.push("--input".into());
-        args.push(format!("{name}={}", path.display()));
-    }
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let (code, stdout, stderr) = common::run(&args, dir);
-    (code, format!("{stdout}{stderr}"), out)
-}
-
 /// The shipped cell measured by a tracker with 0.02 mm noise: `arm` arm
 /// rows and `per_nest` rows per nest (drawn from `seed`, `seed + 1`, the
 /// noise from `seed + 2`), written to `dir/measurements.parquet`.
@@ -313,7 +280,7 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
         input,
         ..
     } = measured_cell(dir.path(), 11, 200, 20);
-    let (code, log, out) = stage(
+    let (code, log, out) = common::stage(
         dir.path(),
         &robot_file(),
         "identify",
@@ -356,7 +323,7 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
     // The accuracy map is the arm's: it is built around the 200 arm rows,
     // not the nests the arm's SMR never stood at.
     let map = |target: &str| {
-        stage(
+        common::stage(
             dir.path(),
             &robot_file(),
             "accuracy_map",
@@ -380,7 +347,7 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
     // for a robot file without a positioner.
     let bad = dir.path().join("bad.parquet");
     write_cell_measurements(&bad, &rows, &measured, &["p1_deg"]);
-    let (code, log, _) = stage(
+    let (code, log, _) = common::stage(
         dir.path(),
         &robot_file(),
         "identify",
@@ -393,7 +360,7 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
     let k = 205;
     beyond[k].positioner_deg = Some([95.0, 0.0]);
     write_cell_measurements(&bad, &beyond, &measured, &["p1_deg", "p2_deg"]);
-    let (code, log, _) = stage(
+    let (code, log, _) = common::stage(
         dir.path(),
         &robot_file(),
         "identify",
@@ -407,7 +374,7 @@ fn the_stage_reads_nest_rows_and_refuses_them_without_their_axes() {
     );
     write_cell_measurements(&bad, &rows, &measured, &["p1_deg", "p2_deg"]);
     let plain = common::root().join("jobs/robots/irb1600_145.toml");
-    let (code, log, _) = stage(
+    let (code, log, _) = common::stage(
         dir.path(),
         &plain,
         "identify",
@@ -435,7 +402,7 @@ fn the_programs_move_the_positioner_to_each_target(
     on_table_mm: &[[f64; 3]],
     table_at: &[[f64; 2]],
 ) {
-    let (code, log, out) = stage(
+    let (code, log, out) = common::stage(
         dir,
         &robot_file(),
         "export_program",
@@ -552,7 +519,7 @@ fn the_programs_move_the_positioner_to_each_target(
     // Yaskawa: the positioner is the station, in pulses of each axis's
     // ratio; refused naming the key without them.
     let yaskawa = "formats = [\"yaskawa\"]\nmodule_name = \"TABLE\"\nmotion = \"linear\"\npre_position_deg = 0.0\n";
-    let (code, log, _) = stage(
+    let (code, log, _) = common::stage(
         dir,
         &robot_file(),
         "export_program",
@@ -583,7 +550,7 @@ fn the_programs_move_the_positioner_to_each_target(
     assert_eq!(with_pulses.matches("pulses_per_deg").count(), 2);
     let robot_path = dir.join("positioner_with_pulses.toml");
     std::fs::write(&robot_path, with_pulses).unwrap();
-    let (code, log, out) = stage(
+    let (code, log, out) = common::stage(
         dir,
         &robot_path,
         "export_program",
@@ -633,7 +600,7 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
         input,
         ..
     } = measured_cell(dir.path(), 21, 300, 30);
-    let (code, log, identified) = stage(
+    let (code, log, identified) = common::stage(
         dir.path(),
         &robot_file(),
         "identify",
@@ -670,7 +637,7 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
     let targets_path = dir.path().join("targets.parquet");
     egcal::table::write_parquet(&mut targets, &targets_path, None).unwrap();
     let parameters = identified.join("parameters.parquet");
-    let (code, log, out) = stage(
+    let (code, log, out) = common::stage(
         dir.path(),
         &robot_file(),
         "compensate",
@@ -724,7 +691,7 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
     partial.drop_in_place("p2_deg").unwrap();
     let partial_path = dir.path().join("partial.parquet");
     egcal::table::write_parquet(&mut partial, &partial_path, None).unwrap();
-    let (code, log, _) = stage(
+    let (code, log, _) = common::stage(
         dir.path(),
         &robot_file(),
         "compensate",
@@ -779,7 +746,7 @@ fn a_campaign_measures_the_nests_where_the_table_stands() {
         .collect();
     let (conf_wrenches, truth_path) = write_campaign(dir.path(), &spec, &rows);
     let inputs = [("conf_wrenches", &*conf_wrenches), ("truth", &*truth_path)];
-    let (code, log, out) = stage(dir.path(), &robot_file(), "measure", "", &inputs);
+    let (code, log, out) = common::stage(dir.path(), &robot_file(), "measure", "", &inputs);
     assert_eq!(code, 0, "{log}");
     let measured_path = out.join("measurements.parquet");
     let measured = egcal::table::read_parquet(&measured_path).unwrap();
@@ -816,7 +783,7 @@ fn a_campaign_measures_the_nests_where_the_table_stands() {
     }
     eprintln!("measured rows: at most {worst:.4} mm from the truth");
     // The measured campaign calibrates the positioner.
-    let (code, log, identified) = stage(
+    let (code, log, identified) = common::stage(
         dir.path(),
         &robot_file(),
         "identify",
@@ -864,7 +831,7 @@ fn a_campaign_measures_the_nests_where_the_table_stands() {
         )
     };
     let external = tempfile::tempdir().unwrap();
-    let (code, log, out) = stage(
+    let (code, log, out) = common::stage(
         external.path(),
         &robot_file(),
         "measure",
@@ -882,7 +849,7 @@ fn a_campaign_measures_the_nests_where_the_table_stands() {
     // A driver of the arm alone announces no positioner.
     let arm_only = root.join("jobs/robots/irb1600_145.toml");
     let refused = tempfile::tempdir().unwrap();
-    let (code, log, out) = stage(
+    let (code, log, out) = common::stage(
         refused.path(),
         &robot_file(),
         "measure",
@@ -911,7 +878,7 @@ fn a_campaign_measures_the_nests_where_the_table_stands() {
         .unwrap();
     let unnamed_path = refused.path().join("unnamed.parquet");
     egcal::table::write_parquet(&mut unnamed, &unnamed_path, None).unwrap();
-    let (code, log, _) = stage(
+    let (code, log, _) = common::stage(
         refused.path(),
         &robot_file(),
         "measure",
@@ -973,7 +940,7 @@ fn a_one_axis_positioner_is_calibrated_with_the_arm() {
     let measured = noisy(&positions(&robot, &truth, &rows), sigma_mm, 43);
     let input = dir.path().join("measurements.parquet");
     write_cell_measurements(&input, &rows, &measured, &["p1_deg"]);
-    let (code, log, out) = stage(
+    let (code, log, out) = common::stage(
         dir.path(),
         &path,
         "identify",
@@ -1061,7 +1028,7 @@ fn a_nest_campaign_resumes_with_each_row_s_target_and_axes() {
         )
     };
     let inputs = [("conf_wrenches", &*conf_wrenches)];
-    let (code, log, _) = stage(
+    let (code, log, _) = common::stage(
         dir.path(),
         &robot_file(),
         "measure",
@@ -1070,7 +1037,7 @@ fn a_nest_campaign_resumes_with_each_row_s_target_and_axes() {
     );
     assert_ne!(code, 0, "{log}");
     assert!(log.contains("the 4 rows measured so far are kept"), "{log}");
-    let (code, log, out) = stage(
+    let (code, log, out) = common::stage(
         dir.path(),
         &robot_file(),
         "measure",
@@ -1107,7 +1074,7 @@ fn a_nest_campaign_resumes_with_each_row_s_target_and_axes() {
 
     // Axes read in radians: every nest row fails, naming the setting.
     let radians = tempfile::tempdir().unwrap();
-    let (code, log, out) = stage(
+    let (code, log, out) = common::stage(
         radians.path(),
         &robot_file(),
         "measure",

@@ -18,30 +18,12 @@ use std::path::{Path, PathBuf};
 use egcal::robot::positioner::{PositionerModel, PositionerTerm};
 use egcal::robot::{ConfWrench, ParamId, ParamValues, Robot, RobotSpec, Wrench};
 use egcal::table::parameters::{ModelName, ParameterSet, from_frame};
-use egcal::table::{self, schema};
+use egcal::table::schema;
 use polars::prelude::{Column, DataFrame};
 
+use common::tables::{f64s, i64s, read, strings};
+
 const NESTS: [&str; 3] = ["table_a", "table_b", "table_c"];
-
-fn read(path: &Path) -> DataFrame {
-    table::read_parquet(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-fn f64s(df: &DataFrame, column: &str) -> Vec<f64> {
-    schema::f64_values(df, column, Path::new(column)).unwrap()
-}
-
-fn i64s(df: &DataFrame, column: &str) -> Vec<i64> {
-    schema::i64_values(df, column, Path::new(column)).unwrap()
-}
-
-fn strings(df: &DataFrame, column: &str) -> Vec<String> {
-    schema::str_values(df, column, Path::new(column))
-        .unwrap()
-        .into_iter()
-        .map(Option::unwrap_or_default)
-        .collect()
-}
 
 /// The elastogeometric set of a parameters table.
 fn elastogeometric(path: &Path, spec: &RobotSpec) -> ParameterSet {
@@ -322,27 +304,13 @@ fn nest_poses(
     settings: &str,
     candidates: &Path,
 ) -> (i32, String, PathBuf) {
-    let settings_path = dir.join("nest_poses.toml");
-    std::fs::write(&settings_path, settings).unwrap();
-    let out = dir.join("out_nest_poses");
-    let _ = std::fs::remove_dir_all(&out);
-    let input = format!("candidates={}", candidates.display());
-    let (code, stdout, stderr) = common::run(
-        &[
-            "stage",
-            "nest_poses",
-            "--robot",
-            robot.to_str().unwrap(),
-            "--settings",
-            settings_path.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--input",
-            &input,
-        ],
+    common::stage(
         dir,
-    );
-    (code, format!("{stdout}{stderr}"), out)
+        robot,
+        "nest_poses",
+        settings,
+        &[("candidates", candidates)],
+    )
 }
 
 /// Two candidate rows of the arm as `wrenches` writes them.
@@ -400,33 +368,15 @@ fn nest_poses_adds_the_nests_and_refuses_what_it_cannot_do() {
 
     // The simulated daily check measures the arm's SMR only: a pool with
     // the nests' rows is refused, naming the first.
-    let settings = dir.path().join("simulate_logs.toml");
-    std::fs::write(
-        &settings,
-        "robot_id = \"cell\"\nfirst_day = \"2026-11-02\"\ndays = 1\nrows_per_day = 2\n",
-    )
-    .unwrap();
-    let pool = format!("conf_wrenches={}", out.join("candidates.parquet").display());
-    let (code, stdout, stderr) = common::run(
-        &[
-            "stage",
-            "simulate_logs",
-            "--robot",
-            robot.to_str().unwrap(),
-            "--settings",
-            settings.to_str().unwrap(),
-            "--out",
-            dir.path().join("out_logs").to_str().unwrap(),
-            "--input",
-            &pool,
-        ],
+    let (code, log, _) = common::stage(
         dir.path(),
+        &robot,
+        "simulate_logs",
+        "robot_id = \"cell\"\nfirst_day = \"2026-11-02\"\ndays = 1\nrows_per_day = 2\n",
+        &[("conf_wrenches", &out.join("candidates.parquet"))],
     );
-    assert_ne!(code, 0, "{stdout}{stderr}");
-    assert!(
-        stderr.contains("row 2 (cw_id 10) measures a nest"),
-        "{stdout}{stderr}"
-    );
+    assert_ne!(code, 0, "{log}");
+    assert!(log.contains("row 2 (cw_id 10) measures a nest"), "{log}");
 
     let refusals: [(&Path, &str, &str); 4] = [
         (&robot, "arm_target = \"table_b\"\n", "arm_target"),

@@ -432,31 +432,6 @@ fn the_iso_cube_on_a_track_runs_at_one_carriage_position() {
     );
 }
 
-/// Runs `egcal stage <kind>` for the robot file `robot` with `settings` and
-/// `inputs`: exit code, log, output folder `dir/out_<kind>`.
-fn run_stage(
-    dir: &Path,
-    robot: &Path,
-    kind: &str,
-    settings: &str,
-    inputs: &[(&str, &Path)],
-) -> (i32, String, PathBuf) {
-    let settings_path = dir.join(format!("{kind}.toml"));
-    std::fs::write(&settings_path, settings).unwrap();
-    let out = dir.join(format!("out_{kind}"));
-    let _ = std::fs::remove_dir_all(&out);
-    let mut args: Vec<String> = ["stage", kind, "--robot"].map(String::from).to_vec();
-    args.push(robot.display().to_string());
-    args.extend(["--settings".into(), settings_path.display().to_string()]);
-    args.extend(["--out".into(), out.display().to_string()]);
-    for (name, path) in inputs {
-        args.extend(["--input".into(), format!("{name}={}", path.display())]);
-    }
-    let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let (code, stdout, stderr) = common::run(&args, dir);
-    (code, format!("{stdout}{stderr}"), out)
-}
-
 /// A robot on a track through the nightly path: `simulate_logs` moves the
 /// carriage to each pool row's `e1_mm` and logs the position read back,
 /// `scan_logs` keeps the column (and refuses, with `bad_data = "fail"`, logs
@@ -481,7 +456,7 @@ fn the_logs_of_a_robot_on_a_track_carry_the_carriage() {
     let truth_path = dir.path().join("truth.parquet");
     egcal::table::write_parquet(&mut truth_table, &truth_path, None).unwrap();
 
-    let (code, log, logs) = run_stage(
+    let (code, log, logs) = common::stage(
         dir.path(),
         &file,
         "simulate_logs",
@@ -505,7 +480,7 @@ fn the_logs_of_a_robot_on_a_track_carry_the_carriage() {
         "logs = \"{}\"\nrobot_id = \"t1\"\nfrom = \"2026-11-02\"\nto = \"2026-11-04\"\nholdout_days = 1\nbad_data = \"fail\"\n",
         logs.display()
     );
-    let (code, log, scanned) = run_stage(dir.path(), &file, "scan_logs", &scan_settings, &[]);
+    let (code, log, scanned) = common::stage(dir.path(), &file, "scan_logs", &scan_settings, &[]);
     assert_eq!(code, 0, "{log}");
     let measurements = scanned.join("measurements.parquet");
     let table = egcal::table::read_parquet(&measurements).unwrap();
@@ -517,7 +492,7 @@ fn the_logs_of_a_robot_on_a_track_carry_the_carriage() {
         "no empty optional column"
     );
 
-    let (code, log, identified) = run_stage(
+    let (code, log, identified) = common::stage(
         dir.path(),
         &file,
         "identify",
@@ -544,9 +519,9 @@ fn the_logs_of_a_robot_on_a_track_carry_the_carriage() {
     // The same logs for the arm without its track: the logged day files
     // hold e1_mm, which the scan keeps and identify refuses, naming it.
     let plain = common::root().join("jobs/robots/irb1600_145.toml");
-    let (code, log, scanned) = run_stage(dir.path(), &plain, "scan_logs", &scan_settings, &[]);
+    let (code, log, scanned) = common::stage(dir.path(), &plain, "scan_logs", &scan_settings, &[]);
     assert_eq!(code, 0, "{log}");
-    let (code, log, _) = run_stage(
+    let (code, log, _) = common::stage(
         dir.path(),
         &plain,
         "identify",
@@ -558,8 +533,10 @@ fn the_logs_of_a_robot_on_a_track_carry_the_carriage() {
 
     // Logs without the carriage column, scanned for the robot on the track:
     // every row is bad, and the scan says why.
-    let (code, log, plain_logs) = run_stage(
-        dir.path(),
+    let plain_dir = dir.path().join("plain");
+    std::fs::create_dir(&plain_dir).unwrap();
+    let (code, log, plain_logs) = common::stage(
+        &plain_dir,
         &plain,
         "simulate_logs",
         "robot_id = \"t1\"\nfirst_day = \"2026-11-02\"\ndays = 1\nrows_per_day = 10\n",
@@ -573,7 +550,7 @@ fn the_logs_of_a_robot_on_a_track_carry_the_carriage() {
         "logs = \"{}\"\nrobot_id = \"t1\"\nfrom = \"2026-11-02\"\nto = \"2026-11-02\"\nholdout_days = 0\nbad_data = \"fail\"\n",
         plain_logs.display()
     );
-    let (code, log, _) = run_stage(dir.path(), &file, "scan_logs", &settings, &[]);
+    let (code, log, _) = common::stage(&plain_dir, &file, "scan_logs", &settings, &[]);
     assert_ne!(code, 0, "{log}");
     assert!(log.contains("null e1_mm"), "{log}");
 }

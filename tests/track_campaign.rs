@@ -15,25 +15,7 @@ use std::path::Path;
 use egcal::table::{self, schema};
 use polars::prelude::DataFrame;
 
-fn read(path: &Path) -> DataFrame {
-    table::read_parquet(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
-}
-
-fn f64s(df: &DataFrame, column: &str) -> Vec<f64> {
-    schema::f64_values(df, column, Path::new(column)).unwrap()
-}
-
-fn i64s(df: &DataFrame, column: &str) -> Vec<i64> {
-    schema::i64_values(df, column, Path::new(column)).unwrap()
-}
-
-fn strings(df: &DataFrame, column: &str) -> Vec<String> {
-    schema::str_values(df, column, Path::new(column))
-        .unwrap()
-        .into_iter()
-        .map(Option::unwrap_or_default)
-        .collect()
-}
+use common::tables::{f64s, i64s, read, strings};
 
 /// A model's value of a `stats` column in a validate stage's output.
 fn stat(out: &Path, stage: &str, model: &str, column: &str) -> f64 {

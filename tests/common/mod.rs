@@ -5,6 +5,7 @@
 
 pub mod measured;
 pub mod sample;
+pub mod tables;
 pub mod ur10;
 
 use std::path::{Path, PathBuf};
@@ -51,6 +52,32 @@ pub fn run(args: &[&str], dir: &Path) -> (i32, String, String) {
         String::from_utf8_lossy(&stdout).into_owned(),
         String::from_utf8_lossy(&stderr).into_owned(),
     )
+}
+
+/// Runs `egcal stage <kind>` for the robot file `robot` with `settings` (written
+/// to `dir/<kind>.toml`) and `inputs` (name, path) into `dir/out_<kind>`,
+/// which a second run finds as the first left it (a campaign resumes
+/// there); returns (exit code, stdout and stderr, output folder).
+pub fn stage(
+    dir: &Path,
+    robot: &Path,
+    kind: &str,
+    settings: &str,
+    inputs: &[(&str, &Path)],
+) -> (i32, String, PathBuf) {
+    let settings_path = dir.join(format!("{kind}.toml"));
+    std::fs::write(&settings_path, settings).expect("write the settings");
+    let out = dir.join(format!("out_{kind}"));
+    let mut args: Vec<String> = ["stage", kind, "--robot"].map(String::from).to_vec();
+    args.push(robot.display().to_string());
+    args.extend(["--settings".into(), settings_path.display().to_string()]);
+    args.extend(["--out".into(), out.display().to_string()]);
+    for (name, path) in inputs {
+        args.extend(["--input".into(), format!("{name}={}", path.display())]);
+    }
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (code, stdout, stderr) = run(&args, dir);
+    (code, format!("{stdout}{stderr}"), out)
 }
 
 /// A small but complete campaign: 8 poses, 3 wrenches each, measured in the
