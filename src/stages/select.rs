@@ -308,7 +308,14 @@ impl Stage for SelectStage {
         let (candidates, scale) =
             Candidates::from_jacobian(&jacobian.jacobian, rows.len(), parameters.len());
         let work = match ctx.inputs.get("targets") {
-            Some(input) => Some(work_targets(ctx, settings, input, &parameters, &scale)?),
+            Some(input) => Some(work_targets(
+                ctx,
+                settings,
+                input,
+                &parameters,
+                &scale,
+                targets.arm_slot(ctx.robot.spec()),
+            )?),
             None => None,
         };
         let seed_of = |restart: u64| {
@@ -551,6 +558,7 @@ fn work_targets(
     input: &super::InputTable,
     parameters: &[ParamId],
     scale: &[f64],
+    arm_slot: usize,
 ) -> Result<Work, StageError> {
     let (ids, targets, commands) =
         nominal_target_commands(ctx.robot, &settings.frame, &settings.frames, input)?;
@@ -576,7 +584,11 @@ fn work_targets(
     }
     let rows: Vec<ConfWrench> = ok
         .iter()
-        .map(|&k| ConfWrench::new(commands[k].q_deg, targets[k].wrench))
+        .map(|&k| ConfWrench {
+            // The work is the arm's: its SMR's tool, among several targets.
+            target: arm_slot,
+            ..ConfWrench::new(commands[k].q_deg, targets[k].wrench)
+        })
         .collect();
     let nominal = ParamValues::nominal(ctx.robot.spec());
     let jacobian = batch_jacobian(ctx.robot, &nominal, &rows, parameters);

@@ -46,6 +46,18 @@ impl TargetSlots {
     pub fn count(&self) -> usize {
         self.ids.len().max(1)
     }
+
+    /// The slot of the arm's SMR: the first target that is not one of the
+    /// robot file's positioner nests (0 when every target is a nest, or
+    /// without a positioner). Rows the arm would run (the work's) use it.
+    pub fn arm_slot(&self, spec: &RobotSpec) -> usize {
+        let is_nest = |id: &String| {
+            spec.positioner
+                .as_ref()
+                .is_some_and(|p| p.nests.contains(id))
+        };
+        self.ids.iter().position(|id| !is_nest(id)).unwrap_or(0)
+    }
 }
 
 /// The targets of a table of candidate rows, each row aimed at its slot: a
@@ -100,6 +112,24 @@ mod tests {
         let none = TargetSlots::of_ids(None, 2);
         assert_eq!(none.slot_of_row, [0, 0]);
         assert_eq!(none.count(), 1);
+    }
+
+    #[test]
+    fn the_arm_s_slot_is_the_first_target_that_is_not_a_nest() {
+        let robot = crate::robot::test_support::irb1600_with_positioner();
+        let slots = |ids: &[&str]| {
+            let ids: Vec<Option<String>> = ids.iter().map(|s| Some(s.to_string())).collect();
+            TargetSlots::of_ids(Some(&ids), ids.len())
+        };
+        // Sorted: table_a, table_b, tool.
+        assert_eq!(
+            slots(&["tool", "table_a", "table_b"]).arm_slot(robot.spec()),
+            2
+        );
+        assert_eq!(slots(&["arm", "table_c"]).arm_slot(robot.spec()), 0);
+        assert_eq!(slots(&[]).arm_slot(robot.spec()), 0);
+        let plain = crate::robot::test_support::irb1600();
+        assert_eq!(slots(&["table_a", "tool"]).arm_slot(plain.spec()), 0);
     }
 
     #[test]
