@@ -19,7 +19,7 @@ use super::{
 };
 use crate::design::nest_views::{NestView, draw_configurations};
 use crate::robot::positioner::MAX_POSITIONER_AXES;
-use crate::robot::{ConfWrench, JOINTS, ParamValues, Wrench};
+use crate::robot::{JOINTS, ParamValues};
 use crate::table::parameters::target_id_problem;
 use crate::table::schema::{self, JOINT_COLUMNS, POSITIONER_COLUMNS, WRENCH_COLUMNS, i64_values};
 
@@ -170,13 +170,6 @@ impl Stage for NestPosesStage {
             .positioner
             .as_ref()
             .ok_or_else(|| StageError::Invalid("the robot file has no [positioner]".into()))?;
-        let park = ConfWrench::new(settings.arm_park_deg, Wrench::zero());
-        if let Some(problem) = crate::calibration::row_checks::conf_wrench_problem(ctx.robot, &park)
-        {
-            return Err(StageError::Invalid(format!(
-                "setting `arm_park_deg`: {problem}"
-            )));
-        }
         let view = NestView {
             tracker_mm: match settings.tracker_mm {
                 Some(t) => t.into(),
