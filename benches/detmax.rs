@@ -26,7 +26,7 @@ fn candidates(count: usize, seed: u64) -> Candidates {
     let mut rng = StdRng::seed_from_u64(seed);
     let rows: Vec<ConfWrench> = (0..count)
         .map(|_| ConfWrench {
-            q_deg: std::array::from_fn(|i| {
+            q_deg: robot.joint_vector(|i| {
                 let [lo, hi] = robot.limits_deg(i);
                 rng.random_range(lo..hi)
             }),
@@ -35,7 +35,7 @@ fn candidates(count: usize, seed: u64) -> Candidates {
                 rng.random_range(-bound..bound)
             })),
             target: 0,
-            approach: [0; 6],
+            approach: [0; egcal::robot::MAX_JOINTS],
             track_mm: 0.0,
             positioner_deg: None,
         })

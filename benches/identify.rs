@@ -62,7 +62,7 @@ fn campaign(
             q_deg,
             wrench: Wrench::from_array(wrench),
             target: 0,
-            approach: [0; 6],
+            approach: [0; egcal::robot::MAX_JOINTS],
             track_mm: 0.0,
             positioner_deg: None,
         });

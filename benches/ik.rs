@@ -20,7 +20,7 @@ fn ik(c: &mut Criterion) {
     let mut rng = StdRng::seed_from_u64(1);
     let poses: Vec<_> = (0..POSES)
         .map(|_| {
-            let q: [f64; 6] = std::array::from_fn(|i| {
+            let q = robot.joint_vector(|i| {
                 let [lo, hi] = robot.limits_deg(i);
                 rng.random_range(lo..hi)
             });

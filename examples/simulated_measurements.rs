@@ -39,7 +39,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let bound = if i < 3 { 120.0 } else { 10.0 };
             rng.random_range(-bound..bound)
         });
-        rig.move_joints(k as i64, q_deg)?;
+        rig.move_joints(k as i64, egcal::robot::joint_array(&q_deg))?;
         rig.apply_wrench(wrench)?;
         let read_wrench = rig.read_wrench()?;
         let read_q = rig.read_joints()?;

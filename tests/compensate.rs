@@ -10,7 +10,7 @@ use std::path::Path;
 
 use egcal::compensation::{Command, Options, Status, Target, compensate};
 use egcal::robot::ik::{self, NumericOptions};
-use egcal::robot::{Frame, JOINTS, ParamValues, Robot, RobotSpec, Wrench};
+use egcal::robot::{Frame, MAX_JOINTS, ParamValues, Robot, RobotSpec, Wrench};
 use egcal::table::parameters::{ModelName, from_frame};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use polars::prelude::*;
@@ -41,14 +41,14 @@ fn options() -> Options {
             ..NumericOptions::default()
         },
         singular_sigma_min_mm_per_rad: 3.5,
-        approach: [0; 6],
+        approach: [0; MAX_JOINTS],
     }
 }
 
 /// A joint vector away from the limits, the wrist singularity (q5 = 0) and the
 /// stretched elbow (q3 = -90°, where a nominal pose can lie beyond the
 /// calibrated arm's reach).
-fn well_conditioned_q(rng: &mut StdRng) -> [f64; JOINTS] {
+fn well_conditioned_q(rng: &mut StdRng) -> [f64; MAX_JOINTS] {
     let sign = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
     let elbow = if rng.random_bool(0.5) {
         rng.random_range(-200.0..-110.0)
@@ -62,6 +62,7 @@ fn well_conditioned_q(rng: &mut StdRng) -> [f64; JOINTS] {
         rng.random_range(-170.0..170.0),
         sign * rng.random_range(20.0..100.0),
         rng.random_range(-300.0..300.0),
+        0.0,
     ]
 }
 
@@ -82,7 +83,7 @@ fn target(tool_in_world: Frame, wrench: Wrench) -> Target {
     }
 }
 
-fn max_joint_difference_deg(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
+fn max_joint_difference_deg(a: &[f64; MAX_JOINTS], b: &[f64; MAX_JOINTS]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(x, y)| (x - y).abs())
@@ -122,7 +123,7 @@ fn with_nominal_parameters_and_no_load_the_command_is_nominal_ik() {
         .map(|_| {
             let q = well_conditioned_q(&mut rng);
             target(
-                robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; 6]),
+                robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; MAX_JOINTS]),
                 Wrench::zero(),
             )
         })
@@ -152,7 +153,7 @@ fn with_nominal_parameters_and_no_load_the_command_is_nominal_ik() {
     assert!(max_joint_difference_deg(&closest, &commands[0].q_deg) < 1e-9);
 }
 
-fn norm(q: &[f64; JOINTS]) -> f64 {
+fn norm(q: &[f64; MAX_JOINTS]) -> f64 {
     q.iter().map(|x| x * x).sum::<f64>().sqrt()
 }
 
@@ -169,7 +170,7 @@ fn the_calibrated_loaded_model_puts_every_ok_command_on_its_target() {
         .map(|_| {
             let q = well_conditioned_q(&mut rng);
             target(
-                robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; 6]),
+                robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; MAX_JOINTS]),
                 random_wrench(&mut rng),
             )
         })
@@ -183,7 +184,7 @@ fn the_calibrated_loaded_model_puts_every_ok_command_on_its_target() {
             continue;
         }
         // The forward model `predict` uses, loaded with the target's wrench.
-        let reached = robot.tool_in_world(&truth, &c.q_deg, &t.wrench, &[0; 6]);
+        let reached = robot.tool_in_world(&truth, &c.q_deg, &t.wrench, &[0; MAX_JOINTS]);
         let predicted = robot.predict(&truth, &c.q_deg, &t.wrench).position_mm;
         assert!((reached.origin_mm - predicted).norm() < 1e-9);
         assert!(
@@ -198,7 +199,7 @@ fn the_calibrated_loaded_model_puts_every_ok_command_on_its_target() {
         // The correction: where the nominal controller (truth world frame) goes.
         let mut controller = nominal;
         controller.0[..6].copy_from_slice(&truth.0[..6]);
-        let nominal_goes = robot.tool_in_world(&controller, &c.q_deg, &t.wrench, &[0; 6]);
+        let nominal_goes = robot.tool_in_world(&controller, &c.q_deg, &t.wrench, &[0; MAX_JOINTS]);
         assert!(
             (c.correction_mm - (nominal_goes.origin_mm - t.tool_in_world.origin_mm).norm()).abs()
                 < 1e-9
@@ -219,7 +220,7 @@ fn unreachable_out_of_limit_and_singular_targets_get_their_status_and_spare_the_
         .map(|_| {
             let q = well_conditioned_q(&mut rng);
             Target {
-                tool_in_world: robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; 6]),
+                tool_in_world: robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; MAX_JOINTS]),
                 wrench: random_wrench(&mut rng),
                 hint_deg: Some(q),
                 tool: 0,
@@ -230,19 +231,19 @@ fn unreachable_out_of_limit_and_singular_targets_get_their_status_and_spare_the_
     let alone = compensate(&robot, &truth, &good, &options());
     assert!(alone.iter().all(|c| c.status == Status::Ok));
 
-    let base_q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
-    let mut far = robot.tool_in_world(&nominal, &base_q, &Wrench::zero(), &[0; 6]);
+    let base_q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0, 0.0];
+    let mut far = robot.tool_in_world(&nominal, &base_q, &Wrench::zero(), &[0; MAX_JOINTS]);
     far.origin_mm += Vector3::new(4000.0, 0.0, 0.0);
     // The calibrated arm's straight wrist (q5 = 0; the nominal one's lies about
     // 2° away on this calibrated arm, where the measure is 15 mm/rad).
-    let straight_wrist = [10.0, 20.0, -10.0, 30.0, 0.0, 50.0];
-    let singular = robot.tool_in_world(&truth, &straight_wrist, &Wrench::zero(), &[0; 6]);
+    let straight_wrist = [10.0, 20.0, -10.0, 30.0, 0.0, 50.0, 0.0];
+    let singular = robot.tool_in_world(&truth, &straight_wrist, &Wrench::zero(), &[0; MAX_JOINTS]);
     // q5 = 120 lies beyond the file's ±115°; the hint asks for that branch.
-    let beyond = [10.0, 20.0, -10.0, 30.0, 120.0, 50.0];
+    let beyond = [10.0, 20.0, -10.0, 30.0, 120.0, 50.0, 0.0];
     let out_of_limit = Target {
-        tool_in_world: robot.tool_in_world(&nominal, &beyond, &Wrench::zero(), &[0; 6]),
+        tool_in_world: robot.tool_in_world(&nominal, &beyond, &Wrench::zero(), &[0; MAX_JOINTS]),
         wrench: Wrench::zero(),
-        hint_deg: Some([11.0, 19.0, -9.0, 31.0, 119.0, 49.0]),
+        hint_deg: Some([11.0, 19.0, -9.0, 31.0, 119.0, 49.0, 0.0]),
         tool: 0,
         track_mm: 0.0,
     };
@@ -280,9 +281,9 @@ fn a_line_path_keeps_its_branch() {
     // A 300 mm line with constant orientation under a constant drilling thrust.
     let start = robot.tool_in_world(
         &nominal,
-        &[20.0, 10.0, -20.0, 40.0, 60.0, -30.0],
+        &[20.0, 10.0, -20.0, 40.0, 60.0, -30.0, 0.0],
         &Wrench::zero(),
-        &[0; 6],
+        &[0; MAX_JOINTS],
     );
     let thrust = Wrench::from_array([0.0, 0.0, -100.0, 0.0, 0.0, 0.0]);
     let targets: Vec<Target> = (0..60)
@@ -317,9 +318,9 @@ fn the_stage_writes_commands_and_conf_wrenches() {
     let poses = [
         robot.tool_in_world(
             &nominal,
-            &[10.0, 20.0, -10.0, 30.0, 40.0, 50.0],
+            &[10.0, 20.0, -10.0, 30.0, 40.0, 50.0, 0.0],
             &Wrench::zero(),
-            &[0; 6],
+            &[0; MAX_JOINTS],
         ),
         {
             let mut far = Frame::identity();
@@ -328,9 +329,9 @@ fn the_stage_writes_commands_and_conf_wrenches() {
         },
         robot.tool_in_world(
             &nominal,
-            &[-30.0, 10.0, -30.0, -20.0, 60.0, 10.0],
+            &[-30.0, 10.0, -30.0, -20.0, 60.0, 10.0, 0.0],
             &Wrench::zero(),
-            &[0; 6],
+            &[0; MAX_JOINTS],
         ),
     ];
     let ids = vec![30_i64, 10, 20];
@@ -512,7 +513,7 @@ fn timing_of_10000_targets() {
         .map(|_| {
             let q = well_conditioned_q(&mut rng);
             target(
-                robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; 6]),
+                robot.tool_in_world(&nominal, &q, &Wrench::zero(), &[0; MAX_JOINTS]),
                 random_wrench(&mut rng),
             )
         })
@@ -608,12 +609,12 @@ fn column_str(df: &DataFrame, name: &str) -> Vec<Option<String>> {
         .collect()
 }
 
-fn commands_q(df: &DataFrame) -> Vec<[f64; JOINTS]> {
-    let columns: Vec<Vec<Option<f64>>> = (1..=JOINTS)
+fn commands_q(df: &DataFrame) -> Vec<[f64; MAX_JOINTS]> {
+    let columns: Vec<Vec<Option<f64>>> = (1..=6)
         .map(|j| column_f64(df, &format!("q{j}_deg")))
         .collect();
     (0..df.height())
-        .map(|k| std::array::from_fn(|j| columns[j][k].unwrap()))
+        .map(|k| std::array::from_fn(|j| columns.get(j).map_or(0.0, |c| c[k].unwrap())))
         .collect()
 }
 
@@ -641,13 +642,13 @@ fn base_and_user_frame_targets_give_the_world_frame_commands() {
     let robot = robot();
     let truth = truth(&robot);
     let generators = [
-        [10.0, 20.0, -10.0, 30.0, 40.0, 50.0],
-        [-30.0, 10.0, -30.0, -20.0, 60.0, 10.0],
-        [40.0, 35.0, -20.0, 10.0, -50.0, -60.0],
+        [10.0, 20.0, -10.0, 30.0, 40.0, 50.0, 0.0],
+        [-30.0, 10.0, -30.0, -20.0, 60.0, 10.0, 0.0],
+        [40.0, 35.0, -20.0, 10.0, -50.0, -60.0, 0.0],
     ];
     let world: Vec<Frame> = generators
         .iter()
-        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero(), &[0; 6]))
+        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero(), &[0; MAX_JOINTS]))
         .collect();
     let base_from_world = world_from_base_by_hand(&truth).inverse();
     let base: Vec<Frame> = world.iter().map(|w| base_from_world.compose(w)).collect();
@@ -725,7 +726,12 @@ fn a_table_in_the_other_frame_is_refused_naming_the_frame_assumed() {
     let base: Vec<Frame> = (0..20)
         .map(|_| {
             let q = well_conditioned_q(&mut rng);
-            base_from_world.compose(&robot.tool_in_world(&truth, &q, &Wrench::zero(), &[0; 6]))
+            base_from_world.compose(&robot.tool_in_world(
+                &truth,
+                &q,
+                &Wrench::zero(),
+                &[0; MAX_JOINTS],
+            ))
         })
         .collect();
     let path = dir.path().join("targets.parquet");
@@ -784,10 +790,10 @@ fn several_targets_each_row_aims_its_own_tool() {
     egcal::table::write_parquet(&mut table, &parameters, None).unwrap();
 
     let generators = [
-        [10.0, 20.0, -10.0, 30.0, 40.0, 50.0],
-        [12.0, 22.0, -12.0, 28.0, 42.0, 48.0],
-        [-30.0, 10.0, -30.0, -20.0, 60.0, 10.0],
-        [40.0, 35.0, -20.0, 10.0, -50.0, -60.0],
+        [10.0, 20.0, -10.0, 30.0, 40.0, 50.0, 0.0],
+        [12.0, 22.0, -12.0, 28.0, 42.0, 48.0, 0.0],
+        [-30.0, 10.0, -30.0, -20.0, 60.0, 10.0, 0.0],
+        [40.0, 35.0, -20.0, 10.0, -50.0, -60.0, 0.0],
     ];
     let aims = [2_usize, 0, 1, 2];
     let wrench = Wrench::from_array([0.0, 0.0, -80.0, 0.0, 2.0, 0.0]);
@@ -801,7 +807,7 @@ fn several_targets_each_row_aims_its_own_tool() {
         .iter()
         .zip(&aims)
         .map(|(q, k)| {
-            let frame = robot.tool_in_world(&values.aimed_at(*k), q, &wrench, &[0; 6]);
+            let frame = robot.tool_in_world(&values.aimed_at(*k), q, &wrench, &[0; MAX_JOINTS]);
             let position = prepared
                 .predict_row(&egcal::robot::ConfWrench {
                     target: *k,
@@ -880,7 +886,7 @@ fn several_targets_each_row_aims_its_own_tool() {
 }
 
 /// The largest per-joint difference (wrapped) to the nearest row, by brute force.
-fn chebyshev_to_nearest(q: &[f64; JOINTS], rows: &[[f64; JOINTS]]) -> f64 {
+fn chebyshev_to_nearest(q: &[f64; MAX_JOINTS], rows: &[[f64; MAX_JOINTS]]) -> f64 {
     rows.iter()
         .map(|r| {
             q.iter()
@@ -904,14 +910,14 @@ fn commands_far_from_the_calibration_rows_are_outside_the_envelope() {
     let robot = robot();
     let truth = truth(&robot);
     // Calibration rows around q2 ≈ 20°, q3 ≈ −20°; one validation row far off.
-    let calibration: Vec<[f64; JOINTS]> = (0..5)
+    let calibration: Vec<[f64; MAX_JOINTS]> = (0..5)
         .map(|k| {
             let s = k as f64 * 5.0;
-            [10.0 + s, 15.0 + s, -25.0 + s, 30.0, 40.0 + s, 50.0]
+            [10.0 + s, 15.0 + s, -25.0 + s, 30.0, 40.0 + s, 50.0, 0.0]
         })
         .collect();
-    let validation = [10.0, 80.0, -80.0, 30.0, 40.0, 50.0];
-    let rows: Vec<[f64; JOINTS]> = calibration
+    let validation = [10.0, 80.0, -80.0, 30.0, 40.0, 50.0, 0.0];
+    let rows: Vec<[f64; MAX_JOINTS]> = calibration
         .iter()
         .copied()
         .chain(std::iter::once(validation))
@@ -920,7 +926,7 @@ fn commands_far_from_the_calibration_rows_are_outside_the_envelope() {
         "cw_id".into(),
         (0..rows.len() as i64).collect::<Vec<_>>(),
     )];
-    for j in 0..JOINTS {
+    for j in 0..6 {
         columns.push(Column::new(
             format!("q{}_deg", j + 1).into(),
             rows.iter().map(|r| r[j]).collect::<Vec<_>>(),
@@ -943,14 +949,14 @@ fn commands_far_from_the_calibration_rows_are_outside_the_envelope() {
     egcal::table::write_parquet(&mut df, &selection, None).unwrap();
 
     let generators = [
-        [12.0, 18.0, -22.0, 32.0, 45.0, 48.0], // near row 0/1
-        [32.0, 40.0, -2.0, 30.0, 60.0, 50.0],  // 5° from row 4
-        [10.0, 79.0, -79.0, 30.0, 40.0, 50.0], // near the validation row only
-        [10.0, 75.0, -75.0, 30.0, 40.0, 50.0], // 55° beyond row 4 in q2
+        [12.0, 18.0, -22.0, 32.0, 45.0, 48.0, 0.0], // near row 0/1
+        [32.0, 40.0, -2.0, 30.0, 60.0, 50.0, 0.0],  // 5° from row 4
+        [10.0, 79.0, -79.0, 30.0, 40.0, 50.0, 0.0], // near the validation row only
+        [10.0, 75.0, -75.0, 30.0, 40.0, 50.0, 0.0], // 55° beyond row 4 in q2
     ];
     let poses: Vec<Frame> = generators
         .iter()
-        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero(), &[0; 6]))
+        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero(), &[0; MAX_JOINTS]))
         .collect();
     let targets = dir.path().join("targets.parquet");
     write_targets(&targets, &poses, Vec::new());
@@ -1001,12 +1007,12 @@ fn csv_targets_compensate_like_parquet_ones() {
     let robot = robot();
     let truth = truth(&robot);
     let generators = [
-        [10.0, 20.0, -10.0, 30.0, 40.0, 50.0],
-        [-30.0, 10.0, -30.0, -20.0, 60.0, 10.0],
+        [10.0, 20.0, -10.0, 30.0, 40.0, 50.0, 0.0],
+        [-30.0, 10.0, -30.0, -20.0, 60.0, 10.0, 0.0],
     ];
     let poses: Vec<Frame> = generators
         .iter()
-        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero(), &[0; 6]))
+        .map(|q| robot.tool_in_world(&truth, q, &Wrench::zero(), &[0; MAX_JOINTS]))
         .collect();
     let mut csv = String::from("\u{feff}Punkt;X [m];Y [m];Z [m];A;B;C;Kraft\r\n");
     for (k, pose) in poses.iter().enumerate() {

@@ -77,8 +77,11 @@ fn poses_reach_their_targets_facing_the_tracker_and_wrenches_are_feasible() {
     let incidence = col("incidence_deg");
     for k in 0..poses.height() {
         let q_deg: [f64; 6] = std::array::from_fn(|i| q[i][k]);
-        assert!(robot.within_limits(&q_deg), "row {k}: {q_deg:?}");
-        let (_, tool) = robot.frames_in_base(&nominal, &q_deg);
+        assert!(
+            robot.within_limits(&egcal::robot::joint_array(&q_deg)),
+            "row {k}: {q_deg:?}"
+        );
+        let (_, tool) = robot.frames_in_base(&nominal, &egcal::robot::joint_array(&q_deg));
         let target = Vector3::new(tx[k], ty[k], tz[k]);
         assert!(
             (tool.origin_mm - target).norm() < 1e-6,
@@ -116,7 +119,8 @@ fn poses_reach_their_targets_facing_the_tracker_and_wrenches_are_feasible() {
     let t: Vec<Vec<f64>> = schema::TENSION_COLUMNS.iter().map(|c| col(c)).collect();
     for k in 0..candidates.height() {
         let q_deg: [f64; 6] = std::array::from_fn(|i| q[i][k]);
-        let (_, tool): (_, Frame) = robot.frames_in_base(&nominal, &q_deg);
+        let (_, tool): (_, Frame) =
+            robot.frames_in_base(&nominal, &egcal::robot::joint_array(&q_deg));
         let tensions = SVector::<f64, 8>::from_fn(|i, _| t[i][k]);
         for tension in tensions.iter() {
             assert!(*tension >= spec.min_tension_n - 1e-6 && *tension <= spec.max_tension_n + 1e-6);
@@ -236,11 +240,16 @@ fn cell_from_files(robot: &Robot, cable: &CableRobotSpec, settings: &PosesSettin
     let (lower, upper) = (corner(f64::min), corner(f64::max));
     Cell {
         link_capsules: std::array::from_fn(|i| {
-            robot.spec().joints[i].capsule.as_ref().map(|c| CapsuleMm {
-                from: Vector3::from(c.from_mm),
-                to: Vector3::from(c.to_mm),
-                radius: c.radius_mm,
-            })
+            robot
+                .spec()
+                .joints
+                .get(i)
+                .and_then(|j| j.capsule.as_ref())
+                .map(|c| CapsuleMm {
+                    from: Vector3::from(c.from_mm),
+                    to: Vector3::from(c.to_mm),
+                    radius: c.radius_mm,
+                })
         }),
         anchors: cable
             .anchors_base_mm
@@ -335,7 +344,11 @@ fn segment_box_distance(
 /// against links 1–4; the tracker's beam (to the SMR's surface) against every
 /// link and cable. Computed with the closed forms above, not parry3d. Also
 /// checks the floor: links 2–6 above `floor_z_mm`.
-fn clearance_by_closed_forms(cell: &Cell, joints: &[Frame; 7], tool: &Frame) -> f64 {
+fn clearance_by_closed_forms(
+    cell: &Cell,
+    joints: &[Frame; egcal::robot::MAX_JOINTS + 1],
+    tool: &Frame,
+) -> f64 {
     let links: Vec<(usize, Vector3<f64>, Vector3<f64>, f64)> = cell
         .link_capsules
         .iter()
@@ -459,8 +472,11 @@ fn paper_poses_pass_the_collision_and_sight_filters_when_rechecked() {
     let incidence = col("incidence_deg");
     for k in 0..poses.height() {
         let q_deg: [f64; 6] = std::array::from_fn(|i| q[i][k]);
-        assert!(robot.within_limits(&q_deg), "row {k}: {q_deg:?}");
-        let (joints, tool) = robot.frames_in_base(&nominal, &q_deg);
+        assert!(
+            robot.within_limits(&egcal::robot::joint_array(&q_deg)),
+            "row {k}: {q_deg:?}"
+        );
+        let (joints, tool) = robot.frames_in_base(&nominal, &egcal::robot::joint_array(&q_deg));
         let target = Vector3::new(tx[k], ty[k], tz[k]);
         assert!(
             (tool.origin_mm - target).norm() < 1e-6,
@@ -573,7 +589,7 @@ fn a_point_the_tracker_cannot_see_is_dropped_with_its_reason() {
         .map(|k| std::array::from_fn(|i| q[i][k]))
         .collect();
     for (k, q_deg) in rows.iter().enumerate() {
-        let (joints, tool) = robot.frames_in_base(&nominal, q_deg);
+        let (joints, tool) = robot.frames_in_base(&nominal, &egcal::robot::joint_array(q_deg));
         let seen = cell.check(&joints, &tool);
         assert!(seen.is_ok(), "row {k}: {seen:?}");
         assert!(clearance_by_closed_forms(&cell, &joints, &tool) > settings.safety_margin_mm);
@@ -603,8 +619,16 @@ fn the_ur10_gets_poses_from_the_numeric_inverse_kinematics() {
     let (tx, ty, tz) = (col("target_x_mm"), col("target_y_mm"), col("target_z_mm"));
     for k in 0..poses.height() {
         let q_deg: [f64; 6] = std::array::from_fn(|i| q[i][k]);
-        assert!(robot.within_limits(&q_deg), "row {k}: {q_deg:?}");
-        let smr = robot.tool_in_world(&nominal, &q_deg, &egcal::robot::Wrench::zero(), &[0; 6]);
+        assert!(
+            robot.within_limits(&egcal::robot::joint_array(&q_deg)),
+            "row {k}: {q_deg:?}"
+        );
+        let smr = robot.tool_in_world(
+            &nominal,
+            &egcal::robot::joint_array(&q_deg),
+            &egcal::robot::Wrench::zero(),
+            &[0; 7],
+        );
         let target = Vector3::new(tx[k], ty[k], tz[k]);
         assert!((smr.origin_mm - target).norm() < 1e-6, "row {k}");
     }

@@ -17,7 +17,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use egcal::robot::params::ParamId;
-use egcal::robot::{JOINTS, ParamValues, Robot, RobotSpec};
+use egcal::robot::{MAX_JOINTS, ParamValues, Robot, RobotSpec};
 use egcal::table::parameters::{self, ModelName, ParameterSet};
 use nalgebra::{Matrix3, Matrix4, UnitQuaternion, Vector3};
 use polars::prelude::*;
@@ -28,7 +28,7 @@ use rand::{Rng, SeedableRng};
 #[derive(Debug, Clone, Default)]
 struct Row {
     id: i64,
-    q: [f64; 6],
+    q: [f64; MAX_JOINTS],
     status: &'static str,
     p: [f64; 3],
     quat: [f64; 4],
@@ -54,7 +54,7 @@ fn random_rows(robot: &Robot, n: usize, seed: u64) -> Vec<Row> {
     let nominal = ParamValues::nominal(robot.spec());
     (0..n)
         .map(|k| {
-            let q: [f64; 6] = std::array::from_fn(|i| {
+            let q: [f64; MAX_JOINTS] = robot.joint_vector(|i| {
                 let [lo, hi] = robot.limits_deg(i);
                 rng.random_range(lo..hi)
             });
@@ -263,9 +263,12 @@ type Pose = (Matrix3<f64>, Vector3<f64>);
 
 /// The flange pose at `q` on the robot file's nominal arm (egcal's model; the
 /// URDF test checks that model independently).
-fn nominal_flange(robot: &Robot, q: &[f64; 6]) -> Pose {
+fn nominal_flange(robot: &Robot, q: &[f64; MAX_JOINTS]) -> Pose {
     let (frames, _) = robot.frames_in_base(&ParamValues::nominal(robot.spec()), q);
-    (frames[JOINTS].rotation, frames[JOINTS].origin_mm)
+    (
+        frames[robot.joint_count()].rotation,
+        frames[robot.joint_count()].origin_mm,
+    )
 }
 
 /// `a · b`.
@@ -516,7 +519,7 @@ fn rapid_and_krl_read_back_give_the_commands_to_the_printed_precision() {
     );
     for (name, v) in &joints {
         let row = ok.iter().find(|r| r.id == id_of(name, "jt_")).unwrap();
-        for (j, (printed, q)) in v.iter().zip(row.q).enumerate() {
+        for (j, (printed, q)) in v.iter().zip(&row.q[..6]).enumerate() {
             assert!((printed - q).abs() <= joint_tol, "{name} q{}", j + 1);
         }
         assert!(v[6..].iter().all(|e| *e == 9e9));
@@ -631,7 +634,7 @@ fn conventions_on_hand_computed_rotations() {
     // the sum Σq; the table's own Cartesian columns are those of the tool.
     let row = |id: i64, sum_deg: f64, quat: [f64; 4]| Row {
         id,
-        q: [sum_deg + 75.0, 0.0, -30.0, 0.0, -45.0, 0.0],
+        q: [sum_deg + 75.0, 0.0, -30.0, 0.0, -45.0, 0.0, 0.0],
         status: "ok",
         p: [1000.0, 0.0, 800.25],
         quat,
@@ -839,7 +842,7 @@ fn programs_declare_and_move_the_calibrated_tool() {
         .iter()
         .map(|r| {
             let (frames, _) = robot.frames_in_base(&ParamValues::nominal(robot.spec()), &r.q);
-            let tool = frames[JOINTS].compose(&calibrated);
+            let tool = frames[robot.joint_count()].compose(&calibrated);
             let uq = UnitQuaternion::from_matrix(&tool.rotation);
             Row {
                 p: tool.origin_mm.into(),
@@ -988,7 +991,7 @@ fn middle_rows(robot: &Robot, n: usize, seed: u64) -> Vec<Row> {
     let mut rows = random_rows(robot, n, seed);
     let nominal = ParamValues::nominal(robot.spec());
     for row in &mut rows {
-        row.q = std::array::from_fn(|i| {
+        row.q = robot.joint_vector(|i| {
             let [lo, hi] = robot.limits_deg(i);
             let margin = 0.25 * (hi - lo);
             rng.random_range(lo + margin..hi - margin)
@@ -1189,13 +1192,13 @@ fn urdf_matches_the_model(robot: &Robot, values: &ParamValues) -> String {
     assert_eq!(link, "tool");
     assert_eq!(
         chain.iter().filter(|j| j.kind == "revolute").count(),
-        JOINTS
+        robot.joint_count()
     );
 
     let mut rng = StdRng::seed_from_u64(99);
     let mut worst = 0.0f64;
     for _ in 0..1000 {
-        let q: [f64; 6] = std::array::from_fn(|i| {
+        let q: [f64; MAX_JOINTS] = robot.joint_vector(|i| {
             let [lo, hi] = robot.limits_deg(i);
             rng.random_range(lo..hi)
         });
@@ -1252,7 +1255,7 @@ fn urdf_limits_are_the_robot_file_s_or_marked_placeholders() {
     assert_eq!(code, 0, "{log}");
     let text = std::fs::read_to_string(out.join("robot.urdf")).unwrap();
     let limits = urdf_limits(&text);
-    assert_eq!(limits.len(), JOINTS);
+    assert_eq!(limits.len(), 6);
     for (i, [lower, upper, effort, velocity]) in limits.iter().enumerate() {
         let joint = &robot.spec().joints[i];
         assert_eq!(*lower, joint.limits_deg[0].to_radians());
@@ -1565,21 +1568,21 @@ fn xyz_fixed(a_deg: f64, b_deg: f64, c_deg: f64) -> Matrix3<f64> {
 
 /// The IRB 1600's wrist centre (d6 = 65 mm back along the flange's z axis)
 /// in its arm plane: (distance in front of axis 1, height), mm.
-fn wrist_in_arm_plane(robot: &Robot, q: &[f64; 6]) -> (f64, f64) {
+fn wrist_in_arm_plane(robot: &Robot, q: &[f64; MAX_JOINTS]) -> (f64, f64) {
     let (r, p) = nominal_flange(robot, q);
     let wrist = p - r * Vector3::new(0.0, 0.0, 65.0);
     let (s, c) = q[0].to_radians().sin_cos();
     (wrist.x * c + wrist.y * s, wrist.z)
 }
 
-fn wrist_in_front(robot: &Robot, q: &[f64; 6]) -> bool {
+fn wrist_in_front(robot: &Robot, q: &[f64; MAX_JOINTS]) -> bool {
     wrist_in_arm_plane(robot, q).0 >= 0.0
 }
 
 /// Whether the IRB 1600's elbow (axis 3, 700 mm up the lower arm from axis
 /// 2 at (150, 486.5) mm, tilted forward by q2) lies on the side of the line
 /// from axis 2 to the wrist centre where it is at zero (above it).
-fn elbow_up(robot: &Robot, q: &[f64; 6]) -> bool {
+fn elbow_up(robot: &Robot, q: &[f64; MAX_JOINTS]) -> bool {
     let (shoulder_x, shoulder_z) = (150.0, 486.5);
     let (s2, c2) = q[1].to_radians().sin_cos();
     let elbow = (700.0 * s2, 700.0 * c2);

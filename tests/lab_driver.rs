@@ -434,7 +434,9 @@ fn the_robot_moves_through_the_rapid_loop_over_rws_1_and_2_and_logs_out() {
         let emulator = Emulator::start_rws(version);
         let dir = tempfile::tempdir().unwrap();
         let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
-        driver.move_joints(7, Q).unwrap();
+        driver
+            .move_joints(7, egcal::robot::joint_array(&Q))
+            .unwrap();
         let q = driver.read_joints().unwrap();
         assert!(
             q.iter().zip(Q).all(|(a, b)| (a - b).abs() < 1e-4),
@@ -503,7 +505,7 @@ fn controller_faults_are_retried_recorded_or_stop_the_campaign() {
         ];
         for (faults, expected_code, expected_disposition) in cases {
             emulator.inject(faults.clone());
-            let (c, d, message) = code(driver.move_joints(1, Q));
+            let (c, d, message) = code(driver.move_joints(1, egcal::robot::joint_array(&Q)));
             assert_eq!(
                 (c, d),
                 (expected_code, expected_disposition),
@@ -511,10 +513,12 @@ fn controller_faults_are_retried_recorded_or_stop_the_campaign() {
             );
             emulator.inject(serde_json::json!({}));
             // Cleared: the next move goes through.
-            driver.move_joints(2, Q).unwrap();
+            driver
+                .move_joints(2, egcal::robot::joint_array(&Q))
+                .unwrap();
         }
         // A target beyond the controller's joint limits: RAPID refuses it, the row fails.
-        let (c, d, message) = code(driver.move_joints(3, [200.0, 0.0, 0.0, 0.0, 30.0, 0.0]));
+        let (c, d, message) = code(driver.move_joints(3, [200.0, 0.0, 0.0, 0.0, 30.0, 0.0, 0.0]));
         assert_eq!(
             (c, d),
             (ErrorCode::OutOfRange, Disposition::FailRow),
@@ -542,15 +546,19 @@ fn a_controller_that_dies_stops_the_campaign() {
     let emulator = Emulator::start();
     let dir = tempfile::tempdir().unwrap();
     let mut driver = lab_driver(&emulator.cell(dir.path(), ""));
-    driver.move_joints(1, Q).unwrap();
+    driver
+        .move_joints(1, egcal::robot::joint_array(&Q))
+        .unwrap();
     emulator.inject(serde_json::json!({"rws": [{"kind": "die"}]}));
-    let e = driver.move_joints(2, Q).unwrap_err();
+    let e = driver
+        .move_joints(2, egcal::robot::joint_array(&Q))
+        .unwrap_err();
     assert!(
         matches!(e.code(), Some(ErrorCode::NotConnected | ErrorCode::Timeout)),
         "{e}"
     );
     // Gone for good: reconnecting fails and the campaign stops.
-    let (c, d, _) = code(driver.move_joints(3, Q));
+    let (c, d, _) = code(driver.move_joints(3, egcal::robot::joint_array(&Q)));
     assert_eq!((c, d), (ErrorCode::NotConnected, Disposition::Stop));
 }
 

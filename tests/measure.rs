@@ -105,8 +105,8 @@ fn the_unmodelled_effects_are_the_same_robot_in_process_and_behind_a_driver() {
         .iter()
         .map(|name| joint(&commands, name))
         .collect();
-    let q: Vec<[f64; 6]> = (0..commands.height())
-        .map(|k| std::array::from_fn(|j| columns[j][k]))
+    let q: Vec<[f64; egcal::robot::MAX_JOINTS]> = (0..commands.height())
+        .map(|k| std::array::from_fn(|j| columns.get(j).map_or(0.0, |c| c[k])))
         .collect();
     let expected = egcal::rig::approach::approach_directions(&q);
     for (j, name) in table::schema::APPROACH_COLUMNS.iter().enumerate() {
@@ -459,7 +459,10 @@ fn rows_with_approach_directions_are_reached_from_their_pre_positions() {
     assert_eq!(a.height(), n);
     assert_eq!(table::content_hash(&a), table::content_hash(&b));
     let written = table::schema::approach_values(&a, Path::new("measurements")).unwrap();
-    let expected: Vec<[i8; 6]> = wanted.iter().map(|d| [*d; 6]).collect();
+    let expected: Vec<[i8; egcal::robot::MAX_JOINTS]> = wanted
+        .iter()
+        .map(|d| egcal::robot::joint_array(&[*d; 6]))
+        .collect();
     assert_eq!(written, expected);
 
     // The same rows measured in order without directions sit elsewhere: the

@@ -80,7 +80,7 @@ fn arm_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
     (0..n)
         .map(|_| {
             ConfWrench::new(
-                std::array::from_fn(|i| {
+                robot.joint_vector(|i| {
                     let [lo, hi] = robot.limits_deg(i);
                     rng.random_range(lo..hi)
                 }),
@@ -105,7 +105,7 @@ fn nest_rows(seed: u64, per_nest: usize) -> Vec<ConfWrench> {
                 rng.random_range(-80.0..80.0),
                 rng.random_range(-180.0..180.0),
             ]),
-            ..ConfWrench::new([0.0; 6], Wrench::zero())
+            ..ConfWrench::new([0.0; 7], Wrench::zero())
         })
         .collect()
 }
@@ -498,7 +498,14 @@ fn the_programs_move_the_positioner_to_each_target(
             (axes[0] - table_at[k][0]).abs() < 1e-3 && (axes[1] - table_at[k][1]).abs() < 1e-3,
             "FANUC target {k}: {axes:?}"
         );
-        let smr = positions(robot, truth, &[ConfWrench::new(q, Wrench::zero())])[0];
+        let smr = positions(
+            robot,
+            truth,
+            &[ConfWrench::new(
+                egcal::robot::joint_array(&q),
+                Wrench::zero(),
+            )],
+        )[0];
         let mut on_table = *truth;
         for (axis, value) in on_table_mm[k].iter().enumerate() {
             on_table.set(ParamId::target_translation(1, axis), *value);
@@ -506,7 +513,7 @@ fn the_programs_move_the_positioner_to_each_target(
         let nest = ConfWrench {
             target: 1,
             positioner_deg: Some(axes),
-            ..ConfWrench::new([0.0; 6], Wrench::zero())
+            ..ConfWrench::new([0.0; 7], Wrench::zero())
         };
         let target = positions(robot, &on_table, &[nest])[0];
         let miss = (smr - target).norm();
@@ -658,7 +665,10 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
         assert_eq!([p1[k], p2[k]], cases[k].1);
         // Where the true arm puts the SMR under the command, and where the
         // true table holds the target (the target as a nest of the truth).
-        let command = ConfWrench::new(std::array::from_fn(|i| q[i][k]), Wrench::zero());
+        let command = ConfWrench::new(
+            std::array::from_fn(|i| q.get(i).map_or(0.0, |c| c[k])),
+            Wrench::zero(),
+        );
         let reached = positions(&robot, &truth, &[command])[0];
         let mut on_table = truth;
         for axis in 0..3 {
@@ -670,7 +680,7 @@ fn targets_on_the_table_are_reached_where_the_true_table_holds_them() {
             &[ConfWrench {
                 target: 1,
                 positioner_deg: Some(cases[k].1),
-                ..ConfWrench::new([0.0; 6], Wrench::zero())
+                ..ConfWrench::new([0.0; 7], Wrench::zero())
             }],
         )[0];
         let miss = (reached - target).norm();

@@ -76,7 +76,10 @@ fn work_errors_mm(
     let on_table = [f64s(work, "x_mm"), f64s(work, "y_mm"), f64s(work, "z_mm")];
     (0..commands.height())
         .map(|k| {
-            let command = ConfWrench::new(std::array::from_fn(|i| q[i][k]), Wrench::zero());
+            let command = ConfWrench::new(
+                std::array::from_fn(|i| q.get(i).map_or(0.0, |c| c[k])),
+                Wrench::zero(),
+            );
             let reached = common::measured::positions(robot, truth, &[command])[0];
             // The target as a nest of the truth.
             let mut held_by_table = *truth;
@@ -86,7 +89,7 @@ fn work_errors_mm(
             let held_at = ConfWrench {
                 target: 1,
                 positioner_deg: Some([axes[0][k], axes[1][k]]),
-                ..ConfWrench::new([0.0; 6], Wrench::zero())
+                ..ConfWrench::new([0.0; 7], Wrench::zero())
             };
             let target = common::measured::positions(robot, &held_by_table, &[held_at])[0];
             (reached - target).norm()

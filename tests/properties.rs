@@ -132,7 +132,7 @@ proptest! {
             // An accepted robot predicts finite positions at its home pose.
             let robot = egcal::robot::Robot::new(spec);
             let nominal = egcal::robot::ParamValues::nominal(robot.spec());
-            let row = egcal::robot::ConfWrench::new([0.0; 6], egcal::robot::Wrench::zero());
+            let row = egcal::robot::ConfWrench::new([0.0; 7], egcal::robot::Wrench::zero());
             let p = egcal::robot::batch_predict(&robot, &nominal, &[row]);
             prop_assert!(p[0].position_mm.iter().all(|v| v.is_finite()));
         }

@@ -39,7 +39,7 @@ fn all_candidates() -> CalibrationOptions {
 }
 
 fn identified(result: &ModelResult) -> Vec<ParamId> {
-    ParamId::all_with_targets(egcal::robot::MAX_TARGETS)
+    ParamId::all_with_targets(6, egcal::robot::MAX_TARGETS)
         .filter(|id| result.set.status[id.index()] == ParamStatus::Identified)
         .collect()
 }

@@ -68,7 +68,7 @@ fn rows_on_track(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
             track_mm: rng.random_range(0.0..3000.0),
             positioner_deg: None,
             ..ConfWrench::new(
-                std::array::from_fn(|i| {
+                robot.joint_vector(|i| {
                     let [lo, hi] = robot.limits_deg(i);
                     rng.random_range(lo..hi)
                 }),
@@ -325,7 +325,7 @@ fn forward_kinematics_on_the_track_matches_an_independent_numpy_chain() {
         let row = ConfWrench {
             track_mm: e,
             positioner_deg: None,
-            ..ConfWrench::new(q, Wrench::zero())
+            ..ConfWrench::new(egcal::robot::joint_array(&q), Wrench::zero())
         };
         let got = robot.prepare(&values).predict_row(&row).position_mm;
         assert!(

@@ -32,7 +32,7 @@ use super::uncertainty::{chi_squared_3_quantile, position_covariances};
 use crate::robot::frame::Frame;
 use crate::robot::ik::{self, IkError};
 use crate::robot::model::PreparedRobot;
-use crate::robot::{ConfWrench, JOINTS, ParamId, ParamValues, Robot, Wrench};
+use crate::robot::{ConfWrench, MAX_JOINTS, ParamId, ParamValues, Robot, Wrench};
 
 /// The grid's shape.
 #[derive(Debug, Clone, Copy)]
@@ -77,7 +77,7 @@ pub struct MapPoint {
     pub inside_box: bool,
     pub status: PointStatus,
     /// The configuration used, when reachable.
-    pub q_deg: Option<[f64; JOINTS]>,
+    pub q_deg: Option<[f64; MAX_JOINTS]>,
     /// The carriage position the point is reached from (mm; 0 without a
     /// track): its nearest calibration row's.
     pub track_mm: f64,
@@ -111,7 +111,7 @@ pub fn u95_mm(c: &Matrix3<f64>) -> f64 {
 /// the configuration that reached it.
 #[derive(Debug, Clone, Copy)]
 pub struct CalibrationPose {
-    pub q_deg: [f64; JOINTS],
+    pub q_deg: [f64; MAX_JOINTS],
     /// The carriage's position on a track (mm; 0 without one).
     pub track_mm: f64,
     pub tool_in_world: Frame,
@@ -131,7 +131,7 @@ pub fn calibration_poses(
             track_mm: row.track_mm,
             tool_in_world: prepared
                 .world_from_base_at(row.track_mm)
-                .compose(&prepared.loaded_chain(&row.q_deg, &Wrench::zero(), &[0; JOINTS])),
+                .compose(&prepared.loaded_chain(&row.q_deg, &Wrench::zero(), &[0; MAX_JOINTS])),
         })
         .collect()
 }
@@ -174,7 +174,7 @@ pub fn grid(lo: &Vector3<f64>, hi: &Vector3<f64>, spec: &GridSpec) -> Vec<(usize
     points
 }
 
-fn joint_distance_deg(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
+fn joint_distance_deg(a: &[f64; MAX_JOINTS], b: &[f64; MAX_JOINTS]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(x, y)| (x - y).powi(2))
@@ -191,7 +191,7 @@ fn configuration(
     prepared: &PreparedRobot,
     poses: &[CalibrationPose],
     position_mm: &Vector3<f64>,
-) -> Result<([f64; JOINTS], f64), PointStatus> {
+) -> Result<([f64; MAX_JOINTS], f64), PointStatus> {
     let nearest = poses
         .iter()
         .min_by(|a, b| {
@@ -285,19 +285,19 @@ mod tests {
 
     /// Calibration configurations around one working pose: small joint offsets,
     /// so their tool positions span a box a few hundred mm wide.
-    fn rows(q_deg: Vec<[f64; JOINTS]>) -> Vec<ConfWrench> {
+    fn rows(q_deg: Vec<[f64; MAX_JOINTS]>) -> Vec<ConfWrench> {
         q_deg
             .into_iter()
             .map(|q| ConfWrench::new(q, Wrench::zero()))
             .collect()
     }
 
-    fn calibration_q() -> Vec<[f64; JOINTS]> {
+    fn calibration_q() -> Vec<[f64; MAX_JOINTS]> {
         let mut q = Vec::new();
         for d1 in [-10.0, 0.0, 10.0] {
             for d2 in [-8.0, 0.0, 8.0] {
                 for d3 in [-8.0, 0.0, 8.0] {
-                    q.push([d1, 10.0 + d2, 10.0 + d3, 5.0, 40.0, 0.0]);
+                    q.push([d1, 10.0 + d2, 10.0 + d3, 5.0, 40.0, 0.0, 0.0]);
                 }
             }
         }
@@ -388,7 +388,7 @@ mod tests {
         )[0];
         let c = point.covariance_mm2.expect("covariance");
         assert!((c - direct).abs().max() < 1e-15, "{c} vs {direct}");
-        let tool = robot.tool_in_world(&values, &q, &Wrench::zero(), &[0; JOINTS]);
+        let tool = robot.tool_in_world(&values, &q, &Wrench::zero(), &[0; MAX_JOINTS]);
         assert!(
             (tool.origin_mm - point.position_mm).norm() < 20.0,
             "tool {} vs grid point {}",

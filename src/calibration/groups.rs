@@ -313,7 +313,7 @@ mod tests {
 
     fn row(q: [f64; 6], force_z: f64) -> ConfWrench {
         ConfWrench::new(
-            q,
+            crate::robot::joint_array(&q),
             Wrench {
                 force_n: Vector3::new(0.0, 0.0, force_z),
                 moment_nm: Vector3::zeros(),

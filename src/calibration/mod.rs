@@ -22,7 +22,7 @@ pub mod unit_checks;
 
 use nalgebra::Vector3;
 
-use crate::robot::{Frame, JOINTS, ParamId, ParamValues, Robot};
+use crate::robot::{Frame, ParamId, ParamValues, Robot};
 use crate::table::parameters::{ModelName, ParamStatus, ParameterSet};
 use fit::{FitError, FitOptions, Iteration, Loss, Observations, Stop};
 use held::{Hold, HoldOptions};
@@ -192,12 +192,15 @@ pub fn calibrate(
     };
     let six_d = data.has_orientations();
     let joint_terms: Vec<ParamId> = match model {
-        ModelName::EgBacklash => ParamId::backlashes().collect(),
+        ModelName::EgBacklash => ParamId::backlashes(robot.joint_count()).collect(),
         ModelName::EgResidual if options.residual_base == ResidualBase::Elastogeometric => {
             Vec::new()
         }
-        ModelName::EgHarmonic | ModelName::EgResidual => ParamId::backlashes()
-            .chain(ParamId::harmonics(&options.harmonic_orders))
+        ModelName::EgHarmonic | ModelName::EgResidual => ParamId::backlashes(robot.joint_count())
+            .chain(ParamId::harmonics(
+                robot.joint_count(),
+                &options.harmonic_orders,
+            ))
             .collect(),
         _ => Vec::new(),
     };
@@ -229,7 +232,7 @@ pub fn calibrate(
             .collect(),
         None => Vec::new(),
     };
-    let candidates: Vec<ParamId> = ParamId::all_with_targets(targets)
+    let candidates: Vec<ParamId> = ParamId::all_with_targets(robot.joint_count(), targets)
         .filter(allowed)
         .filter(|p| match model {
             ModelName::Nominal => false,
@@ -272,7 +275,7 @@ pub fn calibrate(
         start.set(*id, *value);
     }
     if model == ModelName::Kinematic {
-        for id in ParamId::all().filter(|p| p.is_compliance()) {
+        for id in ParamId::of_arm(robot.joint_count()).filter(|p| p.is_compliance()) {
             if !options.fixed.iter().any(|(f, _)| *f == id) {
                 start.set(id, 0.0);
             }
@@ -382,7 +385,7 @@ pub fn calibrate(
     for (id, _) in &options.fixed {
         set.reasons[id.index()] = Some("fixed by the job".to_string());
     }
-    for id in ParamId::all_with_targets(targets) {
+    for id in ParamId::all_with_targets(robot.joint_count(), targets) {
         if set.status[id.index()] == ParamStatus::Fixed && set.reasons[id.index()].is_none() {
             set.reasons[id.index()] = Some(if allowed(&id) {
                 format!("not part of the {model} model")
@@ -544,7 +547,7 @@ pub fn registered_start(
         .iter()
         .map(|k| {
             let row = &data.rows[*k];
-            let flange = prepared.loaded_chains(row).deflected.joints[JOINTS];
+            let flange = *prepared.loaded_chains(row).deflected.flange();
             // On a track, the base frame at e = 0 is the one registered.
             match prepared.carriage(row.track_mm) {
                 Some(carriage) => carriage.frame.compose(&flange),

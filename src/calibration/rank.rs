@@ -55,6 +55,7 @@ pub struct RankAnalysis {
 /// it), and with the base kept the arm's first-joint terms are held as the
 /// spec holds them for the arm alone.
 fn priority(id: ParamId, tool_rotation_first: bool) -> (usize, usize) {
+    const AFTER_JOINT_TERMS: usize = 80 + 2 * crate::robot::MAX_JOINTS * MAX_HARMONIC_ORDER;
     if let ParamKind::Positioner(term) = id.kind()
         && term.axis().is_none()
     {
@@ -77,10 +78,12 @@ fn priority(id: ParamId, tool_rotation_first: bool) -> (usize, usize) {
             order,
             cosine,
         } => 80 + 2 * (joint * MAX_HARMONIC_ORDER + order - 1) + usize::from(cosine),
-        // After every joint term (80 + 2·6·3).
-        ParamKind::Track(term) => 120 + term.slot(),
+        // After every joint term (80 + 2·7·3).
+        ParamKind::Track(term) => AFTER_JOINT_TERMS + term.slot(),
         // The axes' errors after the track's.
-        ParamKind::Positioner(term) => 120 + crate::robot::track::TRACK_TERM_COUNT + term.slot(),
+        ParamKind::Positioner(term) => {
+            AFTER_JOINT_TERMS + crate::robot::track::TRACK_TERM_COUNT + term.slot()
+        }
     };
     (rank, 0)
 }
@@ -222,7 +225,7 @@ mod tests {
                 q_deg: random_q(&robot, &mut rng),
                 wrench: random_wrench(&mut rng),
                 target: 0,
-                approach: [0; 6],
+                approach: [0; 7],
                 track_mm: 0.0,
                 positioner_deg: None,
             })
@@ -267,7 +270,7 @@ mod tests {
                 q_deg: random_q(&robot, &mut rng),
                 wrench: crate::robot::Wrench::zero(),
                 target: 0,
-                approach: [0; 6],
+                approach: [0; 7],
                 track_mm: 0.0,
                 positioner_deg: None,
             })

@@ -9,7 +9,7 @@
 
 use nalgebra::Vector3;
 
-use crate::robot::{ConfWrench, JOINTS, Robot};
+use crate::robot::{ConfWrench, MAX_JOINTS, Robot};
 
 /// How far beyond a joint limit a reading may lie: encoder noise and a soft
 /// limit set a little inside the hard stop put real readings there (deg).
@@ -103,8 +103,8 @@ pub fn conf_wrench_problem(robot: &Robot, row: &ConfWrench) -> Option<String> {
 
 /// Why a joint vector lies outside the robot file's limits (beyond
 /// [`JOINT_LIMIT_TOLERANCE_DEG`]), naming the first such joint.
-pub fn joints_problem(robot: &Robot, q_deg: &[f64; JOINTS]) -> Option<String> {
-    for (joint, &q) in q_deg.iter().enumerate() {
+pub fn joints_problem(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> Option<String> {
+    for (joint, &q) in q_deg.iter().enumerate().take(robot.joint_count()) {
         let [lo, hi] = robot.limits_deg(joint);
         if !(q >= lo - JOINT_LIMIT_TOLERANCE_DEG && q <= hi + JOINT_LIMIT_TOLERANCE_DEG) {
             return Some(format!(
@@ -154,7 +154,7 @@ mod tests {
     #[test]
     fn names_the_joint_and_its_limits() {
         let robot = irb1600();
-        let mut q = [0.0; JOINTS];
+        let mut q = [0.0; MAX_JOINTS];
         q[1] = 130.0;
         let row = ConfWrench::new(q, Wrench::zero());
         let problem = row_problem(&robot, &row, &Vector3::new(1.0, 2.0, 3.0), None).unwrap();
@@ -195,7 +195,7 @@ mod tests {
     fn absurd_positions_wrenches_and_sigmas_are_named() {
         let robot = irb1600();
         let ok = ConfWrench::new(
-            [0.0; JOINTS],
+            [0.0; MAX_JOINTS],
             Wrench::from_array([100.0, 0.0, 0.0, 5.0, 0.0, 0.0]),
         );
         let p = Vector3::new(1000.0, 2000.0, -500.0);
@@ -206,7 +206,7 @@ mod tests {
         let far = row_problem(&robot, &ok, &Vector3::new(1e9, 0.0, 0.0), None).unwrap();
         assert!(far.contains("from the tracker"), "{far}");
         let heavy = ConfWrench::new(
-            [0.0; JOINTS],
+            [0.0; MAX_JOINTS],
             Wrench::from_array([0.0, 0.0, -1e7, 0.0, 0.0, 0.0]),
         );
         assert!(

@@ -165,7 +165,7 @@ mod tests {
                 q_deg: random_q(robot, &mut rng),
                 wrench: random_wrench(&mut rng),
                 target: 0,
-                approach: [0; 6],
+                approach: [0; 7],
                 track_mm: 0.0,
                 positioner_deg: None,
             })

@@ -155,6 +155,7 @@ mod tests {
                         5.0 * t,
                         30.0 + 2.0 * t,
                         t,
+                        0.0,
                     ],
                     Wrench::zero(),
                 )

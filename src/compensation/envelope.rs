@@ -31,7 +31,7 @@
 //! caller's parallel loop; 10⁴ rows × 10³ targets is well under a second.
 
 use super::Status;
-use crate::robot::JOINTS;
+use crate::robot::MAX_JOINTS;
 
 /// `compensate`'s default [`EnvelopeLimits::max_distance_deg`] (deg): a job
 /// that raises it accepts commands the default would flag, and the stage
@@ -80,13 +80,13 @@ pub fn judged(status: Status, measures: &EnvelopeMeasures, limits: &EnvelopeLimi
 /// the range of their carriage positions (mm).
 #[derive(Debug, Clone, PartialEq)]
 pub struct JointEnvelope {
-    rows_deg: Vec<[f64; JOINTS]>,
+    rows_deg: Vec<[f64; MAX_JOINTS]>,
     track_range_mm: Option<[f64; 2]>,
 }
 
 impl JointEnvelope {
     /// `None` without rows: an envelope of nothing checks nothing.
-    pub fn new(rows_deg: Vec<[f64; JOINTS]>) -> Option<Self> {
+    pub fn new(rows_deg: Vec<[f64; MAX_JOINTS]>) -> Option<Self> {
         (!rows_deg.is_empty()).then_some(JointEnvelope {
             rows_deg,
             track_range_mm: None,
@@ -121,7 +121,7 @@ impl JointEnvelope {
     }
 
     /// The module doc's distance (deg) of `q_deg` to the nearest row.
-    pub fn distance_deg(&self, q_deg: &[f64; JOINTS]) -> f64 {
+    pub fn distance_deg(&self, q_deg: &[f64; MAX_JOINTS]) -> f64 {
         let mut best = f64::INFINITY;
         for row in &self.rows_deg {
             let mut largest = 0.0_f64;
@@ -149,18 +149,18 @@ mod tests {
     #[test]
     fn the_distance_is_the_largest_joint_difference_to_the_nearest_row() {
         let envelope = JointEnvelope::new(vec![
-            [0.0, -120.0, 90.0, 0.0, 45.0, 0.0],
-            [30.0, -100.0, 60.0, 10.0, 45.0, 0.0],
+            [0.0, -120.0, 90.0, 0.0, 45.0, 0.0, 0.0],
+            [30.0, -100.0, 60.0, 10.0, 45.0, 0.0, 0.0],
         ])
         .expect("rows");
         // Row 0: largest difference 40 (q2); row 1: 30 (q1), 20 (q2): 30.
         assert_eq!(
-            envelope.distance_deg(&[0.0, -80.0, 80.0, 0.0, 45.0, 0.0]),
+            envelope.distance_deg(&[0.0, -80.0, 80.0, 0.0, 45.0, 0.0, 0.0]),
             30.0
         );
         // On a row.
         assert_eq!(
-            envelope.distance_deg(&[30.0, -100.0, 60.0, 10.0, 45.0, 0.0]),
+            envelope.distance_deg(&[30.0, -100.0, 60.0, 10.0, 45.0, 0.0, 0.0]),
             0.0
         );
     }
@@ -170,8 +170,12 @@ mod tests {
         assert_eq!(wrapped_difference_deg(10.0, -350.0), 0.0);
         assert_eq!(wrapped_difference_deg(170.0, -170.0), -20.0);
         assert_eq!(wrapped_difference_deg(-170.0, 170.0), 20.0);
-        let envelope = JointEnvelope::new(vec![[0.0, 0.0, 0.0, 0.0, 0.0, -350.0]]).expect("rows");
-        assert_eq!(envelope.distance_deg(&[0.0, 0.0, 0.0, 0.0, 0.0, 15.0]), 5.0);
+        let envelope =
+            JointEnvelope::new(vec![[0.0, 0.0, 0.0, 0.0, 0.0, -350.0, 0.0]]).expect("rows");
+        assert_eq!(
+            envelope.distance_deg(&[0.0, 0.0, 0.0, 0.0, 0.0, 15.0, 0.0]),
+            5.0
+        );
     }
 
     #[test]
@@ -207,13 +211,13 @@ mod tests {
 
     #[test]
     fn a_carriage_beyond_the_rows_positions_is_outside_the_envelope() {
-        let envelope = JointEnvelope::new(vec![[0.0; JOINTS]; 3])
+        let envelope = JointEnvelope::new(vec![[0.0; MAX_JOINTS]; 3])
             .expect("rows")
             .with_track(&[750.0, 0.0, 1500.0]);
         assert_eq!(envelope.track_beyond_mm(375.0), Some(0.0), "between rows");
         assert_eq!(envelope.track_beyond_mm(1600.0), Some(100.0));
         assert_eq!(envelope.track_beyond_mm(-20.0), Some(20.0));
-        let untracked = JointEnvelope::new(vec![[0.0; JOINTS]]).expect("rows");
+        let untracked = JointEnvelope::new(vec![[0.0; MAX_JOINTS]]).expect("rows");
         assert_eq!(untracked.track_beyond_mm(1600.0), None);
         let limits = EnvelopeLimits {
             max_distance_deg: 30.0,

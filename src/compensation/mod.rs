@@ -64,7 +64,7 @@ use rayon::prelude::*;
 use crate::robot::frame::{Frame, rot_x, rot_y, rot_z};
 use crate::robot::ik::{self, IkError, IkSolution, NumericOptions};
 use crate::robot::jacobian::deflected_tool_and_joints;
-use crate::robot::{JOINTS, ParamId, ParamValues, PreparedRobot, Robot, Wrench};
+use crate::robot::{MAX_JOINTS, ParamId, ParamValues, PreparedRobot, Robot, Wrench};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
@@ -77,7 +77,7 @@ pub struct Target {
     /// Applied to the robot, tool axes, at the tool origin.
     pub wrench: Wrench,
     /// A configuration near the wanted one (deg), used as the seed.
-    pub hint_deg: Option<[f64; JOINTS]>,
+    pub hint_deg: Option<[f64; MAX_JOINTS]>,
     /// The set's target (0-based, [`crate::robot::ParamId::target_translation`])
     /// whose tool translation is aimed: 0 for a one-target set.
     pub tool: usize,
@@ -93,7 +93,7 @@ impl Target {
         position_mm: [f64; 3],
         orientation_deg: [f64; 3],
         wrench: Wrench,
-        hint_deg: Option<[f64; JOINTS]>,
+        hint_deg: Option<[f64; MAX_JOINTS]>,
     ) -> Self {
         Target {
             tool_in_world: pose_frame(position_mm, orientation_deg),
@@ -166,7 +166,7 @@ impl Status {
 /// The compensated command for one target.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Command {
-    pub q_deg: [f64; JOINTS],
+    pub q_deg: [f64; MAX_JOINTS],
     pub status: Status,
     /// Tool position error the solve left on the calibrated loaded model.
     pub residual_mm: f64,
@@ -205,7 +205,7 @@ pub struct Options {
     /// The direction each joint approaches every command from (spec §8): a
     /// program's pre-positioning move makes it so. Zeros: not known, the
     /// middle of any backlash.
-    pub approach: [i8; JOINTS],
+    pub approach: [i8; MAX_JOINTS],
 }
 
 /// The nominal model as the controller sees it, placed in the world by the
@@ -278,7 +278,7 @@ fn candidates(robot: &Robot, aimed: &ParamValues, tool_in_world: &Frame) -> Cand
     }
 }
 
-fn distance_deg(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
+fn distance_deg(a: &[f64; MAX_JOINTS], b: &[f64; MAX_JOINTS]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(x, y)| (x - y).powi(2))
@@ -291,8 +291,8 @@ fn distance_deg(a: &[f64; JOINTS], b: &[f64; JOINTS]) -> f64 {
 /// previous seed), so a path leaves its branch only where that branch leaves
 /// the limits; only when every candidate is beyond them does the nearest of
 /// those seed the solve (which then ends `joint_limit`).
-fn seeds(robot: &Robot, targets: &[Target], candidates: &[Candidates]) -> Vec<[f64; JOINTS]> {
-    let mut previous = [0.0; JOINTS];
+fn seeds(robot: &Robot, targets: &[Target], candidates: &[Candidates]) -> Vec<[f64; MAX_JOINTS]> {
+    let mut previous = [0.0; MAX_JOINTS];
     targets
         .iter()
         .zip(candidates)
@@ -325,7 +325,7 @@ fn seeds(robot: &Robot, targets: &[Target], candidates: &[Candidates]) -> Vec<[f
 pub fn command_rows(
     targets: &[Target],
     commands: &[Command],
-    approach: [i8; JOINTS],
+    approach: [i8; MAX_JOINTS],
 ) -> Vec<crate::robot::ConfWrench> {
     targets
         .iter()
@@ -419,7 +419,7 @@ pub fn compensate(
                 }
             };
             let calibrated = &calibrated_prepared[target.tool];
-            let unloaded = calibrated.chain(&q, &[0.0; JOINTS]).tool;
+            let unloaded = calibrated.chain(&q, &[0.0; MAX_JOINTS]).tool;
             let elastic_mm = (calibrated
                 .world_from_base
                 .transform_point(&unloaded.origin_mm)
@@ -427,14 +427,14 @@ pub fn compensate(
                 .norm();
             // The controller's carriage is the nominal one: a translation.
             let controller = &controller_prepared[target.tool];
-            let controller_tool = controller.chain(&q, &[0.0; JOINTS]).tool;
+            let controller_tool = controller.chain(&q, &[0.0; MAX_JOINTS]).tool;
             let correction_mm = (controller
                 .world_from_base_at(target.track_mm)
                 .transform_point(&controller_tool.origin_mm)
                 - target.tool_in_world.origin_mm)
                 .norm();
             let tool_in_base_cmd = declared_prepared[target.tool]
-                .chain(&q, &[0.0; JOINTS])
+                .chain(&q, &[0.0; MAX_JOINTS])
                 .tool;
             Command {
                 q_deg: q,
@@ -462,7 +462,7 @@ mod tests {
     use super::*;
     use crate::robot::test_support::{irb1600, truth_params};
 
-    fn solution(q_deg: [f64; JOINTS]) -> IkSolution {
+    fn solution(q_deg: [f64; MAX_JOINTS]) -> IkSolution {
         IkSolution { q_deg, branch: 0 }
     }
 
@@ -476,22 +476,34 @@ mod tests {
             pose,
             pose,
             Target {
-                hint_deg: Some(hint),
+                hint_deg: Some(crate::robot::joint_array(&hint)),
                 ..pose
             },
             pose,
             pose,
         ];
         let found = [
-            Candidates::Found(vec![solution(b), solution(a)]),
-            Candidates::Found(vec![solution(b), solution(a)]),
-            Candidates::Found(vec![solution(a)]),
-            Candidates::Found(vec![solution(a), solution(b)]),
+            Candidates::Found(vec![
+                solution(crate::robot::joint_array(&b)),
+                solution(crate::robot::joint_array(&a)),
+            ]),
+            Candidates::Found(vec![
+                solution(crate::robot::joint_array(&b)),
+                solution(crate::robot::joint_array(&a)),
+            ]),
+            Candidates::Found(vec![solution(crate::robot::joint_array(&a))]),
+            Candidates::Found(vec![
+                solution(crate::robot::joint_array(&a)),
+                solution(crate::robot::joint_array(&b)),
+            ]),
             Candidates::None,
         ];
         // Nearest q = 0, then nearest the previous seed; a hint is taken as it
         // is and becomes the reference; no candidates keeps the previous seed.
-        assert_eq!(seeds(&irb1600(), &targets, &found), [a, a, hint, b, b]);
+        assert_eq!(
+            seeds(&irb1600(), &targets, &found),
+            [a, a, hint, b, b].map(|q| crate::robot::joint_array(&q))
+        );
     }
 
     #[test]
@@ -502,13 +514,25 @@ mod tests {
         let beyond = [0.0, 0.0, 0.0, 0.0, 120.0, 0.0];
         let within = [150.0, 0.0, 0.0, 0.0, -100.0, 0.0];
         let also_beyond = [0.0, 0.0, 0.0, 0.0, 130.0, 0.0];
-        assert!(!robot.within_limits(&beyond) && robot.within_limits(&within));
+        assert!(
+            !robot.within_limits(&crate::robot::joint_array(&beyond))
+                && robot.within_limits(&crate::robot::joint_array(&within))
+        );
         let found = [
-            Candidates::Found(vec![solution(beyond), solution(within)]),
-            Candidates::Found(vec![solution(also_beyond), solution(beyond)]),
+            Candidates::Found(vec![
+                solution(crate::robot::joint_array(&beyond)),
+                solution(crate::robot::joint_array(&within)),
+            ]),
+            Candidates::Found(vec![
+                solution(crate::robot::joint_array(&also_beyond)),
+                solution(crate::robot::joint_array(&beyond)),
+            ]),
         ];
         // Every candidate beyond: the nearest of them (and `joint_limit` later).
-        assert_eq!(seeds(&robot, &[pose, pose], &found), [within, beyond]);
+        assert_eq!(
+            seeds(&robot, &[pose, pose], &found),
+            [within, beyond].map(|q| crate::robot::joint_array(&q))
+        );
     }
 
     #[test]
@@ -532,9 +556,14 @@ mod tests {
         let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
         let wrench = Wrench::from_array([50.0, -80.0, 100.0, 5.0, 0.0, -5.0]);
         let target = Target {
-            tool_in_world: robot.tool_in_world(&truth, &q, &wrench, &[0; JOINTS]),
+            tool_in_world: robot.tool_in_world(
+                &truth,
+                &crate::robot::joint_array(&q),
+                &wrench,
+                &[0; MAX_JOINTS],
+            ),
             wrench,
-            hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0]),
+            hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0, 0.0]),
             tool: 0,
             track_mm: 0.0,
         };
@@ -546,7 +575,7 @@ mod tests {
                 ..NumericOptions::default()
             },
             singular_sigma_min_mm_per_rad: 3.5,
-            approach: [0; JOINTS],
+            approach: [0; MAX_JOINTS],
         };
         let one = compensate(&robot, &truth, &[target], &options)[0];
         assert_eq!(one.status, Status::NotConverged, "{one:?}");
@@ -586,19 +615,19 @@ mod tests {
         let row = ConfWrench {
             track_mm: 1800.0,
             positioner_deg: None,
-            ..ConfWrench::new(q, wrench)
+            ..ConfWrench::new(crate::robot::joint_array(&q), wrench)
         };
         let target = Target {
             tool_in_world: robot.tool_in_world_of_row(&truth, &row),
             wrench,
-            hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0]),
+            hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0, 0.0]),
             tool: 0,
             track_mm: 1800.0,
         };
         let options = Options {
             solver: NumericOptions::default(),
             singular_sigma_min_mm_per_rad: 3.5,
-            approach: [0; JOINTS],
+            approach: [0; MAX_JOINTS],
         };
         let command = compensate(&robot, &truth, &[target], &options)[0];
         assert_eq!(command.status, Status::Ok, "{command:?}");
@@ -615,7 +644,9 @@ mod tests {
         // carriage that only translates by e along the base's x axis.
         let controller = controller_model(&robot, &truth, 0);
         let prepared = robot.prepare(&controller);
-        let flange_tool = prepared.chain(&q, &[0.0; JOINTS]).tool;
+        let flange_tool = prepared
+            .chain(&crate::robot::joint_array(&q), &[0.0; MAX_JOINTS])
+            .tool;
         let controller_tool = prepared
             .world_from_base
             .transform_point(&(flange_tool.origin_mm + Vector3::new(1800.0, 0.0, 0.0)));

@@ -7,7 +7,7 @@
 //! candidates and selected rows share it, and warns when none does.
 
 use crate::robot::ik::branch_of;
-use crate::robot::{JOINTS, Robot};
+use crate::robot::{MAX_JOINTS, Robot};
 
 /// One IK branch the work uses and who shares it.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -24,8 +24,8 @@ pub struct BranchCoverage {
 /// in it.
 pub fn branch_coverage(
     robot: &Robot,
-    targets_q: &[[f64; JOINTS]],
-    candidates_q: &[[f64; JOINTS]],
+    targets_q: &[[f64; MAX_JOINTS]],
+    candidates_q: &[[f64; MAX_JOINTS]],
     selected: &[usize],
 ) -> Vec<BranchCoverage> {
     let candidate_branches: Vec<u8> = candidates_q.iter().map(|q| branch_of(robot, q)).collect();
@@ -70,7 +70,11 @@ mod tests {
     fn counts_targets_candidates_and_selected_rows_per_branch() {
         let robot = irb1600();
         let q = [10.0, 20.0, 10.0, 30.0, 40.0, 50.0];
-        let solutions = ik::solve(&robot, &robot.nominal_flange_in_base(&q)).unwrap();
+        let solutions = ik::solve(
+            &robot,
+            &robot.nominal_flange_in_base(&crate::robot::joint_array(&q)),
+        )
+        .unwrap();
         let first = solutions[0];
         let other = solutions
             .iter()

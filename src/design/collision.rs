@@ -12,7 +12,7 @@ use parry3d_f64::query;
 use parry3d_f64::shape::{Capsule, Cuboid, Shape};
 
 use crate::robot::frame::rotation_vector;
-use crate::robot::{Frame, JOINTS};
+use crate::robot::{Frame, MAX_JOINTS};
 
 /// Why a configuration was rejected (also the rejection-count keys).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -58,7 +58,7 @@ pub struct CapsuleMm {
 #[derive(Debug, Clone)]
 pub struct Cell {
     /// Capsule of link i (1-based joint i, in frame i), if any.
-    pub link_capsules: [Option<CapsuleMm>; JOINTS],
+    pub link_capsules: [Option<CapsuleMm>; MAX_JOINTS],
     /// Cable-robot anchor (pulley) centres in the base frame.
     pub anchors: Vec<Vector3<f64>>,
     pub pulley_radius_mm: f64,
@@ -111,7 +111,7 @@ fn ball_at(centre: &Vector3<f64>, radius: f64) -> Capsule {
 impl Cell {
     /// Checks a configuration given its joint frames and tool frame (base frame,
     /// unloaded); returns the minimum clearance (mm) or the first rejection.
-    pub fn check(&self, joints: &[Frame; JOINTS + 1], tool: &Frame) -> Result<f64, Rejection> {
+    pub fn check(&self, joints: &[Frame; MAX_JOINTS + 1], tool: &Frame) -> Result<f64, Rejection> {
         let links: Vec<(usize, Capsule, CapsuleMm)> = self
             .link_capsules
             .iter()

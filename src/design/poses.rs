@@ -19,7 +19,7 @@ use rayon::prelude::*;
 
 use super::collision::{Cell, Rejection};
 use crate::robot::ik::{self, IkError, flange_target_in_base, frame_with_z_along};
-use crate::robot::{Frame, JOINTS, ParamValues, Robot};
+use crate::robot::{Frame, MAX_JOINTS, ParamValues, Robot};
 
 /// How target points fill the workspace box.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -68,7 +68,7 @@ pub struct GeneratedPose {
     pub target_mm: Vector3<f64>,
     /// Tool orientation in the base frame.
     pub tool_rotation: Matrix3<f64>,
-    pub q_deg: [f64; JOINTS],
+    pub q_deg: [f64; MAX_JOINTS],
     pub branch: u8,
     pub clearance_mm: f64,
     /// Angle between the SMR's axis (tool z) and the direction to the tracker.
@@ -180,7 +180,7 @@ pub fn upright_tool_frame(facing: &Vector3<f64>, roll_rad: f64, origin_mm: Vecto
 /// * elbow (deg): the bend of the forearm (frame 3 to frame 4 origins) away from
 ///   straight along the upper arm (frame 2 to frame 3 origins), both seen along
 ///   axis 3 so that a lateral offset (UR's d4) does not count as bend.
-pub fn singularity_margins(joints: &[Frame; JOINTS + 1]) -> (f64, f64, f64) {
+pub fn singularity_margins(joints: &[Frame; MAX_JOINTS + 1]) -> (f64, f64, f64) {
     let (z4, z6) = (joints[4].axis(2), joints[6].axis(2));
     let wrist = z4.cross(&z6).norm().atan2(z4.dot(&z6).abs()).to_degrees();
 
@@ -290,7 +290,7 @@ fn generate_one(
         // Extra turns of a joint give the same geometry: the singularity and
         // collision checks run once per configuration (joint angles modulo 360),
         // and every turn within the limits shares the outcome.
-        let mut checked: Vec<([f64; JOINTS], Result<f64, Rejection>)> = Vec::new();
+        let mut checked: Vec<([f64; MAX_JOINTS], Result<f64, Rejection>)> = Vec::new();
         let mut survivors = Vec::new();
         for solution in solutions {
             if branch.is_some_and(|b| b != solution.branch) {
@@ -304,7 +304,7 @@ fn generate_one(
             let wrapped = solution
                 .q_deg
                 .map(|q| (q + 180.0).rem_euclid(360.0) - 180.0);
-            let same = |c: &[f64; JOINTS]| {
+            let same = |c: &[f64; MAX_JOINTS]| {
                 c.iter().zip(&wrapped).all(|(a, b)| {
                     let d = (a - b).abs();
                     d.min(360.0 - d) < 1e-6
@@ -364,7 +364,7 @@ fn generate_one(
 /// configuration: its clearance (mm) or the first rejection.
 fn check_configuration(
     problem: &PoseProblem,
-    joints: &[Frame; JOINTS + 1],
+    joints: &[Frame; MAX_JOINTS + 1],
     tool: &Frame,
 ) -> Result<f64, Rejection> {
     let (wrist, shoulder, elbow) = singularity_margins(joints);
@@ -443,7 +443,7 @@ mod tests {
                 min_elbow_deg: 5.0,
             },
             cell: Cell {
-                link_capsules: [None; JOINTS],
+                link_capsules: [None; MAX_JOINTS],
                 anchors: Vec::new(),
                 pulley_radius_mm: 40.0,
                 attachments: Vec::new(),
@@ -465,7 +465,7 @@ mod tests {
                 &nominal,
                 &pose.q_deg,
                 &crate::robot::Wrench::zero(),
-                &[0; JOINTS],
+                &[0; MAX_JOINTS],
             );
             assert!((tool.origin_mm - pose.target_mm).norm() < 1e-9, "{pose:?}");
             assert!(
@@ -503,7 +503,7 @@ mod tests {
             [-120.0, 80.0, -200.0, -150.0, -100.0, 300.0],
             [0.0, 0.0, -90.0, 0.0, 3.0, 0.0],
         ] {
-            let (joints, _) = robot.frames_in_base(&nominal, &q);
+            let (joints, _) = robot.frames_in_base(&nominal, &crate::robot::joint_array(&q));
             let (wrist, shoulder, elbow) = singularity_margins(&joints);
             assert!(
                 (wrist - q[4].abs().min(180.0 - q[4].abs())).abs() < 1e-9,

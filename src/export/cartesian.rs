@@ -16,7 +16,7 @@ use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 use super::Command;
 use crate::robot::ik;
 use crate::robot::positioner::MAX_POSITIONER_AXES;
-use crate::robot::{Frame, JOINTS, ParamValues, Robot};
+use crate::robot::{Frame, MAX_JOINTS, ParamValues, Robot};
 
 /// The tool a program declares and whose point its Cartesian targets are: flange
 /// → tool on the nominal arm.
@@ -69,7 +69,7 @@ pub struct Pose {
     pub position_mm: [f64; 3],
     /// Base ← tool, unit quaternion (w, x, y, z), w ≥ 0.
     pub quaternion_wxyz: [f64; 4],
-    pub q_deg: [f64; JOINTS],
+    pub q_deg: [f64; MAX_JOINTS],
 }
 
 /// The Cartesian moves of one `ok` row.
@@ -86,7 +86,7 @@ pub struct Stop {
     /// The joint configuration moved to before the target so that each joint
     /// reaches it from the command's approach direction (backlash); `None`
     /// without pre-positioning or without a direction.
-    pub pre_position_q_deg: Option<[f64; JOINTS]>,
+    pub pre_position_q_deg: Option<[f64; MAX_JOINTS]>,
     /// The track's carriage position at every move of the stop (mm): the
     /// arm's poses are in the base frame riding on it. `None` without a track.
     pub track_mm: Option<f64>,
@@ -133,9 +133,9 @@ pub enum CartesianError {
 }
 
 /// The pose of `tool` at `q_deg` on `robot`'s nominal arm, base frame.
-pub fn tool_in_base(robot: &Robot, tool: &ProgramTool, q_deg: &[f64; JOINTS]) -> Frame {
+pub fn tool_in_base(robot: &Robot, tool: &ProgramTool, q_deg: &[f64; MAX_JOINTS]) -> Frame {
     let (frames, _) = robot.frames_in_base(&ParamValues::nominal(robot.spec()), q_deg);
-    frames[JOINTS].compose(&tool.flange_from_tool)
+    frames[robot.joint_count()].compose(&tool.flange_from_tool)
 }
 
 /// The Cartesian moves of the `ok` rows of `commands`, `row_tools[k]` being the
@@ -198,9 +198,9 @@ fn pre_position(
     robot: &Robot,
     command: &Command,
     distance_deg: f64,
-) -> Result<[f64; JOINTS], CartesianError> {
+) -> Result<[f64; MAX_JOINTS], CartesianError> {
     let mut q_deg = command.q_deg;
-    for (joint, q) in q_deg.iter_mut().enumerate() {
+    for (joint, q) in q_deg.iter_mut().enumerate().take(robot.joint_count()) {
         *q -= f64::from(command.approach[joint]) * distance_deg;
         let [lower_deg, upper_deg] = robot.limits_deg(joint);
         if !(lower_deg..=upper_deg).contains(q) {
@@ -236,7 +236,7 @@ fn approach_pose(
         reason,
     };
     let solutions = ik::solve(robot, &flange).map_err(|e| unreachable(e.to_string()))?;
-    let distance = |q: &[f64; JOINTS]| {
+    let distance = |q: &[f64; MAX_JOINTS]| {
         q.iter()
             .zip(&command.q_deg)
             .map(|(a, b)| (a - b).powi(2))
@@ -262,7 +262,7 @@ fn approach_pose(
     Ok(pose(&approach, nearest))
 }
 
-fn pose(frame: &Frame, q_deg: [f64; JOINTS]) -> Pose {
+fn pose(frame: &Frame, q_deg: [f64; MAX_JOINTS]) -> Pose {
     Pose {
         position_mm: frame.origin_mm.into(),
         quaternion_wxyz: quaternion_wxyz(frame),
@@ -325,7 +325,7 @@ mod tests {
     use crate::robot::frame::rot_x;
     use crate::robot::test_support::irb1600;
 
-    fn command(target_id: i64, q_deg: [f64; JOINTS]) -> Command {
+    fn command(target_id: i64, q_deg: [f64; MAX_JOINTS]) -> Command {
         Command {
             target_id,
             q_deg,
@@ -338,7 +338,7 @@ mod tests {
             tool_id: None,
             envelope_distance: None,
             u95_mm: None,
-            approach: [0; JOINTS],
+            approach: [0; MAX_JOINTS],
             track_mm: None,
             positioner_deg: None,
         }
@@ -359,10 +359,18 @@ mod tests {
     fn approach_points_lie_back_along_the_tool_axis_on_the_same_branch() {
         let robot = irb1600();
         let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
-        let stops = stops(&robot, &[command(1, q)], &[tool()], &[0], Some(50.0), None).unwrap();
+        let stops = stops(
+            &robot,
+            &[command(1, crate::robot::joint_array(&q))],
+            &[tool()],
+            &[0],
+            Some(50.0),
+            None,
+        )
+        .unwrap();
         let stop = &stops[0];
         let approach = stop.approach.unwrap();
-        let target = tool_in_base(&robot, &tool(), &q);
+        let target = tool_in_base(&robot, &tool(), &crate::robot::joint_array(&q));
         let back = Vector3::from(approach.position_mm) - target.origin_mm;
         // 50 mm along the tool's −z.
         assert!((back + target.axis(2) * 50.0).norm() < 1e-9, "{back}");
@@ -383,8 +391,8 @@ mod tests {
     fn a_command_with_directions_is_reached_from_below_them_within_the_limits() {
         let robot = irb1600();
         let row = Command {
-            approach: [1, -1, 0, 1, 1, -1],
-            ..command(4, [10.0, 20.0, -30.0, 40.0, 50.0, 60.0])
+            approach: [1, -1, 0, 1, 1, -1, 0],
+            ..command(4, [10.0, 20.0, -30.0, 40.0, 50.0, 60.0, 0.0])
         };
         let stop = &stops(
             &robot,
@@ -397,7 +405,7 @@ mod tests {
         .unwrap()[0];
         assert_eq!(
             stop.pre_position_q_deg,
-            Some([9.5, 20.5, -30.0, 39.5, 49.5, 60.5])
+            Some([9.5, 20.5, -30.0, 39.5, 49.5, 60.5, 0.0])
         );
         // Without pre-positioning, or without a direction, none.
         let plain = stops(
@@ -422,8 +430,8 @@ mod tests {
         // A pre-position beyond a joint limit is refused, naming row and joint.
         let [lower, _] = robot.limits_deg(1);
         let at_limit = Command {
-            q_deg: [10.0, lower + 0.2, -30.0, 40.0, 50.0, 60.0],
-            approach: [0, 1, 0, 0, 0, 0],
+            q_deg: [10.0, lower + 0.2, -30.0, 40.0, 50.0, 60.0, 0.0],
+            approach: [0, 1, 0, 0, 0, 0, 0],
             ..row.clone()
         };
         let err = stops(&robot, &[at_limit], &[tool()], &[0], None, Some(0.5)).unwrap_err();
@@ -452,7 +460,7 @@ mod tests {
         // 5 m back along the tool axis is beyond a 1.45 m arm's reach.
         let err = stops(
             &robot,
-            &[command(7, [0.0, 0.0, -90.0, 0.0, 30.0, 0.0])],
+            &[command(7, [0.0, 0.0, -90.0, 0.0, 30.0, 0.0, 0.0])],
             &[tool()],
             &[0],
             Some(5000.0),
@@ -466,7 +474,7 @@ mod tests {
     fn the_table_deviation_finds_another_tool() {
         let robot = irb1600();
         let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
-        let mut row = command(3, q);
+        let mut row = command(3, crate::robot::joint_array(&q));
         let stops = stops(
             &robot,
             std::slice::from_ref(&row),

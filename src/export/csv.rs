@@ -15,13 +15,13 @@
 //! [`super::cartesian`]); they equal the table's when the table was computed
 //! for that tool, and the notes warn when it was not.
 
-use crate::robot::{JOINTS, Robot};
+use crate::robot::Robot;
 use crate::table::schema::POSITIONER_COLUMNS;
 
 use super::{
-    JOINT_DECIMALS, POSITION_DECIMALS, Program, QUATERNION_DECIMALS, fixed, header_lines,
-    positioner_axis_count, positioner_lines, printed_precision, skipped_lines, tool_lines,
-    track_lines, warning_lines,
+    JOINT_DECIMALS, POSITION_DECIMALS, PROGRAM_JOINTS, Program, QUATERNION_DECIMALS, fixed,
+    header_lines, positioner_axis_count, positioner_lines, printed_precision, skipped_lines,
+    tool_lines, track_lines, warning_lines,
 };
 
 /// Column names, as in the `commands` table.
@@ -106,7 +106,11 @@ pub fn table(robot: &Robot, program: &Program) -> String {
     let ok = program.commands.iter().filter(|c| c.is_ok());
     for (c, stop) in ok.zip(&program.stops) {
         let mut fields = vec![c.target_id.to_string()];
-        fields.extend(c.q_deg.iter().map(|v| fixed(*v, JOINT_DECIMALS)));
+        fields.extend(
+            c.q_deg[..PROGRAM_JOINTS]
+                .iter()
+                .map(|v| fixed(*v, JOINT_DECIMALS)),
+        );
         fields.push(field(&c.status));
         fields.extend(
             [c.residual_mm, c.correction_mm, c.elastic_mm]
@@ -137,12 +141,16 @@ pub fn table(robot: &Robot, program: &Program) -> String {
             fields.push(number(c.u95_mm));
         }
         if optional.approach {
-            fields.extend(c.approach.iter().map(i8::to_string));
+            fields.extend(c.approach[..PROGRAM_JOINTS].iter().map(i8::to_string));
         }
         if optional.pre_position {
             match &stop.pre_position_q_deg {
-                Some(q) => fields.extend(q.iter().map(|v| fixed(*v, JOINT_DECIMALS))),
-                None => fields.extend(std::iter::repeat_n(String::new(), JOINTS)),
+                Some(q) => fields.extend(
+                    q[..PROGRAM_JOINTS]
+                        .iter()
+                        .map(|v| fixed(*v, JOINT_DECIMALS)),
+                ),
+                None => fields.extend(std::iter::repeat_n(String::new(), PROGRAM_JOINTS)),
             }
         }
         if optional.track {

@@ -42,7 +42,7 @@ use super::{
     positioner_axis_count, positioner_lines, rotation_from_quaternion, skipped_lines, tool_lines,
     tool_names, track_lines, warning_lines, wrist_placement, zyx_angles,
 };
-use crate::robot::{JOINTS, Robot};
+use crate::robot::{MAX_JOINTS, Robot};
 
 /// Longest program name (R-30iB and later).
 pub const MAX_NAME_LEN: usize = 36;
@@ -96,9 +96,9 @@ pub fn turn_number(q_deg: f64) -> i64 {
 
 /// The configuration of the robot-file command `q_deg` on `robot`'s nominal
 /// arm (turn numbers from the controller's joint values).
-pub fn configuration(robot: &Robot, q_deg: &[f64; JOINTS]) -> Configuration {
+pub fn configuration(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> Configuration {
     let wrist = wrist_placement(robot, q_deg);
-    let at_zero = wrist_placement(robot, &[0.0; JOINTS]).elbow_mm2;
+    let at_zero = wrist_placement(robot, &[0.0; MAX_JOINTS]).elbow_mm2;
     let controller = robot.spec().controller_joints_deg(q_deg);
     Configuration {
         flip: controller[4] > 0.0,
@@ -116,7 +116,7 @@ pub fn wpr_deg(quaternion_wxyz: [f64; 4]) -> [f64; 3] {
 
 /// A robot-file command as printed and read back: the controller's joint
 /// values rounded to [`DECIMALS`], in robot-file degrees.
-pub fn read_back(robot: &Robot, q_deg: &[f64; JOINTS]) -> [f64; JOINTS] {
+pub fn read_back(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> [f64; MAX_JOINTS] {
     let scale = 10f64.powi(DECIMALS as i32);
     let printed = robot
         .spec()
@@ -334,13 +334,13 @@ mod tests {
     fn configuration_on_fixed_commands() {
         let robot = irb1600();
         // The zero pose with the wrist bent down: elbow up, in front.
-        let c = configuration(&robot, &[0.0, 0.0, 0.0, 0.0, -90.0, 0.0]);
+        let c = configuration(&robot, &[0.0, 0.0, 0.0, 0.0, -90.0, 0.0, 0.0]);
         assert_eq!(c.text(), "N U T, 0, 0, 0");
-        let c = configuration(&robot, &[0.0, 0.0, 0.0, 190.0, 30.0, -200.0]);
+        let c = configuration(&robot, &[0.0, 0.0, 0.0, 190.0, 30.0, -200.0, 0.0]);
         assert_eq!(c.text(), "F U T, 1, 0, -1");
         // Upper arm folded back over the lower arm: wrist behind axis 1, and
         // the elbow on the other side of the line to the wrist.
-        let c = configuration(&robot, &[0.0, 0.0, -180.0, 0.0, 30.0, 0.0]);
+        let c = configuration(&robot, &[0.0, 0.0, -180.0, 0.0, 30.0, 0.0, 0.0]);
         assert!(!c.front && !c.up, "{c:?}");
     }
 

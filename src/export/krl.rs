@@ -39,18 +39,18 @@
 
 use super::cartesian::Pose;
 use super::{
-    EULER_DECIMALS, JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload,
-    Program, ProgramTool, external_axes, fixed, header_lines, positioner_axis_count,
-    positioner_lines, printed_precision, rotation_from_quaternion, skipped_lines, tool_lines,
-    tool_names, track_lines, warning_lines, wrist_placement, zyx_angles,
+    EULER_DECIMALS, JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS,
+    PROGRAM_JOINTS, Payload, Program, ProgramTool, external_axes, fixed, header_lines,
+    positioner_axis_count, positioner_lines, printed_precision, rotation_from_quaternion,
+    skipped_lines, tool_lines, tool_names, track_lines, warning_lines, wrist_placement, zyx_angles,
 };
-use crate::robot::{JOINTS, Robot};
+use crate::robot::{MAX_JOINTS, Robot};
 
 /// Longest KRL name.
 pub const MAX_IDENTIFIER_LEN: usize = 24;
 
 /// KUKA's Status of a joint command on `robot`'s nominal geometry.
-pub fn status(robot: &Robot, q_deg: &[f64; JOINTS]) -> u32 {
+pub fn status(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> u32 {
     let wrist = wrist_placement(robot, q_deg);
     let overhead = u32::from(wrist.front_of_axis1_mm < 0.0);
     let a3_at_or_past_phi = u32::from(wrist.elbow_mm2 >= 0.0);
@@ -60,8 +60,8 @@ pub fn status(robot: &Robot, q_deg: &[f64; JOINTS]) -> u32 {
 }
 
 /// KUKA's Turn: bit i−1 set when axis i is negative.
-pub fn turn(q_deg: &[f64; JOINTS]) -> u32 {
-    q_deg
+pub fn turn(q_deg: &[f64; MAX_JOINTS]) -> u32 {
+    q_deg[..PROGRAM_JOINTS]
         .iter()
         .enumerate()
         .filter(|(_, q)| **q < 0.0)
@@ -178,9 +178,9 @@ pub fn dat(robot: &Robot, program: &Program, motion: &MotionSettings) -> String 
         ));
     }
     // The controller's joint values (the robot file's `[controller]`).
-    let e6axis = |q_deg: &[f64; JOINTS], externals: &str| {
+    let e6axis = |q_deg: &[f64; MAX_JOINTS], externals: &str| {
         let q_deg = robot.spec().controller_joints_deg(q_deg);
-        let axes: Vec<String> = (0..JOINTS)
+        let axes: Vec<String> = (0..PROGRAM_JOINTS)
             .map(|i| format!("A{} {}", i + 1, fixed(q_deg[i], JOINT_DECIMALS)))
             .collect();
         format!("{{{},{externals}}}", axes.join(","))
@@ -242,7 +242,7 @@ pub fn src(robot: &Robot, program: &Program, motion: &MotionSettings) -> String 
     // the other motion variables a program must set before its first move get
     // the controller's defaults; the lines after it set what egcal chooses.
     out.push_str("BAS(#INITMOV, 0)\n");
-    for axis in 1..=JOINTS {
+    for axis in 1..=PROGRAM_JOINTS {
         out.push_str(&format!(
             "$VEL_AXIS[{axis}] = {}\n",
             fixed(motion.joint_speed_percent, 1)
@@ -348,19 +348,19 @@ mod tests {
 
     #[test]
     fn turn_bits_are_the_negative_axes() {
-        assert_eq!(turn(&[0.0; 6]), 0);
-        assert_eq!(turn(&[91.0, -45.0, 37.0, 1.0, -1.0, 0.0]), 0b010010);
-        assert_eq!(turn(&[-1.0; 6]), 63);
+        assert_eq!(turn(&[0.0; 7]), 0);
+        assert_eq!(turn(&[91.0, -45.0, 37.0, 1.0, -1.0, 0.0, 0.0]), 0b010010);
+        assert_eq!(turn(&[-1.0; 7]), 63);
     }
 
     #[test]
     fn status_on_fixed_configurations() {
         let robot = irb1600();
         // Arm in front, stretched elbow past φ, A5 positive: 'B010, like KUKA's HOME.
-        assert_eq!(status(&robot, &[0.0, 0.0, 0.0, 0.0, 30.0, 0.0]), 2);
-        assert_eq!(status(&robot, &[0.0, 0.0, 0.0, 0.0, -30.0, 0.0]), 6);
+        assert_eq!(status(&robot, &[0.0, 0.0, 0.0, 0.0, 30.0, 0.0, 0.0]), 2);
+        assert_eq!(status(&robot, &[0.0, 0.0, 0.0, 0.0, -30.0, 0.0, 0.0]), 6);
         // Folded back over the lower arm: overhead, A3 below φ.
-        assert_eq!(status(&robot, &[0.0, 0.0, -180.0, 0.0, 30.0, 0.0]), 1);
+        assert_eq!(status(&robot, &[0.0, 0.0, -180.0, 0.0, 30.0, 0.0, 0.0]), 1);
     }
 
     #[test]
@@ -447,7 +447,7 @@ mod tests {
         let robot = irb1600();
         let motion = test_support::motion(None, None);
         let mut program = test_support::program(&robot, &[3], None, None);
-        program.stops[0].pre_position_q_deg = Some([9.0, 21.0, -30.0, 40.0, 50.0, 60.0]);
+        program.stops[0].pre_position_q_deg = Some([9.0, 21.0, -30.0, 40.0, 50.0, 60.0, 0.0]);
         let dat = dat(&robot, &program, &motion);
         assert!(
             dat.contains("DECL E6AXIS XB_3={A1 9.000000,A2 21.000000,A3 -30.000000,A4 40.000000,A5 50.000000,A6 60.000000,E1 0.0,E2 0.0,E3 0.0,E4 0.0,E5 0.0,E6 0.0}"),

@@ -40,11 +40,15 @@ pub mod yaskawa;
 use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
 
 use crate::robot::positioner::MAX_POSITIONER_AXES;
-use crate::robot::{Frame, JOINTS, ParamValues, Robot};
+use crate::robot::{Frame, MAX_JOINTS, ParamValues, Robot};
 pub use cartesian::{Payload, ProgramTool, Stop};
 
 /// Decimals of joint angles (deg) in every file.
 pub const JOINT_DECIMALS: usize = 6;
+/// Arm joints a program carries: the formats here are six-axis controllers'
+/// (`export_program` refuses a seven-joint arm), so a joint vector's first
+/// six entries are the program's.
+pub const PROGRAM_JOINTS: usize = 6;
 /// Decimals of positions (mm).
 pub const POSITION_DECIMALS: usize = 4;
 /// Decimals of quaternion components.
@@ -62,7 +66,7 @@ pub const STATUS_OK: &str = "ok";
 pub struct Command {
     pub target_id: i64,
     /// Joint command, robot-file convention, degrees.
-    pub q_deg: [f64; JOINTS],
+    pub q_deg: [f64; MAX_JOINTS],
     /// `ok`, or why the compensation failed.
     pub status: String,
     pub residual_mm: f64,
@@ -83,7 +87,7 @@ pub struct Command {
     /// The direction each joint must reach the command from (spec §8 `dir1 …
     /// dir6`, −1, 0 or +1): the one the model's backlash was compensated for;
     /// all 0 when the table has none.
-    pub approach: [i8; JOINTS],
+    pub approach: [i8; MAX_JOINTS],
     /// A linear track's carriage position for the command (`e1_mm`, mm):
     /// the programs move it as the first external axis. `None` without a
     /// track.
@@ -582,7 +586,7 @@ pub struct WristPlacement {
 }
 
 /// [`WristPlacement`] of `robot` at `q_deg`, nominal geometry.
-pub fn wrist_placement(robot: &Robot, q_deg: &[f64; JOINTS]) -> WristPlacement {
+pub fn wrist_placement(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> WristPlacement {
     let nominal = ParamValues::nominal(robot.spec());
     let (frames, _) = robot.frames_in_base(&nominal, q_deg);
     let mut at_zero = *q_deg;
@@ -802,7 +806,7 @@ pub(crate) mod test_support {
             .iter()
             .map(|&target_id| Command {
                 target_id,
-                q_deg: [10.0, 20.0, -30.0, 40.0, 50.0, 60.0],
+                q_deg: [10.0, 20.0, -30.0, 40.0, 50.0, 60.0, 0.0],
                 status: STATUS_OK.into(),
                 residual_mm: 0.0,
                 correction_mm: 0.0,
@@ -812,7 +816,7 @@ pub(crate) mod test_support {
                 tool_id: None,
                 envelope_distance: None,
                 u95_mm: None,
-                approach: [0; JOINTS],
+                approach: [0; MAX_JOINTS],
                 track_mm: None,
                 positioner_deg: None,
             })
@@ -944,7 +948,7 @@ mod tests {
     fn comment_text_stays_on_one_line() {
         let command = Command {
             target_id: 3,
-            q_deg: [0.0; JOINTS],
+            q_deg: [0.0; MAX_JOINTS],
             status: "unreachable\nMoveAbsJ jt_1".into(),
             residual_mm: 0.0,
             correction_mm: 0.0,
@@ -954,7 +958,7 @@ mod tests {
             tool_id: None,
             envelope_distance: None,
             u95_mm: None,
-            approach: [0; JOINTS],
+            approach: [0; MAX_JOINTS],
             track_mm: None,
             positioner_deg: None,
         };
@@ -1000,14 +1004,14 @@ mod tests {
     fn wrist_placement_of_the_irb1600_home_and_flipped_arm() {
         let robot = irb1600();
         // Zero: lower arm up, upper arm forward, wrist 150 + 600 mm in front.
-        let home = wrist_placement(&robot, &[0.0, 0.0, 0.0, 0.0, 30.0, 0.0]);
+        let home = wrist_placement(&robot, &[0.0, 0.0, 0.0, 0.0, 30.0, 0.0, 0.0]);
         assert!((home.front_of_axis1_mm - 750.0).abs() < 1e-9, "{home:?}");
         assert!(home.front_of_lower_arm_mm2 > 0.0);
         // Axis 1 turned: the axis-1 system turns with it.
-        let turned = wrist_placement(&robot, &[120.0, 0.0, 0.0, 0.0, 30.0, 0.0]);
+        let turned = wrist_placement(&robot, &[120.0, 0.0, 0.0, 0.0, 30.0, 0.0, 0.0]);
         assert!((turned.front_of_axis1_mm - 750.0).abs() < 1e-9);
         // Upper arm folded back over the lower arm (q3 = -180): wrist behind it.
-        let folded = wrist_placement(&robot, &[0.0, 0.0, -180.0, 0.0, 30.0, 0.0]);
+        let folded = wrist_placement(&robot, &[0.0, 0.0, -180.0, 0.0, 30.0, 0.0, 0.0]);
         assert!(folded.front_of_lower_arm_mm2 < 0.0, "{folded:?}");
         assert!((folded.front_of_axis1_mm - (150.0 - 600.0)).abs() < 1e-9);
     }

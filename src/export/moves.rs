@@ -14,13 +14,13 @@
 use super::cartesian::{Pose, tool_in_base};
 use super::{MotionSettings, Program};
 use crate::robot::positioner::MAX_POSITIONER_AXES;
-use crate::robot::{JOINTS, Robot};
+use crate::robot::{MAX_JOINTS, Robot};
 
 /// Where a move goes.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Destination {
     /// A joint configuration (robot-file convention, deg).
-    Joints([f64; JOINTS]),
+    Joints([f64; MAX_JOINTS]),
     /// A pose of the move's tool in the robot base frame.
     Pose(Pose),
 }
@@ -151,7 +151,7 @@ pub fn largest_rounding_mm(
     robot: &Robot,
     program: &Program,
     moves: &[Move],
-    printed: impl Fn(&[f64; JOINTS]) -> [f64; JOINTS],
+    printed: impl Fn(&[f64; MAX_JOINTS]) -> [f64; MAX_JOINTS],
 ) -> f64 {
     moves
         .iter()
@@ -213,7 +213,7 @@ mod tests {
         let robot = irb1600();
         let mut program = test_support::program(&robot, &[3], None, None);
         let pre = [9.0, 21.0, -30.0, 40.0, 50.0, 60.0];
-        program.stops[0].pre_position_q_deg = Some(pre);
+        program.stops[0].pre_position_q_deg = Some(crate::robot::joint_array(&pre));
         let moves = program_moves(&program, &test_support::motion(None, None));
         assert_eq!(
             summary(&moves),
@@ -224,6 +224,9 @@ mod tests {
                 (3, Role::Target, true, false),
             ]
         );
-        assert_eq!(moves[0].destination, Destination::Joints(pre));
+        assert_eq!(
+            moves[0].destination,
+            Destination::Joints(crate::robot::joint_array(&pre))
+        );
     }
 }

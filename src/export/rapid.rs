@@ -30,12 +30,12 @@
 
 use super::cartesian::Pose;
 use super::{
-    JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, Payload, Program,
-    ProgramTool, QUATERNION_DECIMALS, Stop, external_axes, fixed, header_lines,
+    JOINT_DECIMALS, MASS_DECIMALS, MotionSettings, POSITION_DECIMALS, PROGRAM_JOINTS, Payload,
+    Program, ProgramTool, QUATERNION_DECIMALS, Stop, external_axes, fixed, header_lines,
     positioner_axis_count, positioner_lines, printed_precision, skipped_lines, tool_lines,
     tool_names, track_lines, warning_lines, wrist_placement,
 };
-use crate::robot::{JOINTS, Robot};
+use crate::robot::{MAX_JOINTS, Robot};
 
 /// Longest RAPID identifier.
 pub const MAX_IDENTIFIER_LEN: usize = 32;
@@ -57,7 +57,7 @@ pub fn quadrant(q_deg: f64) -> i64 {
 /// [`ConfData`] of `q_deg` on `robot`'s nominal geometry. On a boundary (the
 /// wrist centre on axis 1 or on the lower arm's line, axis 5 at zero: the
 /// singularities) "in front of" and "positive" win.
-pub fn confdata(robot: &Robot, q_deg: &[f64; JOINTS]) -> ConfData {
+pub fn confdata(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> ConfData {
     let wrist = wrist_placement(robot, q_deg);
     let behind_axis1 = i64::from(wrist.front_of_axis1_mm < 0.0);
     let behind_lower_arm = i64::from(wrist.front_of_lower_arm_mm2 < 0.0);
@@ -72,11 +72,11 @@ pub fn confdata(robot: &Robot, q_deg: &[f64; JOINTS]) -> ConfData {
 
 /// A `jointtarget` value: the controller's six joint values (the robot
 /// file's `[controller]`) and the external axes ([`external_axes`]).
-fn jointtarget(robot: &Robot, q_deg: &[f64; JOINTS], external: &[f64]) -> String {
-    let q = robot
-        .spec()
-        .controller_joints_deg(q_deg)
-        .map(|v| fixed(v, JOINT_DECIMALS))
+fn jointtarget(robot: &Robot, q_deg: &[f64; MAX_JOINTS], external: &[f64]) -> String {
+    let q = robot.spec().controller_joints_deg(q_deg)[..PROGRAM_JOINTS]
+        .iter()
+        .map(|v| fixed(*v, JOINT_DECIMALS))
+        .collect::<Vec<_>>()
         .join(", ");
     format!("[[{q}], {}]", extjoint(external))
 }
@@ -417,7 +417,7 @@ mod tests {
     fn confdata_on_fixed_configurations() {
         let robot = irb1600();
         // Everything in front, axis 5 positive.
-        let c = confdata(&robot, &[10.0, 0.0, 0.0, 100.0, 30.0, -45.0]);
+        let c = confdata(&robot, &[10.0, 0.0, 0.0, 100.0, 30.0, -45.0, 0.0]);
         assert_eq!(
             c,
             ConfData {
@@ -428,10 +428,13 @@ mod tests {
             }
         );
         // Axis 5 negative.
-        assert_eq!(confdata(&robot, &[0.0, 0.0, 0.0, 0.0, -30.0, 0.0]).cfx, 1);
+        assert_eq!(
+            confdata(&robot, &[0.0, 0.0, 0.0, 0.0, -30.0, 0.0, 0.0]).cfx,
+            1
+        );
         // Upper arm folded back: wrist behind the lower arm and behind axis 1.
         assert_eq!(
-            confdata(&robot, &[-95.0, 0.0, -180.0, 0.0, 30.0, 0.0]),
+            confdata(&robot, &[-95.0, 0.0, -180.0, 0.0, 30.0, 0.0, 0.0]),
             ConfData {
                 cf1: -2,
                 cf4: 0,

@@ -38,12 +38,12 @@
 
 use super::moves::{self, Destination, Move};
 use super::{
-    MASS_DECIMALS, MotionSettings, Program, fixed, header_lines, narrow_comment_lines,
-    positioner_lines, rotation_from_quaternion, skipped_lines, tool_lines, tool_names, track_lines,
-    warning_lines, wrist_placement, zyx_angles,
+    MASS_DECIMALS, MotionSettings, PROGRAM_JOINTS, Program, fixed, header_lines,
+    narrow_comment_lines, positioner_lines, rotation_from_quaternion, skipped_lines, tool_lines,
+    tool_names, track_lines, warning_lines, wrist_placement, zyx_angles,
 };
 use crate::robot::positioner::MAX_POSITIONER_AXES;
-use crate::robot::{JOINTS, Robot};
+use crate::robot::{MAX_JOINTS, Robot};
 
 /// Longest job name (DX100 and later).
 pub const MAX_NAME_LEN: usize = 32;
@@ -106,9 +106,9 @@ impl Rconf {
 
 /// The manipulator type of the robot-file command `q_deg` on `robot`'s
 /// nominal arm.
-pub fn rconf(robot: &Robot, q_deg: &[f64; JOINTS]) -> Rconf {
+pub fn rconf(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> Rconf {
     let wrist = wrist_placement(robot, q_deg);
-    let at_zero = wrist_placement(robot, &[0.0; JOINTS]).elbow_mm2;
+    let at_zero = wrist_placement(robot, &[0.0; MAX_JOINTS]).elbow_mm2;
     let controller = robot.spec().controller_joints_deg(q_deg);
     Rconf {
         flip: controller[4] > 0.0,
@@ -128,16 +128,16 @@ pub fn rxyz_deg(quaternion_wxyz: [f64; 4]) -> [f64; 3] {
 
 /// The pulse ratios of `robot`'s axes, signed; `None` where the robot file
 /// gives none.
-fn pulse_ratios(robot: &Robot) -> [Option<f64>; JOINTS] {
-    std::array::from_fn(|j| robot.spec().joints[j].pulses_per_deg)
+fn pulse_ratios(robot: &Robot) -> [Option<f64>; MAX_JOINTS] {
+    std::array::from_fn(|j| robot.spec().joints.get(j).and_then(|j| j.pulses_per_deg))
 }
 
 /// Pulses of the robot-file command `q_deg`.
-pub fn pulses(robot: &Robot, q_deg: &[f64; JOINTS]) -> Result<[i64; JOINTS], JobError> {
+pub fn pulses(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> Result<[i64; MAX_JOINTS], JobError> {
     let controller = robot.spec().controller_joints_deg(q_deg);
     let ratios = pulse_ratios(robot);
-    let mut out = [0; JOINTS];
-    for j in 0..JOINTS {
+    let mut out = [0; MAX_JOINTS];
+    for j in 0..robot.joint_count() {
         let ratio = ratios[j].ok_or(JobError::NoPulseRatio { joint: j })?;
         out[j] = (controller[j] * ratio).round() as i64;
     }
@@ -145,7 +145,7 @@ pub fn pulses(robot: &Robot, q_deg: &[f64; JOINTS]) -> Result<[i64; JOINTS], Job
 }
 
 /// A robot-file command as pulses read back, robot-file degrees.
-fn read_back(robot: &Robot, q_deg: &[f64; JOINTS]) -> [f64; JOINTS] {
+fn read_back(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> [f64; MAX_JOINTS] {
     let ratios = pulse_ratios(robot);
     match pulses(robot, q_deg) {
         Ok(p) => robot
@@ -190,7 +190,11 @@ fn station_pulses(robot: &Robot, p_deg: &[f64; MAX_POSITIONER_AXES]) -> Result<V
 fn position(robot: &Robot, index: usize, step: &Move) -> Result<String, JobError> {
     Ok(match &step.destination {
         Destination::Joints(q) => {
-            let p = pulses(robot, q)?.map(|v| v.to_string()).join(",");
+            let p = pulses(robot, q)?[..PROGRAM_JOINTS]
+                .iter()
+                .map(i64::to_string)
+                .collect::<Vec<_>>()
+                .join(",");
             format!("C{index:05}={p}")
         }
         Destination::Pose(pose) => {
@@ -405,11 +409,11 @@ mod tests {
         let robot = irb1600();
         // Zero pose, wrist bent down: no-flip, upper arm, front.
         assert_eq!(
-            rconf(&robot, &[0.0, 0.0, 0.0, 0.0, -90.0, 0.0]).text(),
+            rconf(&robot, &[0.0, 0.0, 0.0, 0.0, -90.0, 0.0, 0.0]).text(),
             "1,0,0,0,0,0,0,0"
         );
         assert_eq!(
-            rconf(&robot, &[-190.0, 0.0, 0.0, 190.0, 30.0, -200.0]).text(),
+            rconf(&robot, &[-190.0, 0.0, 0.0, 190.0, 30.0, -200.0, 0.0]).text(),
             "0,0,0,1,1,1,0,0"
         );
     }

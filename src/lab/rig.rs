@@ -18,6 +18,7 @@ use super::netft::NetFt;
 use super::rws::Rws;
 use crate::rig::protocol::ErrorCode;
 use crate::rig::{Disposition, Rig, RigError};
+use crate::robot::MAX_JOINTS;
 
 /// A device slot: absent from the cell file, connected, or not (yet).
 enum Slot<D> {
@@ -255,8 +256,11 @@ fn ready<D>(slot: &mut Slot<D>, absent: RigError) -> Result<&mut D, RigError> {
 }
 
 impl Rig for LabRig {
-    fn move_joints(&mut self, cw_id: i64, q_deg: [f64; 6]) -> Result<(), RigError> {
-        self.robot("move_joints")?.move_joints(cw_id, q_deg)
+    fn move_joints(&mut self, cw_id: i64, q_deg: [f64; MAX_JOINTS]) -> Result<(), RigError> {
+        // An ABB arm over RWS has six joints; `measure` refuses a
+        // seven-joint arm on the lab rig.
+        self.robot("move_joints")?
+            .move_joints(cw_id, std::array::from_fn(|i| q_deg[i]))
     }
 
     fn apply_wrench(&mut self, wrench: [f64; 6]) -> Result<(), RigError> {
@@ -267,8 +271,10 @@ impl Rig for LabRig {
         self.force_sensor()?.read()
     }
 
-    fn read_joints(&mut self) -> Result<[f64; 6], RigError> {
-        self.robot("read_joints")?.read_joints()
+    fn read_joints(&mut self) -> Result<[f64; MAX_JOINTS], RigError> {
+        self.robot("read_joints")?
+            .read_joints()
+            .map(|q| crate::robot::joint_array(&q))
     }
 
     fn measure(&mut self) -> Result<[f64; 3], RigError> {

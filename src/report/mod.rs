@@ -1176,8 +1176,9 @@ fn parameters_section(out: &mut String, data: &ReportData) {
             present.push(name);
         }
     }
-    // The spec's order, a track's terms after the arm's, then a positioner's.
-    let mut names: Vec<&str> = ParamId::all()
+    // The spec's order (a seventh joint's after the 42), a track's terms
+    // after the arm's, then a positioner's.
+    let mut names: Vec<&str> = ParamId::of_arm(crate::robot::MAX_JOINTS)
         .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
         .chain(ParamId::positioner_terms(
             crate::robot::positioner::MAX_POSITIONER_AXES,

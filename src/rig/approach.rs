@@ -10,7 +10,7 @@
 //! row). Derived from the commands, it is the same in an interrupted and
 //! resumed campaign as in an uninterrupted one.
 
-use crate::robot::JOINTS;
+use crate::robot::MAX_JOINTS;
 
 /// Joint changes below this (deg) are no move: a joint commanded to where it
 /// is keeps the side of its dead band.
@@ -19,10 +19,10 @@ const NO_MOVE_DEG: f64 = 1e-9;
 /// The direction of the move from `previous` to `current`, joints that do not
 /// move keeping `carried`.
 pub fn step_direction(
-    previous: Option<&[f64; JOINTS]>,
-    current: &[f64; JOINTS],
-    carried: [i8; JOINTS],
-) -> [i8; JOINTS] {
+    previous: Option<&[f64; MAX_JOINTS]>,
+    current: &[f64; MAX_JOINTS],
+    carried: [i8; MAX_JOINTS],
+) -> [i8; MAX_JOINTS] {
     let Some(previous) = previous else {
         return carried;
     };
@@ -39,9 +39,9 @@ pub fn step_direction(
 }
 
 /// The approach direction of every row of a campaign measured in this order.
-pub fn approach_directions(q_deg: &[[f64; JOINTS]]) -> Vec<[i8; JOINTS]> {
-    let mut carried = [0i8; JOINTS];
-    let mut previous: Option<&[f64; JOINTS]> = None;
+pub fn approach_directions(q_deg: &[[f64; MAX_JOINTS]]) -> Vec<[i8; MAX_JOINTS]> {
+    let mut carried = [0i8; MAX_JOINTS];
+    let mut previous: Option<&[f64; MAX_JOINTS]> = None;
     q_deg
         .iter()
         .map(|q| {
@@ -61,18 +61,18 @@ mod tests {
     #[test]
     fn signs_of_the_moves_carried_over_where_a_joint_holds() {
         let rows = [
-            [0.0, 10.0, 5.0, 0.0, 0.0, 0.0],
-            [1.0, 9.0, 5.0, 0.0, 0.0, 0.0],
-            [1.0, 8.0, 5.0, -1.0, 0.0, 0.0],
-            [1.0, 8.5, 5.0, -1.0, 0.0, 0.0],
+            [0.0, 10.0, 5.0, 0.0, 0.0, 0.0, 0.0],
+            [1.0, 9.0, 5.0, 0.0, 0.0, 0.0, 0.0],
+            [1.0, 8.0, 5.0, -1.0, 0.0, 0.0, 0.0],
+            [1.0, 8.5, 5.0, -1.0, 0.0, 0.0, 0.0],
         ];
         assert_eq!(
             approach_directions(&rows),
             vec![
-                [0, 0, 0, 0, 0, 0],
-                [1, -1, 0, 0, 0, 0],
-                [1, -1, 0, -1, 0, 0],
-                [1, 1, 0, -1, 0, 0],
+                [0, 0, 0, 0, 0, 0, 0],
+                [1, -1, 0, 0, 0, 0, 0],
+                [1, -1, 0, -1, 0, 0, 0],
+                [1, 1, 0, -1, 0, 0, 0],
             ]
         );
     }

@@ -20,6 +20,7 @@ use std::time::Duration;
 use super::protocol::{Call, PROTOCOL_VERSION, Reply, ReplyResult, Request};
 use super::{Rig, RigError};
 use crate::robot::positioner::MAX_POSITIONER_AXES;
+use crate::robot::{MAX_JOINTS, joint_array};
 
 /// A running driver process.
 pub struct ExternalDriver {
@@ -249,7 +250,10 @@ impl ExternalDriver {
 }
 
 impl Rig for ExternalDriver {
-    fn move_joints(&mut self, cw_id: i64, q_deg: [f64; 6]) -> Result<(), RigError> {
+    fn move_joints(&mut self, cw_id: i64, q_deg: [f64; MAX_JOINTS]) -> Result<(), RigError> {
+        // The protocol moves six joints; `measure` refuses a seven-joint arm
+        // on a driver.
+        let q_deg = std::array::from_fn(|i| q_deg[i]);
         self.call(Call::MoveJoints { cw_id, q_deg }).map(|_| ())
     }
 
@@ -263,9 +267,10 @@ impl Rig for ExternalDriver {
             .ok_or_else(|| Self::missing("read_wrench", "wrench"))
     }
 
-    fn read_joints(&mut self) -> Result<[f64; 6], RigError> {
+    fn read_joints(&mut self) -> Result<[f64; MAX_JOINTS], RigError> {
         self.call(Call::ReadJoints {})?
             .q_deg
+            .map(|q| joint_array(&q))
             .ok_or_else(|| Self::missing("read_joints", "q_deg"))
     }
 
@@ -464,11 +469,13 @@ pub fn serve(
                 result.name = Some(name.to_string());
                 result.capabilities = Some(capabilities.to_vec());
             }),
-            Call::MoveJoints { cw_id, q_deg } => rig.move_joints(cw_id, q_deg),
+            Call::MoveJoints { cw_id, q_deg } => rig.move_joints(cw_id, joint_array(&q_deg)),
             Call::ApplyWrench { wrench } => rig.apply_wrench(wrench),
             Call::ReleaseWrench {} => rig.release_wrench(),
             Call::ReadWrench {} => rig.read_wrench().map(|w| result.wrench = Some(w)),
-            Call::ReadJoints {} => rig.read_joints().map(|q| result.q_deg = Some(q)),
+            Call::ReadJoints {} => rig
+                .read_joints()
+                .map(|q| result.q_deg = Some(std::array::from_fn(|i| q[i]))),
             Call::MoveTrack { cw_id, e_mm } => rig.move_track(cw_id, e_mm),
             Call::ReadTrack {} => rig.read_track().map(|e| result.e_mm = Some(e)),
             Call::SelectTarget { target_id } => rig.select_target(&target_id),

@@ -15,6 +15,7 @@ use std::time::Duration;
 
 use protocol::ErrorCode;
 
+use crate::robot::MAX_JOINTS;
 use crate::robot::positioner::MAX_POSITIONER_AXES;
 
 /// Why a rig operation failed.
@@ -96,13 +97,13 @@ impl RigError {
 /// One measurement rig.
 pub trait Rig {
     /// Moves the robot to joint commands `q_deg` for conf-wrench row `cw_id`.
-    fn move_joints(&mut self, cw_id: i64, q_deg: [f64; 6]) -> Result<(), RigError>;
+    fn move_joints(&mut self, cw_id: i64, q_deg: [f64; MAX_JOINTS]) -> Result<(), RigError>;
     /// Makes the cable robot apply a wrench (tool axes, at the tool origin).
     fn apply_wrench(&mut self, wrench: [f64; 6]) -> Result<(), RigError>;
     /// The force/torque sensor's reading of the applied wrench.
     fn read_wrench(&mut self) -> Result<[f64; 6], RigError>;
     /// The joint encoders' reading (deg).
-    fn read_joints(&mut self) -> Result<[f64; 6], RigError>;
+    fn read_joints(&mut self) -> Result<[f64; MAX_JOINTS], RigError>;
     /// The laser tracker's SMR position in its own (world) frame, mm.
     fn measure(&mut self) -> Result<[f64; 3], RigError>;
     /// Releases the cable tension before the next move.

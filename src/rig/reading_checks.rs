@@ -13,7 +13,7 @@
 //! the move and stop the campaign; they are the measure stage's, not these.
 
 use crate::calibration::row_checks::compact;
-use crate::robot::{JOINTS, Robot};
+use crate::robot::{MAX_JOINTS, Robot};
 
 use super::RigError;
 
@@ -21,7 +21,7 @@ use super::RigError;
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReadingBounds {
     /// The robot file's joint limits `[min, max]` (deg).
-    pub limits_deg: [[f64; 2]; JOINTS],
+    pub limits_deg: [[f64; 2]; MAX_JOINTS],
     /// How far beyond a limit a joint reading may lie (deg).
     pub joint_tolerance_deg: f64,
     /// How far a joint reading may lie from its command (deg).
@@ -40,7 +40,9 @@ pub struct ReadingBounds {
 
 /// The readings' names as the `measurements` columns spell them (`table` is a
 /// layer above `rig`, so they are repeated here).
-const JOINT_COLUMNS: [&str; JOINTS] = ["q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg"];
+const JOINT_COLUMNS: [&str; MAX_JOINTS] = [
+    "q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg", "q7_deg",
+];
 const WRENCH_COLUMNS: [&str; 6] = ["fx_n", "fy_n", "fz_n", "mx_nm", "my_nm", "mz_nm"];
 
 /// Names of the settings the bounds come from, in messages.
@@ -162,8 +164,15 @@ impl From<ReadingFault> for RigError {
 
 impl ReadingBounds {
     /// The robot's joint limits, for [`ReadingBounds::limits_deg`].
-    pub fn limits_of(robot: &Robot) -> [[f64; 2]; JOINTS] {
-        std::array::from_fn(|i| robot.limits_deg(i))
+    pub fn limits_of(robot: &Robot) -> [[f64; 2]; MAX_JOINTS] {
+        // Past the arm's joints, a zero reading within zero limits.
+        std::array::from_fn(|i| {
+            if i < robot.joint_count() {
+                robot.limits_deg(i)
+            } else {
+                [0.0; 2]
+            }
+        })
     }
 
     /// Checks one row's readings against the bounds and the row's commands, in
@@ -171,9 +180,9 @@ impl ReadingBounds {
     /// found is returned. A NaN breaks every bound.
     pub fn check(
         &self,
-        commanded_q_deg: &[f64; JOINTS],
+        commanded_q_deg: &[f64; MAX_JOINTS],
         commanded_wrench: &[f64; 6],
-        q_deg: &[f64; JOINTS],
+        q_deg: &[f64; MAX_JOINTS],
         wrench: &[f64; 6],
         position_mm: &[f64; 3],
     ) -> Result<(), ReadingFault> {
@@ -262,7 +271,7 @@ mod tests {
     use super::*;
     use crate::robot::test_support::irb1600;
 
-    const Q: [f64; JOINTS] = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0];
+    const Q: [f64; MAX_JOINTS] = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0, 0.0];
     const W: [f64; 6] = [100.0, -50.0, 20.0, 5.0, -2.0, 1.0];
     const P: [f64; 3] = [1200.0, -300.0, 900.0];
 
@@ -290,7 +299,7 @@ mod tests {
         }
     }
 
-    fn message(q: [f64; JOINTS], w: [f64; 6], p: [f64; 3], b: &ReadingBounds) -> String {
+    fn message(q: [f64; MAX_JOINTS], w: [f64; 6], p: [f64; 3], b: &ReadingBounds) -> String {
         b.check(&Q, &W, &q, &w, &p).unwrap_err().to_string()
     }
 

@@ -29,7 +29,7 @@ use super::approach::step_direction;
 use super::{Rig, RigError};
 use crate::robot::params::{ParamId, ParamKind};
 use crate::robot::positioner::MAX_POSITIONER_AXES;
-use crate::robot::{ConfWrench, JOINTS, ParamValues, Robot, Wrench};
+use crate::robot::{ConfWrench, MAX_JOINTS, ParamValues, Robot, Wrench};
 
 /// Noise and error settings of the simulator.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -149,15 +149,15 @@ pub struct Simulator {
     settings: SimulatorSettings,
     seed: u64,
     clock_start_us: i64,
-    phases_rad: [f64; JOINTS],
-    once_phases_rad: [f64; JOINTS],
-    motor_phases_rad: [f64; JOINTS],
+    phases_rad: [f64; MAX_JOINTS],
+    once_phases_rad: [f64; MAX_JOINTS],
+    motor_phases_rad: [f64; MAX_JOINTS],
     /// Each joint's reducer ratio from the robot file (None: no motor-rate error).
-    gear_ratios: [Option<f64>; JOINTS],
+    gear_ratios: [Option<f64>; MAX_JOINTS],
     residual: SmoothResidual,
     rng: StdRng,
     cw_id: i64,
-    commanded_q: Option<[f64; JOINTS]>,
+    commanded_q: Option<[f64; MAX_JOINTS]>,
     /// The track carriage's commanded position (mm); 0 without a track.
     commanded_track_mm: f64,
     /// The positioner's commanded axes (deg); 0 without one.
@@ -170,11 +170,11 @@ pub struct Simulator {
     target_index: usize,
     on_nest: bool,
     /// Where each joint approached its command from ([`super::approach`]).
-    approach: [i8; JOINTS],
+    approach: [i8; MAX_JOINTS],
     /// The campaign's own approach directions by cw_id, so a resumed campaign
     /// meets the backlash of an uninterrupted one; rows not in it take the
     /// direction of the move from the previous command.
-    planned_approach: HashMap<i64, [i8; JOINTS]>,
+    planned_approach: HashMap<i64, [i8; MAX_JOINTS]>,
     applied: [f64; 6],
 }
 
@@ -182,7 +182,7 @@ pub struct Simulator {
 /// a draw from a Gaussian process with a squared-exponential kernel of variance
 /// `residual_mm²` and length scale `residual_length_deg`.
 struct SmoothResidual {
-    frequencies_per_rad: Vec<[f64; JOINTS]>,
+    frequencies_per_rad: Vec<[f64; MAX_JOINTS]>,
     offsets_rad: Vec<f64>,
     /// Per feature, the weight on x, y and z (mm).
     weights_mm: Vec<[f64; 3]>,
@@ -192,8 +192,9 @@ struct SmoothResidual {
 const RESIDUAL_FEATURES: usize = 64;
 
 impl SmoothResidual {
-    fn new(truth: &ParamValues, settings: &SimulatorSettings) -> Self {
-        let mut rng = StdRng::seed_from_u64(truth_seed(truth) ^ 0x7265_7369_6475_616c);
+    /// The residual of an arm with `joints` joints (it depends on those only).
+    fn new(truth: &ParamValues, settings: &SimulatorSettings, joints: usize) -> Self {
+        let mut rng = StdRng::seed_from_u64(truth_seed(truth, joints) ^ 0x7265_7369_6475_616c);
         let length_rad = settings.residual_length_deg.to_radians();
         let amplitude = settings.residual_mm * (2.0 / RESIDUAL_FEATURES as f64).sqrt();
         let normal = Normal::new(0.0, 1.0).expect("unit normal");
@@ -201,8 +202,12 @@ impl SmoothResidual {
         let mut offsets_rad = Vec::with_capacity(RESIDUAL_FEATURES);
         let mut weights_mm = Vec::with_capacity(RESIDUAL_FEATURES);
         for _ in 0..RESIDUAL_FEATURES {
-            frequencies_per_rad.push(std::array::from_fn(|_| {
-                normal.sample(&mut rng) / length_rad
+            frequencies_per_rad.push(std::array::from_fn(|i| {
+                if i < joints {
+                    normal.sample(&mut rng) / length_rad
+                } else {
+                    0.0
+                }
             }));
             offsets_rad.push(rng.random_range(0.0..std::f64::consts::TAU));
             weights_mm.push(std::array::from_fn(|_| amplitude * normal.sample(&mut rng)));
@@ -214,7 +219,7 @@ impl SmoothResidual {
         }
     }
 
-    fn at(&self, q_deg: &[f64; JOINTS]) -> [f64; 3] {
+    fn at(&self, q_deg: &[f64; MAX_JOINTS]) -> [f64; 3] {
         let mut residual = [0.0; 3];
         for ((omega, offset), weight) in self
             .frequencies_per_rad
@@ -245,7 +250,7 @@ impl Simulator {
         seed: u64,
     ) -> Result<Self, String> {
         let clock_start_us = settings.clock_start_us()?;
-        let gear_ratios: [Option<f64>; JOINTS] =
+        let gear_ratios: [Option<f64>; MAX_JOINTS] =
             std::array::from_fn(|i| robot.spec().joints.get(i).and_then(|j| j.gear_ratio));
         if settings.transmission_error_motor_deg > 0.0 && gear_ratios.iter().all(Option::is_none) {
             return Err(format!(
@@ -255,8 +260,10 @@ impl Simulator {
                 robot.spec().path.display()
             ));
         }
-        let [phases_rad, once_phases_rad, motor_phases_rad] = transmission_phases_rad(&truth);
-        let residual = SmoothResidual::new(&truth, &settings);
+        let joints = robot.joint_count();
+        let [phases_rad, once_phases_rad, motor_phases_rad] =
+            transmission_phases_rad(&truth, joints);
+        let residual = SmoothResidual::new(&truth, &settings, joints);
         Ok(Simulator {
             robot,
             truth,
@@ -276,7 +283,7 @@ impl Simulator {
             targets: Vec::new(),
             target_index: 0,
             on_nest: false,
-            approach: [0; JOINTS],
+            approach: [0; MAX_JOINTS],
             planned_approach: HashMap::new(),
             applied: [0.0; 6],
         })
@@ -288,10 +295,11 @@ impl Simulator {
     /// (`A·sin(n·q + φ) = A·cos φ·sin(n·q) + A·sin φ·cos(n·q)`). What a test
     /// of a rung compares its estimates with.
     pub fn joint_terms_truth(&self) -> Vec<(ParamId, f64)> {
-        let mut terms: Vec<(ParamId, f64)> = ParamId::backlashes()
+        let joints = self.robot.joint_count();
+        let mut terms: Vec<(ParamId, f64)> = ParamId::backlashes(joints)
             .map(|id| (id, self.settings.backlash_deg))
             .collect();
-        for joint in 0..JOINTS {
+        for joint in 0..joints {
             for (order, amplitude, phase) in [
                 (
                     1,
@@ -318,7 +326,7 @@ impl Simulator {
     }
 
     /// The campaign's approach directions by cw_id (see `planned_approach`).
-    pub fn with_planned_approach(mut self, planned: HashMap<i64, [i8; JOINTS]>) -> Self {
+    pub fn with_planned_approach(mut self, planned: HashMap<i64, [i8; MAX_JOINTS]>) -> Self {
         self.planned_approach = planned;
         self
     }
@@ -340,7 +348,7 @@ impl Simulator {
     /// The joint-side errors of the settings at command `q` (deg): the
     /// transmission errors at twice, once and the motor's rate per turn, and
     /// the backlash on the side of the current approach.
-    fn joint_errors_deg(&self, q: &[f64; JOINTS]) -> [f64; JOINTS] {
+    fn joint_errors_deg(&self, q: &[f64; MAX_JOINTS]) -> [f64; MAX_JOINTS] {
         std::array::from_fn(|i| {
             let angle = q[i].to_radians();
             let motor = self.gear_ratios[i].map_or(0.0, |ratio| {
@@ -354,11 +362,11 @@ impl Simulator {
         })
     }
 
-    fn position_now(&self, q: &[f64; JOINTS]) -> [f64; 3] {
+    fn position_now(&self, q: &[f64; MAX_JOINTS]) -> [f64; 3] {
         let wrench = Wrench::from_array(self.applied);
         let (torques, _) = self.robot.deflections(&self.truth, q, &wrench);
         let errors = self.joint_errors_deg(q);
-        let mut actual: [f64; JOINTS] = std::array::from_fn(|i| q[i] + errors[i]);
+        let mut actual: [f64; MAX_JOINTS] = std::array::from_fn(|i| q[i] + errors[i]);
         for i in [1, 2] {
             actual[i] += self.settings.quadratic_compliance * torques[i] * torques[i].abs();
         }
@@ -391,18 +399,24 @@ impl Simulator {
 /// robot, not to the stage that measures it: every measure stage over the
 /// same truth (the calibration campaign, then the compensated commands) meets
 /// the same gearboxes, so they are drawn from [`truth_seed`].
-fn transmission_phases_rad(truth: &ParamValues) -> [[f64; JOINTS]; 3] {
-    let mut phase_rng = StdRng::seed_from_u64(truth_seed(truth));
+fn transmission_phases_rad(truth: &ParamValues, joints: usize) -> [[f64; MAX_JOINTS]; 3] {
+    let mut phase_rng = StdRng::seed_from_u64(truth_seed(truth, joints));
     std::array::from_fn(|_| {
-        std::array::from_fn(|_| phase_rng.random_range(0.0..std::f64::consts::TAU))
+        std::array::from_fn(|i| {
+            if i < joints {
+                phase_rng.random_range(0.0..std::f64::consts::TAU)
+            } else {
+                0.0
+            }
+        })
     })
 }
 
 /// A seed from the truth's arm parameters (not its frames: moving the tracker
 /// does not change the gearboxes).
-fn truth_seed(truth: &ParamValues) -> u64 {
+fn truth_seed(truth: &ParamValues, joints: usize) -> u64 {
     let mut hasher = blake3::Hasher::new();
-    for id in ParamId::all() {
+    for id in ParamId::of_arm(joints) {
         if !matches!(
             id.kind(),
             ParamKind::WorldTranslation(_)
@@ -420,7 +434,7 @@ fn truth_seed(truth: &ParamValues) -> u64 {
 }
 
 impl Rig for Simulator {
-    fn move_joints(&mut self, cw_id: i64, q_deg: [f64; 6]) -> Result<(), RigError> {
+    fn move_joints(&mut self, cw_id: i64, q_deg: [f64; MAX_JOINTS]) -> Result<(), RigError> {
         let mut hasher = blake3::Hasher::new();
         hasher.update(&self.seed.to_le_bytes());
         hasher.update(&cw_id.to_le_bytes());
@@ -463,12 +477,12 @@ impl Rig for Simulator {
         Ok(reading)
     }
 
-    fn read_joints(&mut self) -> Result<[f64; 6], RigError> {
+    fn read_joints(&mut self) -> Result<[f64; MAX_JOINTS], RigError> {
         let q = self
             .commanded_q
             .ok_or_else(|| RigError::Fatal("read_joints before move_joints".into()))?;
         let mut reading = q;
-        for value in reading.iter_mut() {
+        for value in reading.iter_mut().take(self.robot.joint_count()) {
             *value += self.gauss(self.settings.encoder_noise_deg);
         }
         Ok(reading)
@@ -625,12 +639,16 @@ mod tests {
         let mut sim = Simulator::new(robot.clone(), truth, quiet(), 1).unwrap();
         let q = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0];
         let w = [50.0, -30.0, 80.0, 2.0, -3.0, 4.0];
-        sim.move_joints(7, q).unwrap();
+        sim.move_joints(7, crate::robot::joint_array(&q)).unwrap();
         sim.apply_wrench(w).unwrap();
         assert_eq!(sim.read_wrench().unwrap(), w);
-        assert_eq!(sim.read_joints().unwrap(), q);
+        assert_eq!(sim.read_joints().unwrap(), crate::robot::joint_array(&q));
         let expected = robot
-            .predict(&truth, &q, &Wrench::from_array(w))
+            .predict(
+                &truth,
+                &crate::robot::joint_array(&q),
+                &Wrench::from_array(w),
+            )
             .position_mm;
         let measured = sim.measure().unwrap();
         for k in 0..3 {
@@ -644,7 +662,7 @@ mod tests {
         let robot = irb1600();
         let truth = truth_params(&robot);
         let row = |sim: &mut Simulator| {
-            sim.move_joints(3, [0.0, 10.0, 10.0, 0.0, 30.0, 0.0])
+            sim.move_joints(3, [0.0, 10.0, 10.0, 0.0, 30.0, 0.0, 0.0])
                 .unwrap();
             sim.apply_wrench([10.0, 0.0, 0.0, 0.0, 0.0, 1.0]).unwrap();
             (
@@ -655,13 +673,13 @@ mod tests {
         };
         let mut a = Simulator::new(robot.clone(), truth, SimulatorSettings::default(), 9).unwrap();
         let mut b = Simulator::new(robot, truth, SimulatorSettings::default(), 9).unwrap();
-        b.move_joints(99, [0.0; 6]).unwrap();
+        b.move_joints(99, [0.0; 7]).unwrap();
         b.measure().unwrap();
         assert_eq!(row(&mut a), row(&mut b));
     }
 
     /// The position the truth model gives at joint angles `q` without load.
-    fn truth_at(robot: &Robot, truth: &ParamValues, q: &[f64; JOINTS]) -> [f64; 3] {
+    fn truth_at(robot: &Robot, truth: &ParamValues, q: &[f64; MAX_JOINTS]) -> [f64; 3] {
         let p = robot.predict(truth, q, &Wrench::zero()).position_mm;
         [p.x, p.y, p.z]
     }
@@ -684,20 +702,30 @@ mod tests {
         let below = q.map(|v| v - 1.0);
         let above = q.map(|v| v + 1.0);
         let mut sim = Simulator::new(robot.clone(), truth, settings.clone(), 1).unwrap();
-        sim.move_joints(1, below).unwrap();
-        sim.move_joints(2, q).unwrap();
+        sim.move_joints(1, crate::robot::joint_array(&below))
+            .unwrap();
+        sim.move_joints(2, crate::robot::joint_array(&q)).unwrap();
         let from_below = sim.measure().unwrap();
         assert!(close(
             from_below,
-            truth_at(&robot, &truth, &q.map(|v| v + 0.01)),
+            truth_at(
+                &robot,
+                &truth,
+                &crate::robot::joint_array(&q.map(|v| v + 0.01))
+            ),
             1e-9
         ));
-        sim.move_joints(3, above).unwrap();
-        sim.move_joints(4, q).unwrap();
+        sim.move_joints(3, crate::robot::joint_array(&above))
+            .unwrap();
+        sim.move_joints(4, crate::robot::joint_array(&q)).unwrap();
         let from_above = sim.measure().unwrap();
         assert!(close(
             from_above,
-            truth_at(&robot, &truth, &q.map(|v| v - 0.01)),
+            truth_at(
+                &robot,
+                &truth,
+                &crate::robot::joint_array(&q.map(|v| v - 0.01))
+            ),
             1e-9
         ));
         // A 0.01° half band moves this tool by a few hundredths of a mm.
@@ -708,8 +736,10 @@ mod tests {
         // A fresh simulator with the campaign's plan meets the same backlash.
         let mut resumed = Simulator::new(robot.clone(), truth, settings, 1)
             .unwrap()
-            .with_planned_approach(HashMap::from([(4, [-1; JOINTS])]));
-        resumed.move_joints(4, q).unwrap();
+            .with_planned_approach(HashMap::from([(4, [-1; MAX_JOINTS])]));
+        resumed
+            .move_joints(4, crate::robot::joint_array(&q))
+            .unwrap();
         assert!(close(resumed.measure().unwrap(), from_above, 1e-12));
     }
 
@@ -733,22 +763,25 @@ mod tests {
         spec.joints[1].gear_ratio = Some(121.0);
         let robot = Robot::new(spec);
         let mut sim = Simulator::new(robot.clone(), truth, settings, 1).unwrap();
-        let q = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0];
+        let q = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0, 0.0];
         let period_deg = 360.0 / 121.0;
-        let errors = sim.joint_errors_deg(&q);
+        let errors = sim.joint_errors_deg(&crate::robot::joint_array(&q));
         let mut turned = q;
         turned[1] += 7.0 * period_deg;
-        assert!((sim.joint_errors_deg(&turned)[1] - errors[1]).abs() < 1e-12);
+        assert!(
+            (sim.joint_errors_deg(&crate::robot::joint_array(&turned))[1] - errors[1]).abs()
+                < 1e-12
+        );
         assert!(errors.iter().enumerate().all(|(i, e)| i == 1 || *e == 0.0));
         let peak = (0..1000)
             .map(|k| {
                 let mut at = q;
                 at[1] += period_deg * k as f64 / 1000.0;
-                sim.joint_errors_deg(&at)[1].abs()
+                sim.joint_errors_deg(&crate::robot::joint_array(&at))[1].abs()
             })
             .fold(0.0, f64::max);
         assert!((peak - 0.002).abs() < 1e-7, "{peak}");
-        sim.move_joints(1, q).unwrap();
+        sim.move_joints(1, crate::robot::joint_array(&q)).unwrap();
         let expected = truth_at(&robot, &truth, &std::array::from_fn(|i| q[i] + errors[i]));
         assert!(close(sim.measure().unwrap(), expected, 1e-9));
     }
@@ -769,7 +802,7 @@ mod tests {
         let mut rng = StdRng::seed_from_u64(5);
         let (mut squares, mut steps, rows) = (0.0, 0.0f64, 2000);
         for k in 0..rows {
-            let q: [f64; JOINTS] = std::array::from_fn(|_| rng.random_range(-150.0..150.0));
+            let q: [f64; MAX_JOINTS] = std::array::from_fn(|_| rng.random_range(-150.0..150.0));
             sim.move_joints(k, q).unwrap();
             let measured = sim.measure().unwrap();
             let model = truth_at(&robot, &truth, &q);

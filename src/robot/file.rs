@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 
 use schemars::JsonSchema;
 
+use super::model::MAX_JOINTS;
 use crate::toml_error::StrictError;
 use serde::{Deserialize, Serialize};
 
@@ -116,7 +117,10 @@ pub struct RobotSpec {
     /// Gravity in the base frame, m/s².
     #[serde(default = "default_gravity")]
     pub gravity_mps2: [f64; 3],
-    /// Exactly six joints, base to flange.
+    /// Six or seven revolute joints, base to flange (MDH). A seventh joint's
+    /// parameters are `dtheta7, dalpha7, da7, dd7, k7`, and its column
+    /// `q7_deg`.
+    #[schemars(length(min = 6, max = 7))]
     pub joints: Vec<JointSpec>,
     /// Nominal world (tracker) ← base transform. Optional: identification registers
     /// the frames onto the measurements in closed form (spec §7), so a tracker
@@ -221,10 +225,13 @@ impl RobotSpec {
             key,
             message,
         };
-        if self.joints.len() != 6 {
+        if !(6..=MAX_JOINTS).contains(&self.joints.len()) {
             return Err(invalid(
                 "joints".into(),
-                format!("expected exactly 6 joints, found {}", self.joints.len()),
+                format!(
+                    "expected 6 or {MAX_JOINTS} joints (a six- or seven-axis arm), found {}",
+                    self.joints.len()
+                ),
             ));
         }
         let mut checks: Vec<(String, &[f64], Bound)> = vec![
@@ -409,7 +416,7 @@ impl RobotSpec {
 
     /// The joint values the controller shows for the robot-file command
     /// `q_deg` (deg): the same but for a FANUC-style J3 (`[controller]`).
-    pub fn controller_joints_deg(&self, q_deg: &[f64; 6]) -> [f64; 6] {
+    pub fn controller_joints_deg(&self, q_deg: &[f64; MAX_JOINTS]) -> [f64; MAX_JOINTS] {
         let mut controller = *q_deg;
         controller[2] += self.controller.j3_from_j2 * q_deg[1];
         controller
@@ -417,7 +424,7 @@ impl RobotSpec {
 
     /// The robot-file command of the controller's joint values (deg): the
     /// inverse of [`RobotSpec::controller_joints_deg`].
-    pub fn robot_file_joints_deg(&self, controller_deg: &[f64; 6]) -> [f64; 6] {
+    pub fn robot_file_joints_deg(&self, controller_deg: &[f64; MAX_JOINTS]) -> [f64; MAX_JOINTS] {
         let mut q_deg = *controller_deg;
         q_deg[2] -= self.controller.j3_from_j2 * controller_deg[1];
         q_deg
@@ -638,7 +645,10 @@ mod tests {
         let plain = RobotSpec::parse(IRB1600, Path::new("r.toml")).unwrap();
         assert_eq!(plain.controller.j3_from_j2, 0.0);
         let q = [10.0, 20.0, -30.0, 40.0, 50.0, 60.0];
-        assert_eq!(plain.controller_joints_deg(&q), q);
+        assert_eq!(
+            plain.controller_joints_deg(&crate::robot::joint_array(&q)),
+            crate::robot::joint_array(&q)
+        );
         // An explicit default is the same robot, with the same cache key.
         let explicit = RobotSpec::parse(
             &format!("{IRB1600}\n[controller]\nj3_from_j2 = 0.0\n"),
@@ -653,12 +663,14 @@ mod tests {
         .unwrap();
         assert_ne!(fanuc.content_hash(), plain.content_hash());
         assert_eq!(
-            fanuc.controller_joints_deg(&q),
-            [10.0, 20.0, -10.0, 40.0, 50.0, 60.0]
+            fanuc.controller_joints_deg(&crate::robot::joint_array(&q)),
+            [10.0, 20.0, -10.0, 40.0, 50.0, 60.0, 0.0]
         );
         assert_eq!(
-            fanuc.robot_file_joints_deg(&fanuc.controller_joints_deg(&q)),
-            q
+            fanuc.robot_file_joints_deg(
+                &fanuc.controller_joints_deg(&crate::robot::joint_array(&q))
+            ),
+            crate::robot::joint_array(&q)
         );
         let err = RobotSpec::parse(
             &format!("{IRB1600}\n[controller]\nj3_from_j2 = 0.5\n"),

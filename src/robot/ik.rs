@@ -31,7 +31,7 @@ use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 
 use super::frame::{Frame, rot_x, rot_z, rotation_vector};
 use super::jacobian::deflected_tool_and_joints;
-use super::model::{JOINTS, Robot, Wrench};
+use super::model::{MAX_JOINTS, Robot, Wrench};
 use super::params::{PARAM_COUNT, ParamValues};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
@@ -58,7 +58,7 @@ pub enum IkError {
 /// One inverse-kinematics solution.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct IkSolution {
-    pub q_deg: [f64; JOINTS],
+    pub q_deg: [f64; MAX_JOINTS],
     /// Bit 0: shoulder back (joint 1 turned away from the wrist centre), bit 1:
     /// elbow down, bit 2: wrist flipped (the θ5 < 0 branch). Numeric solutions get
     /// the same bits from their geometry ([`branch_of`]).
@@ -78,10 +78,23 @@ struct Geometry {
     forearm_mm: f64,
     forearm_angle: f64,
     d6: f64,
-    offsets: [f64; JOINTS],
+    offsets: [f64; MAX_JOINTS],
+}
+
+/// The solvers here are for six-joint arms; a seven-joint arm's redundancy
+/// needs a rule of its own (issue #30), so it is refused rather than solved
+/// with its seventh joint silently frozen.
+fn six_joints(robot: &Robot) -> Result<(), IkError> {
+    match robot.joint_count() {
+        6 => Ok(()),
+        n => Err(IkError::UnsupportedGeometry(format!(
+            "the arm has {n} joints; inverse kinematics solves six-joint arms (a seven-joint arm's redundancy rule is not built yet)"
+        ))),
+    }
 }
 
 fn geometry(robot: &Robot) -> Result<Geometry, IkError> {
+    six_joints(robot)?;
     let expected_alpha = [0.0, -90.0, 0.0, -90.0, 90.0, -90.0];
     for (i, expected) in expected_alpha.iter().enumerate() {
         let (alpha, ..) = robot.nominal_mdh(i);
@@ -183,7 +196,9 @@ pub fn closed_form(robot: &Robot, flange_in_base: &Frame) -> Result<Vec<IkSoluti
                 let a = (sign * n[(1, 2)]).atan2(sign * n[(0, 2)]);
                 let c = (sign * n[(2, 1)]).atan2(-sign * n[(2, 0)]);
                 let thetas = [theta1, theta2, theta3, a, -b, c];
-                let q_deg = std::array::from_fn(|i| wrap_deg((thetas[i] - g.offsets[i]) / DEG));
+                let q_deg = crate::robot::joint_array(&std::array::from_fn::<f64, 6, _>(|i| {
+                    wrap_deg((thetas[i] - g.offsets[i]) / DEG)
+                }));
                 // Elbow down is a bend the negative way about axis 3 from the upper
                 // arm, which points along -x2 where a3 < 0.
                 let bent_negative = elbow_down != (g.a3 < 0.0);
@@ -227,9 +242,9 @@ fn wrap_deg(angle: f64) -> f64 {
 }
 
 /// Every `q + 360·k` per joint that lies within the limits, as a cartesian product.
-fn turns_within_limits(robot: &Robot, q_deg: &[f64; JOINTS]) -> Vec<[f64; JOINTS]> {
+fn turns_within_limits(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> Vec<[f64; MAX_JOINTS]> {
     let mut combos = vec![*q_deg];
-    for i in 0..JOINTS {
+    for i in 0..robot.joint_count() {
         let [lo, hi] = robot.limits_deg(i);
         let mut turns = Vec::new();
         let mut angle = q_deg[i] - 360.0 * ((q_deg[i] - lo) / 360.0).floor();
@@ -287,11 +302,12 @@ pub fn solve_loaded(
     robot: &Robot,
     p: &ParamValues,
     wrench: &Wrench,
-    approach: &[i8; JOINTS],
+    approach: &[i8; MAX_JOINTS],
     tool_in_world: &Frame,
-    seed_deg: &[f64; JOINTS],
+    seed_deg: &[f64; MAX_JOINTS],
     options: &NumericOptions,
-) -> Result<[f64; JOINTS], IkError> {
+) -> Result<[f64; MAX_JOINTS], IkError> {
+    six_joints(robot)?;
     solve_loaded_iterate(robot, p, wrench, approach, tool_in_world, seed_deg, options)
         .into_result(options)
 }
@@ -303,9 +319,9 @@ pub fn solve_loaded_iterate(
     robot: &Robot,
     p: &ParamValues,
     wrench: &Wrench,
-    approach: &[i8; JOINTS],
+    approach: &[i8; MAX_JOINTS],
     tool_in_world: &Frame,
-    seed_deg: &[f64; JOINTS],
+    seed_deg: &[f64; MAX_JOINTS],
     options: &NumericOptions,
 ) -> Iterate {
     let mut iterate = damped_least_squares(
@@ -326,7 +342,7 @@ pub fn solve_loaded_iterate(
 pub struct Iterate {
     /// The last accepted joint vector (deg): the seed or a step that lowered a
     /// finite error, so it is finite whenever the seed is.
-    pub q_deg: [f64; JOINTS],
+    pub q_deg: [f64; MAX_JOINTS],
     pub position_error_mm: f64,
     pub orientation_error_rad: f64,
     /// Both errors below the tolerances.
@@ -340,7 +356,7 @@ pub struct Iterate {
 }
 
 impl Iterate {
-    fn into_result(self, options: &NumericOptions) -> Result<[f64; JOINTS], IkError> {
+    fn into_result(self, options: &NumericOptions) -> Result<[f64; MAX_JOINTS], IkError> {
         if self.converged {
             Ok(self.q_deg)
         } else {
@@ -358,10 +374,11 @@ impl Iterate {
 /// scaled by [`RAD_AS_MM`], so position and orientation rows weigh alike.
 pub(crate) fn scaled_geometric_jacobian(
     tool: &Frame,
-    joints: &[Frame; JOINTS + 1],
+    joints: &[Frame; MAX_JOINTS + 1],
 ) -> Matrix6<f64> {
     let mut jacobian = Matrix6::zeros();
-    for i in 0..JOINTS {
+    // Six joints: the solvers refuse other arms (`six_joints`).
+    for i in 0..6 {
         let z = joints[i + 1].axis(2);
         let linear = z.cross(&(tool.origin_mm - joints[i + 1].origin_mm));
         jacobian.fixed_view_mut::<3, 1>(0, i).copy_from(&linear);
@@ -382,12 +399,12 @@ pub(crate) const RAD_AS_MM: f64 = 1000.0;
 /// it lowers the error. Stops with the joint vector (deg, not wrapped) once the
 /// position and orientation errors are below the tolerances, or where it got.
 fn damped_least_squares(
-    chain: impl Fn(&[f64; JOINTS]) -> (Frame, [Frame; JOINTS + 1]),
+    chain: impl Fn(&[f64; MAX_JOINTS]) -> (Frame, [Frame; MAX_JOINTS + 1]),
     target: &Frame,
-    seed_deg: &[f64; JOINTS],
+    seed_deg: &[f64; MAX_JOINTS],
     options: &NumericOptions,
 ) -> Iterate {
-    let residual = |q: &[f64; JOINTS]| {
+    let residual = |q: &[f64; MAX_JOINTS]| {
         let (tool, joints) = chain(q);
         let position = target.origin_mm - tool.origin_mm;
         let orientation = rotation_vector(&(target.rotation * tool.rotation.transpose()));
@@ -438,7 +455,7 @@ fn damped_least_squares(
                 continue;
             };
             let mut trial = q;
-            for i in 0..JOINTS {
+            for i in 0..6 {
                 trial[i] += step[i] / DEG;
             }
             let candidate = residual(&trial);
@@ -466,6 +483,7 @@ fn damped_least_squares(
 /// Cost: a few µs for the closed form; the numeric search runs
 /// [`NumericIkOptions::starts`] local solves (about a millisecond in release).
 pub fn solve(robot: &Robot, flange_in_base: &Frame) -> Result<Vec<IkSolution>, IkError> {
+    six_joints(robot)?;
     if closed_form_applies(robot).is_ok() {
         return closed_form(robot, flange_in_base);
     }
@@ -490,7 +508,7 @@ pub struct NumericIkOptions {
     /// starts: 907 and 923; 128 starts found no configuration that 64 missed).
     pub starts: usize,
     /// A joint vector (deg) tried before the fixed starts, e.g. the current one.
-    pub hint_deg: Option<[f64; JOINTS]>,
+    pub hint_deg: Option<[f64; MAX_JOINTS]>,
     /// The local solver's iterations, tolerances and damping.
     pub solver: NumericOptions,
     /// Two converged joint vectors are the same configuration when every joint
@@ -523,15 +541,15 @@ pub fn numeric(
     options: &NumericIkOptions,
 ) -> Vec<IkSolution> {
     let prepared = robot.prepare(&ParamValues([0.0; PARAM_COUNT]));
-    let chain = |q: &[f64; JOINTS]| {
-        let chain = prepared.chain(q, &[0.0; JOINTS]);
-        (chain.joints[JOINTS], chain.joints)
+    let chain = |q: &[f64; MAX_JOINTS]| {
+        let chain = prepared.chain(q, &[0.0; MAX_JOINTS]);
+        (*chain.flange(), chain.joints)
     };
     let starts = options
         .hint_deg
         .into_iter()
         .chain(start_points(robot, options.starts));
-    let mut configurations: Vec<[f64; JOINTS]> = Vec::new();
+    let mut configurations: Vec<[f64; MAX_JOINTS]> = Vec::new();
     for start in starts {
         let Ok(q) = damped_least_squares(chain, flange_in_base, &start, &options.solver)
             .into_result(&options.solver)
@@ -574,10 +592,10 @@ pub fn numeric(
 /// The first `count` points (from index 1) of the Halton sequence with bases
 /// 2, 3, 5, 7, 11, 13, scaled to one turn of each joint's range: `[lo, lo + 360]`
 /// clipped to the upper limit.
-fn start_points(robot: &Robot, count: usize) -> impl Iterator<Item = [f64; JOINTS]> + '_ {
-    const BASES: [u64; JOINTS] = [2, 3, 5, 7, 11, 13];
+fn start_points(robot: &Robot, count: usize) -> impl Iterator<Item = [f64; MAX_JOINTS]> + '_ {
+    const BASES: [u64; MAX_JOINTS] = [2, 3, 5, 7, 11, 13, 17];
     (1..=count as u64).map(move |index| {
-        std::array::from_fn(|i| {
+        robot.joint_vector(|i| {
             let [lo, hi] = robot.limits_deg(i);
             lo + radical_inverse(index, BASES[i]) * (hi.min(lo + 360.0) - lo)
         })
@@ -606,10 +624,10 @@ fn radical_inverse(mut index: u64, base: u64) -> f64 {
 ///   about axis 3 from the upper arm (frame 2 to frame 3 origins), both seen along
 ///   axis 3;
 /// * bit 2, wrist flipped: sin θ5 < 0, with θ5 = q5 plus its nominal offset.
-pub fn branch_of(robot: &Robot, q_deg: &[f64; JOINTS]) -> u8 {
+pub fn branch_of(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> u8 {
     let joints = robot
         .prepare(&ParamValues([0.0; PARAM_COUNT]))
-        .chain(q_deg, &[0.0; JOINTS])
+        .chain(q_deg, &[0.0; MAX_JOINTS])
         .joints;
     let shoulder_back = (joints[5].origin_mm - joints[1].origin_mm).dot(&joints[1].axis(0)) < 0.0;
     let axis3 = joints[3].axis(2);
@@ -715,7 +733,7 @@ mod tests {
     fn singular_and_unreachable_poses_are_reported_not_nan() {
         let robot = irb1600();
         // Wrist singularity: q5 = 0.
-        let pose = robot.nominal_flange_in_base(&[10.0, 20.0, -10.0, 30.0, 0.0, 40.0]);
+        let pose = robot.nominal_flange_in_base(&[10.0, 20.0, -10.0, 30.0, 0.0, 40.0, 0.0]);
         assert!(matches!(
             closed_form(&robot, &pose),
             Err(IkError::Singular(_))
@@ -740,7 +758,11 @@ mod tests {
     fn joint_6_extra_turns_are_enumerated() {
         let robot = irb1600();
         let q = [0.0, 10.0, 10.0, 0.0, 45.0, 20.0];
-        let solutions = closed_form(&robot, &robot.nominal_flange_in_base(&q)).unwrap();
+        let solutions = closed_form(
+            &robot,
+            &robot.nominal_flange_in_base(&crate::robot::joint_array(&q)),
+        )
+        .unwrap();
         let mut turns: Vec<f64> = solutions
             .iter()
             .filter(|s| {
@@ -773,7 +795,7 @@ mod tests {
         for _ in 0..100 {
             let q_true = random_q(&robot, &mut rng);
             let wrench = random_wrench(&mut rng);
-            let target = robot.tool_in_world(&truth, &q_true, &wrench, &[0; JOINTS]);
+            let target = robot.tool_in_world(&truth, &q_true, &wrench, &[0; MAX_JOINTS]);
             // Seed from the closed form of the nominal arm placed with the model's
             // world and tool frames, as a stage that commands a calibrated robot does.
             let flange = flange_target_in_base(&robot, &truth, &target);
@@ -788,13 +810,13 @@ mod tests {
                 &robot,
                 &truth,
                 &wrench,
-                &[0; JOINTS],
+                &[0; MAX_JOINTS],
                 &target,
                 &seed.q_deg,
                 &NumericOptions::default(),
             )
             .unwrap();
-            let reached = robot.tool_in_world(&truth, &q, &wrench, &[0; JOINTS]);
+            let reached = robot.tool_in_world(&truth, &q, &wrench, &[0; MAX_JOINTS]);
             assert!((reached.origin_mm - target.origin_mm).norm() < 1e-9);
             assert!(reached.angle_to(&target) < 1e-9);
             // Where the nominal seed is near the generating configuration the loaded
@@ -831,7 +853,11 @@ mod tests {
         Robot::new(spec)
     }
 
-    fn same_configuration(a: &[f64; 6], b: &[f64; 6], tolerance_deg: f64) -> bool {
+    fn same_configuration(
+        a: &[f64; MAX_JOINTS],
+        b: &[f64; MAX_JOINTS],
+        tolerance_deg: f64,
+    ) -> bool {
         a.iter()
             .zip(b)
             .all(|(x, y)| wrap_deg(x - y).abs() < tolerance_deg)
@@ -984,10 +1010,10 @@ mod tests {
     fn solve_takes_the_closed_form_where_it_applies_and_the_numeric_search_elsewhere() {
         let irb = irb1600();
         let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
-        let pose = irb.nominal_flange_in_base(&q);
+        let pose = irb.nominal_flange_in_base(&crate::robot::joint_array(&q));
         assert_eq!(solve(&irb, &pose), closed_form(&irb, &pose));
         let ur = ur10();
-        let pose = ur.nominal_flange_in_base(&q);
+        let pose = ur.nominal_flange_in_base(&crate::robot::joint_array(&q));
         let numeric = numeric(&ur, &pose, &NumericIkOptions::default());
         assert_eq!(solve(&ur, &pose).unwrap(), numeric);
         // A hint is tried first and found like any start.
@@ -996,19 +1022,21 @@ mod tests {
             &pose,
             &NumericIkOptions {
                 starts: 0,
-                hint_deg: Some([12.0, 18.0, -11.0, 29.0, 41.0, 52.0]),
+                hint_deg: Some([12.0, 18.0, -11.0, 29.0, 41.0, 52.0, 0.0]),
                 ..NumericIkOptions::default()
             },
         );
         assert!(
-            hinted
-                .iter()
-                .any(|s| same_configuration(&s.q_deg, &q, 1e-6)),
+            hinted.iter().any(|s| same_configuration(
+                &s.q_deg,
+                &crate::robot::joint_array(&q),
+                1e-6
+            )),
             "{hinted:?}"
         );
     }
 
-    fn distance(a: &[f64; 6], b: &[f64; 6]) -> f64 {
+    fn distance(a: &[f64; MAX_JOINTS], b: &[f64; MAX_JOINTS]) -> f64 {
         a.iter()
             .zip(b)
             .map(|(x, y)| (x - y).powi(2))

@@ -16,7 +16,9 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::frame::Frame;
-use super::model::{Chain, JOINTS, LoadedChains, Loads, Prediction, PreparedRobot, Robot, Wrench};
+use super::model::{
+    Chain, LoadedChains, Loads, MAX_JOINTS, Prediction, PreparedRobot, Robot, Wrench,
+};
 use super::params::{ParamId, ParamKind, ParamValues};
 use super::positioner::{MAX_POSITIONER_AXES, PositionerChain};
 
@@ -61,13 +63,14 @@ impl Screw {
 }
 
 /// The screw of a geometric parameter on `chain`, and the first body it moves
-/// (1..=6 links, 7 the tool and payload). `None` for world parameters, compliances
+/// (1..=n links, n+1 the tool and payload, n the joint count). `None` for world parameters, compliances
 /// and joint-error terms, which need no torque term.
 impl PreparedRobot<'_> {
     // Inlined: returned through memory, the screw costs a store-forwarding stall per column.
     #[inline(always)]
     fn chain_screw(&self, id: ParamId, chain: &Chain) -> Option<(Screw, usize)> {
-        let flange = &chain.joints[JOINTS];
+        let flange = chain.flange();
+        let tool_body = chain.joint_count + 1;
         Some(match id.kind() {
             ParamKind::Theta(i) => (
                 Screw::Rotation {
@@ -106,14 +109,14 @@ impl PreparedRobot<'_> {
                         axis: flange.rotation * local_axis,
                         point_mm: flange.origin_mm,
                     },
-                    JOINTS + 1,
+                    tool_body,
                 )
             }
             ParamKind::ToolTranslation { axis, .. } => (
                 Screw::Translation {
                     axis: chain.tool.axis(axis),
                 },
-                JOINTS + 1,
+                tool_body,
             ),
             ParamKind::WorldTranslation(_)
             | ParamKind::WorldRotation(_)
@@ -145,13 +148,13 @@ impl PreparedRobot<'_> {
 /// loop over the joints.
 struct DeflectionMaps {
     /// Coefficient of `ω` (without the `G_s` term), per first moved body.
-    rotation: [Matrix3<f64>; JOINTS + 1],
+    rotation: [Matrix3<f64>; MAX_JOINTS + 1],
     /// Coefficient of `v`, per first moved body.
-    translation: [Matrix3<f64>; JOINTS + 1],
+    translation: [Matrix3<f64>; MAX_JOINTS + 1],
     /// `Σ_{i<s} k_i·(∂p/∂q_i)·h_iᵀ`, applied to `ω × G_s`.
-    gravity: [Matrix3<f64>; JOINTS + 1],
+    gravity: [Matrix3<f64>; MAX_JOINTS + 1],
     /// `G_s`, kg·m.
-    moment_kgm: [Vector3<f64>; JOINTS + 1],
+    moment_kgm: [Vector3<f64>; MAX_JOINTS + 1],
 }
 
 impl DeflectionMaps {
@@ -160,21 +163,22 @@ impl DeflectionMaps {
         undeflected: &Chain,
         loads: &Loads,
         gravity: &Vector3<f64>,
-        deflection_rates: &[Vector3<f64>; JOINTS],
+        deflection_rates: &[Vector3<f64>; MAX_JOINTS],
     ) -> Self {
         let tool_m = undeflected.tool.origin_mm * MM;
         let f = &loads.force_base_n;
         let moment = &loads.moment_base_nm;
         let mut before = [Matrix3::zeros(); 3];
         let mut maps = DeflectionMaps {
-            rotation: [Matrix3::zeros(); JOINTS + 1],
-            translation: [Matrix3::zeros(); JOINTS + 1],
-            gravity: [Matrix3::zeros(); JOINTS + 1],
+            rotation: [Matrix3::zeros(); MAX_JOINTS + 1],
+            translation: [Matrix3::zeros(); MAX_JOINTS + 1],
+            gravity: [Matrix3::zeros(); MAX_JOINTS + 1],
             moment_kgm: std::array::from_fn(|s| loads.suffix_moment_kgm[s + 1]),
         };
         // Joints before body s: prefix sums (index s − 1 holds joints 0..s−1).
-        let mut after = [Matrix3::zeros(); JOINTS];
-        for i in 0..JOINTS {
+        let n = undeflected.joint_count;
+        let mut after = [Matrix3::zeros(); MAX_JOINTS];
+        for i in 0..n {
             let s = i + 1;
             let [rotation, translation, gravity_part] = &before;
             maps.rotation[s - 1] = *rotation;
@@ -196,12 +200,12 @@ impl DeflectionMaps {
             after[i] = rate * (-gravity.cross(&gravity_arm)).transpose();
         }
         let [rotation, translation, gravity_part] = &before;
-        maps.rotation[JOINTS] = *rotation;
-        maps.translation[JOINTS] = translation + gravity_part * loads.suffix_mass_kg[JOINTS + 1];
-        maps.gravity[JOINTS] = *gravity_part;
+        maps.rotation[n] = *rotation;
+        maps.translation[n] = translation + gravity_part * loads.suffix_mass_kg[n + 1];
+        maps.gravity[n] = *gravity_part;
         // Joints at or after body s: suffix sums.
         let mut suffix = Matrix3::zeros();
-        for i in (0..JOINTS).rev() {
+        for i in (0..n).rev() {
             suffix += after[i];
             maps.rotation[i] += suffix;
         }
@@ -290,25 +294,28 @@ impl PreparedRobot<'_> {
         let position_mm = world.transform_point(&tool_base);
 
         // d(position in base)/d(joint angle i) per degree, on the deflected chain.
-        let joint_rates: [Vector3<f64>; JOINTS] = std::array::from_fn(|i| {
+        let joint_rates: [Vector3<f64>; MAX_JOINTS] = std::array::from_fn(|i| {
             let joint = &deflected.joints[i + 1];
             joint.axis(2).cross(&(tool_base - joint.origin_mm)) * DEG
         });
-        let deflection_rates: [Vector3<f64>; JOINTS] =
+        let deflection_rates: [Vector3<f64>; MAX_JOINTS] =
             std::array::from_fn(|i| joint_rates[i] * self.compliance(i));
         let gravity = Vector3::from(self.robot().spec().gravity_mps2);
         let maps = DeflectionMaps::new(&undeflected, &loads, &gravity, &deflection_rates);
         // The same maps for the tool's rotation: joint i turns it about its axis,
         // one degree per degree.
         let angular_maps = angular.is_some().then(|| {
-            let rates: [Vector3<f64>; JOINTS] =
+            let rates: [Vector3<f64>; MAX_JOINTS] =
                 std::array::from_fn(|i| deflected.joints[i + 1].axis(2) * self.compliance(i));
             DeflectionMaps::new(&undeflected, &loads, &gravity, &rates)
         });
 
+        let joints = undeflected.joint_count;
         for (j, (column, &id)) in columns.iter_mut().zip(selected).enumerate() {
             let mut rotation_deg = Vector3::zeros();
             *column = match id.kind() {
+                // A joint past the arm's (a six-joint arm's seventh) moves nothing.
+                _ if id.joint().is_some_and(|i| i >= joints) => Vector3::zeros(),
                 ParamKind::WorldTranslation(t) => world_frame.axis(t),
                 ParamKind::Track(term) => match &carriage {
                     Some(carriage) => {
@@ -420,8 +427,8 @@ impl PreparedRobot<'_> {
         (
             Prediction {
                 position_mm,
-                torques_nm: [0.0; JOINTS],
-                deflections_deg: [0.0; JOINTS],
+                torques_nm: [0.0; MAX_JOINTS],
+                deflections_deg: [0.0; MAX_JOINTS],
             },
             world.rotation * chain.table().rotation,
         )
@@ -446,10 +453,10 @@ fn joint_term_factor(id: ParamId, q_deg: f64, approach: i8) -> f64 {
 /// each joint last moved before the reading (−1, 0 unknown, +1; spec §8).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ConfWrench {
-    pub q_deg: [f64; JOINTS],
+    pub q_deg: [f64; MAX_JOINTS],
     pub wrench: Wrench,
     pub target: usize,
-    pub approach: [i8; JOINTS],
+    pub approach: [i8; MAX_JOINTS],
     /// The carriage's position on the robot's track (mm, the row's
     /// `e1_mm`); 0 without a track.
     pub track_mm: f64,
@@ -462,12 +469,12 @@ pub struct ConfWrench {
 
 impl ConfWrench {
     /// A row of the one-target cell, approach unknown.
-    pub fn new(q_deg: [f64; JOINTS], wrench: Wrench) -> Self {
+    pub fn new(q_deg: [f64; MAX_JOINTS], wrench: Wrench) -> Self {
         ConfWrench {
             q_deg,
             wrench,
             target: 0,
-            approach: [0; JOINTS],
+            approach: [0; MAX_JOINTS],
             track_mm: 0.0,
             positioner_deg: None,
         }
@@ -508,8 +515,8 @@ pub fn batch_jacobian(
     let mut predictions = vec![
         Prediction {
             position_mm: Vector3::zeros(),
-            torques_nm: [0.0; JOINTS],
-            deflections_deg: [0.0; JOINTS],
+            torques_nm: [0.0; MAX_JOINTS],
+            deflections_deg: [0.0; MAX_JOINTS],
         };
         rows.len()
     ];
@@ -557,10 +564,10 @@ pub fn batch_predict(robot: &Robot, p: &ParamValues, rows: &[ConfWrench]) -> Vec
 pub(crate) fn deflected_tool_and_joints(
     robot: &Robot,
     p: &ParamValues,
-    q_deg: &[f64; JOINTS],
+    q_deg: &[f64; MAX_JOINTS],
     wrench: &Wrench,
-    approach: &[i8; JOINTS],
-) -> (Frame, [Frame; JOINTS + 1]) {
+    approach: &[i8; MAX_JOINTS],
+) -> (Frame, [Frame; MAX_JOINTS + 1]) {
     let prepared = robot.prepare(p);
     let (_, deflections) = prepared.deflections(q_deg, wrench);
     let terms = prepared.joint_terms.angles_deg(q_deg, approach);
@@ -577,14 +584,11 @@ mod tests {
     use super::*;
     use crate::robot::params::{BASE_PARAM_COUNT, MAX_TARGETS, PARAM_COUNT};
 
-    /// Every slot: the 42, the further targets' translations, the joint
-    /// terms, the track's terms, the positioner's.
+    /// Every slot in slot order: the 42, the further targets' translations,
+    /// the joint terms, the track's terms, the positioner's, a seventh
+    /// joint's (which a six-joint arm's rows do not move).
     fn every_slot() -> Vec<ParamId> {
-        ParamId::all_with_targets(MAX_TARGETS)
-            .chain(ParamId::joint_terms())
-            .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
-            .chain(ParamId::positioner_terms(MAX_POSITIONER_AXES))
-            .collect()
+        (0..PARAM_COUNT).filter_map(ParamId::from_index).collect()
     }
 
     /// A row with random joints, load, target and approach directions; every

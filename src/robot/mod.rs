@@ -14,8 +14,10 @@ pub mod track;
 pub use file::RobotSpec;
 pub use frame::Frame;
 pub use jacobian::{BatchJacobian, ConfWrench, batch_jacobian, batch_predict};
-pub use model::{JOINTS, Prediction, PreparedRobot, Robot, Wrench};
-pub use params::{BASE_PARAM_COUNT, MAX_TARGETS, PARAM_COUNT, ParamId, ParamValues, Selection};
+pub use model::{MAX_JOINTS, Prediction, PreparedRobot, Robot, Wrench, joint_array};
+pub use params::{
+    BASE_PARAM_COUNT, JointParam, MAX_TARGETS, PARAM_COUNT, ParamId, ParamValues, Selection,
+};
 
 #[cfg(test)]
 pub(crate) mod test_support {
@@ -55,6 +57,12 @@ pub(crate) mod test_support {
         Robot::new(RobotSpec::parse(&text, Path::new("irb1600_full_cell.toml")).unwrap())
     }
 
+    /// The shipped Franka Emika Panda file: a seven-joint arm.
+    pub fn panda() -> Robot {
+        let text = include_str!("../../jobs/robots/panda.toml");
+        Robot::new(RobotSpec::parse(text, Path::new("panda.toml")).unwrap())
+    }
+
     /// The shipped UR10 file: an arm without a spherical wrist.
     pub fn ur10() -> Robot {
         let text = include_str!("../../jobs/robots/ur10.toml");
@@ -66,8 +74,8 @@ pub(crate) mod test_support {
         ParamValues::with_overrides(robot.spec(), text, Path::new("irb1600_paper.toml")).unwrap()
     }
 
-    pub fn random_q(robot: &Robot, rng: &mut impl Rng) -> [f64; JOINTS] {
-        std::array::from_fn(|i| {
+    pub fn random_q(robot: &Robot, rng: &mut impl Rng) -> [f64; MAX_JOINTS] {
+        robot.joint_vector(|i| {
             let [lo, hi] = robot.limits_deg(i);
             rng.random_range(lo..hi)
         })

@@ -16,14 +16,27 @@ use nalgebra::{Matrix3, Vector3};
 use super::file::RobotSpec;
 use super::frame::{Frame, rot_x};
 use super::jacobian::ConfWrench;
-use super::params::{MAX_HARMONIC_ORDER, MAX_TARGETS, PARAM_COUNT, ParamId, ParamValues};
+use super::params::{
+    JointParam, MAX_HARMONIC_ORDER, MAX_TARGETS, PARAM_COUNT, ParamId, ParamValues,
+};
 use super::positioner::{
     MAX_POSITIONER_AXES, POSITIONER_TERM_COUNT, PositionerChain, PositionerModel, PositionerTerm,
 };
 use super::track::{Carriage, TrackErrors, TrackTerm};
 
-/// Number of joints; the model is for six-axis arms only.
-pub const JOINTS: usize = 6;
+/// Most joints an arm has: six-axis arms and seven-axis ones (issue #30).
+/// Joint vectors are arrays of this length; an arm with fewer joints leaves
+/// the last entries zero and the model's loops stop at
+/// [`Robot::joint_count`], so a six-joint arm computes exactly what it did
+/// before seven-joint arms existed.
+pub const MAX_JOINTS: usize = 7;
+
+/// A joint vector of the first `values.len()` joints (at most
+/// [`MAX_JOINTS`]), zeros past them: a six-joint table row or setting as the
+/// model's joint vector.
+pub fn joint_array<T: Copy + Default>(values: &[T]) -> [T; MAX_JOINTS] {
+    std::array::from_fn(|i| values.get(i).copied().unwrap_or_default())
+}
 
 /// A wrench applied **to** the robot, in tool-frame axes, reduced to the tool origin.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -58,9 +71,9 @@ pub struct Prediction {
     /// SMR (tool origin) in the world (tracker) frame, mm.
     pub position_mm: Vector3<f64>,
     /// Load torque on each joint (gravity + external wrench), N·m.
-    pub torques_nm: [f64; JOINTS],
+    pub torques_nm: [f64; MAX_JOINTS],
     /// Compliance deflection `k_i·τ_i` of each joint, deg.
-    pub deflections_deg: [f64; JOINTS],
+    pub deflections_deg: [f64; MAX_JOINTS],
 }
 
 /// A robot model built from a robot file: nominal MDH values in radians and
@@ -68,33 +81,46 @@ pub struct Prediction {
 #[derive(Debug, Clone)]
 pub struct Robot {
     spec: RobotSpec,
-    alpha_rad: [f64; JOINTS],
-    a_mm: [f64; JOINTS],
-    theta_offset_rad: [f64; JOINTS],
-    d_mm: [f64; JOINTS],
-    /// Link masses 1..6, then the payload.
-    masses_kg: [f64; JOINTS + 1],
-    /// Centres of gravity of links 1..6 in their own frames, then the payload in the tool frame, mm.
-    cogs_mm: [Vector3<f64>; JOINTS + 1],
+    /// Joints of this arm (6 or 7); entries past it are unused zeros.
+    joint_count: usize,
+    alpha_rad: [f64; MAX_JOINTS],
+    a_mm: [f64; MAX_JOINTS],
+    theta_offset_rad: [f64; MAX_JOINTS],
+    d_mm: [f64; MAX_JOINTS],
+    /// Link masses 1..n, then the payload (at index `joint_count`).
+    masses_kg: [f64; MAX_JOINTS + 1],
+    /// Centres of gravity of links 1..n in their own frames, then the payload in the tool frame, mm.
+    cogs_mm: [Vector3<f64>; MAX_JOINTS + 1],
     gravity_mps2: Vector3<f64>,
 }
 
 /// Frames of one evaluation of the chain, all in the base frame.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Chain {
-    /// `joints[0]` is the base itself, `joints[i]` is MDH frame i.
-    pub joints: [Frame; JOINTS + 1],
+    /// `joints[0]` is the base itself, `joints[i]` is MDH frame i; the
+    /// flange is `joints[joint_count]` and frames past it are the identity.
+    pub joints: [Frame; MAX_JOINTS + 1],
     pub tool: Frame,
+    /// Joints of the arm: the index of the flange in `joints`.
+    pub joint_count: usize,
+}
+
+impl Chain {
+    /// The flange (last MDH frame), base frame.
+    pub fn flange(&self) -> &Frame {
+        &self.joints[self.joint_count]
+    }
 }
 
 /// Load state on the undeflected chain: what the Jacobian needs besides the torques.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Loads {
-    pub torques_nm: [f64; JOINTS],
-    /// Suffix sums over bodies s..7 (links s..6 and the payload), 1-based `s`:
-    /// total mass and first mass moment (kg·m) in the base frame. Index 7 is the payload alone.
-    pub suffix_mass_kg: [f64; JOINTS + 2],
-    pub suffix_moment_kgm: [Vector3<f64>; JOINTS + 2],
+    pub torques_nm: [f64; MAX_JOINTS],
+    /// Suffix sums over bodies s..n+1 (links s..n and the payload), 1-based
+    /// `s`, n the joint count: total mass and first mass moment (kg·m) in the
+    /// base frame. Index n+1 is the payload alone.
+    pub suffix_mass_kg: [f64; MAX_JOINTS + 2],
+    pub suffix_moment_kgm: [Vector3<f64>; MAX_JOINTS + 2],
     /// External force and moment in base axes, N and N·m.
     pub force_base_n: Vector3<f64>,
     pub moment_base_nm: Vector3<f64>,
@@ -104,21 +130,27 @@ const DEG: f64 = std::f64::consts::PI / 180.0;
 const MM: f64 = 1e-3;
 
 impl Robot {
+    /// A robot of a validated file (6 or 7 joints).
     pub fn new(spec: RobotSpec) -> Self {
         let j = &spec.joints;
-        let mut cogs_mm = [Vector3::zeros(); JOINTS + 1];
-        let mut masses_kg = [0.0; JOINTS + 1];
-        for i in 0..JOINTS {
+        let joint_count = j.len().min(MAX_JOINTS);
+        let mut cogs_mm = [Vector3::zeros(); MAX_JOINTS + 1];
+        let mut masses_kg = [0.0; MAX_JOINTS + 1];
+        for i in 0..joint_count {
             cogs_mm[i] = Vector3::from(j[i].link_cog_mm);
             masses_kg[i] = j[i].link_mass_kg;
         }
-        cogs_mm[JOINTS] = Vector3::from(spec.payload.cog_mm);
-        masses_kg[JOINTS] = spec.payload.mass_kg;
+        cogs_mm[joint_count] = Vector3::from(spec.payload.cog_mm);
+        masses_kg[joint_count] = spec.payload.mass_kg;
+        let per_joint = |f: fn(&super::file::JointSpec) -> f64| -> [f64; MAX_JOINTS] {
+            std::array::from_fn(|i| j.get(i).map_or(0.0, f))
+        };
         Robot {
-            alpha_rad: std::array::from_fn(|i| j[i].alpha_deg * DEG),
-            a_mm: std::array::from_fn(|i| j[i].a_mm),
-            theta_offset_rad: std::array::from_fn(|i| j[i].theta_offset_deg * DEG),
-            d_mm: std::array::from_fn(|i| j[i].d_mm),
+            joint_count,
+            alpha_rad: per_joint(|j| j.alpha_deg * DEG),
+            a_mm: per_joint(|j| j.a_mm),
+            theta_offset_rad: per_joint(|j| j.theta_offset_deg * DEG),
+            d_mm: per_joint(|j| j.d_mm),
             masses_kg,
             cogs_mm,
             gravity_mps2: Vector3::from(spec.gravity_mps2),
@@ -130,13 +162,24 @@ impl Robot {
         &self.spec
     }
 
+    /// Joints of this arm: 6 or 7.
+    pub fn joint_count(&self) -> usize {
+        self.joint_count
+    }
+
+    /// A joint vector with `f(i)` for each joint of this arm and zeros past
+    /// them.
+    pub fn joint_vector(&self, mut f: impl FnMut(usize) -> f64) -> [f64; MAX_JOINTS] {
+        std::array::from_fn(|i| if i < self.joint_count { f(i) } else { 0.0 })
+    }
+
     /// Joint limits `[min, max]` in degrees.
     pub fn limits_deg(&self, joint: usize) -> [f64; 2] {
         self.spec.joints[joint].limits_deg
     }
 
-    pub fn within_limits(&self, q_deg: &[f64; JOINTS]) -> bool {
-        (0..JOINTS).all(|i| {
+    pub fn within_limits(&self, q_deg: &[f64; MAX_JOINTS]) -> bool {
+        (0..self.joint_count).all(|i| {
             let [lo, hi] = self.limits_deg(i);
             q_deg[i] >= lo && q_deg[i] <= hi
         })
@@ -181,16 +224,24 @@ impl Robot {
         PreparedRobot {
             robot: self,
             values: *p,
-            alpha_sin_cos: std::array::from_fn(|i| (self.alpha_rad[i] + v[18 + i] * DEG).sin_cos()),
-            a_mm: std::array::from_fn(|i| self.a_mm[i] + v[24 + i]),
-            d_mm: std::array::from_fn(|i| self.d_mm[i] + v[30 + i]),
-            theta_zero_rad: std::array::from_fn(|i| v[12 + i] * DEG + self.theta_offset_rad[i]),
+            alpha_sin_cos: std::array::from_fn(|i| {
+                (self.alpha_rad[i] + p.get(ParamId::of_joint(JointParam::Alpha, i)) * DEG).sin_cos()
+            }),
+            a_mm: std::array::from_fn(|i| {
+                self.a_mm[i] + p.get(ParamId::of_joint(JointParam::A, i))
+            }),
+            d_mm: std::array::from_fn(|i| {
+                self.d_mm[i] + p.get(ParamId::of_joint(JointParam::D, i))
+            }),
+            theta_zero_rad: std::array::from_fn(|i| {
+                p.get(ParamId::of_joint(JointParam::Theta, i)) * DEG + self.theta_offset_rad[i]
+            }),
             flange_from_tool: std::array::from_fn(|target| self.flange_from_tool(p, target)),
             tool_rxy: tool_rx * super::frame::rot_y(v[10] * DEG),
             tool_rx,
             world_from_base: self.world_from_base(p),
             world_rotation_axes: world_rotation_axes(p),
-            joint_terms: JointTerms::of(p),
+            joint_terms: JointTerms::of(p, self.joint_count),
             track: self.spec.track.map(|track| TrackErrors {
                 length_mm: track.length_mm(),
                 coefficients: std::array::from_fn(|slot| {
@@ -208,11 +259,12 @@ impl Robot {
 
     /// Gravity and external-wrench torques on the chain (spec §3; paper eqs. (7)–(16)).
     pub(crate) fn loads(&self, chain: &Chain, wrench: &Wrench) -> Loads {
-        let mut suffix_mass_kg = [0.0; JOINTS + 2];
-        let mut suffix_moment_kgm = [Vector3::zeros(); JOINTS + 2];
-        // Body b (1..=6 links, 7 payload) has its frame at joints[b] or the tool.
-        for body in (1..=JOINTS + 1).rev() {
-            let frame = if body <= JOINTS {
+        let n = self.joint_count;
+        let mut suffix_mass_kg = [0.0; MAX_JOINTS + 2];
+        let mut suffix_moment_kgm = [Vector3::zeros(); MAX_JOINTS + 2];
+        // Body b (1..=n links, n+1 payload) has its frame at joints[b] or the tool.
+        for body in (1..=n + 1).rev() {
+            let frame = if body <= n {
                 &chain.joints[body]
             } else {
                 &chain.tool
@@ -231,6 +283,9 @@ impl Robot {
         let tool_m = chain.tool.origin_mm * MM;
         let g = self.gravity_mps2;
         let torques_nm = std::array::from_fn(|j| {
+            if j >= n {
+                return 0.0;
+            }
             let frame = &chain.joints[j + 1];
             let z = frame.axis(2);
             let o = frame.origin_mm * MM;
@@ -250,9 +305,9 @@ impl Robot {
     pub fn deflections(
         &self,
         p: &ParamValues,
-        q_deg: &[f64; JOINTS],
+        q_deg: &[f64; MAX_JOINTS],
         wrench: &Wrench,
-    ) -> ([f64; JOINTS], [f64; JOINTS]) {
+    ) -> ([f64; MAX_JOINTS], [f64; MAX_JOINTS]) {
         self.prepare(p).deflections(q_deg, wrench)
     }
 
@@ -262,9 +317,9 @@ impl Robot {
     pub fn tool_in_world(
         &self,
         p: &ParamValues,
-        q_deg: &[f64; JOINTS],
+        q_deg: &[f64; MAX_JOINTS],
         wrench: &Wrench,
-        approach: &[i8; JOINTS],
+        approach: &[i8; MAX_JOINTS],
     ) -> Frame {
         let prepared = self.prepare(p);
         prepared
@@ -290,26 +345,35 @@ impl Robot {
     }
 
     /// Paper eq. (17): the SMR position with torques and deflections.
-    pub fn predict(&self, p: &ParamValues, q_deg: &[f64; JOINTS], wrench: &Wrench) -> Prediction {
+    pub fn predict(
+        &self,
+        p: &ParamValues,
+        q_deg: &[f64; MAX_JOINTS],
+        wrench: &Wrench,
+    ) -> Prediction {
         self.prepare(p).predict(q_deg, wrench)
     }
 
-    /// Frames of joints 0..=6 and of the tool in the base frame, unloaded: the
-    /// geometry collision and visibility checks work on.
+    /// Frames of joints 0..=n and of the tool in the base frame, unloaded: the
+    /// geometry collision and visibility checks work on (frames past the
+    /// flange are the identity).
     pub fn frames_in_base(
         &self,
         p: &ParamValues,
-        q_deg: &[f64; JOINTS],
-    ) -> ([Frame; JOINTS + 1], Frame) {
-        let chain = self.prepare(p).chain(q_deg, &[0.0; JOINTS]);
+        q_deg: &[f64; MAX_JOINTS],
+    ) -> ([Frame; MAX_JOINTS + 1], Frame) {
+        let chain = self.prepare(p).chain(q_deg, &[0.0; MAX_JOINTS]);
         (chain.joints, chain.tool)
     }
 
     /// Flange pose in the base frame of the nominal arm (zero errors, no load):
     /// the frame the closed-form inverse kinematics solves for.
-    pub fn nominal_flange_in_base(&self, q_deg: &[f64; JOINTS]) -> Frame {
+    pub fn nominal_flange_in_base(&self, q_deg: &[f64; MAX_JOINTS]) -> Frame {
         let zero = ParamValues([0.0; PARAM_COUNT]);
-        self.prepare(&zero).chain(q_deg, &[0.0; JOINTS]).joints[JOINTS]
+        *self
+            .prepare(&zero)
+            .chain(q_deg, &[0.0; MAX_JOINTS])
+            .flange()
     }
 }
 
@@ -330,26 +394,29 @@ fn world_rotation_axes(p: &ParamValues) -> [Vector3<f64>; 3] {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct JointTerms {
     /// Half dead band per joint, deg, signed by the approach direction.
-    backlash_deg: [f64; JOINTS],
+    backlash_deg: [f64; MAX_JOINTS],
     /// Per joint and order 1..: coefficients (deg) of sin(n·q) and cos(n·q).
-    harmonics_deg: [[(f64, f64); MAX_HARMONIC_ORDER]; JOINTS],
+    harmonics_deg: [[(f64, f64); MAX_HARMONIC_ORDER]; MAX_JOINTS],
     /// Whether any harmonic coefficient is non-zero: the elasto-geometric
     /// model skips their trigonometry.
     any_harmonic: bool,
 }
 
 impl JointTerms {
-    fn of(p: &ParamValues) -> Self {
-        let harmonics_deg: [[(f64, f64); MAX_HARMONIC_ORDER]; JOINTS] =
+    fn of(p: &ParamValues, joints: usize) -> Self {
+        let harmonics_deg: [[(f64, f64); MAX_HARMONIC_ORDER]; MAX_JOINTS] =
             std::array::from_fn(|joint| {
                 std::array::from_fn(|o| {
+                    if joint >= joints {
+                        return (0.0, 0.0);
+                    }
                     (
                         p.get(ParamId::harmonic(joint, o + 1, false)),
                         p.get(ParamId::harmonic(joint, o + 1, true)),
                     )
                 })
             });
-        let mut backlash = ParamId::backlashes();
+        let mut backlash = ParamId::backlashes(joints);
         JointTerms {
             backlash_deg: std::array::from_fn(|_| backlash.next().map_or(0.0, |id| p.get(id))),
             any_harmonic: harmonics_deg
@@ -364,9 +431,9 @@ impl JointTerms {
     /// approached from `approach`.
     pub(crate) fn angles_deg(
         &self,
-        q_deg: &[f64; JOINTS],
-        approach: &[i8; JOINTS],
-    ) -> [f64; JOINTS] {
+        q_deg: &[f64; MAX_JOINTS],
+        approach: &[i8; MAX_JOINTS],
+    ) -> [f64; MAX_JOINTS] {
         std::array::from_fn(|joint| {
             let mut angle = self.backlash_deg[joint] * f64::from(approach[joint]);
             if self.any_harmonic {
@@ -400,11 +467,11 @@ pub struct PreparedRobot<'r> {
     robot: &'r Robot,
     pub(crate) values: ParamValues,
     /// (sin, cos) of each link twist alpha_i.
-    alpha_sin_cos: [(f64, f64); JOINTS],
-    a_mm: [f64; JOINTS],
-    d_mm: [f64; JOINTS],
+    alpha_sin_cos: [(f64, f64); MAX_JOINTS],
+    a_mm: [f64; MAX_JOINTS],
+    d_mm: [f64; MAX_JOINTS],
     /// Joint angle at q_i = 0: offset error plus the nominal theta offset.
-    theta_zero_rad: [f64; JOINTS],
+    theta_zero_rad: [f64; MAX_JOINTS],
     /// Flange → tool of each target (one rotation, a translation per target).
     flange_from_tool: [Frame; MAX_TARGETS],
     /// Tool rotation about x, then about y, of eq. (4) (before the z rotation), in
@@ -462,12 +529,13 @@ impl<'r> PreparedRobot<'r> {
 
     /// Compliance of joint `i`, deg/(N·m).
     pub(crate) fn compliance(&self, joint: usize) -> f64 {
-        self.values.0[36 + joint]
+        self.values
+            .get(ParamId::of_joint(JointParam::Compliance, joint))
     }
 
     /// Forward chain in the base frame for joint commands `q_deg` plus extra joint
     /// angles `extra_deg` (the compliance deflections, or zero), to target 0.
-    pub(crate) fn chain(&self, q_deg: &[f64; JOINTS], extra_deg: &[f64; JOINTS]) -> Chain {
+    pub(crate) fn chain(&self, q_deg: &[f64; MAX_JOINTS], extra_deg: &[f64; MAX_JOINTS]) -> Chain {
         self.chain_at(
             &std::array::from_fn(|i| {
                 ((q_deg[i] + extra_deg[i]) * DEG + self.theta_zero_rad[i]).sin_cos()
@@ -480,9 +548,9 @@ impl<'r> PreparedRobot<'r> {
     /// deflections and the joint-error terms added to the readings.
     pub(crate) fn loaded_chain(
         &self,
-        q_deg: &[f64; JOINTS],
+        q_deg: &[f64; MAX_JOINTS],
         wrench: &Wrench,
-        approach: &[i8; JOINTS],
+        approach: &[i8; MAX_JOINTS],
     ) -> Frame {
         let (_, deflections) = self.deflections(q_deg, wrench);
         let terms = self.joint_terms.angles_deg(q_deg, approach);
@@ -491,9 +559,10 @@ impl<'r> PreparedRobot<'r> {
     }
 
     /// Forward chain for the (sin, cos) of each joint angle, to `target`'s tool frame.
-    fn chain_at(&self, joint_sin_cos: &[(f64, f64); JOINTS], target: usize) -> Chain {
-        let mut joints = [Frame::identity(); JOINTS + 1];
-        for i in 0..JOINTS {
+    fn chain_at(&self, joint_sin_cos: &[(f64, f64); MAX_JOINTS], target: usize) -> Chain {
+        let n = self.robot.joint_count;
+        let mut joints = [Frame::identity(); MAX_JOINTS + 1];
+        for i in 0..n {
             let (sa, ca) = self.alpha_sin_cos[i];
             let (st, ct) = joint_sin_cos[i];
             // Rot(x, alpha) · Rot(z, theta) and Trans(x, a) · Rot(x, alpha) · Trans(z, d), expanded.
@@ -504,8 +573,9 @@ impl<'r> PreparedRobot<'r> {
             joints[i + 1] = joints[i].compose(&local);
         }
         Chain {
-            tool: joints[JOINTS].compose(&self.flange_from_tool[target]),
+            tool: joints[n].compose(&self.flange_from_tool[target]),
             joints,
+            joint_count: n,
         }
     }
 
@@ -524,11 +594,11 @@ impl<'r> PreparedRobot<'r> {
             ..
         } = row;
         let target = *target;
-        let undeflected_sin_cos: [(f64, f64); JOINTS] =
+        let undeflected_sin_cos: [(f64, f64); MAX_JOINTS] =
             std::array::from_fn(|i| (q_deg[i] * DEG + self.theta_zero_rad[i]).sin_cos());
         let undeflected = self.chain_at(&undeflected_sin_cos, target);
         let loads = self.robot.loads(&undeflected, wrench);
-        let deflections_deg: [f64; JOINTS] =
+        let deflections_deg: [f64; MAX_JOINTS] =
             std::array::from_fn(|i| self.compliance(i) * loads.torques_nm[i]);
         let terms_deg = self.joint_terms.angles_deg(q_deg, approach);
         let deflected = self.chain_at(
@@ -551,10 +621,10 @@ impl<'r> PreparedRobot<'r> {
     /// Load torques (N·m) and deflections (deg) for one conf-wrench row.
     pub fn deflections(
         &self,
-        q_deg: &[f64; JOINTS],
+        q_deg: &[f64; MAX_JOINTS],
         wrench: &Wrench,
-    ) -> ([f64; JOINTS], [f64; JOINTS]) {
-        let undeflected = self.chain(q_deg, &[0.0; JOINTS]);
+    ) -> ([f64; MAX_JOINTS], [f64; MAX_JOINTS]) {
+        let undeflected = self.chain(q_deg, &[0.0; MAX_JOINTS]);
         let torques = self.robot.loads(&undeflected, wrench).torques_nm;
         let deflections = std::array::from_fn(|i| self.compliance(i) * torques[i]);
         (torques, deflections)
@@ -562,7 +632,7 @@ impl<'r> PreparedRobot<'r> {
 
     /// Paper eq. (17): the SMR position with torques and deflections (target 0,
     /// no approach direction).
-    pub fn predict(&self, q_deg: &[f64; JOINTS], wrench: &Wrench) -> Prediction {
+    pub fn predict(&self, q_deg: &[f64; MAX_JOINTS], wrench: &Wrench) -> Prediction {
         self.predict_row(&ConfWrench::new(*q_deg, *wrench))
     }
 
@@ -573,8 +643,8 @@ impl<'r> PreparedRobot<'r> {
         if let Some((_, nest_mm)) = self.positioner_nest(row) {
             return Prediction {
                 position_mm: self.world_from_base.transform_point(&nest_mm),
-                torques_nm: [0.0; JOINTS],
-                deflections_deg: [0.0; JOINTS],
+                torques_nm: [0.0; MAX_JOINTS],
+                deflections_deg: [0.0; MAX_JOINTS],
             };
         }
         let chains = self.loaded_chains(row);
@@ -594,7 +664,7 @@ pub(crate) struct LoadedChains {
     pub undeflected: Chain,
     /// Loads on the undeflected chain (first order, as in the paper).
     pub loads: Loads,
-    pub deflections_deg: [f64; JOINTS],
+    pub deflections_deg: [f64; MAX_JOINTS],
     pub deflected: Chain,
 }
 
@@ -658,12 +728,115 @@ mod tests {
               [0.321393804843270, -0.556670399226419, -0.766044443118978]]),
         ];
         for (q, position, rows) in cases {
+            let flange = robot.nominal_flange_in_base(&crate::robot::joint_array(&q));
+            let error = (flange.origin_mm - Vector3::from(position)).norm();
+            assert!(error < 1e-9, "{q:?}: {:?}, {error:e} mm", flange.origin_mm);
+            let rotation = Matrix3::from_fn(|r, c| rows[r][c]);
+            assert!((flange.rotation - rotation).norm() < 1e-12, "{q:?}");
+        }
+    }
+
+    /// jobs/robots/panda.toml (MDH, seven joints) against the URDF chain of
+    /// franka_description, computed independently by
+    /// fixtures/tools/panda_fk.py (its output pasted here).
+    #[test]
+    // The script's output verbatim, digits and all.
+    #[allow(clippy::excessive_precision, clippy::approx_constant)]
+    fn panda_file_matches_the_urdf_chain_of_franka_description() {
+        /// q (deg), flange position (mm), flange rotation rows.
+        type Case = ([f64; 7], [f64; 3], [[f64; 3]; 3]);
+        let robot = crate::robot::test_support::panda();
+        assert_eq!(robot.joint_count(), 7);
+        #[rustfmt::skip]
+        let cases: [Case; 5] = [
+            ([0.0, 0.0, 0.0, -90.0, 0.0, 90.0, 0.0],
+             [554.500000000000, 0.0, 624.500000000000],
+             [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]),
+            ([0.0, -45.0, 0.0, -135.0, 0.0, 90.0, 45.0],
+             [306.890566592941, 0.0, 590.282052302839],
+             [[0.707106781186547, -0.707106781186548, 0.0],
+              [-0.707106781186548, -0.707106781186547, 0.0],
+              [0.0, 0.0, -1.0]]),
+            ([30.0, 20.0, -40.0, -100.0, 60.0, 120.0, -70.0],
+             [655.515586997904, -28.486385973676, 433.871350322061],
+             [[0.715297751602333, 0.606458811484983, 0.347212955583267],
+              [0.365165254266631, -0.748000085322016, 0.554211340045152],
+              [0.595821670996476, -0.269636018236581, -0.756500465327344]]),
+            ([-120.0, 80.0, 150.0, -20.0, -150.0, 10.0, 160.0],
+             [-273.566330502838, -584.824748384290, 437.162900646289],
+             [[-0.081859970971454, 0.965112850854486, 0.248708926796124],
+              [0.636083337299336, -0.141521016166235, 0.758531337515738],
+              [0.767265881662082, 0.220292957442592, -0.602307296766779]]),
+            ([10.0, -90.0, 90.0, -170.0, 100.0, 200.0, -150.0],
+             [80.385522950601, 239.864175790035, 450.476836404233],
+             [[0.061590755003082, -0.424490395695725, 0.903335199613210],
+              [0.696806195166309, 0.666277776949361, 0.265584356318795],
+              [-0.714610177142756, 0.613092022379597, 0.336824088833465]]),
+        ];
+        for (q, position, rows) in cases {
             let flange = robot.nominal_flange_in_base(&q);
             let error = (flange.origin_mm - Vector3::from(position)).norm();
             assert!(error < 1e-9, "{q:?}: {:?}, {error:e} mm", flange.origin_mm);
             let rotation = Matrix3::from_fn(|r, c| rows[r][c]);
             assert!((flange.rotation - rotation).norm() < 1e-12, "{q:?}");
         }
+    }
+
+    /// The seventh joint's parameters move the seven-joint arm's SMR as the
+    /// analytic Jacobian says (finite differences), and a six-joint arm's
+    /// never: its seventh slots are outside its model.
+    #[test]
+    fn a_seventh_joint_has_parameters_by_the_rule_of_the_42() {
+        use crate::robot::params::JointParam;
+        let names: Vec<&str> = [
+            JointParam::Theta,
+            JointParam::Alpha,
+            JointParam::A,
+            JointParam::D,
+            JointParam::Compliance,
+        ]
+        .map(|kind| ParamId::of_joint(kind, 6).name())
+        .to_vec();
+        assert_eq!(names, ["dtheta7", "dalpha7", "da7", "dd7", "k7"]);
+        for name in names {
+            let id = ParamId::from_name(name).unwrap();
+            assert_eq!(id.name(), name);
+        }
+        assert_eq!(ParamId::of_arm(6).count(), 42);
+        assert_eq!(ParamId::of_arm(7).count(), 47);
+        let panda = crate::robot::test_support::panda();
+        let mut p = ParamValues::nominal(panda.spec());
+        p.0[ParamId::of_joint(JointParam::Compliance, 6).index()] = 0.01;
+        let mut rng = StdRng::seed_from_u64(7);
+        let ids: Vec<ParamId> = ParamId::of_arm(7).collect();
+        for _ in 0..20 {
+            let row = ConfWrench::new(random_q(&panda, &mut rng), random_wrench(&mut rng));
+            let prepared = panda.prepare(&p);
+            let mut columns = vec![Vector3::zeros(); ids.len()];
+            let base = prepared.jacobian_row(&row, &ids, &mut columns).position_mm;
+            for (id, column) in ids.iter().zip(&columns) {
+                let step = if id.is_compliance() { 1e-6 } else { 1e-5 };
+                let mut moved = p;
+                moved.0[id.index()] += step;
+                let ahead = panda.prepare(&moved).predict_row(&row).position_mm;
+                let numeric = (ahead - base) / step;
+                assert!(
+                    (numeric - column).norm() < 1e-4 * (1.0 + column.norm()),
+                    "{id}: analytic {column:?}, numeric {numeric:?}"
+                );
+            }
+        }
+        let irb = irb1600();
+        let truth = truth_params(&irb);
+        let mut with_seventh = truth;
+        for id in ParamId::of_arm(7).skip(42) {
+            with_seventh.0[id.index()] = 0.5;
+        }
+        let row = ConfWrench::new(random_q(&irb, &mut rng), random_wrench(&mut rng));
+        assert_eq!(
+            irb.prepare(&truth).predict_row(&row),
+            irb.prepare(&with_seventh).predict_row(&row)
+        );
     }
 
     #[test]
@@ -675,7 +848,7 @@ mod tests {
             ([0.0, 0.0, 30.0, 0.0, 0.0, 0.0], [725.907, 0.0, 854.000]),
         ];
         for (q, expected) in cases {
-            let flange = robot.nominal_flange_in_base(&q);
+            let flange = robot.nominal_flange_in_base(&crate::robot::joint_array(&q));
             // The spec prints three decimals; the exact values follow from its geometry.
             let exact = exact_flange(q[1], q[2]);
             for k in 0..3 {
@@ -689,7 +862,7 @@ mod tests {
                 );
             }
         }
-        let home = robot.nominal_flange_in_base(&[0.0; 6]);
+        let home = robot.nominal_flange_in_base(&[0.0; 7]);
         assert!((home.axis(2) - Vector3::new(1.0, 0.0, 0.0)).norm() < 1e-12);
     }
 
@@ -747,7 +920,7 @@ mod tests {
             let w = random_wrench(&mut rng);
             let (with_load, _) = robot.deflections(&p, &q, &w);
             let (gravity_only, _) = robot.deflections(&p, &q, &Wrench::zero());
-            let chain = robot.prepare(&p).chain(&q, &[0.0; 6]);
+            let chain = robot.prepare(&p).chain(&q, &[0.0; 7]);
             let f = chain.tool.rotation * w.force_n;
             let m = chain.tool.rotation * w.moment_nm;
             for i in 0..6 {
@@ -774,9 +947,9 @@ mod tests {
             let loaded = robot.predict(&p, &q, &random_wrench(&mut rng));
             let kinematic = robot
                 .world_from_base(&p)
-                .transform_point(&robot.prepare(&p).chain(&q, &[0.0; 6]).tool.origin_mm);
+                .transform_point(&robot.prepare(&p).chain(&q, &[0.0; 7]).tool.origin_mm);
             assert_eq!(loaded.position_mm, kinematic);
-            assert_eq!(loaded.deflections_deg, [0.0; 6]);
+            assert_eq!(loaded.deflections_deg, [0.0; MAX_JOINTS]);
         }
     }
 
@@ -786,14 +959,18 @@ mod tests {
         let p = truth_params(&robot);
         let q = [10.0, 20.0, -30.0, 40.0, 50.0, 60.0];
         let w = Wrench::from_array([0.0, 0.0, 100.0, 0.0, 0.0, 5.0]);
-        let prediction = robot.predict(&p, &q, &w);
+        let prediction = robot.predict(&p, &crate::robot::joint_array(&q), &w);
         let q_deflected: [f64; 6] = std::array::from_fn(|i| q[i] + prediction.deflections_deg[i]);
         let mut rigid = p;
         for i in 0..6 {
             rigid.0[36 + i] = 0.0;
         }
         let moved = robot
-            .predict(&rigid, &q_deflected, &Wrench::zero())
+            .predict(
+                &rigid,
+                &crate::robot::joint_array(&q_deflected),
+                &Wrench::zero(),
+            )
             .position_mm;
         assert!((moved - prediction.position_mm).norm() < 1e-9);
         assert!(prediction.deflections_deg[5].abs() > 0.1);

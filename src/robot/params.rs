@@ -1,6 +1,10 @@
 //! The 42 calibration parameters (`../shared/spec/model.md` §4): names, units, a
 //! full value set, and a selection of which are free.
 //!
+//! A seventh joint (issue #30) extends the 42 by their rule: `dtheta7, dalpha7,
+//! da7, dd7, k7`, in slots after all others so a six-joint arm's columns keep
+//! their order.
+//!
 //! Several targets (spec §7): each target (SMR nest) has its own flange → target
 //! translation. Target 0 uses `x_t, y_t, z_t`; targets 1.. have slots of their own
 //! after the 42, so a value set stays a fixed-size, copyable array. How a target
@@ -31,7 +35,7 @@ pub const MAX_HARMONIC_ORDER: usize = 3;
 
 /// Slots of the joint-error terms beyond the paper (issue #29): a backlash per
 /// joint, then per joint and order a sine and a cosine coefficient.
-const JOINT_TERM_COUNT: usize = JOINTS + 2 * JOINTS * MAX_HARMONIC_ORDER;
+const JOINT_TERM_COUNT: usize = MAX_JOINTS + 2 * MAX_JOINTS * MAX_HARMONIC_ORDER;
 
 /// First slot of the track's error terms (issue #30).
 const TRACK_START: usize = TARGETED_PARAM_COUNT + JOINT_TERM_COUNT;
@@ -39,11 +43,23 @@ const TRACK_START: usize = TARGETED_PARAM_COUNT + JOINT_TERM_COUNT;
 /// First slot of the positioner's terms (issue #30).
 const POSITIONER_START: usize = TRACK_START + TRACK_TERM_COUNT;
 
-/// Value slots: the 42, one translation triple per further target, the
-/// joint-error terms, the track's error terms, then the positioner's.
-pub const PARAM_COUNT: usize = POSITIONER_START + POSITIONER_TERM_COUNT;
+/// First slot of a seventh joint's MDH errors and compliance (issue #30):
+/// after every other slot, so a six-joint arm's slots keep their order.
+const SEVENTH_JOINT_START: usize = POSITIONER_START + POSITIONER_TERM_COUNT;
 
-use super::model::JOINTS;
+/// A seventh joint's `dtheta7, dalpha7, da7, dd7, k7`.
+const SEVENTH_JOINT_COUNT: usize = 5;
+
+/// Value slots: the 42, one translation triple per further target, the
+/// joint-error terms, the track's error terms, the positioner's, then a
+/// seventh joint's.
+pub const PARAM_COUNT: usize = SEVENTH_JOINT_START + SEVENTH_JOINT_COUNT;
+
+/// Names of a seventh joint's slots, in slot order (the rule of the 42:
+/// kind, then the joint's number).
+const SEVENTH_JOINT_NAMES: [&str; SEVENTH_JOINT_COUNT] = ["dtheta7", "dalpha7", "da7", "dd7", "k7"];
+
+use super::model::MAX_JOINTS;
 use super::positioner::{POSITIONER_TERM_COUNT, PositionerTerm};
 use super::track::{TRACK_TERM_COUNT, TrackTerm};
 
@@ -51,6 +67,16 @@ use super::track::{TRACK_TERM_COUNT, TrackTerm};
 /// translations of targets 1.. .
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct ParamId(u8);
+
+/// A joint's MDH error or compliance, in the order of the 42's blocks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum JointParam {
+    Theta = 0,
+    Alpha = 1,
+    A = 2,
+    D = 3,
+    Compliance = 4,
+}
 
 /// What a parameter is, for the Jacobian and for display.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -148,13 +174,22 @@ impl ParamId {
         (0..BASE_PARAM_COUNT as u8).map(ParamId)
     }
 
-    /// The 42, then the terms of the robot file's track (to its polynomial
-    /// order) and of its positioner when it has them: every parameter of the
-    /// cell's geometry and compliance, for rank analyses and designs.
+    /// The 42 of an arm with `joints` joints (6 or 7): a seventh joint adds
+    /// `dtheta7, dalpha7, da7, dd7, k7` after them.
+    pub fn of_arm(joints: usize) -> impl Iterator<Item = ParamId> {
+        let seventh = if joints > 6 { SEVENTH_JOINT_COUNT } else { 0 };
+        ParamId::all()
+            .chain((SEVENTH_JOINT_START..SEVENTH_JOINT_START + seventh).map(|i| ParamId(i as u8)))
+    }
+
+    /// The arm's parameters ([`Self::of_arm`]), then the terms of the robot
+    /// file's track (to its polynomial order) and of its positioner when it
+    /// has them: every parameter of the cell's geometry and compliance, for
+    /// rank analyses and designs.
     pub fn of_robot(spec: &RobotSpec) -> impl Iterator<Item = ParamId> + use<> {
         let order = spec.track.map_or(0, |t| t.polynomial_order);
         let axes = spec.positioner.as_ref().map(|p| p.axes.len());
-        ParamId::all()
+        ParamId::of_arm(spec.joints.len())
             .chain(ParamId::track_terms(order))
             .chain(axes.into_iter().flat_map(ParamId::positioner_terms))
     }
@@ -176,21 +211,37 @@ impl ParamId {
         ParamId((POSITIONER_START + term.slot()) as u8)
     }
 
-    /// The 42 and the translations of targets 1..`targets`.
-    pub fn all_with_targets(targets: usize) -> impl Iterator<Item = ParamId> {
+    /// The 42 and the translations of targets 1..`targets`, then a seventh
+    /// joint's parameters when the arm has `joints` = 7.
+    pub fn all_with_targets(joints: usize, targets: usize) -> impl Iterator<Item = ParamId> {
         let extra = 3 * targets.clamp(1, MAX_TARGETS).saturating_sub(1);
-        (0..(BASE_PARAM_COUNT + extra) as u8).map(ParamId)
+        (0..(BASE_PARAM_COUNT + extra) as u8)
+            .map(ParamId)
+            .chain(ParamId::of_arm(joints).skip(BASE_PARAM_COUNT))
     }
 
-    /// The backlash of each joint, in joint order.
-    pub fn backlashes() -> impl Iterator<Item = ParamId> {
-        (0..JOINTS).map(|joint| ParamId((TARGETED_PARAM_COUNT + joint) as u8))
+    /// The parameter of `kind` (theta, alpha, a, d or compliance) of `joint`
+    /// (0-based): slots 12.. of the 42 for joints 1–6, a seventh joint's
+    /// after every other slot.
+    pub fn of_joint(kind: JointParam, joint: usize) -> ParamId {
+        assert!(joint < MAX_JOINTS, "joint {joint}");
+        let k = kind as usize;
+        if joint < 6 {
+            ParamId((12 + 6 * k + joint) as u8)
+        } else {
+            ParamId((SEVENTH_JOINT_START + k) as u8)
+        }
     }
 
-    /// The sine and cosine coefficients of every joint at `orders` (each in
-    /// 1..=[`MAX_HARMONIC_ORDER`]; others are skipped).
-    pub fn harmonics(orders: &[usize]) -> impl Iterator<Item = ParamId> + '_ {
-        (0..JOINTS).flat_map(move |joint| {
+    /// The backlash of each of the first `joints` joints, in joint order.
+    pub fn backlashes(joints: usize) -> impl Iterator<Item = ParamId> {
+        (0..joints.min(MAX_JOINTS)).map(|joint| ParamId((TARGETED_PARAM_COUNT + joint) as u8))
+    }
+
+    /// The sine and cosine coefficients of each of the first `joints` joints
+    /// at `orders` (each in 1..=[`MAX_HARMONIC_ORDER`]; others are skipped).
+    pub fn harmonics(joints: usize, orders: &[usize]) -> impl Iterator<Item = ParamId> + '_ {
+        (0..joints.min(MAX_JOINTS)).flat_map(move |joint| {
             orders
                 .iter()
                 .filter(|o| (1..=MAX_HARMONIC_ORDER).contains(*o))
@@ -203,10 +254,10 @@ impl ParamId {
     /// The coefficient of `sin(order·q_joint)` (or `cos`).
     pub fn harmonic(joint: usize, order: usize, cosine: bool) -> ParamId {
         assert!(
-            joint < JOINTS && (1..=MAX_HARMONIC_ORDER).contains(&order),
+            joint < MAX_JOINTS && (1..=MAX_HARMONIC_ORDER).contains(&order),
             "joint {joint} order {order}"
         );
-        let slot = JOINTS + 2 * (joint * MAX_HARMONIC_ORDER + order - 1) + usize::from(cosine);
+        let slot = MAX_JOINTS + 2 * (joint * MAX_HARMONIC_ORDER + order - 1) + usize::from(cosine);
         ParamId((TARGETED_PARAM_COUNT + slot) as u8)
     }
 
@@ -256,6 +307,12 @@ impl ParamId {
             .position(|n| *n == name)
             .map(|i| ParamId(i as u8))
             .or_else(|| {
+                SEVENTH_JOINT_NAMES
+                    .iter()
+                    .position(|n| *n == name)
+                    .map(|slot| ParamId((SEVENTH_JOINT_START + slot) as u8))
+            })
+            .or_else(|| {
                 JOINT_TERM_NAMES
                     .iter()
                     .position(|n| n == name)
@@ -283,6 +340,7 @@ impl ParamId {
             .chain(JOINT_TERM_NAMES.iter().map(String::as_str))
             .chain(TRACK_TERM_NAMES.iter().map(String::as_str))
             .chain(POSITIONER_TERM_NAMES.iter().map(String::as_str))
+            .chain(SEVENTH_JOINT_NAMES)
     }
 
     /// The spec's name; a further target's translation is `x_t[#k]` until a table
@@ -294,7 +352,8 @@ impl ParamId {
             None if i < TARGETED_PARAM_COUNT => &TARGET_NAMES[i - BASE_PARAM_COUNT],
             None if i < TRACK_START => &JOINT_TERM_NAMES[i - TARGETED_PARAM_COUNT],
             None if i < POSITIONER_START => &TRACK_TERM_NAMES[i - TRACK_START],
-            None => &POSITIONER_TERM_NAMES[i - POSITIONER_START],
+            None if i < SEVENTH_JOINT_START => &POSITIONER_TERM_NAMES[i - POSITIONER_START],
+            None => SEVENTH_JOINT_NAMES[i - SEVENTH_JOINT_START],
         }
     }
 
@@ -313,12 +372,19 @@ impl ParamId {
             24..=29 => ParamKind::A(i - 24),
             30..=35 => ParamKind::D(i - 30),
             36..=41 => ParamKind::Compliance(i - 36),
+            _ if i >= SEVENTH_JOINT_START => match i - SEVENTH_JOINT_START {
+                0 => ParamKind::Theta(6),
+                1 => ParamKind::Alpha(6),
+                2 => ParamKind::A(6),
+                3 => ParamKind::D(6),
+                _ => ParamKind::Compliance(6),
+            },
             _ if i >= POSITIONER_START => {
                 ParamKind::Positioner(PositionerTerm::of_slot(i - POSITIONER_START))
             }
             _ if i >= TRACK_START => ParamKind::Track(TrackTerm::of_slot(i - TRACK_START)),
-            _ if i >= TARGETED_PARAM_COUNT + JOINTS => {
-                let slot = i - TARGETED_PARAM_COUNT - JOINTS;
+            _ if i >= TARGETED_PARAM_COUNT + MAX_JOINTS => {
+                let slot = i - TARGETED_PARAM_COUNT - MAX_JOINTS;
                 ParamKind::Harmonic {
                     joint: slot / (2 * MAX_HARMONIC_ORDER),
                     order: 1 + (slot % (2 * MAX_HARMONIC_ORDER)) / 2,
@@ -330,6 +396,21 @@ impl ParamId {
                 target: 1 + (i - BASE_PARAM_COUNT) / 3,
                 axis: (i - BASE_PARAM_COUNT) % 3,
             },
+        }
+    }
+
+    /// The joint (0-based) an MDH error, compliance or joint-error term
+    /// belongs to; `None` for frames, tracks and positioners.
+    pub fn joint(self) -> Option<usize> {
+        match self.kind() {
+            ParamKind::Theta(i)
+            | ParamKind::Alpha(i)
+            | ParamKind::A(i)
+            | ParamKind::D(i)
+            | ParamKind::Compliance(i)
+            | ParamKind::Backlash(i)
+            | ParamKind::Harmonic { joint: i, .. } => Some(i),
+            _ => None,
         }
     }
 
@@ -582,8 +663,8 @@ mod tests {
         assert_eq!(id.name(), "y_t[#3]");
         assert_eq!(id.unit(), "mm");
         assert_eq!(ParamId::from_index(id.index()), Some(id));
-        assert_eq!(ParamId::all_with_targets(1).count(), 42);
-        assert_eq!(ParamId::all_with_targets(3).count(), 48);
+        assert_eq!(ParamId::all_with_targets(6, 1).count(), 42);
+        assert_eq!(ParamId::all_with_targets(6, 3).count(), 48);
         assert_eq!(
             ParamId::target_translation(MAX_TARGETS - 1, 2).index(),
             TARGETED_PARAM_COUNT - 1
@@ -593,15 +674,19 @@ mod tests {
     #[test]
     fn joint_terms_have_slots_names_and_kinds_of_their_own() {
         let terms: Vec<ParamId> = ParamId::joint_terms().collect();
-        assert_eq!(terms.len(), 6 + 2 * 6 * MAX_HARMONIC_ORDER);
+        assert_eq!(
+            terms.len(),
+            MAX_JOINTS + 2 * MAX_JOINTS * MAX_HARMONIC_ORDER
+        );
         assert_eq!(terms.last().unwrap().index(), TRACK_START - 1);
-        // The track's terms follow, then the positioner's to the last slot.
+        // The track's terms follow, then the positioner's, then a seventh joint's.
         let track: Vec<ParamId> = ParamId::track_terms(3).collect();
         assert_eq!(track.len(), TRACK_TERM_COUNT);
         assert_eq!(track.last().unwrap().index(), POSITIONER_START - 1);
         let positioner: Vec<ParamId> = ParamId::positioner_terms(2).collect();
         assert_eq!(positioner.len(), POSITIONER_TERM_COUNT);
-        assert_eq!(positioner.last().unwrap().index(), PARAM_COUNT - 1);
+        assert_eq!(positioner.last().unwrap().index(), SEVENTH_JOINT_START - 1);
+        assert_eq!(ParamId::of_arm(7).last().unwrap().index(), PARAM_COUNT - 1);
         assert_eq!(ParamId::positioner_terms(1).count(), 10);
         assert!(positioner.iter().all(|p| p.is_positioner_term()));
         assert_eq!(ParamId::from_name("dalpha_p2"), Some(positioner[11]));
@@ -627,7 +712,7 @@ mod tests {
             assert_eq!(ParamId::from_name(id.name()), Some(*id));
             assert_eq!(id.unit(), "deg");
         }
-        assert_eq!(ParamId::backlashes().nth(2).unwrap().name(), "backlash3");
+        assert_eq!(ParamId::backlashes(6).nth(2).unwrap().name(), "backlash3");
         let h = ParamId::harmonic(3, 2, true);
         assert_eq!(h.name(), "cos2q4");
         assert_eq!(
@@ -638,8 +723,8 @@ mod tests {
                 cosine: true
             }
         );
-        assert_eq!(ParamId::harmonics(&[1, 2]).count(), 24);
-        assert_eq!(ParamId::harmonics(&[9]).count(), 0);
+        assert_eq!(ParamId::harmonics(6, &[1, 2]).count(), 24);
+        assert_eq!(ParamId::harmonics(6, &[9]).count(), 0);
         // The 42 and the targets keep their slots.
         assert_eq!(ParamId::target_translation(7, 2).index(), 62);
     }

@@ -503,7 +503,7 @@ mod tests {
             let row = ConfWrench {
                 target: 2,
                 positioner_deg: Some(p_deg),
-                ..ConfWrench::new([10.0; 6], Wrench::zero())
+                ..ConfWrench::new([10.0; 7], Wrench::zero())
             };
             let got = robot.prepare(&p).predict_row(&row).position_mm;
             assert!(

@@ -138,6 +138,7 @@ impl Stage for AccuracyMapStage {
         ctx: &StageContext,
         settings: &AccuracyMapSettings,
     ) -> Result<StageOutputs, StageError> {
+        super::require_six_joints(ctx, "the map reaches its grid by inverse kinematics")?;
         let set = model_set(ctx, "parameters", "model", &settings.model)?
             .ok_or_else(|| StageError::Invalid("input `parameters` is not bound".into()))?;
         let covariance = bound_covariance(ctx, &set)?.flatten().ok_or_else(|| {

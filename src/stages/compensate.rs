@@ -84,7 +84,7 @@ use crate::compensation::envelope::{self, EnvelopeLimits, EnvelopeMeasures, Join
 use crate::compensation::{self, Command, Options, Status, Target, pose_frame};
 use crate::robot::ik::NumericOptions;
 use crate::robot::positioner::MAX_POSITIONER_AXES;
-use crate::robot::{ConfWrench, Frame, JOINTS, ParamId, ParamValues, Robot, Wrench};
+use crate::robot::{ConfWrench, Frame, MAX_JOINTS, ParamId, ParamValues, Robot, Wrench};
 use crate::table::frame;
 use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
@@ -172,7 +172,7 @@ pub struct CompensateSettings {
     /// target, `export_program`'s `pre_position_deg`). Absent: +1 on every
     /// joint with a model whose backlash is not zero, else 0 (no direction).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub approach: Option<[i8; JOINTS]>,
+    pub approach: Option<[i8; 6]>,
 }
 
 impl Default for CompensateSettings {
@@ -349,6 +349,7 @@ impl Stage for CompensateStage {
         ctx: &StageContext,
         settings: &CompensateSettings,
     ) -> Result<StageOutputs, StageError> {
+        super::require_six_joints(ctx, "compensation solves the inverse kinematics")?;
         let set = model_set(ctx, "parameters", "model", &settings.model)?;
         let values = set
             .as_ref()
@@ -488,7 +489,7 @@ impl Stage for CompensateStage {
         // The direction each joint must reach its command from, for the
         // program (spec §8's dir columns); absent when none was used.
         let approach_columns: Vec<Column> = if approach.iter().any(|d| *d != 0) {
-            (0..JOINTS)
+            (0..schema::APPROACH_COLUMNS.len())
                 .map(|j| {
                     Column::new(
                         schema::APPROACH_COLUMNS[j].into(),
@@ -600,7 +601,7 @@ pub(super) fn nominal_target_commands(
         robot,
         &values,
         &targets,
-        &settings.solver_options([0; JOINTS]),
+        &settings.solver_options([0; MAX_JOINTS]),
     );
     Ok((rows.ids, targets, commands))
 }
@@ -644,19 +645,19 @@ impl CompensateSettings {
     /// The approach direction of every joint for the parameter `values`: the
     /// setting, else +1 on every joint when the values hold a backlash (a
     /// model with backlash needs a direction to place the tool), else none.
-    fn approach_for(&self, values: &ParamValues) -> [i8; JOINTS] {
-        self.approach.unwrap_or_else(|| {
-            if ParamId::backlashes().any(|id| values.get(id) != 0.0) {
-                [1; JOINTS]
-            } else {
-                [0; JOINTS]
+    fn approach_for(&self, values: &ParamValues) -> [i8; MAX_JOINTS] {
+        match self.approach {
+            Some(approach) => crate::robot::joint_array(&approach),
+            None if ParamId::backlashes(MAX_JOINTS).any(|id| values.get(id) != 0.0) => {
+                crate::robot::joint_array(&[1; 6])
             }
-        })
+            None => [0; MAX_JOINTS],
+        }
     }
 
     /// The loaded IK's options these settings describe, each joint reaching
     /// its command from `approach`.
-    fn solver_options(&self, approach: [i8; JOINTS]) -> Options {
+    fn solver_options(&self, approach: [i8; MAX_JOINTS]) -> Options {
         Options {
             solver: NumericOptions {
                 max_iterations: self.max_iterations,
@@ -719,7 +720,7 @@ fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError
         .filter(|&k| keep.as_ref().is_none_or(|kept| kept.contains(&ids[k])))
         .filter(|&k| nest_axes[k].is_none())
         .collect();
-    let configurations: Vec<[f64; JOINTS]> = kept.iter().map(|&k| rows[k]).collect();
+    let configurations: Vec<[f64; MAX_JOINTS]> = kept.iter().map(|&k| rows[k]).collect();
     let positions: Vec<f64> = match ctx.robot.spec().track {
         Some(_) => kept.iter().map(|&k| track_mm[k]).collect(),
         None => Vec::new(),
@@ -734,15 +735,12 @@ fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError
 }
 
 /// cw_id and joint columns of an `envelope` table (any other columns play no part).
-fn conf_wrench_rows_of(table: &InputTable) -> Result<(Vec<i64>, Vec<[f64; JOINTS]>), StageError> {
+fn conf_wrench_rows_of(
+    table: &InputTable,
+) -> Result<(Vec<i64>, Vec<[f64; MAX_JOINTS]>), StageError> {
     let ids = i64_values(&table.df, "cw_id", &table.path)?;
-    let joints = JOINT_COLUMNS
-        .iter()
-        .map(|c| f64_values(&table.df, c, &table.path))
-        .collect::<Result<Vec<_>, _>>()?;
-    let rows = (0..ids.len())
-        .map(|k| std::array::from_fn(|i| joints[i][k]))
-        .collect();
+    // Six joints: `compensate` refuses another arm.
+    let rows = schema::joint_vectors(&table.df, &table.path, JOINT_COLUMNS.len())?;
     Ok((ids, rows))
 }
 
@@ -774,7 +772,7 @@ struct TargetRows {
     /// Each row's `tool_id` value (null or absent: `None`).
     tool_ids: Vec<Option<String>>,
     wrenches: Vec<Wrench>,
-    hints: Vec<Option<[f64; JOINTS]>>,
+    hints: Vec<Option<[f64; MAX_JOINTS]>>,
     /// Each row's carriage position (`e1_mm`; zeros without a track).
     track_mm: Vec<f64>,
     /// Each row's positioner axis values (`p1_deg`, `p2_deg`; `None` where
@@ -892,14 +890,14 @@ fn target_rows(
             ));
         }
         let wrench = Wrench::from_array(std::array::from_fn(|i| wrench[i][row].unwrap_or(0.0)));
-        if let Some(problem) = wrench_problem(&ConfWrench::new([0.0; JOINTS], wrench)) {
+        if let Some(problem) = wrench_problem(&ConfWrench::new([0.0; MAX_JOINTS], wrench)) {
             return Err(bad(row, problem));
         }
         let given: Vec<f64> = hint.iter().filter_map(|c| c[row]).collect();
         let hint_deg = match given.len() {
             0 => None,
-            JOINTS => {
-                let hint_deg: [f64; JOINTS] = std::array::from_fn(|i| given[i]);
+            n if n == JOINT_COLUMNS.len() => {
+                let hint_deg = crate::robot::joint_array(&given);
                 if let Some(problem) = joints_problem(robot, &hint_deg) {
                     return Err(bad(row, format!("branch hint: {problem}")));
                 }
@@ -1113,7 +1111,7 @@ fn conf_wrenches_frame(
     ids: &[i64],
     targets: &[Target],
     commands: &[Command],
-    approach: &[i8; JOINTS],
+    approach: &[i8; MAX_JOINTS],
     on_track: bool,
 ) -> DataFrame {
     let ok: Vec<usize> = (0..ids.len())

@@ -389,6 +389,7 @@ impl Stage for ExportProgramStage {
         ctx: &StageContext,
         settings: &ExportProgramSettings,
     ) -> Result<StageOutputs, StageError> {
+        super::require_six_joints(ctx, "the programs are written for six-axis controllers")?;
         let input = ctx.input("commands")?;
         let mut commands = read_commands(&input.df, &input.path)?;
         check_commands(ctx.robot, &commands, &input.path)?;
@@ -951,10 +952,8 @@ pub fn read_commands(
     path: &std::path::Path,
 ) -> Result<Vec<Command>, TableError> {
     let ids = i64_values(df, "target_id", path)?;
-    let joints: Vec<Vec<f64>> = JOINT_COLUMNS
-        .iter()
-        .map(|c| f64_values(df, c, path))
-        .collect::<Result<_, _>>()?;
+    // Six joints: `export_program` refuses another arm.
+    let joints = schema::joint_vectors(df, path, JOINT_COLUMNS.len())?;
     let status = str_values(df, "status", path)?;
     let [residual, correction, elastic] =
         ["residual_mm", "correction_mm", "elastic_mm"].map(|c| f64_values(df, c, path));
@@ -994,7 +993,7 @@ pub fn read_commands(
         }
         rows.push(Command {
             target_id: *id,
-            q_deg: std::array::from_fn(|j| joints[j][row]),
+            q_deg: joints[row],
             status: status[row].clone().unwrap_or_default(),
             residual_mm: residual[row],
             correction_mm: correction[row],
@@ -1044,7 +1043,7 @@ mod tests {
     use super::*;
     use crate::robot::test_support::irb1600;
 
-    fn row(target_id: i64, status: &str, q_deg: [f64; 6]) -> Command {
+    fn row(target_id: i64, status: &str, q_deg: [f64; crate::robot::MAX_JOINTS]) -> Command {
         Command {
             target_id,
             q_deg,
@@ -1057,7 +1056,7 @@ mod tests {
             tool_id: None,
             envelope_distance: Some(3.0),
             u95_mm: Some(0.2),
-            approach: [0; 6],
+            approach: [0; 7],
             track_mm: None,
             positioner_deg: None,
         }
@@ -1085,8 +1084,8 @@ mod tests {
         let robot = irb1600();
         let q = [10.0, 20.0, -30.0, 40.0, 50.0, 60.0];
         let good = vec![
-            row(1, "ok", q),
-            row(2, "joint_limit", [0.0, 500.0, 0.0, 0.0, 0.0, 0.0]),
+            row(1, "ok", crate::robot::joint_array(&q)),
+            row(2, "joint_limit", [0.0, 500.0, 0.0, 0.0, 0.0, 0.0, 0.0]),
         ];
         // A row that is not ok may keep a last iterate beyond the limits.
         assert!(check_commands(&robot, &good, std::path::Path::new("c.parquet")).is_ok());

@@ -556,7 +556,7 @@ fn changed_parameters(
     candidate: &ParameterSet,
     in_service: &ParameterSet,
 ) -> Vec<(ParamId, f64, Option<f64>)> {
-    ParamId::all()
+    ParamId::of_arm(crate::robot::MAX_JOINTS)
         .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
         .chain(ParamId::positioner_terms(
             crate::robot::positioner::MAX_POSITIONER_AXES,

@@ -717,9 +717,11 @@ pub fn ids_with_role(table: &InputTable, role: &str) -> Result<HashSet<i64>, Sta
         .collect())
 }
 
-fn parse_candidates(names: &[String]) -> Result<Vec<ParamId>, StageError> {
+/// The job's candidates, default the arm's parameters (the 42, and a
+/// seventh joint's for an arm of `joints` = 7).
+fn parse_candidates(names: &[String], joints: usize) -> Result<Vec<ParamId>, StageError> {
     if names.is_empty() {
-        return Ok(ParamId::all().collect());
+        return Ok(ParamId::of_arm(joints).collect());
     }
     names
         .iter()
@@ -872,7 +874,7 @@ impl Stage for IdentifyStage {
             .collect();
         fixed.extend(tool_fixed);
         let options = CalibrationOptions {
-            candidates: parse_candidates(&settings.candidates)?,
+            candidates: parse_candidates(&settings.candidates, ctx.robot.joint_count())?,
             rank_tolerance: settings.rank_tolerance,
             fit: settings.fit_options(),
             robust,

@@ -30,7 +30,7 @@ use crate::rig::driver::ExternalDriver;
 use crate::rig::reading_checks::{ReadingBounds, sigma_fault, track_fault};
 use crate::rig::simulator::{Simulator, SimulatorSettings};
 use crate::rig::{Disposition, Rig, RigError, timeout_from_seconds};
-use crate::robot::{ConfWrench, JOINTS};
+use crate::robot::{ConfWrench, MAX_JOINTS};
 use crate::table::parameters::ModelName;
 use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS, SIGMA_COLUMNS, WRENCH_COLUMNS};
 use crate::table::{content_hash, frame};
@@ -206,7 +206,7 @@ static INFO: StageInfo = StageInfo {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "status", rename_all = "snake_case")]
 enum Entry {
-    Measured(Reading),
+    Measured(Box<Reading>),
     Failed {
         cw_id: i64,
         attempts: u32,
@@ -221,6 +221,9 @@ pub(crate) struct Reading {
     pub cw_id: i64,
     /// Encoder reading (deg).
     pub q_deg: [f64; 6],
+    /// A seventh joint's encoder reading (deg), for a seven-joint arm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub q7_deg: Option<f64>,
     /// Force/torque sensor reading (N, N·m).
     pub wrench: [f64; 6],
     /// Tracker reading (mm).
@@ -242,10 +245,20 @@ pub(crate) struct Reading {
     pub positioner_deg: Option<Vec<f64>>,
 }
 
+impl Reading {
+    /// The encoder reading as the model's joint vector.
+    pub fn joint_vector(&self) -> [f64; MAX_JOINTS] {
+        let mut q = crate::robot::joint_array(&self.q_deg);
+        q[6] = self.q7_deg.unwrap_or(0.0);
+        q
+    }
+}
+
 impl Entry {
     fn cw_id(&self) -> i64 {
         match self {
-            Entry::Measured(Reading { cw_id, .. }) | Entry::Failed { cw_id, .. } => *cw_id,
+            Entry::Measured(reading) => reading.cw_id,
+            Entry::Failed { cw_id, .. } => *cw_id,
         }
     }
 }
@@ -373,12 +386,12 @@ impl Stage for MeasureStage {
         // The rows are measured in input order, each from its pre-position
         // where it has one: each row's approach direction follows from the
         // moves before it.
-        let pre_positions: Vec<Option<[f64; JOINTS]>> = rows
+        let pre_positions: Vec<Option<[f64; MAX_JOINTS]>> = rows
             .iter()
             .zip(&required)
             .map(|(row, dir)| pre_position(&row.q_deg, dir, settings.pre_position_deg))
             .collect();
-        let approach: HashMap<i64, [i8; JOINTS]> = ids
+        let approach: HashMap<i64, [i8; MAX_JOINTS]> = ids
             .iter()
             .copied()
             .zip(row_directions(&rows, &pre_positions))
@@ -397,6 +410,13 @@ impl Stage for MeasureStage {
                 )
             }
             DriverKind::External => {
+                if ctx.robot.joint_count() > 6 {
+                    return Err(StageError::Invalid(format!(
+                        "the robot file {} has {} joints; the driver protocol moves six (`move_joints` and `read_joints` carry six values): a seven-joint arm is measured on the simulator (`driver = \"simulator\"`) or imported with `import_measurements`",
+                        ctx.robot.spec().path.display(),
+                        ctx.robot.joint_count()
+                    )));
+                }
                 let driver = ExternalDriver::start(
                     &settings.command,
                     ctx.job_dir,
@@ -460,7 +480,15 @@ impl Stage for MeasureStage {
                     .and_then(|()| {
                         pre_positions[k].map_or(Ok(()), |q_deg| rig.move_joints(ids[k], q_deg))
                     })
-                    .and_then(|()| measure_row(rig.as_mut(), ids[k], &rows[k], on_track))
+                    .and_then(|()| {
+                        measure_row(
+                            rig.as_mut(),
+                            ids[k],
+                            &rows[k],
+                            on_track,
+                            ctx.robot.joint_count(),
+                        )
+                    })
                     .map(|mut reading| {
                         reading.target_id = row_targets.as_ref().map(|t| t[k].clone());
                         reading
@@ -483,7 +511,7 @@ impl Stage for MeasureStage {
                         bounds.check(
                             &rows[k].q_deg,
                             &rows[k].wrench.to_array(),
-                            &reading.q_deg,
+                            &reading.joint_vector(),
                             &reading.wrench,
                             &reading.position_mm,
                         )?;
@@ -498,7 +526,7 @@ impl Stage for MeasureStage {
                         Ok(reading)
                     });
                 match checked {
-                    Ok(reading) => break Entry::Measured(reading),
+                    Ok(reading) => break Entry::Measured(Box::new(reading)),
                     Err(e) => match e.disposition() {
                         Disposition::Retry if attempts <= settings.retries => {
                             ctx.progress
@@ -565,10 +593,10 @@ impl Stage for MeasureStage {
 /// Where a row with the approach directions `dir` is moved to first: its
 /// command `distance_deg` back against them; `None` without a direction.
 fn pre_position(
-    q_deg: &[f64; JOINTS],
-    dir: &[i8; JOINTS],
+    q_deg: &[f64; MAX_JOINTS],
+    dir: &[i8; MAX_JOINTS],
     distance_deg: f64,
-) -> Option<[f64; JOINTS]> {
+) -> Option<[f64; MAX_JOINTS]> {
     dir.iter()
         .any(|d| *d != 0)
         .then(|| std::array::from_fn(|j| q_deg[j] - f64::from(dir[j]) * distance_deg))
@@ -578,8 +606,8 @@ fn pre_position(
 /// pre-position where it has one.
 fn row_directions(
     rows: &[ConfWrench],
-    pre_positions: &[Option<[f64; JOINTS]>],
-) -> Vec<[i8; JOINTS]> {
+    pre_positions: &[Option<[f64; MAX_JOINTS]>],
+) -> Vec<[i8; MAX_JOINTS]> {
     let mut moves = Vec::with_capacity(rows.len() * 2);
     let mut row_move = Vec::with_capacity(rows.len());
     for (row, pre) in rows.iter().zip(pre_positions) {
@@ -602,7 +630,10 @@ fn check_safety(
     k: usize,
     row: &ConfWrench,
 ) -> Result<(), StageError> {
-    for (i, name) in JOINT_COLUMNS.iter().enumerate() {
+    for (i, name) in schema::joint_column_names(ctx.robot.joint_count())
+        .iter()
+        .enumerate()
+    {
         let [lo, hi] = ctx.robot.limits_deg(i);
         if !(row.q_deg[i] >= lo && row.q_deg[i] <= hi) {
             return Err(StageError::Failed(format!(
@@ -641,6 +672,7 @@ pub(crate) fn measure_row(
     cw_id: i64,
     row: &ConfWrench,
     on_track: bool,
+    joints: usize,
 ) -> Result<Reading, RigError> {
     rig.move_joints(cw_id, row.q_deg)?;
     rig.apply_wrench(row.wrench.to_array())?;
@@ -666,7 +698,8 @@ pub(crate) fn measure_row(
     }
     Ok(Reading {
         cw_id,
-        q_deg,
+        q_deg: std::array::from_fn(|i| q_deg[i]),
+        q7_deg: (joints > 6).then_some(q_deg[6]),
         wrench,
         position_mm,
         measured_at_us: rig.measured_at_us(),
@@ -741,14 +774,14 @@ fn tables(
     config_ids: Option<&[Option<i64>]>,
     latest: &HashMap<i64, Entry>,
     robot_id: Option<&str>,
-    approach: &HashMap<i64, [i8; JOINTS]>,
+    approach: &HashMap<i64, [i8; MAX_JOINTS]>,
 ) -> StageOutputs {
     let mut measured: Vec<(&Reading, Option<i64>)> = Vec::new();
     let mut failed: Vec<&Entry> = Vec::new();
     for (k, id) in ids.iter().enumerate() {
         match latest.get(id) {
             Some(Entry::Measured(reading)) => {
-                measured.push((reading, config_ids.and_then(|c| c[k])))
+                measured.push((reading.as_ref(), config_ids.and_then(|c| c[k])))
             }
             Some(e @ Entry::Failed { .. }) => failed.push(e),
             None => {}
@@ -825,6 +858,13 @@ pub(crate) fn measurements_frame(
     let mut columns = vec![Column::new("cw_id".into(), cw)];
     for (name, values) in JOINT_COLUMNS.iter().zip(q) {
         columns.push(Column::new((*name).into(), values));
+    }
+    // A seven-joint arm's readings carry the seventh joint.
+    if readings.iter().any(|(r, _)| r.q7_deg.is_some()) {
+        columns.push(Column::new(
+            schema::SEVENTH_JOINT_COLUMN.into(),
+            readings.iter().map(|(r, _)| r.q7_deg).collect::<Vec<_>>(),
+        ));
     }
     for (name, values) in WRENCH_COLUMNS.iter().zip(w) {
         columns.push(Column::new((*name).into(), values));

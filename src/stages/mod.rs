@@ -675,19 +675,16 @@ pub fn covariance_columns(
         .collect()
 }
 
-/// Reads conf-wrench rows (cw_id, q1..q6, wrench, approach directions where
+/// Reads conf-wrench rows (cw_id, q1..q6 and a seventh joint's, wrench, approach directions where
 /// given, the carriage position on a track) from a checked table.
 pub fn conf_wrench_rows(
     input: &InputTable,
     robot: &crate::robot::RobotSpec,
 ) -> Result<(Vec<i64>, Vec<crate::robot::ConfWrench>), StageError> {
-    use crate::table::schema::{JOINT_COLUMNS, WRENCH_COLUMNS, f64_values, i64_values};
+    use crate::table::schema::{WRENCH_COLUMNS, f64_values, i64_values, joint_vectors};
     let path = &input.path;
     let ids = i64_values(&input.df, "cw_id", path)?;
-    let joints = JOINT_COLUMNS
-        .iter()
-        .map(|c| f64_values(&input.df, c, path))
-        .collect::<Result<Vec<_>, _>>()?;
+    let joints = joint_vectors(&input.df, path, robot.joints.len())?;
     let wrench = WRENCH_COLUMNS
         .iter()
         .map(|c| f64_values(&input.df, c, path))
@@ -697,7 +694,7 @@ pub fn conf_wrench_rows(
     let positioner = positioner_rows::positioner_axes_of_rows(&input.df, &input.path, robot)?;
     let rows = (0..ids.len())
         .map(|k| crate::robot::ConfWrench {
-            q_deg: std::array::from_fn(|i| joints[i][k]),
+            q_deg: joints[k],
             wrench: crate::robot::Wrench::from_array(std::array::from_fn(|i| wrench[i][k])),
             target: 0,
             approach: approach[k],
@@ -706,6 +703,19 @@ pub fn conf_wrench_rows(
         })
         .collect();
     Ok((ids, rows))
+}
+
+/// Refuses a seven-joint arm in a stage built for six joints (`why`: what
+/// needs them), naming the robot file: such a stage would otherwise freeze
+/// or drop the seventh joint and return a wrong answer.
+pub(crate) fn require_six_joints(ctx: &StageContext, why: &str) -> Result<(), StageError> {
+    match ctx.robot.joint_count() {
+        6 => Ok(()),
+        n => Err(StageError::Invalid(format!(
+            "the robot file {} has {n} joints, and this stage needs a six-joint arm: {why} (seven-joint arms are identified and predicted; their inverse kinematics and programs are not built yet)",
+            ctx.robot.spec().path.display()
+        ))),
+    }
 }
 
 /// Each row's carriage position (`e1_mm`), checked against the robot

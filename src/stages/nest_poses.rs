@@ -19,7 +19,7 @@ use super::{
 };
 use crate::design::nest_views::{NestView, draw_configurations};
 use crate::robot::positioner::MAX_POSITIONER_AXES;
-use crate::robot::{JOINTS, ParamValues};
+use crate::robot::{MAX_JOINTS, ParamValues};
 use crate::table::parameters::target_id_problem;
 use crate::table::schema::{self, JOINT_COLUMNS, POSITIONER_COLUMNS, WRENCH_COLUMNS, i64_values};
 
@@ -39,7 +39,7 @@ pub struct NestPosesSettings {
     /// neither blocks the tracker's view of the table nor touches the
     /// positioner. Within the joint limits.
     #[schemars(inner(range(min = -100_000.0, max = 100_000.0)))]
-    pub arm_park_deg: [f64; JOINTS],
+    pub arm_park_deg: [f64; 6],
     /// Tracker head in the robot base frame (mm); default: the robot file's
     /// nominal world origin.
     #[schemars(inner(range(min = -100_000.0, max = 100_000.0)))]
@@ -58,7 +58,7 @@ impl Default for NestPosesSettings {
         NestPosesSettings {
             per_nest: 12,
             arm_target: "arm".into(),
-            arm_park_deg: [0.0; JOINTS],
+            arm_park_deg: [0.0; 6],
             tracker_mm: None,
             acceptance_half_angle_deg: 40.0,
             max_draws: 100_000,
@@ -152,6 +152,7 @@ impl Stage for NestPosesStage {
         ctx: &StageContext,
         settings: &NestPosesSettings,
     ) -> Result<StageOutputs, StageError> {
+        super::require_six_joints(ctx, "the parked arm is given as six joints")?;
         let input = ctx.input("candidates")?;
         if input.df.column("target_id").is_ok() {
             return Err(StageError::Invalid(format!(
@@ -210,7 +211,7 @@ impl Stage for NestPosesStage {
         let table = with_nest_rows(
             input,
             &settings.arm_target,
-            &settings.arm_park_deg,
+            &crate::robot::joint_array(&settings.arm_park_deg),
             positioner_spec.axes.len(),
             &nest_rows,
         )?;
@@ -231,7 +232,7 @@ impl Stage for NestPosesStage {
 fn with_nest_rows(
     input: &super::InputTable,
     arm_target: &str,
-    park_deg: &[f64; JOINTS],
+    park_deg: &[f64; MAX_JOINTS],
     axes: usize,
     nest_rows: &[(&str, [f64; MAX_POSITIONER_AXES])],
 ) -> Result<DataFrame, StageError> {

@@ -30,7 +30,7 @@ use crate::design::collision::{CapsuleMm, Cell};
 use crate::design::poses::{
     BranchPoint, PoseOutcome, PoseProblem, Sampling, SingularityLimits, generate, xyz_euler_deg,
 };
-use crate::robot::{JOINTS, ParamValues, ik};
+use crate::robot::{MAX_JOINTS, ParamValues, ik};
 use crate::table::frame;
 use crate::table::schema::{self, JOINT_COLUMNS};
 
@@ -254,6 +254,7 @@ impl Stage for PosesStage {
         ctx: &StageContext,
         settings: &PosesSettings,
     ) -> Result<StageOutputs, StageError> {
+        super::require_six_joints(ctx, "pose generation solves the inverse kinematics")?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let tracker = match settings.tracker_mm {
             Some(t) => Vector3::from(t),
@@ -274,9 +275,11 @@ impl Stage for PosesStage {
             .fold(Vector3::repeat(f64::NEG_INFINITY), |m, a| m.sup(a));
         let cell = Cell {
             link_capsules: std::array::from_fn(|i| {
-                ctx.robot.spec().joints[i]
-                    .capsule
-                    .as_ref()
+                ctx.robot
+                    .spec()
+                    .joints
+                    .get(i)
+                    .and_then(|joint| joint.capsule.as_ref())
                     .map(|c| CapsuleMm {
                         from: Vector3::from(c.from_mm),
                         to: Vector3::from(c.to_mm),
@@ -604,7 +607,7 @@ fn near_work_points(
 ) -> Result<Vec<(BranchPoint, f64)>, StageError> {
     let (ids, targets, commands) =
         nominal_target_commands(ctx.robot, &settings.frame, &settings.frames, input)?;
-    let ok: Vec<(&[f64; JOINTS], f64)> = commands
+    let ok: Vec<(&[f64; MAX_JOINTS], f64)> = commands
         .iter()
         .zip(&targets)
         .filter(|(c, _)| c.status == Status::Ok)

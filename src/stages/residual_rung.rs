@@ -53,6 +53,13 @@ pub fn fit_over(
     options: &ResidualOptions,
     file: &Path,
 ) -> Result<FittedResidual, StageError> {
+    // The features are six joints' angles and the wrench (`row_features`).
+    if rows.iter().any(|row| row.q_deg[6] != 0.0) {
+        return Err(StageError::Invalid(format!(
+            "{}: model {model}'s residual features cover six joints; a seven-joint arm's residual rung is not built yet: use eg_harmonic or elastogeometric",
+            file.display()
+        )));
+    }
     let used: Vec<usize> = (0..rows.len())
         .filter(|k| result.weights[*k] > 0.0)
         .collect();
@@ -197,7 +204,7 @@ pub fn compensate_with_residual(
     targets: &[crate::compensation::Target],
     options: &crate::compensation::Options,
     residual: &ResidualModel,
-    approach: [i8; crate::robot::JOINTS],
+    approach: [i8; crate::robot::MAX_JOINTS],
 ) -> Result<(Vec<crate::compensation::Command>, Vec<ResidualPrediction>), StageError> {
     let rows_at = |commands: &[crate::compensation::Command]| {
         crate::compensation::command_rows(targets, commands, approach)

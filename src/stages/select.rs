@@ -35,7 +35,7 @@ use crate::design::detmax::{
 use crate::design::work_criterion::{
     self, WorkCriterion, WorkOptions, WorkSelection, WorkTargets, work_detmax,
 };
-use crate::robot::{ConfWrench, JOINTS, ParamId, ParamValues, batch_jacobian, ik};
+use crate::robot::{ConfWrench, MAX_JOINTS, ParamId, ParamValues, batch_jacobian, ik};
 use crate::table::frame;
 use crate::table::parameters::param_of_name;
 use crate::table::schema::{self, str_values};
@@ -263,9 +263,13 @@ impl Stage for SelectStage {
                     .and_then(|c| c.bool().map(|b| b.iter().collect::<Vec<_>>()))
                     .map_err(|e| StageError::Invalid(format!("{}: {e}", table.path.display())))?;
                 let mut chosen = Vec::new();
+                // A name of another arm (`k7` for a six-joint one) is as
+                // unknown here as a typo.
+                let known = cell_parameters(ctx.robot.spec(), targets.ids.len().max(1));
                 for (row, (name, flag)) in names.iter().zip(flags).enumerate() {
                     let name = name.as_deref().unwrap_or_default();
-                    let id = param_of_name(name, &targets.ids).ok_or_else(|| {
+                    let of_cell = param_of_name(name, &targets.ids).filter(|id| known.contains(id));
+                    let id = of_cell.ok_or_else(|| {
                         StageError::Table(crate::table::TableError::BadValue {
                             file: table.path.clone(),
                             column: "name".into(),
@@ -546,7 +550,7 @@ fn as_selection(c: &Candidates, w: WorkSelection) -> crate::design::detmax::Sele
 struct Work {
     ids: Vec<i64>,
     status: Vec<Status>,
-    q_deg: Vec<[f64; JOINTS]>,
+    q_deg: Vec<[f64; MAX_JOINTS]>,
     /// Positions in `ids` of the `ok` targets, the rows of `targets`.
     ok: Vec<usize>,
     targets: WorkTargets,
@@ -755,8 +759,8 @@ fn branch_warnings(
     chosen: &[usize],
     facts: &mut BTreeMap<String, String>,
 ) -> Vec<String> {
-    let targets_q: Vec<[f64; JOINTS]> = work.ok.iter().map(|&k| work.q_deg[k]).collect();
-    let candidates_q: Vec<[f64; JOINTS]> = rows.iter().map(|r| r.q_deg).collect();
+    let targets_q: Vec<[f64; MAX_JOINTS]> = work.ok.iter().map(|&k| work.q_deg[k]).collect();
+    let candidates_q: Vec<[f64; MAX_JOINTS]> = rows.iter().map(|r| r.q_deg).collect();
     let coverage = branch_coverage(ctx.robot, &targets_q, &candidates_q, chosen);
     facts.insert(
         "work_branches".into(),

@@ -426,7 +426,15 @@ impl SimulateLogsStage {
                     true => rig.move_track(cw_id, pool[row].track_mm),
                     false => Ok(()),
                 };
-                match moved.and_then(|()| measure_row(&mut rig, cw_id, &pool[row], on_track)) {
+                match moved.and_then(|()| {
+                    measure_row(
+                        &mut rig,
+                        cw_id,
+                        &pool[row],
+                        on_track,
+                        ctx.robot.joint_count(),
+                    )
+                }) {
                     Ok(reading) => break reading,
                     Err(e) if e.is_transient() && attempts < ATTEMPTS => {
                         rig.release_wrench()

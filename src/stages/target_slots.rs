@@ -89,8 +89,9 @@ pub fn aim_candidates(
 /// translations: the 42 (and each further target's translation), the
 /// track's terms, the positioner's.
 pub fn cell_parameters(spec: &RobotSpec, targets: usize) -> Vec<ParamId> {
-    let one_target = ParamId::all_with_targets(1).count();
-    ParamId::all_with_targets(targets)
+    let joints = spec.joints.len();
+    let one_target = ParamId::all_with_targets(joints, 1).count();
+    ParamId::all_with_targets(joints, targets)
         .chain(ParamId::of_robot(spec).skip(one_target))
         .collect()
 }

@@ -20,18 +20,16 @@ use serde::{Deserialize, Serialize};
 
 use super::{Stage, StageContext, StageError, StageInfo, StageOutputs, TableSlot, budget};
 use crate::cdpr::{AvailableWrenchSet, Feasibility};
-use crate::robot::{JOINTS, ParamValues};
+use crate::robot::{MAX_JOINTS, ParamValues};
 use crate::table::frame;
-use crate::table::schema::{
-    self, JOINT_COLUMNS, TENSION_COLUMNS, WRENCH_COLUMNS, f64_values, i64_values,
-};
+use crate::table::schema::{self, TENSION_COLUMNS, WRENCH_COLUMNS, i64_values};
 
 pub struct WrenchesStage;
 
 /// What one configuration's draws produced.
 #[derive(Default)]
 struct ConfigWrenches {
-    q_deg: [f64; JOINTS],
+    q_deg: [f64; MAX_JOINTS],
     /// Feasible wrenches in draw order, with their verdicts.
     kept: Vec<([f64; 6], Feasibility)>,
     attempts: usize,
@@ -117,10 +115,7 @@ impl Stage for WrenchesStage {
     ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("poses")?;
         let config_ids = i64_values(&input.df, "config_id", &input.path)?;
-        let joints = JOINT_COLUMNS
-            .iter()
-            .map(|c| f64_values(&input.df, c, &input.path))
-            .collect::<Result<Vec<_>, _>>()?;
+        let joints = schema::joint_vectors(&input.df, &input.path, ctx.robot.joint_count())?;
         // The carriage rides with the cable robot (both in the base frame):
         // each configuration's position passes through to its wrenches.
         let positions = super::track_positions(&input.df, &input.path, ctx.robot.spec())?;
@@ -174,7 +169,7 @@ impl Stage for WrenchesStage {
             .into_par_iter()
             .map(|k| {
                 let config_id = config_ids[k];
-                let q_deg: [f64; JOINTS] = std::array::from_fn(|i| joints[i][k]);
+                let q_deg = joints[k];
                 let (_, tool) = ctx.robot.frames_in_base(&nominal, &q_deg);
                 let failed = |e| StageError::Failed(format!("config_id {config_id}: {e}"));
                 let set = AvailableWrenchSet::new(ctx.cable_robot, &tool).map_err(failed)?;
@@ -201,7 +196,7 @@ impl Stage for WrenchesStage {
 
         let mut cw_id = Vec::new();
         let mut config = Vec::new();
-        let mut q: Vec<Vec<f64>> = vec![Vec::new(); JOINTS];
+        let mut q: Vec<Vec<f64>> = vec![Vec::new(); MAX_JOINTS];
         let mut w: Vec<Vec<f64>> = vec![Vec::new(); 6];
         let mut tensions: Vec<Vec<f64>> = vec![Vec::new(); TENSION_COLUMNS.len()];
         let mut margin = Vec::new();
@@ -237,7 +232,10 @@ impl Stage for WrenchesStage {
         }
         let kept = cw_id.len();
         let mut columns = vec![Column::new("cw_id".into(), cw_id)];
-        for (name, values) in JOINT_COLUMNS.iter().zip(q) {
+        for (name, values) in schema::joint_column_names(ctx.robot.joint_count())
+            .iter()
+            .zip(q)
+        {
             columns.push(Column::new((*name).into(), values));
         }
         for (name, values) in WRENCH_COLUMNS.iter().zip(w) {
@@ -282,7 +280,7 @@ mod tests {
             "config_id".into(),
             (1..=configs as i64).collect::<Vec<_>>(),
         )];
-        for name in JOINT_COLUMNS {
+        for name in schema::JOINT_COLUMNS {
             columns.push(Column::new(name.into(), vec![0.0; configs]));
         }
         InputTable {

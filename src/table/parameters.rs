@@ -187,10 +187,12 @@ impl ParameterSet {
     }
 
     /// The parameters this set has: the 42, one translation per further
-    /// target, and the joint-error and track terms it uses (any not `fixed`
-    /// at zero).
+    /// target, and a seventh joint's, the joint-error, track and positioner
+    /// terms it uses (any not `fixed` at zero).
     pub fn ids(&self) -> impl Iterator<Item = ParamId> + use<> {
-        let used: Vec<ParamId> = ParamId::joint_terms()
+        let used: Vec<ParamId> = ParamId::of_arm(crate::robot::MAX_JOINTS)
+            .skip(crate::robot::BASE_PARAM_COUNT)
+            .chain(ParamId::joint_terms())
             .chain(ParamId::track_terms(crate::robot::track::MAX_TRACK_ORDER))
             .chain(ParamId::positioner_terms(
                 crate::robot::positioner::MAX_POSITIONER_AXES,
@@ -199,7 +201,7 @@ impl ParameterSet {
                 self.status[id.index()] != ParamStatus::Fixed || self.values.get(*id) != 0.0
             })
             .collect();
-        ParamId::all_with_targets(self.targets.len()).chain(used)
+        ParamId::all_with_targets(6, self.targets.len()).chain(used)
     }
 
     /// The table name of `id` in this set (`x_t[nest2]` with several targets).

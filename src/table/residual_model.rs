@@ -22,7 +22,9 @@ use crate::robot::ConfWrench;
 
 /// The features of a conf-wrench row: its joint angles and wrench.
 pub fn row_features(row: &ConfWrench) -> [f64; JOINT_LOAD_FEATURES] {
-    joint_load_features(&row.q_deg, &row.wrench.to_array())
+    // Six joints: `residual_rung::fit_over` refuses a seven-joint arm.
+    let q_deg: [f64; 6] = std::array::from_fn(|i| row.q_deg[i]);
+    joint_load_features(&q_deg, &row.wrench.to_array())
 }
 
 /// The features of many rows, row-major.
@@ -60,7 +62,7 @@ pub fn to_frame(parts: &[(TrainingRows<'_>, &ResidualModel)]) -> DataFrame {
         for (k, row) in training.rows.iter().enumerate() {
             model.push(training.model.as_str());
             cw_id.push(training.ids[k]);
-            for (j, q) in row.q_deg.iter().enumerate() {
+            for (j, q) in row.q_deg.iter().take(joints.len()).enumerate() {
                 joints[j].push(*q);
             }
             for (c, v) in row.wrench.to_array().into_iter().enumerate() {
@@ -225,7 +227,7 @@ mod tests {
                     force_n: Vector3::new(0.0, 0.0, -(t % 5.0) * 20.0),
                     moment_nm: Vector3::zeros(),
                 };
-                ConfWrench::new(q, wrench)
+                ConfWrench::new(crate::robot::joint_array(&q), wrench)
             })
             .collect();
         let residuals = rows

@@ -258,17 +258,70 @@ fn col(
     }
 }
 
-/// `q1_deg … q6_deg`: the joint commands of a conf-wrench row.
+/// `q1_deg … q6_deg`: the joint commands of a conf-wrench row, and
+/// `q7_deg`, a seventh joint's (required for a seven-joint robot file,
+/// refused otherwise).
 fn joint_columns(columns: &mut Vec<ColumnSpec>, meaning: &'static str) {
-    const NAMES: [&str; 6] = ["q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg"];
-    for name in NAMES {
+    for name in JOINT_COLUMNS {
         columns.push(col(name, ColumnType::Float64, "deg", true, meaning));
     }
+    columns.push(col(
+        SEVENTH_JOINT_COLUMN,
+        ColumnType::Float64,
+        "deg",
+        false,
+        "the seventh joint's value, for a seven-joint robot file (required there, refused for a six-joint one)",
+    ));
 }
 
 /// The six wrench columns of the spec (wrench on the robot, tool axes, tool origin).
 pub const WRENCH_COLUMNS: [&str; 6] = ["fx_n", "fy_n", "fz_n", "mx_nm", "my_nm", "mz_nm"];
 pub const JOINT_COLUMNS: [&str; 6] = ["q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg"];
+
+/// A seventh joint's column (issue #30).
+pub const SEVENTH_JOINT_COLUMN: &str = "q7_deg";
+
+const ALL_JOINT_COLUMNS: [&str; crate::robot::MAX_JOINTS] = [
+    "q1_deg",
+    "q2_deg",
+    "q3_deg",
+    "q4_deg",
+    "q5_deg",
+    "q6_deg",
+    SEVENTH_JOINT_COLUMN,
+];
+
+/// The joint columns of an arm with `joints` joints: `q1_deg … q6_deg`, and
+/// `q7_deg` for a seventh.
+pub fn joint_column_names(joints: usize) -> &'static [&'static str] {
+    &ALL_JOINT_COLUMNS[..joints.clamp(6, crate::robot::MAX_JOINTS)]
+}
+
+/// Each row's joint vector from the columns of an arm with `joints` joints
+/// (zeros past them): a missing or null column is an error naming it.
+pub fn joint_vectors(
+    df: &DataFrame,
+    file: &Path,
+    joints: usize,
+) -> Result<Vec<[f64; crate::robot::MAX_JOINTS]>, TableError> {
+    if joints <= 6 && df.column(SEVENTH_JOINT_COLUMN).is_ok() {
+        return Err(TableError::BadValue {
+            file: file.to_path_buf(),
+            column: SEVENTH_JOINT_COLUMN.to_string(),
+            row: 0,
+            message: format!(
+                "a seventh joint's value, but the robot file has {joints} joints: use the table of this robot, or drop the column"
+            ),
+        });
+    }
+    let columns = joint_column_names(joints)
+        .iter()
+        .map(|c| f64_values(df, c, file))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok((0..df.height())
+        .map(|k| std::array::from_fn(|i| columns.get(i).map_or(0.0, |c| c[k])))
+        .collect())
+}
 pub const POSITION_COLUMNS: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
 
 /// Per-point tracker uncertainty columns of `measurements` (spec §7), mm.
@@ -2468,8 +2521,11 @@ pub fn optional_str_values(
 /// The approach directions (spec §8) of each row from `dir1..dir6`, 0 where a
 /// column or value is absent (not known); a value other than −1, 0 or 1 is an
 /// error naming its column and row.
-pub fn approach_values(df: &DataFrame, file: &Path) -> Result<Vec<[i8; 6]>, TableError> {
-    let mut approach = vec![[0i8; 6]; df.height()];
+pub fn approach_values(
+    df: &DataFrame,
+    file: &Path,
+) -> Result<Vec<[i8; crate::robot::MAX_JOINTS]>, TableError> {
+    let mut approach = vec![[0i8; crate::robot::MAX_JOINTS]; df.height()];
     for (joint, name) in APPROACH_COLUMNS.iter().enumerate() {
         let Some(values) = optional_values(df, name, file, ColumnType::Int8, |c| {
             Ok(c.cast(&DataType::Int64)?.i64()?.iter().collect())

@@ -140,7 +140,7 @@ inputs = {{ conf_wrenches = "{fixture}" }}
 pub fn shipped_job_in(dir: &Path, name: &str, edit: impl Fn(String) -> String) -> PathBuf {
     let jobs = root().join("jobs");
     let text = std::fs::read_to_string(jobs.join(format!("{name}.toml"))).expect("shipped job");
-    let text = ["robots/", "cdpr/", "truth/", "targets/"]
+    let text = ["robots/", "cdpr/", "truth/", "targets/", "campaigns/"]
         .iter()
         .fold(text, |text, folder| {
             text.replace(

@@ -22,7 +22,7 @@ pub fn random_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
     let mut rng = StdRng::seed_from_u64(seed);
     (0..n)
         .map(|_| ConfWrench {
-            q_deg: std::array::from_fn(|i| {
+            q_deg: robot.joint_vector(|i| {
                 let [lo, hi] = robot.limits_deg(i);
                 rng.random_range(lo..hi)
             }),
@@ -31,7 +31,7 @@ pub fn random_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
                 rng.random_range(-bound..bound)
             })),
             target: 0,
-            approach: [0; 6],
+            approach: [0; 7],
             track_mm: 0.0,
             positioner_deg: None,
         })
