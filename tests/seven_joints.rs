@@ -137,6 +137,21 @@ fn six_joint_stages_and_tables_of_the_wrong_arm_are_refused() {
         "{output}"
     );
 
+    // The driver protocol moves six joints: a seven-joint campaign is not
+    // sent to a driver.
+    let (code, output, _) = common::stage(
+        dir.path(),
+        &panda,
+        "measure",
+        "driver = \"external\"\ncommand = [\"true\"]\n",
+        &[("conf_wrenches", &campaign)],
+    );
+    assert_eq!(code, 2, "{output}");
+    assert!(
+        output.contains("driver protocol moves six") && output.contains("simulator"),
+        "{output}"
+    );
+
     // The six-joint IRB 1600 given the Panda's rows: a column nothing reads.
     let irb = common::root().join("jobs/robots/irb1600_145.toml");
     let (code, output, _) = common::stage(

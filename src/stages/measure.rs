@@ -171,7 +171,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Measurement campaign on a rig (simulator or external driver), resumable",
-    code_version: 4,
+    code_version: 5,
     inputs: &[
         TableSlot {
             name: "conf_wrenches",

@@ -79,7 +79,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: true,
     updates_input: None,
     summary: "Feasible cable-robot wrenches per configuration: the conf-wrench candidates",
-    code_version: 4,
+    code_version: 5,
     inputs: &[TableSlot {
         name: "poses",
         schema: schema::poses,
