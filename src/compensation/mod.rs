@@ -460,6 +460,7 @@ fn quaternion_wxyz(frame: &Frame) -> [f64; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::robot::joint_array;
     use crate::robot::test_support::{irb1600, truth_params};
 
     fn solution(q_deg: [f64; MAX_JOINTS]) -> IkSolution {
@@ -476,33 +477,24 @@ mod tests {
             pose,
             pose,
             Target {
-                hint_deg: Some(crate::robot::joint_array(&hint)),
+                hint_deg: Some(joint_array(&hint)),
                 ..pose
             },
             pose,
             pose,
         ];
         let found = [
-            Candidates::Found(vec![
-                solution(crate::robot::joint_array(&b)),
-                solution(crate::robot::joint_array(&a)),
-            ]),
-            Candidates::Found(vec![
-                solution(crate::robot::joint_array(&b)),
-                solution(crate::robot::joint_array(&a)),
-            ]),
-            Candidates::Found(vec![solution(crate::robot::joint_array(&a))]),
-            Candidates::Found(vec![
-                solution(crate::robot::joint_array(&a)),
-                solution(crate::robot::joint_array(&b)),
-            ]),
+            Candidates::Found(vec![solution(joint_array(&b)), solution(joint_array(&a))]),
+            Candidates::Found(vec![solution(joint_array(&b)), solution(joint_array(&a))]),
+            Candidates::Found(vec![solution(joint_array(&a))]),
+            Candidates::Found(vec![solution(joint_array(&a)), solution(joint_array(&b))]),
             Candidates::None,
         ];
         // Nearest q = 0, then nearest the previous seed; a hint is taken as it
         // is and becomes the reference; no candidates keeps the previous seed.
         assert_eq!(
             seeds(&irb1600(), &targets, &found),
-            [a, a, hint, b, b].map(|q| crate::robot::joint_array(&q))
+            [a, a, hint, b, b].map(|q| joint_array(&q))
         );
     }
 
@@ -515,23 +507,23 @@ mod tests {
         let within = [150.0, 0.0, 0.0, 0.0, -100.0, 0.0];
         let also_beyond = [0.0, 0.0, 0.0, 0.0, 130.0, 0.0];
         assert!(
-            !robot.within_limits(&crate::robot::joint_array(&beyond))
-                && robot.within_limits(&crate::robot::joint_array(&within))
+            !robot.within_limits(&joint_array(&beyond))
+                && robot.within_limits(&joint_array(&within))
         );
         let found = [
             Candidates::Found(vec![
-                solution(crate::robot::joint_array(&beyond)),
-                solution(crate::robot::joint_array(&within)),
+                solution(joint_array(&beyond)),
+                solution(joint_array(&within)),
             ]),
             Candidates::Found(vec![
-                solution(crate::robot::joint_array(&also_beyond)),
-                solution(crate::robot::joint_array(&beyond)),
+                solution(joint_array(&also_beyond)),
+                solution(joint_array(&beyond)),
             ]),
         ];
         // Every candidate beyond: the nearest of them (and `joint_limit` later).
         assert_eq!(
             seeds(&robot, &[pose, pose], &found),
-            [within, beyond].map(|q| crate::robot::joint_array(&q))
+            [within, beyond].map(|q| joint_array(&q))
         );
     }
 
@@ -556,12 +548,7 @@ mod tests {
         let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
         let wrench = Wrench::from_array([50.0, -80.0, 100.0, 5.0, 0.0, -5.0]);
         let target = Target {
-            tool_in_world: robot.tool_in_world(
-                &truth,
-                &crate::robot::joint_array(&q),
-                &wrench,
-                &[0; MAX_JOINTS],
-            ),
+            tool_in_world: robot.tool_in_world(&truth, &joint_array(&q), &wrench, &[0; MAX_JOINTS]),
             wrench,
             hint_deg: Some([12.0, 18.0, -12.0, 28.0, 42.0, 48.0, 0.0]),
             tool: 0,
@@ -615,7 +602,7 @@ mod tests {
         let row = ConfWrench {
             track_mm: 1800.0,
             positioner_deg: None,
-            ..ConfWrench::new(crate::robot::joint_array(&q), wrench)
+            ..ConfWrench::new(joint_array(&q), wrench)
         };
         let target = Target {
             tool_in_world: robot.tool_in_world_of_row(&truth, &row),
@@ -644,9 +631,7 @@ mod tests {
         // carriage that only translates by e along the base's x axis.
         let controller = controller_model(&robot, &truth, 0);
         let prepared = robot.prepare(&controller);
-        let flange_tool = prepared
-            .chain(&crate::robot::joint_array(&q), &[0.0; MAX_JOINTS])
-            .tool;
+        let flange_tool = prepared.chain(&joint_array(&q), &[0.0; MAX_JOINTS]).tool;
         let controller_tool = prepared
             .world_from_base
             .transform_point(&(flange_tool.origin_mm + Vector3::new(1800.0, 0.0, 0.0)));

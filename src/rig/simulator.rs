@@ -616,6 +616,7 @@ impl Rig for Simulator {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::robot::joint_array;
     use crate::robot::test_support::{irb1600, truth_params};
 
     fn quiet() -> SimulatorSettings {
@@ -639,16 +640,12 @@ mod tests {
         let mut sim = Simulator::new(robot.clone(), truth, quiet(), 1).unwrap();
         let q = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0];
         let w = [50.0, -30.0, 80.0, 2.0, -3.0, 4.0];
-        sim.move_joints(7, crate::robot::joint_array(&q)).unwrap();
+        sim.move_joints(7, joint_array(&q)).unwrap();
         sim.apply_wrench(w).unwrap();
         assert_eq!(sim.read_wrench().unwrap(), w);
-        assert_eq!(sim.read_joints().unwrap(), crate::robot::joint_array(&q));
+        assert_eq!(sim.read_joints().unwrap(), joint_array(&q));
         let expected = robot
-            .predict(
-                &truth,
-                &crate::robot::joint_array(&q),
-                &Wrench::from_array(w),
-            )
+            .predict(&truth, &joint_array(&q), &Wrench::from_array(w))
             .position_mm;
         let measured = sim.measure().unwrap();
         for k in 0..3 {
@@ -702,30 +699,20 @@ mod tests {
         let below = q.map(|v| v - 1.0);
         let above = q.map(|v| v + 1.0);
         let mut sim = Simulator::new(robot.clone(), truth, settings.clone(), 1).unwrap();
-        sim.move_joints(1, crate::robot::joint_array(&below))
-            .unwrap();
-        sim.move_joints(2, crate::robot::joint_array(&q)).unwrap();
+        sim.move_joints(1, joint_array(&below)).unwrap();
+        sim.move_joints(2, joint_array(&q)).unwrap();
         let from_below = sim.measure().unwrap();
         assert!(close(
             from_below,
-            truth_at(
-                &robot,
-                &truth,
-                &crate::robot::joint_array(&q.map(|v| v + 0.01))
-            ),
+            truth_at(&robot, &truth, &joint_array(&q.map(|v| v + 0.01))),
             1e-9
         ));
-        sim.move_joints(3, crate::robot::joint_array(&above))
-            .unwrap();
-        sim.move_joints(4, crate::robot::joint_array(&q)).unwrap();
+        sim.move_joints(3, joint_array(&above)).unwrap();
+        sim.move_joints(4, joint_array(&q)).unwrap();
         let from_above = sim.measure().unwrap();
         assert!(close(
             from_above,
-            truth_at(
-                &robot,
-                &truth,
-                &crate::robot::joint_array(&q.map(|v| v - 0.01))
-            ),
+            truth_at(&robot, &truth, &joint_array(&q.map(|v| v - 0.01))),
             1e-9
         ));
         // A 0.01° half band moves this tool by a few hundredths of a mm.
@@ -737,9 +724,7 @@ mod tests {
         let mut resumed = Simulator::new(robot.clone(), truth, settings, 1)
             .unwrap()
             .with_planned_approach(HashMap::from([(4, [-1; MAX_JOINTS])]));
-        resumed
-            .move_joints(4, crate::robot::joint_array(&q))
-            .unwrap();
+        resumed.move_joints(4, joint_array(&q)).unwrap();
         assert!(close(resumed.measure().unwrap(), from_above, 1e-12));
     }
 
@@ -765,23 +750,20 @@ mod tests {
         let mut sim = Simulator::new(robot.clone(), truth, settings, 1).unwrap();
         let q = [10.0, 20.0, -20.0, 30.0, 40.0, 50.0, 0.0];
         let period_deg = 360.0 / 121.0;
-        let errors = sim.joint_errors_deg(&crate::robot::joint_array(&q));
+        let errors = sim.joint_errors_deg(&joint_array(&q));
         let mut turned = q;
         turned[1] += 7.0 * period_deg;
-        assert!(
-            (sim.joint_errors_deg(&crate::robot::joint_array(&turned))[1] - errors[1]).abs()
-                < 1e-12
-        );
+        assert!((sim.joint_errors_deg(&joint_array(&turned))[1] - errors[1]).abs() < 1e-12);
         assert!(errors.iter().enumerate().all(|(i, e)| i == 1 || *e == 0.0));
         let peak = (0..1000)
             .map(|k| {
                 let mut at = q;
                 at[1] += period_deg * k as f64 / 1000.0;
-                sim.joint_errors_deg(&crate::robot::joint_array(&at))[1].abs()
+                sim.joint_errors_deg(&joint_array(&at))[1].abs()
             })
             .fold(0.0, f64::max);
         assert!((peak - 0.002).abs() < 1e-7, "{peak}");
-        sim.move_joints(1, crate::robot::joint_array(&q)).unwrap();
+        sim.move_joints(1, joint_array(&q)).unwrap();
         let expected = truth_at(&robot, &truth, &std::array::from_fn(|i| q[i] + errors[i]));
         assert!(close(sim.measure().unwrap(), expected, 1e-9));
     }

@@ -609,6 +609,7 @@ impl Bound {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::robot::joint_array;
 
     const IRB1600: &str = include_str!("../../jobs/robots/irb1600_145.toml");
 
@@ -646,8 +647,8 @@ mod tests {
         assert_eq!(plain.controller.j3_from_j2, 0.0);
         let q = [10.0, 20.0, -30.0, 40.0, 50.0, 60.0];
         assert_eq!(
-            plain.controller_joints_deg(&crate::robot::joint_array(&q)),
-            crate::robot::joint_array(&q)
+            plain.controller_joints_deg(&joint_array(&q)),
+            joint_array(&q)
         );
         // An explicit default is the same robot, with the same cache key.
         let explicit = RobotSpec::parse(
@@ -663,14 +664,12 @@ mod tests {
         .unwrap();
         assert_ne!(fanuc.content_hash(), plain.content_hash());
         assert_eq!(
-            fanuc.controller_joints_deg(&crate::robot::joint_array(&q)),
+            fanuc.controller_joints_deg(&joint_array(&q)),
             [10.0, 20.0, -10.0, 40.0, 50.0, 60.0, 0.0]
         );
         assert_eq!(
-            fanuc.robot_file_joints_deg(
-                &fanuc.controller_joints_deg(&crate::robot::joint_array(&q))
-            ),
-            crate::robot::joint_array(&q)
+            fanuc.robot_file_joints_deg(&fanuc.controller_joints_deg(&joint_array(&q))),
+            joint_array(&q)
         );
         let err = RobotSpec::parse(
             &format!("{IRB1600}\n[controller]\nj3_from_j2 = 0.5\n"),

@@ -678,6 +678,7 @@ pub fn frame_with_z_along(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::robot::joint_array;
     use crate::robot::test_support::{irb1600, random_q, random_wrench, truth_params, ur10};
     use rand::SeedableRng;
     use rand::rngs::StdRng;
@@ -758,11 +759,8 @@ mod tests {
     fn joint_6_extra_turns_are_enumerated() {
         let robot = irb1600();
         let q = [0.0, 10.0, 10.0, 0.0, 45.0, 20.0];
-        let solutions = closed_form(
-            &robot,
-            &robot.nominal_flange_in_base(&crate::robot::joint_array(&q)),
-        )
-        .unwrap();
+        let solutions =
+            closed_form(&robot, &robot.nominal_flange_in_base(&joint_array(&q))).unwrap();
         let mut turns: Vec<f64> = solutions
             .iter()
             .filter(|s| {
@@ -1010,10 +1008,10 @@ mod tests {
     fn solve_takes_the_closed_form_where_it_applies_and_the_numeric_search_elsewhere() {
         let irb = irb1600();
         let q = [10.0, 20.0, -10.0, 30.0, 40.0, 50.0];
-        let pose = irb.nominal_flange_in_base(&crate::robot::joint_array(&q));
+        let pose = irb.nominal_flange_in_base(&joint_array(&q));
         assert_eq!(solve(&irb, &pose), closed_form(&irb, &pose));
         let ur = ur10();
-        let pose = ur.nominal_flange_in_base(&crate::robot::joint_array(&q));
+        let pose = ur.nominal_flange_in_base(&joint_array(&q));
         let numeric = numeric(&ur, &pose, &NumericIkOptions::default());
         assert_eq!(solve(&ur, &pose).unwrap(), numeric);
         // A hint is tried first and found like any start.
@@ -1027,11 +1025,9 @@ mod tests {
             },
         );
         assert!(
-            hinted.iter().any(|s| same_configuration(
-                &s.q_deg,
-                &crate::robot::joint_array(&q),
-                1e-6
-            )),
+            hinted
+                .iter()
+                .any(|s| same_configuration(&s.q_deg, &joint_array(&q), 1e-6)),
             "{hinted:?}"
         );
     }
