@@ -120,6 +120,10 @@ fn the_panda_campaign_identifies_all_seven_joints_as_well_as_a_six_joint_arm() {
     assert!(seven["kinematic"] > 2.0 * eg7, "{seven:?}");
 }
 
+fn campaigns_file(name: &str) -> std::path::PathBuf {
+    common::root().join("jobs/campaigns").join(name)
+}
+
 /// Stages that need a six-joint arm refuse the Panda, naming the robot file
 /// and why; a six-joint arm's table with a seventh joint's column and a
 /// seven-joint arm's table without it are refused.
@@ -164,6 +168,30 @@ fn six_joint_stages_and_tables_of_the_wrong_arm_are_refused() {
     assert_eq!(code, 2, "{output}");
     assert!(
         output.contains("q7_deg") && output.contains("6 joints"),
+        "{output}"
+    );
+
+    // The Panda's truth given to the six-joint arm: its seventh joint's
+    // values would move nothing.
+    let (code, output, _) = common::stage(
+        dir.path(),
+        &irb,
+        "measure",
+        "driver = \"simulator\"\n",
+        &[
+            (
+                "conf_wrenches",
+                &campaigns_file("irb1600_random_conf_wrenches.parquet"),
+            ),
+            (
+                "truth",
+                &common::root().join("jobs/truth/panda_sim.parquet"),
+            ),
+        ],
+    );
+    assert_eq!(code, 2, "{output}");
+    assert!(
+        output.contains("`dtheta7`") && output.contains("joint 7") && output.contains("6 joints"),
         "{output}"
     );
 

@@ -547,10 +547,9 @@ pub fn model_set(
     let model: ModelName = model
         .parse()
         .map_err(|m: String| StageError::Invalid(format!("setting `{setting}`: {m}")))?;
-    parameters::from_frame(&table.df, &table.path, &nominal)?
+    let set = parameters::from_frame(&table.df, &table.path, &nominal)?
         .into_iter()
         .find(|s| s.model == model)
-        .map(Some)
         .ok_or_else(|| {
             StageError::Table(TableError::BadValue {
                 file: table.path.clone(),
@@ -558,7 +557,43 @@ pub fn model_set(
                 row: 0,
                 message: format!("no rows for model `{model}`"),
             })
-        })
+        })?;
+    joints_of_the_arm(ctx, table, &set)?;
+    Ok(Some(set))
+}
+
+/// Refuses a set with a value for a joint the robot file does not have (a
+/// seven-joint arm's `k7` given to a six-joint one): the model would never
+/// read it, so the table is another arm's.
+fn joints_of_the_arm(
+    ctx: &StageContext,
+    table: &InputTable,
+    set: &crate::table::parameters::ParameterSet,
+) -> Result<(), StageError> {
+    use crate::robot::{MAX_JOINTS, ParamId};
+    let joints = ctx.robot.joint_count();
+    let Some(id) = ParamId::of_arm(MAX_JOINTS)
+        .chain(ParamId::joint_terms())
+        .find(|id| id.joint().is_some_and(|j| j >= joints) && set.values.get(*id) != 0.0)
+    else {
+        return Ok(());
+    };
+    let names = crate::table::schema::str_values(&table.df, "name", &table.path)?;
+    let row = names
+        .iter()
+        .position(|n| n.as_deref() == Some(id.name()))
+        .unwrap_or(0);
+    Err(StageError::Table(TableError::BadValue {
+        file: table.path.clone(),
+        column: "name".into(),
+        row,
+        message: format!(
+            "`{id}` = {} belongs to joint {}, but the robot file {} has {joints} joints: use this robot's parameters",
+            set.values.get(id),
+            id.joint().map_or(0, |j| j + 1),
+            ctx.robot.spec().path.display()
+        ),
+    }))
 }
 
 /// Each row's target (SMR, tool) of `set` from the table's optional utf8
