@@ -42,6 +42,7 @@ fn options() -> Options {
         },
         singular_sigma_min_mm_per_rad: 3.5,
         approach: [0; MAX_JOINTS],
+        held_joint_deg: 0.0,
     }
 }
 

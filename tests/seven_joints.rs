@@ -11,8 +11,11 @@ mod common;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use egcal::robot::{ParamId, ParamValues, RobotSpec};
+use egcal::robot::{Frame, MAX_JOINTS, ParamId, ParamValues, Robot, RobotSpec, Wrench};
 use egcal::table::parameters::{ModelName, ParamStatus, ParameterSet, from_frame};
+use polars::prelude::{Column, DataFrame};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
 
 use common::tables::{f64s, read, strings};
 
@@ -118,6 +121,125 @@ fn the_panda_campaign_identifies_all_seven_joints_as_well_as_a_six_joint_arm() {
     );
     assert!(seven["nominal"] > 10.0 * eg7, "{seven:?}");
     assert!(seven["kinematic"] > 2.0 * eg7, "{seven:?}");
+
+    compensates_by_the_redundancy_rule(dir.path(), &out, &spec, &truth.values);
+}
+
+/// XYZ angles (deg) of a rotation `Rot(x)·Rot(y)·Rot(z)`, the `targets`
+/// table's orientation.
+fn xyz_euler_deg(frame: &Frame) -> [f64; 3] {
+    let r = &frame.rotation;
+    [
+        (-r[(1, 2)]).atan2(r[(2, 2)]).to_degrees(),
+        r[(0, 2)].asin().to_degrees(),
+        (-r[(0, 1)]).atan2(r[(0, 0)]).to_degrees(),
+    ]
+}
+
+/// `compensate` with the calibrated Panda: targets where the true arm puts
+/// its SMR at random configurations, half with a branch hint (its `q3_deg`
+/// holds joint 3, the redundancy rule's) and half without (joint 3 held at
+/// `held_joint_deg`). Every
+/// command is `ok`, keeps joint 7 where the rule says, and the true arm
+/// under it lands within the calibration's accuracy of the target.
+/// The joint the redundancy rule holds (joint 3).
+const HELD: usize = egcal::robot::ik::HELD_JOINT_OF_SEVEN;
+
+fn compensates_by_the_redundancy_rule(
+    dir: &Path,
+    out: &Path,
+    spec: &RobotSpec,
+    truth: &ParamValues,
+) {
+    let robot = Robot::new(spec.clone());
+    let mut rng = StdRng::seed_from_u64(5);
+    let held_deg = 20.0;
+    let n = 12;
+    let generators: Vec<[f64; MAX_JOINTS]> = (0..n)
+        .map(|k| {
+            let mut q = robot.joint_vector(|i| {
+                let [lo, hi] = robot.limits_deg(i);
+                // Away from the limits, where the true arm reaches the target.
+                rng.random_range(lo + 0.2 * (hi - lo)..hi - 0.2 * (hi - lo))
+            });
+            if k % 2 == 1 {
+                q[HELD] = held_deg;
+            }
+            q
+        })
+        .collect();
+    let poses: Vec<Frame> = generators
+        .iter()
+        .map(|q| robot.tool_in_world(truth, q, &Wrench::zero(), &[0; MAX_JOINTS]))
+        .collect();
+    let mut columns = vec![Column::new(
+        "target_id".into(),
+        (1..=n as i64).collect::<Vec<_>>(),
+    )];
+    for (axis, name) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
+        columns.push(Column::new(
+            (*name).into(),
+            poses.iter().map(|p| p.origin_mm[axis]).collect::<Vec<_>>(),
+        ));
+    }
+    for (axis, name) in ["rx_deg", "ry_deg", "rz_deg"].iter().enumerate() {
+        columns.push(Column::new(
+            (*name).into(),
+            poses
+                .iter()
+                .map(|p| xyz_euler_deg(p)[axis])
+                .collect::<Vec<_>>(),
+        ));
+    }
+    for joint in 0..7 {
+        columns.push(Column::new(
+            format!("q{}_deg", joint + 1).into(),
+            generators
+                .iter()
+                .enumerate()
+                .map(|(k, q)| {
+                    (k % 2 == 0).then_some(q[joint] + if joint == HELD { 0.0 } else { 1.0 })
+                })
+                .collect::<Vec<_>>(),
+        ));
+    }
+    let mut df = DataFrame::new(n, columns).unwrap();
+    let targets = dir.join("panda_targets.parquet");
+    egcal::table::write_parquet(&mut df, &targets, None).unwrap();
+    let (code, output, stage_out) = common::stage(
+        dir,
+        &common::root().join("jobs/robots/panda.toml"),
+        "compensate",
+        &format!("held_joint_deg = {held_deg}\n"),
+        &[
+            ("parameters", &out.join("identify/parameters.parquet")),
+            ("targets", &targets),
+        ],
+    );
+    assert_eq!(code, 0, "{output}");
+    let commands = read(&stage_out.join("commands.parquet"));
+    assert_eq!(strings(&commands, "status"), vec!["ok".to_string(); n]);
+    let q: Vec<Vec<f64>> = (1..=7)
+        .map(|j| f64s(&commands, &format!("q{j}_deg")))
+        .collect();
+    let mut worst_mm: f64 = 0.0;
+    for k in 0..n {
+        let command: [f64; MAX_JOINTS] = std::array::from_fn(|j| q[j][k]);
+        let held = if k % 2 == 0 {
+            generators[k][HELD]
+        } else {
+            held_deg
+        };
+        assert!(
+            (command[HELD] - held).abs() < 1e-9,
+            "row {k}: q3 {} against {held}",
+            command[HELD]
+        );
+        let reached = robot.tool_in_world(truth, &command, &Wrench::zero(), &[0; MAX_JOINTS]);
+        worst_mm = worst_mm.max((reached.origin_mm - poses[k].origin_mm).norm());
+    }
+    println!("panda compensation: worst {worst_mm:.4} mm from the true targets");
+    assert!(worst_mm < 1.0, "{worst_mm} mm");
 }
 
 fn campaigns_file(name: &str) -> std::path::PathBuf {

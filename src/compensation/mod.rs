@@ -206,6 +206,10 @@ pub struct Options {
     /// program's pre-positioning move makes it so. Zeros: not known, the
     /// middle of any backlash.
     pub approach: [i8; MAX_JOINTS],
+    /// A seven-joint arm's held joint ([`ik::HELD_JOINT_OF_SEVEN`], joint 3)
+    /// at a target without a branch hint (deg); a hint holds it at its own
+    /// value. Ignored for a six-joint arm.
+    pub held_joint_deg: f64,
 }
 
 /// The nominal model as the controller sees it, placed in the world by the
@@ -269,9 +273,16 @@ fn arm_target(prepared: &PreparedRobot, target: &Target) -> Frame {
 
 /// `aimed` is the set aimed at the target's tool ([`ParamValues::aimed_at`]);
 /// `tool_in_world` the pose its arm must reach ([`arm_target`]).
-fn candidates(robot: &Robot, aimed: &ParamValues, tool_in_world: &Frame) -> Candidates {
+///
+/// A seven-joint arm's candidates hold its joint 3 at `held_deg`.
+fn candidates(
+    robot: &Robot,
+    aimed: &ParamValues,
+    tool_in_world: &Frame,
+    held_deg: f64,
+) -> Candidates {
     let flange = ik::flange_target_in_base(robot, aimed, tool_in_world);
-    match ik::solve(robot, &flange) {
+    match ik::solve_holding(robot, &flange, held_deg) {
         Ok(solutions) => Candidates::Found(solutions),
         Err(IkError::Singular(_)) => Candidates::Singular,
         Err(_) => Candidates::None,
@@ -377,7 +388,12 @@ pub fn compensate(
     let found: Vec<Candidates> = targets
         .par_iter()
         .zip(&arm_targets)
-        .map(|(t, arm_target)| candidates(robot, &aimed[t.tool], arm_target))
+        .map(|(t, arm_target)| {
+            let held_deg = t
+                .hint_deg
+                .map_or(options.held_joint_deg, |hint| hint[ik::HELD_JOINT_OF_SEVEN]);
+            candidates(robot, &aimed[t.tool], arm_target, held_deg)
+        })
         .collect();
     let seeds = seeds(robot, targets, &found);
     targets
@@ -399,9 +415,10 @@ pub fn compensate(
             let q = iterate.q_deg;
             let (tool, joints) =
                 deflected_tool_and_joints(robot, values, &q, &target.wrench, &options.approach);
-            let sigma_min_mm_per_rad = ik::scaled_geometric_jacobian(&tool, &joints)
-                .singular_values()
-                .min();
+            let sigma_min_mm_per_rad =
+                ik::scaled_geometric_jacobian(&tool, &joints, &ik::free_joints(robot))
+                    .singular_values()
+                    .min();
             let status = if iterate.converged {
                 if !robot.within_limits(&q) {
                     Status::JointLimit
@@ -563,6 +580,7 @@ mod tests {
             },
             singular_sigma_min_mm_per_rad: 3.5,
             approach: [0; MAX_JOINTS],
+            held_joint_deg: 0.0,
         };
         let one = compensate(&robot, &truth, &[target], &options)[0];
         assert_eq!(one.status, Status::NotConverged, "{one:?}");
@@ -615,6 +633,7 @@ mod tests {
             solver: NumericOptions::default(),
             singular_sigma_min_mm_per_rad: 3.5,
             approach: [0; MAX_JOINTS],
+            held_joint_deg: 0.0,
         };
         let command = compensate(&robot, &truth, &[target], &options)[0];
         assert_eq!(command.status, Status::Ok, "{command:?}");

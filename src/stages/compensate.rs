@@ -88,7 +88,7 @@ use crate::robot::{ConfWrench, Frame, MAX_JOINTS, ParamId, ParamValues, Robot, W
 use crate::table::frame;
 use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
-    self, COMMAND_POSITION_COLUMNS, COMMAND_QUATERNION_COLUMNS, JOINT_COLUMNS, ORIENTATION_COLUMNS,
+    self, COMMAND_POSITION_COLUMNS, COMMAND_QUATERNION_COLUMNS, ORIENTATION_COLUMNS,
     POSITION_COLUMNS, WRENCH_COLUMNS, f64_values, i64_values, io_error, str_values,
 };
 
@@ -173,6 +173,12 @@ pub struct CompensateSettings {
     /// joint with a model whose backlash is not zero, else 0 (no direction).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub approach: Option<[i8; 6]>,
+    /// A seven-joint arm's joint 3 (deg) at targets without a branch hint:
+    /// the redundancy rule (`ik::HELD_JOINT_OF_SEVEN`) holds it there and the
+    /// other six place the tool (a hint holds it at the hint's `q3_deg`).
+    /// Ignored for a six-joint arm; within joint 3's limits.
+    #[schemars(range(min = -100_000.0, max = 100_000.0))]
+    pub held_joint_deg: f64,
 }
 
 impl Default for CompensateSettings {
@@ -191,6 +197,7 @@ impl Default for CompensateSettings {
             max_track_beyond_mm: 50.0,
             max_unreachable_fraction: 0.5,
             approach: None,
+            held_joint_deg: 0.0,
         }
     }
 }
@@ -318,6 +325,20 @@ impl Stage for CompensateStage {
             .chain(covariance_binding_problem(ctx))
             .chain(settings.frame_problems())
             .collect();
+        let held = crate::robot::ik::HELD_JOINT_OF_SEVEN;
+        if ctx.robot.joints.len() > 6 {
+            let [lo, hi] = ctx.robot.joints[held].limits_deg;
+            if !(lo..=hi).contains(&settings.held_joint_deg) {
+                problems.push(SettingsProblem::new(
+                    "held_joint_deg",
+                    format!(
+                        "{} is outside joint {}'s limits [{lo}, {hi}] of the robot file",
+                        settings.held_joint_deg,
+                        held + 1
+                    ),
+                ));
+            }
+        }
         if ctx.bound_inputs.contains(&"selection") && !ctx.bound_inputs.contains(&"envelope") {
             problems.push(SettingsProblem::new(
                 "inputs.selection",
@@ -349,7 +370,6 @@ impl Stage for CompensateStage {
         ctx: &StageContext,
         settings: &CompensateSettings,
     ) -> Result<StageOutputs, StageError> {
-        super::require_six_joints(ctx, "compensation solves the inverse kinematics")?;
         let set = model_set(ctx, "parameters", "model", &settings.model)?;
         let values = set
             .as_ref()
@@ -472,6 +492,7 @@ impl Stage for CompensateStage {
         let on_track = ctx.robot.spec().track.is_some();
         let positioner_axes = ctx.robot.spec().positioner.as_ref().map(|p| p.axes.len());
         let mut commands_table = commands_frame(
+            ctx.robot.joint_count(),
             &rows.ids,
             &commands,
             on_track.then_some(&targets),
@@ -526,7 +547,14 @@ impl Stage for CompensateStage {
         outputs.tables.insert("commands".into(), commands_table);
         outputs.tables.insert(
             "conf_wrenches".into(),
-            conf_wrenches_frame(&rows.ids, &targets, &commands, &approach, on_track),
+            conf_wrenches_frame(
+                ctx.robot.joint_count(),
+                &rows.ids,
+                &targets,
+                &commands,
+                &approach,
+                on_track,
+            ),
         );
         outputs
             .facts
@@ -667,6 +695,7 @@ impl CompensateSettings {
             },
             singular_sigma_min_mm_per_rad: self.singular_sigma_min_mm_per_rad,
             approach,
+            held_joint_deg: self.held_joint_deg,
         }
     }
 }
@@ -711,7 +740,7 @@ fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError
         .get("selection")
         .map(|s| ids_with_role(s, "calibration"))
         .transpose()?;
-    let (ids, rows) = conf_wrench_rows_of(table)?;
+    let (ids, rows) = conf_wrench_rows_of(table, ctx.robot.joint_count())?;
     // The carriage positions of the rows, on a track (zeros without one).
     let track_mm = super::track_positions(&table.df, &table.path, ctx.robot.spec())?;
     let nest_axes =
@@ -737,10 +766,10 @@ fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError
 /// cw_id and joint columns of an `envelope` table (any other columns play no part).
 fn conf_wrench_rows_of(
     table: &InputTable,
+    joints: usize,
 ) -> Result<(Vec<i64>, Vec<[f64; MAX_JOINTS]>), StageError> {
     let ids = i64_values(&table.df, "cw_id", &table.path)?;
-    // Six joints: `compensate` refuses another arm.
-    let rows = schema::joint_vectors(&table.df, &table.path, JOINT_COLUMNS.len())?;
+    let rows = schema::joint_vectors(&table.df, &table.path, joints)?;
     Ok((ids, rows))
 }
 
@@ -824,7 +853,8 @@ fn target_rows(
             .collect::<Result<Vec<_>, _>>()
     };
     let wrench = optional(&WRENCH_COLUMNS)?;
-    let hint = optional(&JOINT_COLUMNS)?;
+    let joint_names = schema::joint_column_names(robot.joint_count());
+    let hint = optional(joint_names)?;
     let frame_column = optional_str(df, "frame", file)?;
     let tool_ids = optional_str(df, "tool_id", file)?;
     let track_mm = super::track_positions(df, file, robot.spec())?;
@@ -896,7 +926,7 @@ fn target_rows(
         let given: Vec<f64> = hint.iter().filter_map(|c| c[row]).collect();
         let hint_deg = match given.len() {
             0 => None,
-            n if n == JOINT_COLUMNS.len() => {
+            n if n == joint_names.len() => {
                 let hint_deg = crate::robot::joint_array(&given);
                 if let Some(problem) = joints_problem(robot, &hint_deg) {
                     return Err(bad(row, format!("branch hint: {problem}")));
@@ -908,7 +938,7 @@ fn target_rows(
                     row,
                     format!(
                         "a branch hint needs all of {}, found {n} of them",
-                        JOINT_COLUMNS.join(", ")
+                        joint_names.join(", ")
                     ),
                 ));
             }
@@ -1055,6 +1085,7 @@ fn refuse_mostly_unreachable(
 /// The `commands` table; with `track_targets` (a robot on a track), each
 /// command's carriage position in `e1_mm`, its target's.
 fn commands_frame(
+    joints: usize,
     ids: &[i64],
     commands: &[Command],
     track_targets: Option<&[Target]>,
@@ -1064,7 +1095,7 @@ fn commands_frame(
     let float = |name: &str, f: &dyn Fn(&Command) -> f64| {
         Column::new(name.into(), commands.iter().map(f).collect::<Vec<f64>>())
     };
-    for (joint, name) in JOINT_COLUMNS.iter().enumerate() {
+    for (joint, name) in schema::joint_column_names(joints).iter().enumerate() {
         columns.push(float(name, &|c| c.q_deg[joint]));
     }
     columns.push(Column::new(
@@ -1108,6 +1139,7 @@ fn commands_frame(
 /// reach them from (`dir1 … dir6`, when one was used; a `measure` stage
 /// pre-positions for it).
 fn conf_wrenches_frame(
+    joints: usize,
     ids: &[i64],
     targets: &[Target],
     commands: &[Command],
@@ -1121,7 +1153,7 @@ fn conf_wrenches_frame(
         "cw_id".into(),
         ok.iter().map(|&k| ids[k]).collect::<Vec<_>>(),
     )];
-    for (joint, name) in JOINT_COLUMNS.iter().enumerate() {
+    for (joint, name) in schema::joint_column_names(joints).iter().enumerate() {
         columns.push(Column::new(
             (*name).into(),
             ok.iter()

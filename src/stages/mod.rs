@@ -747,7 +747,7 @@ pub(crate) fn require_six_joints(ctx: &StageContext, why: &str) -> Result<(), St
     match ctx.robot.joint_count() {
         6 => Ok(()),
         n => Err(StageError::Invalid(format!(
-            "the robot file {} has {n} joints, and this stage needs a six-joint arm: {why} (seven-joint arms are identified and predicted; their inverse kinematics and programs are not built yet)",
+            "the robot file {} has {n} joints, and this stage needs a six-joint arm: {why} (seven-joint arms are identified, predicted and compensated; this stage is not built for them yet)",
             ctx.robot.spec().path.display()
         ))),
     }

@@ -1655,13 +1655,13 @@ pub fn targets() -> TableSchema {
             "wrench on the robot at this target, tool axes, at the tool origin (0 when absent)",
         ));
     }
-    for name in JOINT_COLUMNS {
+    for name in ALL_JOINT_COLUMNS {
         columns.push(col(
             name,
             ColumnType::Float64,
             "deg",
             false,
-            "a configuration near the wanted one (branch hint)",
+            "a configuration near the wanted one (branch hint; q7_deg only for a seven-joint robot file, whose held joint 3 the hint sets)",
         ));
     }
     columns.push(col(
@@ -1706,6 +1706,13 @@ pub fn commands() -> TableSchema {
             "joint command that puts the calibrated, loaded robot's tool on the target (status ok); the solver's last iterate otherwise",
         ));
     }
+    columns.push(col(
+        SEVENTH_JOINT_COLUMN,
+        ColumnType::Float64,
+        "deg",
+        false,
+        "a seven-joint robot file's joint 7",
+    ));
     columns.push(col(
         "status",
         ColumnType::Utf8,
