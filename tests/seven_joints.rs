@@ -13,7 +13,7 @@ use std::path::Path;
 
 use egcal::robot::{Frame, MAX_JOINTS, ParamId, ParamValues, Robot, RobotSpec, Wrench};
 use egcal::table::parameters::{ModelName, ParamStatus, ParameterSet, from_frame};
-use polars::prelude::{Column, DataFrame};
+use polars::prelude::{Column, CsvReadOptions, DataFrame, SerReader};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
@@ -136,15 +136,16 @@ fn xyz_euler_deg(frame: &Frame) -> [f64; 3] {
     ]
 }
 
-/// `compensate` with the calibrated Panda: targets where the true arm puts
-/// its SMR at random configurations, half with a branch hint (its `q3_deg`
-/// holds joint 3, the redundancy rule's) and half without (joint 3 held at
-/// `held_joint_deg`). Every
-/// command is `ok`, keeps joint 7 where the rule says, and the true arm
-/// under it lands within the calibration's accuracy of the target.
 /// The joint the redundancy rule holds (joint 3).
 const HELD: usize = egcal::robot::ik::HELD_JOINT_OF_SEVEN;
 
+/// `compensate` with the calibrated Panda: targets where the true arm puts
+/// its SMR at random configurations, half with a branch hint (its `q3_deg`
+/// holds joint 3, the redundancy rule's) and half without (joint 3 held at
+/// `held_joint_deg`). Every command is `ok`, keeps joint 3 where the rule
+/// says, and the true arm under it lands within the calibration's accuracy
+/// of the target. `export_program` writes the commands as CSV, whose seven
+/// joint columns a CSV reader reads back as the commands, and as URDF.
 fn compensates_by_the_redundancy_rule(
     dir: &Path,
     out: &Path,
@@ -240,6 +241,38 @@ fn compensates_by_the_redundancy_rule(
     }
     println!("panda compensation: worst {worst_mm:.4} mm from the true targets");
     assert!(worst_mm < 1.0, "{worst_mm} mm");
+
+    let (code, output, programs) = common::stage(
+        dir,
+        &common::root().join("jobs/robots/panda.toml"),
+        "export_program",
+        "",
+        &[
+            ("commands", &stage_out.join("commands.parquet")),
+            ("parameters", &out.join("identify/parameters.parquet")),
+        ],
+    );
+    assert_eq!(code, 0, "{output}");
+    let csv = CsvReadOptions::default()
+        .try_into_reader_with_file_path(Some(programs.join("commands.csv")))
+        .unwrap()
+        .finish()
+        .unwrap();
+    assert_eq!(csv.height(), n);
+    for (j, column) in q.iter().enumerate() {
+        let name = format!("q{}_deg", j + 1);
+        for (printed, command) in f64s(&csv, &name).iter().zip(column) {
+            // Six decimals printed.
+            assert!((printed - command).abs() <= 5e-7, "{name}: {printed} against {command}");
+        }
+    }
+    assert!(!programs.join("EGCAL_PROGRAM.mod").exists());
+    let urdf = std::fs::read_to_string(programs.join("robot.urdf")).unwrap();
+    assert!(
+        urdf.contains("<joint name=\"joint7\" type=\"revolute\">")
+            && urdf.contains("<parent link=\"link7\"/>"),
+        "{urdf}"
+    );
 }
 
 fn campaigns_file(name: &str) -> std::path::PathBuf {
@@ -263,6 +296,35 @@ fn six_joint_stages_and_tables_of_the_wrong_arm_are_refused() {
         "{output}"
     );
 
+    // RAPID has no seven-joint arm's axis order here; a six-joint arm has no
+    // joint to hold.
+    let commands = dir.path().join("commands.parquet");
+    let (code, output, _) = common::stage(
+        dir.path(),
+        &panda,
+        "export_program",
+        "formats = [\"csv\", \"rapid\"]\n",
+        &[("commands", &commands)],
+    );
+    assert_eq!(code, 2, "{output}");
+    assert!(
+        output.contains("formats[1]") && output.contains("7 joints") && output.contains("`csv`"),
+        "{output}"
+    );
+    let irb = common::root().join("jobs/robots/irb1600_145.toml");
+    let (code, output, _) = common::stage(
+        dir.path(),
+        &irb,
+        "compensate",
+        "held_joint_deg = 10.0\n",
+        &[("targets", &commands)],
+    );
+    assert_eq!(code, 2, "{output}");
+    assert!(
+        output.contains("held_joint_deg") && output.contains("6 joints"),
+        "{output}"
+    );
+
     // The driver protocol moves six joints: a seven-joint campaign is not
     // sent to a driver.
     let (code, output, _) = common::stage(
@@ -279,7 +341,6 @@ fn six_joint_stages_and_tables_of_the_wrong_arm_are_refused() {
     );
 
     // The six-joint IRB 1600 given the Panda's rows: a column nothing reads.
-    let irb = common::root().join("jobs/robots/irb1600_145.toml");
     let (code, output, _) = common::stage(
         dir.path(),
         &irb,

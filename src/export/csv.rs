@@ -3,7 +3,8 @@
 //! it is; in the `commands` table's column order and names, then the optional
 //! columns the table had (`tool_id`, `envelope_distance`, `u95_mm`, `dir1 …
 //! dir6`), and `pre_q1_deg … pre_q6_deg`, the configuration to move to before
-//! the row (empty where none), when the program pre-positions; `e1_mm` on a
+//! the row (empty where none), when the program pre-positions (a seven-joint
+//! arm adds `q7_deg`, `dir7` and `pre_q7_deg` after each sixth); `e1_mm` on a
 //! track and `p1_deg`, `p2_deg` when the program moves a positioner (a row
 //! off the table repeats where the table stands). What every
 //! exported file says in its header (provenance, assumptions, the tool the
@@ -16,16 +17,16 @@
 //! for that tool, and the notes warn when it was not.
 
 use crate::robot::Robot;
-use crate::table::schema::POSITIONER_COLUMNS;
+use crate::table::schema::{POSITIONER_COLUMNS, joint_column_names};
 
 use super::{
-    JOINT_DECIMALS, POSITION_DECIMALS, PROGRAM_JOINTS, Program, QUATERNION_DECIMALS, fixed,
+    JOINT_DECIMALS, POSITION_DECIMALS, Program, QUATERNION_DECIMALS, fixed,
     header_lines, positioner_axis_count, positioner_lines, printed_precision, skipped_lines,
     tool_lines, track_lines, warning_lines,
 };
 
-/// Column names, as in the `commands` table.
-const COLUMNS: &str = "target_id,q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,status,residual_mm,correction_mm,elastic_mm,x_cmd_mm,y_cmd_mm,z_cmd_mm,qw_cmd,qx_cmd,qy_cmd,qz_cmd";
+/// Column names after the joints', as in the `commands` table.
+const COLUMNS_AFTER_JOINTS: &str = "status,residual_mm,correction_mm,elastic_mm,x_cmd_mm,y_cmd_mm,z_cmd_mm,qw_cmd,qx_cmd,qy_cmd,qz_cmd";
 
 /// Decimals of the diagnostic distances (residual, correction, elastic part), mm.
 const DIAGNOSTIC_DECIMALS: usize = 6;
@@ -78,7 +79,14 @@ fn field(text: &str) -> String {
 /// The CSV text: header line, then the `ok` rows.
 pub fn table(robot: &Robot, program: &Program) -> String {
     let optional = Optional::of(robot, program);
-    let mut out = String::from(COLUMNS);
+    // The arm's joints: `q1_deg … q6_deg`, and `q7_deg` (`dir7`, `pre_q7_deg`)
+    // for a seventh.
+    let joints = robot.joint_count();
+    let joint_names = joint_column_names(joints);
+    let mut out = format!(
+        "target_id,{},{COLUMNS_AFTER_JOINTS}",
+        joint_names.join(",")
+    );
     for (present, name) in [
         (optional.tool_id, "tool_id"),
         (optional.envelope_distance, "envelope_distance"),
@@ -90,10 +98,14 @@ pub fn table(robot: &Robot, program: &Program) -> String {
         }
     }
     if optional.approach {
-        out.push_str(",dir1,dir2,dir3,dir4,dir5,dir6");
+        for joint in 1..=joints {
+            out.push_str(&format!(",dir{joint}"));
+        }
     }
     if optional.pre_position {
-        out.push_str(",pre_q1_deg,pre_q2_deg,pre_q3_deg,pre_q4_deg,pre_q5_deg,pre_q6_deg");
+        for name in joint_names {
+            out.push_str(&format!(",pre_{name}"));
+        }
     }
     if optional.track {
         out.push_str(",e1_mm");
@@ -107,7 +119,7 @@ pub fn table(robot: &Robot, program: &Program) -> String {
     for (c, stop) in ok.zip(&program.stops) {
         let mut fields = vec![c.target_id.to_string()];
         fields.extend(
-            c.q_deg[..PROGRAM_JOINTS]
+            c.q_deg[..joints]
                 .iter()
                 .map(|v| fixed(*v, JOINT_DECIMALS)),
         );
@@ -141,16 +153,12 @@ pub fn table(robot: &Robot, program: &Program) -> String {
             fields.push(number(c.u95_mm));
         }
         if optional.approach {
-            fields.extend(c.approach[..PROGRAM_JOINTS].iter().map(i8::to_string));
+            fields.extend(c.approach[..joints].iter().map(i8::to_string));
         }
         if optional.pre_position {
             match &stop.pre_position_q_deg {
-                Some(q) => fields.extend(
-                    q[..PROGRAM_JOINTS]
-                        .iter()
-                        .map(|v| fixed(*v, JOINT_DECIMALS)),
-                ),
-                None => fields.extend(std::iter::repeat_n(String::new(), PROGRAM_JOINTS)),
+                Some(q) => fields.extend(q[..joints].iter().map(|v| fixed(*v, JOINT_DECIMALS))),
+                None => fields.extend(std::iter::repeat_n(String::new(), joints)),
             }
         }
         if optional.track {

@@ -45,8 +45,9 @@ pub use cartesian::{Payload, ProgramTool, Stop};
 
 /// Decimals of joint angles (deg) in every file.
 pub const JOINT_DECIMALS: usize = 6;
-/// Arm joints a program carries: the formats here are six-axis controllers'
-/// (`export_program` refuses a seven-joint arm), so a joint vector's first
+/// Arm joints a controller program carries: RAPID, KRL, FANUC TP and INFORM
+/// are written for six-axis controllers (`export_program` writes a
+/// seven-joint arm's commands as CSV and URDF only), so a joint vector's first
 /// six entries are the program's.
 pub const PROGRAM_JOINTS: usize = 6;
 /// Decimals of positions (mm).

@@ -245,12 +245,13 @@ pub fn robot_urdf(robot: &Robot, p: &ParamValues, source: &UrdfSource) -> String
             hi * DEG
         ));
     }
+    let flange_link = format!("link{}", robot.joint_count());
     for (target, tool) in targets.iter().enumerate() {
         let flange_from_tool = robot.flange_from_tool(p, target);
         fixed_joint(
             &mut out,
             &format!("flange_to_{tool}"),
-            "link6",
+            &flange_link,
             tool,
             &flange_from_tool,
         );

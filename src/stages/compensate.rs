@@ -176,9 +176,11 @@ pub struct CompensateSettings {
     /// A seven-joint arm's joint 3 (deg) at targets without a branch hint:
     /// the redundancy rule (`ik::HELD_JOINT_OF_SEVEN`) holds it there and the
     /// other six place the tool (a hint holds it at the hint's `q3_deg`).
-    /// Ignored for a six-joint arm; within joint 3's limits.
+    /// Absent: 0°. Within joint 3's limits; refused for a six-joint arm,
+    /// which has no redundancy to resolve.
+    #[serde(skip_serializing_if = "Option::is_none")]
     #[schemars(range(min = -100_000.0, max = 100_000.0))]
-    pub held_joint_deg: f64,
+    pub held_joint_deg: Option<f64>,
 }
 
 impl Default for CompensateSettings {
@@ -197,7 +199,7 @@ impl Default for CompensateSettings {
             max_track_beyond_mm: 50.0,
             max_unreachable_fraction: 0.5,
             approach: None,
-            held_joint_deg: 0.0,
+            held_joint_deg: None,
         }
     }
 }
@@ -251,6 +253,33 @@ static INFO: StageInfo = StageInfo {
         },
     ],
 };
+
+/// `held_joint_deg` given for an arm without redundancy, or outside the held
+/// joint's limits.
+fn held_joint_problem(held_joint_deg: Option<f64>, ctx: &SettingsContext) -> Option<SettingsProblem> {
+    let held = crate::robot::ik::HELD_JOINT_OF_SEVEN;
+    let value = held_joint_deg?;
+    let joints = ctx.robot.joints.len();
+    if joints <= 6 {
+        return Some(SettingsProblem::new(
+            "held_joint_deg",
+            format!(
+                "the robot file {} has {joints} joints: only a seven-joint arm has a joint to hold (remove the key)",
+                ctx.robot.path.display()
+            ),
+        ));
+    }
+    let [lo, hi] = ctx.robot.joints[held].limits_deg;
+    (!(lo..=hi).contains(&value)).then(|| {
+        SettingsProblem::new(
+            "held_joint_deg",
+            format!(
+                "{value} is outside joint {}'s limits [{lo}, {hi}] of the robot file",
+                held + 1
+            ),
+        )
+    })
+}
 
 impl CompensateSettings {
     /// Problems of `frame` and `frames` (names, values).
@@ -325,20 +354,7 @@ impl Stage for CompensateStage {
             .chain(covariance_binding_problem(ctx))
             .chain(settings.frame_problems())
             .collect();
-        let held = crate::robot::ik::HELD_JOINT_OF_SEVEN;
-        if ctx.robot.joints.len() > 6 {
-            let [lo, hi] = ctx.robot.joints[held].limits_deg;
-            if !(lo..=hi).contains(&settings.held_joint_deg) {
-                problems.push(SettingsProblem::new(
-                    "held_joint_deg",
-                    format!(
-                        "{} is outside joint {}'s limits [{lo}, {hi}] of the robot file",
-                        settings.held_joint_deg,
-                        held + 1
-                    ),
-                ));
-            }
-        }
+        problems.extend(held_joint_problem(settings.held_joint_deg, ctx));
         if ctx.bound_inputs.contains(&"selection") && !ctx.bound_inputs.contains(&"envelope") {
             problems.push(SettingsProblem::new(
                 "inputs.selection",
@@ -695,7 +711,7 @@ impl CompensateSettings {
             },
             singular_sigma_min_mm_per_rad: self.singular_sigma_min_mm_per_rad,
             approach,
-            held_joint_deg: self.held_joint_deg,
+            held_joint_deg: self.held_joint_deg.unwrap_or(0.0),
         }
     }
 }
@@ -853,6 +869,7 @@ fn target_rows(
             .collect::<Result<Vec<_>, _>>()
     };
     let wrench = optional(&WRENCH_COLUMNS)?;
+    schema::refuse_seventh_joint_column(df, file, robot.joint_count())?;
     let joint_names = schema::joint_column_names(robot.joint_count());
     let hint = optional(joint_names)?;
     let frame_column = optional_str(df, "frame", file)?;

@@ -29,7 +29,7 @@ use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{Frame, Robot};
 use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
-    self, COMMAND_POSITION_COLUMNS, COMMAND_QUATERNION_COLUMNS, JOINT_COLUMNS, approach_values,
+    self, COMMAND_POSITION_COLUMNS, COMMAND_QUATERNION_COLUMNS, approach_values,
     f64_values, i64_values, optional_f64_values, optional_str_values, str_values,
 };
 use crate::table::{self as tables, TableError};
@@ -53,6 +53,20 @@ pub enum ProgramFormat {
     Csv,
     /// `robot.urdf` of the calibrated geometry (needs the `parameters` input).
     Urdf,
+}
+
+impl ProgramFormat {
+    /// The name a job file gives the format.
+    fn key(self) -> &'static str {
+        match self {
+            ProgramFormat::Rapid => "rapid",
+            ProgramFormat::Krl => "krl",
+            ProgramFormat::Fanuc => "fanuc",
+            ProgramFormat::Yaskawa => "yaskawa",
+            ProgramFormat::Csv => "csv",
+            ProgramFormat::Urdf => "urdf",
+        }
+    }
 }
 
 /// How the programs move to the targets.
@@ -173,12 +187,18 @@ impl Default for ExportProgramSettings {
 }
 
 impl ExportProgramSettings {
-    /// The formats to write, given whether a parameters table is bound.
-    fn formats(&self, parameters_bound: bool) -> Vec<ProgramFormat> {
+    /// The formats to write, given whether a parameters table is bound and
+    /// the arm's joint count (a seven-joint arm's default is the CSV, see
+    /// [`seven_joint_format_problem`]).
+    fn formats(&self, parameters_bound: bool, joints: usize) -> Vec<ProgramFormat> {
         match &self.formats {
             Some(formats) => formats.clone(),
             None => {
-                let mut all = vec![ProgramFormat::Rapid, ProgramFormat::Krl, ProgramFormat::Csv];
+                let mut all = if joints > 6 {
+                    vec![ProgramFormat::Csv]
+                } else {
+                    vec![ProgramFormat::Rapid, ProgramFormat::Krl, ProgramFormat::Csv]
+                };
                 if parameters_bound {
                     all.push(ProgramFormat::Urdf);
                 }
@@ -205,6 +225,27 @@ impl ExportProgramSettings {
                 )
             })
     }
+}
+
+/// Why `format` is not written for the arm of `robot`: a seven-joint arm's
+/// programs are the CSV (`q1_deg … q7_deg`, what a cobot's own interface,
+/// e.g. Franka's, takes as joint positions) and the URDF. Each controller
+/// language carries a seventh joint its own way (ABB's YuMi in `eax_a`, the
+/// KUKA LBR on a KR C as `E1` between A2 and A3, Yaskawa's SIA as its `E`
+/// axis, FANUC has no seven-joint arm), and none is verified here, so they
+/// are refused rather than written with a guessed axis order.
+fn seven_joint_format_problem(
+    format: ProgramFormat,
+    robot: &crate::robot::RobotSpec,
+) -> Option<String> {
+    let joints = robot.joints.len();
+    (joints > 6 && !matches!(format, ProgramFormat::Csv | ProgramFormat::Urdf)).then(|| {
+        format!(
+            "`{}` is written for six-axis controllers, and the robot file {} has {joints} joints: a seven-joint arm's programs are `csv` (q1_deg … q7_deg) and `urdf`",
+            format.key(),
+            robot.path.display()
+        )
+    })
 }
 
 static INFO: StageInfo = StageInfo {
@@ -246,7 +287,12 @@ impl Stage for ExportProgramStage {
             .into_iter()
             .collect();
         let parameters_bound = ctx.bound_inputs.contains(&"parameters");
-        let formats = settings.formats(parameters_bound);
+        let formats = settings.formats(parameters_bound, ctx.robot.joints.len());
+        for (i, format) in formats.iter().enumerate() {
+            if let Some(problem) = seven_joint_format_problem(*format, ctx.robot) {
+                problems.push(SettingsProblem::new(&format!("formats[{i}]"), problem));
+            }
+        }
         if formats.is_empty() {
             problems.push(SettingsProblem::new(
                 "formats",
@@ -389,9 +435,8 @@ impl Stage for ExportProgramStage {
         ctx: &StageContext,
         settings: &ExportProgramSettings,
     ) -> Result<StageOutputs, StageError> {
-        super::require_six_joints(ctx, "the programs are written for six-axis controllers")?;
         let input = ctx.input("commands")?;
-        let mut commands = read_commands(&input.df, &input.path)?;
+        let mut commands = read_commands(&input.df, &input.path, ctx.robot.joint_count())?;
         check_commands(ctx.robot, &commands, &input.path)?;
         // A robot on a track: each command's carriage position, required and
         // within the travel (and refused for a robot without one).
@@ -522,7 +567,7 @@ impl Stage for ExportProgramStage {
         }
         let mut outputs = StageOutputs::default();
         let name = &settings.module_name;
-        for format in settings.formats(parameters.is_some()) {
+        for format in settings.formats(parameters.is_some(), ctx.robot.joint_count()) {
             match format {
                 ProgramFormat::Rapid => {
                     let text = rapid::module(
@@ -950,10 +995,10 @@ pub fn check_commands(
 pub fn read_commands(
     df: &polars::prelude::DataFrame,
     path: &std::path::Path,
+    joint_count: usize,
 ) -> Result<Vec<Command>, TableError> {
     let ids = i64_values(df, "target_id", path)?;
-    // Six joints: `export_program` refuses another arm.
-    let joints = schema::joint_vectors(df, path, JOINT_COLUMNS.len())?;
+    let joints = schema::joint_vectors(df, path, joint_count)?;
     let status = str_values(df, "status", path)?;
     let [residual, correction, elastic] =
         ["residual_mm", "correction_mm", "elastic_mm"].map(|c| f64_values(df, c, path));

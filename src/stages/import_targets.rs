@@ -12,8 +12,9 @@
 //!
 //! Required: `x_mm, y_mm, z_mm, rx_deg, ry_deg, rz_deg` (every row needs them).
 //! Optional, empty cells null: the wrench (null is no load), the branch hint
-//! `q1_deg … q6_deg` (all six or none mapped; a row with some cells empty is
-//! refused by `compensate`, naming it), `frame` and `tool_id`, and a linear
+//! `q1_deg … q6_deg` (all six or none mapped, and `q7_deg` with them for a
+//! seven-joint arm; a row with some cells empty is refused by `compensate`,
+//! naming it), `frame` and `tool_id`, and a linear
 //! track's carriage position `e1_mm` (in `length_unit`; when mapped, every
 //! row needs one, and `compensate` checks it against the robot file's
 //! travel). `target_id` (whole numbers, unique) defaults to the 0-based
@@ -91,6 +92,10 @@ pub struct TargetColumns {
     pub q5_deg: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub q6_deg: Option<String>,
+    /// A seven-joint arm's seventh hint joint: with the six, for such an arm
+    /// only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q7_deg: Option<String>,
     /// The row's frame: world, base or a user frame of the compensate stage.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frame: Option<String>,
@@ -133,6 +138,7 @@ impl TargetColumns {
             "q4_deg" => &self.q4_deg,
             "q5_deg" => &self.q5_deg,
             "q6_deg" => &self.q6_deg,
+            "q7_deg" => &self.q7_deg,
             "frame" => &self.frame,
             "tool_id" => &self.tool_id,
             "e1_mm" => &self.e1_mm,
@@ -231,7 +237,7 @@ static INFO: StageInfo = StageInfo {
 };
 
 /// Every contract column, in output order.
-const CONTRACT: [(&str, Kind); 24] = [
+const CONTRACT: [(&str, Kind); 25] = [
     ("target_id", Kind::Integer),
     ("x_mm", Kind::Position),
     ("y_mm", Kind::Position),
@@ -251,12 +257,38 @@ const CONTRACT: [(&str, Kind); 24] = [
     ("q4_deg", Kind::Joint),
     ("q5_deg", Kind::Joint),
     ("q6_deg", Kind::Joint),
+    ("q7_deg", Kind::Joint),
     ("frame", Kind::Text),
     ("tool_id", Kind::Text),
     ("e1_mm", Kind::Position),
     ("p1_deg", Kind::Joint),
     ("p2_deg", Kind::Joint),
 ];
+
+/// The branch hint against the robot file's joint count: `columns.q7_deg`
+/// mapped for a six-joint arm, or a seven-joint arm's hint without it.
+fn seven_joint_hint_problem(
+    columns: &TargetColumns,
+    robot: &crate::robot::RobotSpec,
+) -> Option<SettingsProblem> {
+    let joints = robot.joints.len();
+    let seventh = columns.q7_deg.is_some();
+    let hinted = columns.q1_deg.is_some();
+    let message = if seventh && joints <= 6 {
+        format!(
+            "the robot file {} has {joints} joints: a hint has no seventh joint (remove the key)",
+            robot.path.display()
+        )
+    } else if hinted && !seventh && joints > 6 {
+        format!(
+            "the robot file {} has {joints} joints: its branch hint needs `columns.q7_deg` with the six others",
+            robot.path.display()
+        )
+    } else {
+        return None;
+    };
+    Some(SettingsProblem::new("columns.q7_deg", message))
+}
 
 const REQUIRED: [&str; 6] = ["x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"];
 
@@ -299,6 +331,12 @@ impl ImportTargetsSettings {
             problems.push(SettingsProblem::new(
                 "columns.q1_deg",
                 "the branch hint `columns.q1_deg` … `columns.q6_deg`: map all six or none",
+            ));
+        }
+        if self.columns.q7_deg.is_some() && !hints.contains(&true) {
+            problems.push(SettingsProblem::new(
+                "columns.q7_deg",
+                "a seventh joint's hint comes with the six others (`columns.q1_deg` … `columns.q6_deg`)",
             ));
         }
         for (key, constant) in [
@@ -385,7 +423,9 @@ impl Stage for ImportTargetsStage {
         settings: &ImportTargetsSettings,
         ctx: &SettingsContext,
     ) -> Vec<SettingsProblem> {
-        settings.check(ctx.job_dir).err().unwrap_or_default()
+        let mut problems = settings.check(ctx.job_dir).err().unwrap_or_default();
+        problems.extend(seven_joint_hint_problem(&settings.columns, ctx.robot));
+        problems
     }
 
     /// The file read, converted and checked as `run` does it.

@@ -297,13 +297,14 @@ pub fn joint_column_names(joints: usize) -> &'static [&'static str] {
     &ALL_JOINT_COLUMNS[..joints.clamp(6, crate::robot::MAX_JOINTS)]
 }
 
-/// Each row's joint vector from the columns of an arm with `joints` joints
-/// (zeros past them): a missing or null column is an error naming it.
-pub fn joint_vectors(
+/// A `q7_deg` column in a table for an arm of `joints` ≤ 6 joints is an
+/// error: it belongs to another robot's table, and reading it as six joints
+/// would drop a joint silently.
+pub fn refuse_seventh_joint_column(
     df: &DataFrame,
     file: &Path,
     joints: usize,
-) -> Result<Vec<[f64; crate::robot::MAX_JOINTS]>, TableError> {
+) -> Result<(), TableError> {
     if joints <= 6 && df.column(SEVENTH_JOINT_COLUMN).is_ok() {
         return Err(TableError::BadValue {
             file: file.to_path_buf(),
@@ -314,6 +315,17 @@ pub fn joint_vectors(
             ),
         });
     }
+    Ok(())
+}
+
+/// Each row's joint vector from the columns of an arm with `joints` joints
+/// (zeros past them): a missing or null column is an error naming it.
+pub fn joint_vectors(
+    df: &DataFrame,
+    file: &Path,
+    joints: usize,
+) -> Result<Vec<[f64; crate::robot::MAX_JOINTS]>, TableError> {
+    refuse_seventh_joint_column(df, file, joints)?;
     let columns = joint_column_names(joints)
         .iter()
         .map(|c| f64_values(df, c, file))
