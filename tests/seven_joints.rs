@@ -112,7 +112,8 @@ fn the_panda_campaign_identifies_all_seven_joints_as_well_as_a_six_joint_arm() {
     // class), ten times better than its nominal model, and its compliance
     // model beats the kinematic one.
     let seven = validation_means(&out);
-    let six = validation_means(&six.join("out/panda_sim"));
+    let six_out = six.join("out/panda_sim");
+    let six = validation_means(&six_out);
     println!("validation means, seven joints {seven:?}, six joints {six:?}");
     let (eg7, eg6) = (seven["elastogeometric"], six["elastogeometric"]);
     assert!(
@@ -122,7 +123,61 @@ fn the_panda_campaign_identifies_all_seven_joints_as_well_as_a_six_joint_arm() {
     assert!(seven["nominal"] > 10.0 * eg7, "{seven:?}");
     assert!(seven["kinematic"] > 2.0 * eg7, "{seven:?}");
 
+    reaches_the_map_by_the_redundancy_rule(&out, &spec, &fitted.values, &measurements);
+    let six_map = read(&six_out.join("accuracy_map/accuracy_map.parquet"));
+    println!(
+        "accuracy map reachable: six joints {} of {}",
+        strings(&six_map, "status").iter().filter(|s| *s == "reachable").count(),
+        six_map.height()
+    );
+
     compensates_by_the_redundancy_rule(dir.path(), &out, &spec, &truth.values);
+}
+
+/// The accuracy map's reachable points: the nominal arm's tool (calibrated
+/// world and tool frames) at the point, joint 3 held at a measured row's value (the nearest row's, by the
+/// redundancy rule).
+fn reaches_the_map_by_the_redundancy_rule(
+    out: &Path,
+    spec: &RobotSpec,
+    calibrated: &ParamValues,
+    measurements: &DataFrame,
+) {
+    let robot = Robot::new(spec.clone());
+    let map = read(&out.join("accuracy_map/accuracy_map.parquet"));
+    let status = strings(&map, "status");
+    let measured_q3 = f64s(measurements, "q3_deg");
+    let q: Vec<Vec<Option<f64>>> = (1..=7)
+        .map(|j| {
+            map.column(&format!("q{j}_deg"))
+                .unwrap()
+                .f64()
+                .unwrap()
+                .iter()
+                .collect()
+        })
+        .collect();
+    let xyz: Vec<Vec<f64>> = ["x_mm", "y_mm", "z_mm"].iter().map(|c| f64s(&map, c)).collect();
+    let mut reachable = 0;
+    for k in (0..map.height()).filter(|k| status[*k] == "reachable") {
+        reachable += 1;
+        let q_deg: [f64; MAX_JOINTS] = std::array::from_fn(|j| q[j][k].unwrap());
+        assert!(
+            measured_q3.iter().any(|m| (m - q_deg[HELD]).abs() < 1e-9),
+            "point {k}: q3 {} is no measured row's",
+            q_deg[HELD]
+        );
+        // The map reaches its points by nominal IK, in the calibrated world
+        // and tool frames.
+        let tool = robot
+            .world_from_base(calibrated)
+            .compose(&robot.nominal_flange_in_base(&q_deg))
+            .compose(&robot.flange_from_tool(calibrated, 0));
+        let point = nalgebra::Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]);
+        assert!((tool.origin_mm - point).norm() < 1e-6, "point {k}");
+    }
+    println!("accuracy map reachable: seven joints {reachable} of {}", map.height());
+    assert!(reachable >= 30, "{reachable} reachable points");
 }
 
 /// XYZ angles (deg) of a rotation `Rot(x)·Rot(y)·Rot(z)`, the `targets`
@@ -275,6 +330,46 @@ fn compensates_by_the_redundancy_rule(
     );
 }
 
+/// `poses` designs a Panda campaign: each attempt draws joint 3 (the held
+/// joint) within its limits, so the configurations spread over elbow angles;
+/// every row's nominal tool is at its target and within the joint limits.
+#[test]
+fn poses_of_the_panda_spread_the_held_joint_and_reach_their_targets() {
+    let dir = tempfile::tempdir().unwrap();
+    let panda = common::root().join("jobs/robots/panda.toml");
+    let spec = RobotSpec::load(&panda).unwrap();
+    let robot = Robot::new(spec.clone());
+    let (code, output, out) = common::stage(
+        dir.path(),
+        &panda,
+        "poses",
+        "centre_mm = [450.0, 0.0, 350.0]\nedge_mm = 300.0\ntracker_mm = [2500.0, 0.0, 500.0]\nmin_shoulder_mm = 50.0\n",
+        &[],
+    );
+    assert_eq!(code, 0, "{output}");
+    let poses = read(&out.join("poses.parquet"));
+    assert_eq!(poses.height(), 125, "{output}");
+    let q: Vec<Vec<f64>> = (1..=7)
+        .map(|j| f64s(&poses, &format!("q{j}_deg")))
+        .collect();
+    let target: Vec<Vec<f64>> = ["target_x_mm", "target_y_mm", "target_z_mm"]
+        .iter()
+        .map(|c| f64s(&poses, c))
+        .collect();
+    let nominal = ParamValues::nominal(&spec);
+    for k in 0..poses.height() {
+        let q_deg: [f64; MAX_JOINTS] = std::array::from_fn(|j| q[j][k]);
+        assert!(robot.within_limits(&q_deg), "row {k}: {q_deg:?}");
+        let (_, tool) = robot.frames_in_base(&nominal, &q_deg);
+        let reached = nalgebra::Vector3::new(target[0][k], target[1][k], target[2][k]);
+        assert!((tool.origin_mm - reached).norm() < 1e-6, "row {k}");
+    }
+    let held = &q[HELD];
+    let mean = held.iter().sum::<f64>() / held.len() as f64;
+    let sd = (held.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / held.len() as f64).sqrt();
+    assert!(sd > 40.0, "joint 3 spread {sd}°");
+}
+
 fn campaigns_file(name: &str) -> std::path::PathBuf {
     common::root().join("jobs/campaigns").join(name)
 }
@@ -287,15 +382,6 @@ fn six_joint_stages_and_tables_of_the_wrong_arm_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let panda = common::root().join("jobs/robots/panda.toml");
     let campaign = common::root().join("jobs/campaigns/panda_conf_wrenches.parquet");
-    let (code, output, _) = common::stage(dir.path(), &panda, "poses", "", &[]);
-    assert_eq!(code, 2, "{output}");
-    assert!(
-        output.contains("panda.toml")
-            && output.contains("7 joints")
-            && output.contains("inverse kinematics"),
-        "{output}"
-    );
-
     // RAPID has no seven-joint arm's axis order here; a six-joint arm has no
     // joint to hold.
     let commands = dir.path().join("commands.parquet");

@@ -183,8 +183,8 @@ fn joint_distance_deg(a: &[f64; MAX_JOINTS], b: &[f64; MAX_JOINTS]) -> f64 {
 }
 
 /// The configuration for a grid point (module doc): orientation and carriage
-/// position of the nearest calibration pose, IK branch closest to its
-/// configuration.
+/// position (and a seven-joint arm's held joint 3) of the nearest calibration
+/// pose, IK branch closest to its configuration.
 fn configuration(
     robot: &Robot,
     values: &ParamValues,
@@ -214,7 +214,9 @@ fn configuration(
             .compose(&tool),
     };
     let flange = ik::flange_target_in_base(robot, values, &tool);
-    let solutions = match ik::solve(robot, &flange) {
+    // A seven-joint arm holds its joint 3 where the nearest pose had it.
+    let held_deg = nearest.q_deg[ik::HELD_JOINT_OF_SEVEN];
+    let solutions = match ik::solve_holding(robot, &flange, held_deg) {
         Ok(s) => s,
         Err(IkError::Singular(_)) => return Err(PointStatus::Singular),
         Err(_) => return Err(PointStatus::Unreachable),

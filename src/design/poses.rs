@@ -6,6 +6,10 @@
 //! Works for any six-axis arm: the solutions come from [`ik::solve`] (closed form
 //! for spherical-wrist arms, the numeric search otherwise, e.g. a UR), and the
 //! singularity margins are measured on the joint frames, not on joint angles.
+//! A seven-joint arm's attempts each draw the value of the joint the
+//! redundancy rule holds ([`ik::HELD_JOINT_OF_SEVEN`]) within its limits, so
+//! the campaign spreads over elbow angles as over orientations, and the
+//! margins are its six free joints' ([`ik::role_frames`]).
 //!
 //! Each target point draws from its own seeded stream, so results do not depend on
 //! thread scheduling, and points run in parallel.
@@ -180,7 +184,7 @@ pub fn upright_tool_frame(facing: &Vector3<f64>, roll_rad: f64, origin_mm: Vecto
 /// * elbow (deg): the bend of the forearm (frame 3 to frame 4 origins) away from
 ///   straight along the upper arm (frame 2 to frame 3 origins), both seen along
 ///   axis 3 so that a lateral offset (UR's d4) does not count as bend.
-pub fn singularity_margins(joints: &[Frame; MAX_JOINTS + 1]) -> (f64, f64, f64) {
+pub fn singularity_margins(joints: &[Frame; 7]) -> (f64, f64, f64) {
     let (z4, z6) = (joints[4].axis(2), joints[6].axis(2));
     let wrist = z4.cross(&z6).norm().atan2(z4.dot(&z6).abs()).to_degrees();
 
@@ -276,7 +280,13 @@ fn generate_one(
         let roll = rng.random_range(-half_range..=half_range);
         let tool_in_base = upright_tool_frame(&facing, roll, *target);
         let flange = flange_target_in_base(robot, nominal, &world.compose(&tool_in_base));
-        let solutions = match ik::solve(robot, &flange) {
+        let solved = if robot.joint_count() > 6 {
+            let [lo, hi] = robot.limits_deg(ik::HELD_JOINT_OF_SEVEN);
+            ik::solve_holding(robot, &flange, rng.random_range(lo..=hi))
+        } else {
+            ik::solve(robot, &flange)
+        };
+        let solutions = match solved {
             Ok(s) => s,
             Err(IkError::Singular(_)) => {
                 reject(Rejection::Singular);
@@ -314,7 +324,7 @@ fn generate_one(
                 Some((_, outcome)) => *outcome,
                 None => {
                     let (joints, tool) = robot.frames_in_base(nominal, &solution.q_deg);
-                    let outcome = check_configuration(problem, &joints, &tool);
+                    let outcome = check_configuration(robot, problem, &joints, &tool);
                     checked.push((wrapped, outcome));
                     outcome
                 }
@@ -363,11 +373,12 @@ fn generate_one(
 /// The singularity limits, then the cell's collision and sight checks, of one
 /// configuration: its clearance (mm) or the first rejection.
 fn check_configuration(
+    robot: &Robot,
     problem: &PoseProblem,
     joints: &[Frame; MAX_JOINTS + 1],
     tool: &Frame,
 ) -> Result<f64, Rejection> {
-    let (wrist, shoulder, elbow) = singularity_margins(joints);
+    let (wrist, shoulder, elbow) = singularity_margins(&ik::role_frames(robot, joints));
     let limits = &problem.singularity;
     if wrist < limits.min_wrist_deg
         || shoulder < limits.min_shoulder_mm
@@ -477,7 +488,7 @@ mod tests {
             assert!(incidence <= 40.0 + 1e-9, "{pose:?}");
             assert!((incidence - pose.incidence_deg).abs() < 1e-9);
             let (joints, _) = robot.frames_in_base(&nominal, &pose.q_deg);
-            let (wrist, shoulder, elbow) = singularity_margins(&joints);
+            let (wrist, shoulder, elbow) = singularity_margins(&ik::role_frames(&robot, &joints));
             assert!(
                 wrist >= 5.0 && shoulder >= 100.0 && elbow >= 5.0,
                 "{pose:?}"
@@ -504,7 +515,7 @@ mod tests {
             [0.0, 0.0, -90.0, 0.0, 3.0, 0.0],
         ] {
             let (joints, _) = robot.frames_in_base(&nominal, &crate::robot::joint_array(&q));
-            let (wrist, shoulder, elbow) = singularity_margins(&joints);
+            let (wrist, shoulder, elbow) = singularity_margins(&ik::role_frames(&robot, &joints));
             assert!(
                 (wrist - q[4].abs().min(180.0 - q[4].abs())).abs() < 1e-9,
                 "{q:?}"

@@ -91,6 +91,15 @@ struct Geometry {
 /// axes 4 and 6; joint 4 held: 1659).
 pub const HELD_JOINT_OF_SEVEN: usize = 2;
 
+/// The base frame, then the frames of the six joints the solvers move
+/// ([`free_joints`]), from a chain's frames 0..=n: the roles a six-joint
+/// arm's frames 0..=6 play (shoulder, elbow, wrist) in the measures of
+/// branches and singularities. A six-joint arm's frames as they are.
+pub fn role_frames(robot: &Robot, joints: &[Frame; MAX_JOINTS + 1]) -> [Frame; 7] {
+    let free = free_joints(robot);
+    std::array::from_fn(|role| if role == 0 { joints[0] } else { joints[free[role - 1] + 1] })
+}
+
 /// The six joints the solvers move: all of a six-joint arm's, a seven-joint
 /// arm's but [`HELD_JOINT_OF_SEVEN`].
 pub fn free_joints(robot: &Robot) -> [usize; 6] {
@@ -697,18 +706,23 @@ fn radical_inverse(mut index: u64, base: u64) -> f64 {
 ///   about axis 3 from the upper arm (frame 2 to frame 3 origins), both seen along
 ///   axis 3;
 /// * bit 2, wrist flipped: sin θ5 < 0, with θ5 = q5 plus its nominal offset.
+///
+/// A seven-joint arm's bits are those of its six free joints
+/// ([`role_frames`]): its joint 4 is the elbow, joint 6 the wrist's q5.
 pub fn branch_of(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> u8 {
-    let joints = robot
+    let all = robot
         .prepare(&ParamValues([0.0; PARAM_COUNT]))
         .chain(q_deg, &[0.0; MAX_JOINTS])
         .joints;
+    let joints = role_frames(robot, &all);
+    let wrist_joint = free_joints(robot)[4];
     let shoulder_back = (joints[5].origin_mm - joints[1].origin_mm).dot(&joints[1].axis(0)) < 0.0;
     let axis3 = joints[3].axis(2);
     let across = |v: Vector3<f64>| v - axis3 * axis3.dot(&v);
     let upper = across(joints[3].origin_mm - joints[2].origin_mm);
     let fore = across(joints[4].origin_mm - joints[3].origin_mm);
     let elbow_down = upper.cross(&fore).dot(&axis3) < 0.0;
-    let wrist_flip = (q_deg[4] * DEG + robot.nominal_mdh(4).2).sin() < 0.0;
+    let wrist_flip = (q_deg[wrist_joint] * DEG + robot.nominal_mdh(wrist_joint).2).sin() < 0.0;
     shoulder_back as u8 | (elbow_down as u8) << 1 | (wrist_flip as u8) << 2
 }
 

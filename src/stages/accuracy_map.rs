@@ -21,7 +21,7 @@ use crate::robot::params::ParamKind;
 use crate::robot::{ConfWrench, ParamId, ParamValues, Wrench, batch_predict};
 use crate::table::frame;
 use crate::table::parameters::ModelName;
-use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS};
+use crate::table::schema::{self, POSITION_COLUMNS};
 
 pub struct AccuracyMapStage;
 
@@ -138,7 +138,6 @@ impl Stage for AccuracyMapStage {
         ctx: &StageContext,
         settings: &AccuracyMapSettings,
     ) -> Result<StageOutputs, StageError> {
-        super::require_six_joints(ctx, "the map reaches its grid by inverse kinematics")?;
         let set = model_set(ctx, "parameters", "model", &settings.model)?
             .ok_or_else(|| StageError::Invalid("input `parameters` is not bound".into()))?;
         let covariance = bound_covariance(ctx, &set)?.flatten().ok_or_else(|| {
@@ -215,7 +214,7 @@ impl Stage for AccuracyMapStage {
         let on_track = ctx.robot.spec().track.is_some();
         outputs
             .tables
-            .insert("accuracy_map".into(), map_frame(&map, on_track));
+            .insert("accuracy_map".into(), map_frame(&map, ctx.robot.joint_count(), on_track));
         // Each calibration row's own SMR, unloaded.
         let unloaded: Vec<ConfWrench> = calibration_rows
             .iter()
@@ -327,8 +326,9 @@ fn median_u95(map: &[MapPoint], inside: bool) -> Option<f64> {
     }
 }
 
-/// The map's table; on a track each point's carriage position in `e1_mm`.
-fn map_frame(map: &[MapPoint], on_track: bool) -> polars::prelude::DataFrame {
+/// The map's table (an arm's joint columns, `q7_deg` for a seventh joint); on
+/// a track each point's carriage position in `e1_mm`.
+fn map_frame(map: &[MapPoint], joints: usize, on_track: bool) -> polars::prelude::DataFrame {
     let mut columns = vec![
         Column::new("point_id".into(), (0..map.len() as i64).collect::<Vec<_>>()),
         Column::new(
@@ -348,7 +348,7 @@ fn map_frame(map: &[MapPoint], on_track: bool) -> polars::prelude::DataFrame {
         "status".into(),
         map.iter().map(|p| p.status.as_str()).collect::<Vec<_>>(),
     ));
-    for (joint, name) in JOINT_COLUMNS.iter().enumerate() {
+    for (joint, name) in schema::joint_column_names(joints).iter().enumerate() {
         let v: Vec<Option<f64>> = map.iter().map(|p| p.q_deg.map(|q| q[joint])).collect();
         columns.push(Column::new((*name).into(), v));
     }

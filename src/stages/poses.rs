@@ -32,7 +32,7 @@ use crate::design::poses::{
 };
 use crate::robot::{MAX_JOINTS, ParamValues, ik};
 use crate::table::frame;
-use crate::table::schema::{self, JOINT_COLUMNS};
+use crate::table::schema;
 
 pub struct PosesStage;
 
@@ -254,7 +254,6 @@ impl Stage for PosesStage {
         ctx: &StageContext,
         settings: &PosesSettings,
     ) -> Result<StageOutputs, StageError> {
-        super::require_six_joints(ctx, "pose generation solves the inverse kinematics")?;
         let nominal = ParamValues::nominal(ctx.robot.spec());
         let tracker = match settings.tracker_mm {
             Some(t) => Vector3::from(t),
@@ -427,7 +426,10 @@ impl Stage for PosesStage {
                 angles.iter().map(|a| a[axis]).collect::<Vec<_>>(),
             ));
         }
-        for (joint, name) in JOINT_COLUMNS.iter().enumerate() {
+        for (joint, name) in schema::joint_column_names(ctx.robot.joint_count())
+            .iter()
+            .enumerate()
+        {
             columns.push(Column::new(
                 (*name).into(),
                 poses.iter().map(|p| p.q_deg[joint]).collect::<Vec<_>>(),
