@@ -127,7 +127,10 @@ fn the_panda_campaign_identifies_all_seven_joints_as_well_as_a_six_joint_arm() {
     let six_map = read(&six_out.join("accuracy_map/accuracy_map.parquet"));
     println!(
         "accuracy map reachable: six joints {} of {}",
-        strings(&six_map, "status").iter().filter(|s| *s == "reachable").count(),
+        strings(&six_map, "status")
+            .iter()
+            .filter(|s| *s == "reachable")
+            .count(),
         six_map.height()
     );
 
@@ -157,7 +160,10 @@ fn reaches_the_map_by_the_redundancy_rule(
                 .collect()
         })
         .collect();
-    let xyz: Vec<Vec<f64>> = ["x_mm", "y_mm", "z_mm"].iter().map(|c| f64s(&map, c)).collect();
+    let xyz: Vec<Vec<f64>> = ["x_mm", "y_mm", "z_mm"]
+        .iter()
+        .map(|c| f64s(&map, c))
+        .collect();
     let mut reachable = 0;
     for k in (0..map.height()).filter(|k| status[*k] == "reachable") {
         reachable += 1;
@@ -176,7 +182,10 @@ fn reaches_the_map_by_the_redundancy_rule(
         let point = nalgebra::Vector3::new(xyz[0][k], xyz[1][k], xyz[2][k]);
         assert!((tool.origin_mm - point).norm() < 1e-6, "point {k}");
     }
-    println!("accuracy map reachable: seven joints {reachable} of {}", map.height());
+    println!(
+        "accuracy map reachable: seven joints {reachable} of {}",
+        map.height()
+    );
     assert!(reachable >= 30, "{reachable} reachable points");
 }
 
@@ -318,7 +327,10 @@ fn compensates_by_the_redundancy_rule(
         let name = format!("q{}_deg", j + 1);
         for (printed, command) in f64s(&csv, &name).iter().zip(column) {
             // Six decimals printed.
-            assert!((printed - command).abs() <= 5e-7, "{name}: {printed} against {command}");
+            assert!(
+                (printed - command).abs() <= 5e-7,
+                "{name}: {printed} against {command}"
+            );
         }
     }
     assert!(!programs.join("EGCAL_PROGRAM.mod").exists());

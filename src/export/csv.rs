@@ -20,9 +20,9 @@ use crate::robot::Robot;
 use crate::table::schema::{POSITIONER_COLUMNS, joint_column_names};
 
 use super::{
-    JOINT_DECIMALS, POSITION_DECIMALS, Program, QUATERNION_DECIMALS, fixed,
-    header_lines, positioner_axis_count, positioner_lines, printed_precision, skipped_lines,
-    tool_lines, track_lines, warning_lines,
+    JOINT_DECIMALS, POSITION_DECIMALS, Program, QUATERNION_DECIMALS, fixed, header_lines,
+    positioner_axis_count, positioner_lines, printed_precision, skipped_lines, tool_lines,
+    track_lines, warning_lines,
 };
 
 /// Column names after the joints', as in the `commands` table.
@@ -83,10 +83,7 @@ pub fn table(robot: &Robot, program: &Program) -> String {
     // for a seventh.
     let joints = robot.joint_count();
     let joint_names = joint_column_names(joints);
-    let mut out = format!(
-        "target_id,{},{COLUMNS_AFTER_JOINTS}",
-        joint_names.join(",")
-    );
+    let mut out = format!("target_id,{},{COLUMNS_AFTER_JOINTS}", joint_names.join(","));
     for (present, name) in [
         (optional.tool_id, "tool_id"),
         (optional.envelope_distance, "envelope_distance"),
@@ -118,11 +115,7 @@ pub fn table(robot: &Robot, program: &Program) -> String {
     let ok = program.commands.iter().filter(|c| c.is_ok());
     for (c, stop) in ok.zip(&program.stops) {
         let mut fields = vec![c.target_id.to_string()];
-        fields.extend(
-            c.q_deg[..joints]
-                .iter()
-                .map(|v| fixed(*v, JOINT_DECIMALS)),
-        );
+        fields.extend(c.q_deg[..joints].iter().map(|v| fixed(*v, JOINT_DECIMALS)));
         fields.push(field(&c.status));
         fields.extend(
             [c.residual_mm, c.correction_mm, c.elastic_mm]

@@ -97,7 +97,13 @@ pub const HELD_JOINT_OF_SEVEN: usize = 2;
 /// branches and singularities. A six-joint arm's frames as they are.
 pub fn role_frames(robot: &Robot, joints: &[Frame; MAX_JOINTS + 1]) -> [Frame; 7] {
     let free = free_joints(robot);
-    std::array::from_fn(|role| if role == 0 { joints[0] } else { joints[free[role - 1] + 1] })
+    std::array::from_fn(|role| {
+        if role == 0 {
+            joints[0]
+        } else {
+            joints[free[role - 1] + 1]
+        }
+    })
 }
 
 /// The six joints the solvers move: all of a six-joint arm's, a seven-joint

@@ -65,7 +65,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Predicted 95 % position uncertainty (J·Σ·Jᵀ) over a grid around the calibration rows, for the report's accuracy map",
-    code_version: 5,
+    code_version: 6,
     inputs: &[
         TableSlot {
             name: "parameters",
@@ -212,9 +212,10 @@ impl Stage for AccuracyMapStage {
         }
         let mut outputs = StageOutputs::default();
         let on_track = ctx.robot.spec().track.is_some();
-        outputs
-            .tables
-            .insert("accuracy_map".into(), map_frame(&map, ctx.robot.joint_count(), on_track));
+        outputs.tables.insert(
+            "accuracy_map".into(),
+            map_frame(&map, ctx.robot.joint_count(), on_track),
+        );
         // Each calibration row's own SMR, unloaded.
         let unloaded: Vec<ConfWrench> = calibration_rows
             .iter()

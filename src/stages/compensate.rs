@@ -40,6 +40,11 @@
 //! table really is. `commands` carries each row's axis values, the
 //! positioner's commands beside the arm's.
 //!
+//! **A seven-joint arm.** Its redundancy is resolved by holding joint 3
+//! ([`crate::robot::ik::HELD_JOINT_OF_SEVEN`]) at the row's branch hint
+//! `q3_deg` (a hint is then `q1_deg … q7_deg`), else at `held_joint_deg`;
+//! the other six place the tool, and `commands` carries `q7_deg`.
+//!
 //! **Tools** (spec §8). A row aims the parameters' target named by its
 //! `tool_id` column, else by the setting `tool`. A several-target set needs one
 //! of them on every row; a name the set does not know is refused, naming the
@@ -52,7 +57,7 @@
 //! `measurements`, restricted to a `selection`'s calibration rows when one is
 //! bound), each command's `envelope_distance` is its joint-space distance to
 //! the nearest of them ([`crate::compensation::envelope`]: largest per-joint
-//! difference, wrapped, over joints 1–6). With the optional `covariance`,
+//! difference, wrapped, over the arm's joints). With the optional `covariance`,
 //! `u95_mm` is the radius of the predicted position's 95 % uncertainty at the
 //! command, `sqrt(χ²₃(0.95)·λmax(J·Σ·Jᵀ))` (the longest semi-axis of the 95 %
 //! ellipsoid, as `accuracy_map` reports it), and `commands` also carries
@@ -209,7 +214,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Load-aware compensation: joint commands that put the calibrated, loaded tool on each target, and corrected Cartesian targets for the nominal controller",
-    code_version: 9,
+    code_version: 10,
     inputs: &[
         TableSlot {
             name: "targets",
@@ -256,7 +261,10 @@ static INFO: StageInfo = StageInfo {
 
 /// `held_joint_deg` given for an arm without redundancy, or outside the held
 /// joint's limits.
-fn held_joint_problem(held_joint_deg: Option<f64>, ctx: &SettingsContext) -> Option<SettingsProblem> {
+fn held_joint_problem(
+    held_joint_deg: Option<f64>,
+    ctx: &SettingsContext,
+) -> Option<SettingsProblem> {
     let held = crate::robot::ik::HELD_JOINT_OF_SEVEN;
     let value = held_joint_deg?;
     let joints = ctx.robot.joints.len();

@@ -29,8 +29,8 @@ use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{Frame, Robot};
 use crate::table::parameters::{ModelName, ParameterSet};
 use crate::table::schema::{
-    self, COMMAND_POSITION_COLUMNS, COMMAND_QUATERNION_COLUMNS, approach_values,
-    f64_values, i64_values, optional_f64_values, optional_str_values, str_values,
+    self, COMMAND_POSITION_COLUMNS, COMMAND_QUATERNION_COLUMNS, approach_values, f64_values,
+    i64_values, optional_f64_values, optional_str_values, str_values,
 };
 use crate::table::{self as tables, TableError};
 
@@ -253,7 +253,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Programs for the controller from joint commands: ABB RAPID (.mod), KUKA KRL (.src/.dat), CSV, and a URDF of the calibrated geometry",
-    code_version: 7,
+    code_version: 8,
     inputs: &[
         TableSlot {
             name: "commands",

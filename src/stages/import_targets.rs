@@ -226,7 +226,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "A file of tool poses (CSV or Parquet) as the targets table for compensate, units converted",
-    code_version: 3,
+    code_version: 4,
     inputs: &[],
     outputs: &[TableSlot {
         name: "targets",

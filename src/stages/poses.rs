@@ -161,7 +161,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: true,
     updates_input: None,
     summary: "Robot configurations in the workspace box, SMR facing the tracker, collision-free",
-    code_version: 6,
+    code_version: 7,
     inputs: &[TableSlot {
         name: "targets",
         schema: schema::targets,
