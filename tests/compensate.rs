@@ -17,6 +17,8 @@ use polars::prelude::*;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
+use common::targets::{write_targets, xyz_euler_deg};
+
 fn robot() -> Robot {
     Robot::new(RobotSpec::load(&common::root().join("jobs/robots/irb1600_145.toml")).unwrap())
 }
@@ -491,15 +493,6 @@ fn bad_targets_tables_exit_2_naming_the_file() {
     assert!(checked >= 7, "{checked} bad cases");
 }
 
-/// (rx, ry, rz) deg with rotation = Rot(x, rx)·Rot(y, ry)·Rot(z, rz).
-fn xyz_euler_deg(frame: &Frame) -> [f64; 3] {
-    let r = &frame.rotation;
-    let ry = r[(0, 2)].clamp(-1.0, 1.0).asin();
-    let rx = (-r[(1, 2)]).atan2(r[(2, 2)]);
-    let rz = (-r[(0, 1)]).atan2(r[(0, 0)]);
-    [rx.to_degrees(), ry.to_degrees(), rz.to_degrees()]
-}
-
 /// The time for 10,000 targets, printed, not asserted (a timed assertion flakes
 /// on a loaded machine). Run in release:
 /// `cargo test --release --test compensate timing -- --ignored --nocapture`.
@@ -530,33 +523,6 @@ fn timing_of_10000_targets() {
 }
 
 // --- Frames, tools and the envelope (issue 26, spec §8) ---
-
-/// A `targets` table of `poses` (ids 1..), with extra columns.
-fn write_targets(path: &Path, poses: &[Frame], extra: Vec<Column>) {
-    let n = poses.len();
-    let mut columns = vec![Column::new(
-        "target_id".into(),
-        (1..=n as i64).collect::<Vec<_>>(),
-    )];
-    for (axis, name) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
-        columns.push(Column::new(
-            (*name).into(),
-            poses.iter().map(|p| p.origin_mm[axis]).collect::<Vec<_>>(),
-        ));
-    }
-    for (axis, name) in ["rx_deg", "ry_deg", "rz_deg"].iter().enumerate() {
-        columns.push(Column::new(
-            (*name).into(),
-            poses
-                .iter()
-                .map(|p| xyz_euler_deg(p)[axis])
-                .collect::<Vec<_>>(),
-        ));
-    }
-    columns.extend(extra);
-    let mut df = DataFrame::new(n, columns).unwrap();
-    egcal::table::write_parquet(&mut df, path, None).unwrap();
-}
 
 /// `egcal stage KIND` on `inputs` with `settings` (TOML) in `dir`: the exit
 /// code, stdout, stderr and the output folder.

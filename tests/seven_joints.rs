@@ -189,17 +189,6 @@ fn reaches_the_map_by_the_redundancy_rule(
     assert!(reachable >= 30, "{reachable} reachable points");
 }
 
-/// XYZ angles (deg) of a rotation `Rot(x)·Rot(y)·Rot(z)`, the `targets`
-/// table's orientation.
-fn xyz_euler_deg(frame: &Frame) -> [f64; 3] {
-    let r = &frame.rotation;
-    [
-        (-r[(1, 2)]).atan2(r[(2, 2)]).to_degrees(),
-        r[(0, 2)].asin().to_degrees(),
-        (-r[(0, 1)]).atan2(r[(0, 0)]).to_degrees(),
-    ]
-}
-
 /// The joint the redundancy rule holds (joint 3).
 const HELD: usize = egcal::robot::ik::HELD_JOINT_OF_SEVEN;
 
@@ -237,40 +226,22 @@ fn compensates_by_the_redundancy_rule(
         .iter()
         .map(|q| robot.tool_in_world(truth, q, &Wrench::zero(), &[0; MAX_JOINTS]))
         .collect();
-    let mut columns = vec![Column::new(
-        "target_id".into(),
-        (1..=n as i64).collect::<Vec<_>>(),
-    )];
-    for (axis, name) in ["x_mm", "y_mm", "z_mm"].iter().enumerate() {
-        columns.push(Column::new(
-            (*name).into(),
-            poses.iter().map(|p| p.origin_mm[axis]).collect::<Vec<_>>(),
-        ));
-    }
-    for (axis, name) in ["rx_deg", "ry_deg", "rz_deg"].iter().enumerate() {
-        columns.push(Column::new(
-            (*name).into(),
-            poses
-                .iter()
-                .map(|p| xyz_euler_deg(p)[axis])
-                .collect::<Vec<_>>(),
-        ));
-    }
-    for joint in 0..7 {
-        columns.push(Column::new(
-            format!("q{}_deg", joint + 1).into(),
-            generators
-                .iter()
-                .enumerate()
-                .map(|(k, q)| {
-                    (k % 2 == 0).then_some(q[joint] + if joint == HELD { 0.0 } else { 1.0 })
-                })
-                .collect::<Vec<_>>(),
-        ));
-    }
-    let mut df = DataFrame::new(n, columns).unwrap();
+    let hints: Vec<Column> = (0..7)
+        .map(|joint| {
+            Column::new(
+                format!("q{}_deg", joint + 1).into(),
+                generators
+                    .iter()
+                    .enumerate()
+                    .map(|(k, q)| {
+                        (k % 2 == 0).then_some(q[joint] + if joint == HELD { 0.0 } else { 1.0 })
+                    })
+                    .collect::<Vec<_>>(),
+            )
+        })
+        .collect();
     let targets = dir.join("panda_targets.parquet");
-    egcal::table::write_parquet(&mut df, &targets, None).unwrap();
+    common::targets::write_targets(&targets, &poses, hints);
     let (code, output, stage_out) = common::stage(
         dir,
         &common::root().join("jobs/robots/panda.toml"),

@@ -6,6 +6,7 @@
 pub mod measured;
 pub mod sample;
 pub mod tables;
+pub mod targets;
 pub mod ur10;
 
 use std::path::{Path, PathBuf};
