@@ -381,8 +381,13 @@ fn nest_poses_adds_the_nests_and_refuses_what_it_cannot_do() {
     assert_ne!(code, 0, "{log}");
     assert!(log.contains("row 2 (cw_id 10) measures a nest"), "{log}");
 
-    let refusals: [(&Path, &str, &str); 4] = [
+    let refusals: [(&Path, &str, &str); 5] = [
         (&robot, "arm_target = \"table_b\"\n", "arm_target"),
+        (
+            &robot,
+            "arm_park_deg = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]\n",
+            "7 values for the 6 joints",
+        ),
         (
             &robot,
             "arm_park_deg = [0.0, 150.0, 0.0, 0.0, 0.0, 0.0]\n",

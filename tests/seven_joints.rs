@@ -353,6 +353,81 @@ fn poses_of_the_panda_spread_the_held_joint_and_reach_their_targets() {
     assert!(sd > 40.0, "joint 3 spread {sd}°");
 }
 
+/// `nest_poses` for a Panda with the IRB 1600 cell's positioner: the nests'
+/// rows park all seven joints where `arm_park_deg` says; six values are
+/// refused, naming the joint count.
+#[test]
+fn nest_poses_park_all_seven_joints() {
+    let dir = tempfile::tempdir().unwrap();
+    let panda_text =
+        std::fs::read_to_string(common::root().join("jobs/robots/panda.toml")).unwrap();
+    let positioner_text =
+        std::fs::read_to_string(common::root().join("jobs/robots/irb1600_145_positioner.toml"))
+            .unwrap();
+    let positioner = &positioner_text[positioner_text.find("\n[positioner]").unwrap()..];
+    let robot = dir.path().join("panda_positioner.toml");
+    std::fs::write(&robot, format!("{panda_text}\n{positioner}")).unwrap();
+
+    let mut columns = vec![
+        Column::new("cw_id".into(), [1_i64, 2]),
+        Column::new("config_id".into(), [1_i64, 2]),
+    ];
+    // Two configurations within the Panda's limits.
+    let rows = [
+        [0.0, 0.0, 0.0, -90.0, 0.0, 90.0, 0.0],
+        [10.0, -10.0, 10.0, -100.0, 10.0, 100.0, 10.0],
+    ];
+    for (joint, name) in egcal::table::schema::ALL_JOINT_COLUMNS.iter().enumerate() {
+        columns.push(Column::new(
+            (*name).into(),
+            [rows[0][joint], rows[1][joint]],
+        ));
+    }
+    for name in egcal::table::schema::WRENCH_COLUMNS {
+        columns.push(Column::new(name.into(), [1.0, -2.0]));
+    }
+    for name in egcal::table::schema::TENSION_COLUMNS {
+        columns.push(Column::new(name.into(), [50.0, 60.0]));
+    }
+    columns.push(Column::new("margin_n".into(), [12.0, 13.0]));
+    let mut df = egcal::table::frame(columns);
+    let candidates = dir.path().join("candidates.parquet");
+    egcal::table::write_parquet(&mut df, &candidates, None).unwrap();
+
+    let park = [0.0, -30.0, 10.0, -120.0, 0.0, 100.0, 45.0];
+    let (code, output, out) = common::stage(
+        dir.path(),
+        &robot,
+        "nest_poses",
+        &format!("arm_park_deg = {park:?}\nper_nest = 4\n"),
+        &[("candidates", &candidates)],
+    );
+    assert_eq!(code, 0, "{output}");
+    let table = read(&out.join("candidates.parquet"));
+    let targets = strings(&table, "target_id");
+    assert_eq!(table.height(), 2 + 3 * 4, "{output}");
+    for (joint, value) in park.iter().enumerate() {
+        let q = f64s(&table, &format!("q{}_deg", joint + 1));
+        for (k, target) in targets.iter().enumerate().skip(2) {
+            assert_ne!(target, "arm");
+            assert_eq!(q[k], *value, "row {k}, joint {}", joint + 1);
+        }
+    }
+
+    let (code, output, _) = common::stage(
+        dir.path(),
+        &robot,
+        "nest_poses",
+        "arm_park_deg = [0.0, 0.0, 0.0, -90.0, 0.0, 90.0]\n",
+        &[("candidates", &candidates)],
+    );
+    assert_eq!(code, 2, "{output}");
+    assert!(
+        output.contains("arm_park_deg") && output.contains("6 values for the 7 joints"),
+        "{output}"
+    );
+}
+
 fn campaigns_file(name: &str) -> std::path::PathBuf {
     common::root().join("jobs/campaigns").join(name)
 }

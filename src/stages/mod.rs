@@ -740,19 +740,6 @@ pub fn conf_wrench_rows(
     Ok((ids, rows))
 }
 
-/// Refuses a seven-joint arm in a stage built for six joints (`why`: what
-/// needs them), naming the robot file: such a stage would otherwise freeze
-/// or drop the seventh joint and return a wrong answer.
-pub(crate) fn require_six_joints(ctx: &StageContext, why: &str) -> Result<(), StageError> {
-    match ctx.robot.joint_count() {
-        6 => Ok(()),
-        n => Err(StageError::Invalid(format!(
-            "the robot file {} has {n} joints, and this stage needs a six-joint arm: {why} (seven-joint arms are identified, predicted and compensated; this stage is not built for them yet)",
-            ctx.robot.spec().path.display()
-        ))),
-    }
-}
-
 /// Each row's carriage position (`e1_mm`), checked against the robot
 /// file's track: required with a track, refused without one (a position
 /// nothing would read is a table meant for another cell), and within the

@@ -21,7 +21,9 @@ use crate::design::nest_views::{NestView, draw_configurations};
 use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{MAX_JOINTS, ParamValues};
 use crate::table::parameters::target_id_problem;
-use crate::table::schema::{self, JOINT_COLUMNS, POSITIONER_COLUMNS, WRENCH_COLUMNS, i64_values};
+use crate::table::schema::{
+    self, ALL_JOINT_COLUMNS, POSITIONER_COLUMNS, WRENCH_COLUMNS, i64_values,
+};
 
 pub struct NestPosesStage;
 
@@ -35,11 +37,12 @@ pub struct NestPosesSettings {
     /// The `target_id` the arm's rows get: the SMR on the arm's tool. It
     /// must not be one of the positioner's nests.
     pub arm_target: String,
-    /// The arm's joints while the nests are measured (deg): parked where it
-    /// neither blocks the tracker's view of the table nor touches the
-    /// positioner. Within the joint limits.
-    #[schemars(inner(range(min = -100_000.0, max = 100_000.0)))]
-    pub arm_park_deg: [f64; 6],
+    /// The arm's joints while the nests are measured (deg), one per joint of
+    /// the robot file (six or seven): parked where it neither blocks the
+    /// tracker's view of the table nor touches the positioner. Within the
+    /// joint limits.
+    #[schemars(length(min = 6, max = 7), inner(range(min = -100_000.0, max = 100_000.0)))]
+    pub arm_park_deg: Vec<f64>,
     /// Tracker head in the robot base frame (mm); default: the robot file's
     /// nominal world origin.
     #[schemars(inner(range(min = -100_000.0, max = 100_000.0)))]
@@ -58,7 +61,7 @@ impl Default for NestPosesSettings {
         NestPosesSettings {
             per_nest: 12,
             arm_target: "arm".into(),
-            arm_park_deg: [0.0; 6],
+            arm_park_deg: vec![0.0; 6],
             tracker_mm: None,
             acceptance_half_angle_deg: 40.0,
             max_draws: 100_000,
@@ -71,7 +74,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "The positioner's nests added to a campaign: per nest, configurations the tracker sees, the arm parked",
-    code_version: 1,
+    code_version: 2,
     inputs: &[TableSlot {
         name: "candidates",
         schema: schema::candidates,
@@ -122,6 +125,17 @@ impl Stage for NestPosesStage {
                 ),
             ));
         }
+        if settings.arm_park_deg.len() != robot.joints.len() {
+            problems.push(SettingsProblem::new(
+                "arm_park_deg",
+                format!(
+                    "{} values for the {} joints of the robot file {}: give one per joint",
+                    settings.arm_park_deg.len(),
+                    robot.joints.len(),
+                    robot.path.display()
+                ),
+            ));
+        }
         for (joint, (q, spec)) in settings.arm_park_deg.iter().zip(&robot.joints).enumerate() {
             let [lo, hi] = spec.limits_deg;
             if !(q.is_finite() && (lo..=hi).contains(q)) {
@@ -152,7 +166,6 @@ impl Stage for NestPosesStage {
         ctx: &StageContext,
         settings: &NestPosesSettings,
     ) -> Result<StageOutputs, StageError> {
-        super::require_six_joints(ctx, "the parked arm is given as six joints")?;
         let input = ctx.input("candidates")?;
         if input.df.column("target_id").is_ok() {
             return Err(StageError::Invalid(format!(
@@ -253,7 +266,7 @@ fn with_nest_rows(
                 Column::new(c.name().clone(), numbered(first_cw))
             } else if name == "config_id" {
                 Column::new(c.name().clone(), numbered(first_config))
-            } else if let Some(joint) = JOINT_COLUMNS.iter().position(|j| *j == name) {
+            } else if let Some(joint) = ALL_JOINT_COLUMNS.iter().position(|j| *j == name) {
                 Column::new(c.name().clone(), vec![park_deg[joint]; n])
             } else if WRENCH_COLUMNS.contains(&name) {
                 Column::new(c.name().clone(), vec![0.0; n])

@@ -281,7 +281,8 @@ pub const JOINT_COLUMNS: [&str; 6] = ["q1_deg", "q2_deg", "q3_deg", "q4_deg", "q
 /// A seventh joint's column (issue #30).
 pub const SEVENTH_JOINT_COLUMN: &str = "q7_deg";
 
-const ALL_JOINT_COLUMNS: [&str; crate::robot::MAX_JOINTS] = [
+/// Every joint column a table may carry, `q1_deg … q7_deg`.
+pub const ALL_JOINT_COLUMNS: [&str; crate::robot::MAX_JOINTS] = [
     "q1_deg",
     "q2_deg",
     "q3_deg",
