@@ -27,7 +27,7 @@ fn candidates(count: usize, seed: u64) -> Candidates {
     let rows: Vec<ConfWrench> = (0..count)
         .map(|_| ConfWrench {
             q_deg: robot.joint_vector(|i| {
-                let [lo, hi] = robot.limits_deg(i);
+                let [lo, hi] = robot.joint_limits(i);
                 rng.random_range(lo..hi)
             }),
             wrench: Wrench::from_array(std::array::from_fn(|i| {

@@ -21,7 +21,7 @@ fn ik(c: &mut Criterion) {
     let poses: Vec<_> = (0..POSES)
         .map(|_| {
             let q = robot.joint_vector(|i| {
-                let [lo, hi] = robot.limits_deg(i);
+                let [lo, hi] = robot.joint_limits(i);
                 rng.random_range(lo..hi)
             });
             robot.nominal_flange_in_base(&q)

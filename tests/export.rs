@@ -55,7 +55,7 @@ fn random_rows(robot: &Robot, n: usize, seed: u64) -> Vec<Row> {
     (0..n)
         .map(|k| {
             let q: [f64; MAX_JOINTS] = robot.joint_vector(|i| {
-                let [lo, hi] = robot.limits_deg(i);
+                let [lo, hi] = robot.joint_limits(i);
                 rng.random_range(lo..hi)
             });
             let (_, tool) = robot.frames_in_base(&nominal, &q);
@@ -992,7 +992,7 @@ fn middle_rows(robot: &Robot, n: usize, seed: u64) -> Vec<Row> {
     let nominal = ParamValues::nominal(robot.spec());
     for row in &mut rows {
         row.q = robot.joint_vector(|i| {
-            let [lo, hi] = robot.limits_deg(i);
+            let [lo, hi] = robot.joint_limits(i);
             let margin = 0.25 * (hi - lo);
             rng.random_range(lo + margin..hi - margin)
         });
@@ -1199,7 +1199,7 @@ fn urdf_matches_the_model(robot: &Robot, values: &ParamValues) -> String {
     let mut worst = 0.0f64;
     for _ in 0..1000 {
         let q: [f64; MAX_JOINTS] = robot.joint_vector(|i| {
-            let [lo, hi] = robot.limits_deg(i);
+            let [lo, hi] = robot.joint_limits(i);
             rng.random_range(lo..hi)
         });
         let mut t = Matrix4::identity();

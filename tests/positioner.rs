@@ -81,7 +81,7 @@ fn arm_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
         .map(|_| {
             ConfWrench::new(
                 robot.joint_vector(|i| {
-                    let [lo, hi] = robot.limits_deg(i);
+                    let [lo, hi] = robot.joint_limits(i);
                     rng.random_range(lo..hi)
                 }),
                 Wrench::from_array(std::array::from_fn(|i| {

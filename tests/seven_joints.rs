@@ -212,7 +212,7 @@ fn compensates_by_the_redundancy_rule(
     let generators: Vec<[f64; MAX_JOINTS]> = (0..n)
         .map(|k| {
             let mut q = robot.joint_vector(|i| {
-                let [lo, hi] = robot.limits_deg(i);
+                let [lo, hi] = robot.joint_limits(i);
                 // Away from the limits, where the true arm reaches the target.
                 rng.random_range(lo + 0.2 * (hi - lo)..hi - 0.2 * (hi - lo))
             });

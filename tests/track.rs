@@ -69,7 +69,7 @@ fn rows_on_track(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
             positioner_deg: None,
             ..ConfWrench::new(
                 robot.joint_vector(|i| {
-                    let [lo, hi] = robot.limits_deg(i);
+                    let [lo, hi] = robot.joint_limits(i);
                     rng.random_range(lo..hi)
                 }),
                 Wrench::from_array(std::array::from_fn(|i| {

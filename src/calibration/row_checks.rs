@@ -105,7 +105,7 @@ pub fn conf_wrench_problem(robot: &Robot, row: &ConfWrench) -> Option<String> {
 /// [`JOINT_LIMIT_TOLERANCE_DEG`]), naming the first such joint.
 pub fn joints_problem(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> Option<String> {
     for (joint, &q) in q_deg.iter().enumerate().take(robot.joint_count()) {
-        let [lo, hi] = robot.limits_deg(joint);
+        let [lo, hi] = robot.joint_limits(joint);
         if !(q >= lo - JOINT_LIMIT_TOLERANCE_DEG && q <= hi + JOINT_LIMIT_TOLERANCE_DEG) {
             return Some(format!(
                 "q{}_deg = {} is outside the joint limits [{lo}, {hi}] of the robot file (by more than {JOINT_LIMIT_TOLERANCE_DEG}°)",

@@ -80,15 +80,20 @@ pub fn suspect_units(
     if rows.len() < MIN_ROWS || measured_mm.len() != rows.len() {
         return None;
     }
+    // A prismatic joint's value is millimetres: only the revolute ones tell.
+    let revolute: Vec<usize> = (0..robot.joint_count())
+        .filter(|&joint| !robot.is_prismatic(joint))
+        .collect();
     let largest_abs_deg = rows
         .iter()
-        .flat_map(|r| r.q_deg.iter())
+        .flat_map(|r| revolute.iter().map(|&joint| r.q_deg[joint]))
         .fold(0.0_f64, |m, q| m.max(q.abs()));
-    let limits_span_deg = robot
-        .spec()
-        .joints
+    let limits_span_deg = revolute
         .iter()
-        .map(|j| j.limits_deg[1] - j.limits_deg[0])
+        .map(|&joint| {
+            let [lo, hi] = robot.joint_limits(joint);
+            hi - lo
+        })
         .fold(0.0_f64, f64::max);
     if largest_abs_deg <= std::f64::consts::TAU && limits_span_deg > 4.0 * std::f64::consts::PI {
         return Some(UnitSuspicion::JointsInRadians { largest_abs_deg });

@@ -416,7 +416,12 @@ pub fn compensate(
             let (tool, joints) =
                 deflected_tool_and_joints(robot, values, &q, &target.wrench, &options.approach);
             let sigma_min_mm_per_rad =
-                ik::scaled_geometric_jacobian(&tool, &joints, &ik::free_joints(robot))
+                ik::scaled_geometric_jacobian(
+                    &tool,
+                    &joints,
+                    &ik::free_joints(robot),
+                    &robot.prismatic_joints(),
+                )
                     .singular_values()
                     .min();
             let status = if iterate.converged {

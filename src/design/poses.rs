@@ -281,7 +281,7 @@ fn generate_one(
         let tool_in_base = upright_tool_frame(&facing, roll, *target);
         let flange = flange_target_in_base(robot, nominal, &world.compose(&tool_in_base));
         let solved = if robot.joint_count() > 6 {
-            let [lo, hi] = robot.limits_deg(ik::HELD_JOINT_OF_SEVEN);
+            let [lo, hi] = robot.joint_limits(ik::HELD_JOINT_OF_SEVEN);
             ik::solve_holding(robot, &flange, rng.random_range(lo..=hi))
         } else {
             ik::solve(robot, &flange)

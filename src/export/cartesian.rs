@@ -202,7 +202,7 @@ fn pre_position(
     let mut q_deg = command.q_deg;
     for (joint, q) in q_deg.iter_mut().enumerate().take(robot.joint_count()) {
         *q -= f64::from(command.approach[joint]) * distance_deg;
-        let [lower_deg, upper_deg] = robot.limits_deg(joint);
+        let [lower_deg, upper_deg] = robot.joint_limits(joint);
         if !(lower_deg..=upper_deg).contains(q) {
             return Err(CartesianError::PrePositionOutsideLimits {
                 target_id: command.target_id,
@@ -428,7 +428,7 @@ mod tests {
         );
         assert_eq!(undirected.unwrap()[0].pre_position_q_deg, None);
         // A pre-position beyond a joint limit is refused, naming row and joint.
-        let [lower, _] = robot.limits_deg(1);
+        let [lower, _] = robot.joint_limits(1);
         let at_limit = Command {
             q_deg: [10.0, lower + 0.2, -30.0, 40.0, 50.0, 60.0, 0.0],
             approach: [0, 1, 0, 0, 0, 0, 0],

@@ -231,7 +231,7 @@ pub fn robot_urdf(robot: &Robot, p: &ParamValues, source: &UrdfSource) -> String
             format!("link{i}")
         };
         let joint = &spec.joints[i];
-        let [lo, hi] = joint.limits_deg;
+        let [lo, hi] = joint.limits();
         let velocity = joint
             .max_velocity_deg_s
             .map_or(UNKNOWN_VELOCITY_RAD_S, |v| v * DEG);

@@ -168,7 +168,7 @@ impl ReadingBounds {
         // Past the arm's joints, a zero reading within zero limits.
         std::array::from_fn(|i| {
             if i < robot.joint_count() {
-                robot.limits_deg(i)
+                robot.joint_limits(i)
             } else {
                 [0.0; 2]
             }

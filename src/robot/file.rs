@@ -15,21 +15,58 @@ use super::model::MAX_JOINTS;
 use crate::toml_error::StrictError;
 use serde::{Deserialize, Serialize};
 
-/// One revolute joint (Craig's modified DH, `../shared/spec/model.md` §1) and the
-/// link it moves.
+/// How a joint moves: about its z axis, or along it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum JointKind {
+    /// The joint value (deg) is added to the MDH angle θ.
+    #[default]
+    Revolute,
+    /// The joint value (mm) is added to the MDH offset d; θ is fixed.
+    Prismatic,
+}
+
+impl JointKind {
+    fn is_revolute(&self) -> bool {
+        *self == JointKind::Revolute
+    }
+
+    /// The unit of the joint's value, as table columns and messages spell it.
+    pub fn unit(self) -> &'static str {
+        match self {
+            JointKind::Revolute => "deg",
+            JointKind::Prismatic => "mm",
+        }
+    }
+}
+
+/// One joint (Craig's modified DH, `../shared/spec/model.md` §1) and the
+/// link it moves: revolute (the default) or prismatic (`kind = "prismatic"`,
+/// a gantry's axes).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct JointSpec {
+    /// Revolute (default) or prismatic. Skipped when revolute, so files
+    /// without it keep their content hash.
+    #[serde(default, skip_serializing_if = "JointKind::is_revolute")]
+    pub kind: JointKind,
     /// Twist about the previous x axis, degrees.
     pub alpha_deg: f64,
     /// Length along the previous x axis, millimetres.
     pub a_mm: f64,
-    /// Constant added to the joint command to get the MDH angle, degrees.
+    /// Constant added to the joint command to get the MDH angle, degrees;
+    /// a prismatic joint's fixed MDH angle.
     pub theta_offset_deg: f64,
-    /// Offset along the joint's z axis, millimetres.
+    /// Offset along the joint's z axis, millimetres; for a prismatic joint,
+    /// added to its travel.
     pub d_mm: f64,
-    /// Software joint limits `[min, max]`, degrees.
-    pub limits_deg: [f64; 2],
+    /// Software joint limits `[min, max]` of a revolute joint, degrees.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub limits_deg: Option<[f64; 2]>,
+    /// Software joint limits `[min, max]` of a prismatic joint's travel,
+    /// millimetres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub limits_mm: Option<[f64; 2]>,
     /// Mass of the link this joint moves, kilograms.
     pub link_mass_kg: f64,
     /// Centre of gravity of that link in the joint's own frame, millimetres.
@@ -56,6 +93,75 @@ pub struct JointSpec {
     /// jobs in joint form (`POSTYPE PULSE`) need it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pulses_per_deg: Option<f64>,
+}
+
+impl JointSpec {
+    /// Software limits `[min, max]` in the joint's unit (deg, or mm for a
+    /// prismatic joint); validation makes sure the kind's key is there.
+    pub fn limits(&self) -> [f64; 2] {
+        match self.kind {
+            JointKind::Revolute => self.limits_deg,
+            JointKind::Prismatic => self.limits_mm,
+        }
+        .unwrap_or_default()
+    }
+
+    /// The limits' key for this kind of joint (for messages).
+    pub fn limits_key(&self) -> &'static str {
+        match self.kind {
+            JointKind::Revolute => "limits_deg",
+            JointKind::Prismatic => "limits_mm",
+        }
+    }
+
+    /// The first key this joint's kind does not allow, and why: a revolute
+    /// joint's limits are in degrees, a prismatic one's in millimetres, and
+    /// the data-sheet values in degrees or N·m have no prismatic meaning.
+    fn kind_problem(&self) -> Option<(&'static str, String)> {
+        let (wanted, unwanted) = match self.kind {
+            JointKind::Revolute => (&self.limits_deg, ("limits_mm", self.limits_mm.is_some())),
+            JointKind::Prismatic => (&self.limits_mm, ("limits_deg", self.limits_deg.is_some())),
+        };
+        if unwanted.1 {
+            return Some((
+                unwanted.0,
+                format!(
+                    "a {} joint's limits are `{}`; remove `{}`",
+                    self.kind_name(),
+                    self.limits_key(),
+                    unwanted.0
+                ),
+            ));
+        }
+        if wanted.is_none() {
+            return Some((
+                self.limits_key(),
+                format!("expected the {} joint's limits [min, max]", self.kind_name()),
+            ));
+        }
+        if self.kind == JointKind::Prismatic {
+            let degree_keys = [
+                ("max_velocity_deg_s", self.max_velocity_deg_s.is_some()),
+                ("max_torque_nm", self.max_torque_nm.is_some()),
+                ("gear_ratio", self.gear_ratio.is_some()),
+                ("pulses_per_deg", self.pulses_per_deg.is_some()),
+            ];
+            if let Some((key, _)) = degree_keys.iter().find(|(_, present)| *present) {
+                return Some((
+                    key,
+                    "is a revolute joint's value (degrees, N·m, turns); a prismatic joint has none: remove it".into(),
+                ));
+            }
+        }
+        None
+    }
+
+    fn kind_name(&self) -> &'static str {
+        match self.kind {
+            JointKind::Revolute => "revolute",
+            JointKind::Prismatic => "prismatic",
+        }
+    }
 }
 
 /// A capsule: the set of points within `radius_mm` of the segment `from_mm`–`to_mm`.
@@ -297,7 +403,14 @@ impl RobotSpec {
                 std::slice::from_ref(&joint.d_mm),
                 Bound::Length,
             ));
-            checks.push((key("limits_deg"), &joint.limits_deg, Bound::Travel));
+            if let Some((name, message)) = joint.kind_problem() {
+                return Err(invalid(key(name), message));
+            }
+            match (&joint.limits_deg, &joint.limits_mm) {
+                (Some(limits), _) => checks.push((key("limits_deg"), limits, Bound::Travel)),
+                (_, Some(limits)) => checks.push((key("limits_mm"), limits, Bound::Length)),
+                (None, None) => {}
+            }
             checks.push((
                 key("link_mass_kg"),
                 std::slice::from_ref(&joint.link_mass_kg),
@@ -403,10 +516,10 @@ impl RobotSpec {
             ));
         }
         for (i, joint) in self.joints.iter().enumerate() {
-            let [lo, hi] = joint.limits_deg;
+            let [lo, hi] = joint.limits();
             if lo >= hi {
                 return Err(invalid(
-                    format!("joints[{i}].limits_deg"),
+                    format!("joints[{i}].{}", joint.limits_key()),
                     format!("expected [min, max] with min < max, found [{lo}, {hi}]"),
                 ));
             }

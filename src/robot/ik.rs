@@ -128,6 +128,12 @@ fn geometry(robot: &Robot) -> Result<Geometry, IkError> {
             robot.joint_count()
         )));
     }
+    if let Some(joint) = (0..6).find(|&joint| robot.is_prismatic(joint)) {
+        return Err(IkError::UnsupportedGeometry(format!(
+            "joint {} is prismatic; the closed form is for six revolute joints",
+            joint + 1
+        )));
+    }
     let expected_alpha = [0.0, -90.0, 0.0, -90.0, 90.0, -90.0];
     for (i, expected) in expected_alpha.iter().enumerate() {
         let (alpha, ..) = robot.nominal_mdh(i);
@@ -274,11 +280,16 @@ fn wrap_deg(angle: f64) -> f64 {
     if wrapped == -180.0 { 180.0 } else { wrapped }
 }
 
-/// Every `q + 360·k` per joint that lies within the limits, as a cartesian product.
+/// Every `q + 360·k` per revolute joint that lies within the limits, as a
+/// cartesian product (a prismatic joint's one value, when within them).
 fn turns_within_limits(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> Vec<[f64; MAX_JOINTS]> {
     let mut combos = vec![*q_deg];
     for i in 0..robot.joint_count() {
-        let [lo, hi] = robot.limits_deg(i);
+        let [lo, hi] = robot.joint_limits(i);
+        if robot.is_prismatic(i) {
+            combos.retain(|combo| (lo - 1e-9..=hi + 1e-9).contains(&combo[i]));
+            continue;
+        }
         let mut turns = Vec::new();
         let mut angle = q_deg[i] - 360.0 * ((q_deg[i] - lo) / 360.0).floor();
         while angle <= hi + 1e-9 {
@@ -356,16 +367,20 @@ pub fn solve_loaded_iterate(
     seed_deg: &[f64; MAX_JOINTS],
     options: &NumericOptions,
 ) -> Iterate {
+    let prismatic = robot.prismatic_joints();
     let mut iterate = damped_least_squares(
         |q| deflected_tool_and_joints(robot, p, q, wrench, approach),
         tool_in_world,
         seed_deg,
         &free_joints(robot),
+        &prismatic,
         options,
     );
-    // The same configuration, in the turn of each joint nearest the seed.
-    for (q, seed) in iterate.q_deg.iter_mut().zip(seed_deg) {
-        *q -= 360.0 * ((*q - seed) / 360.0).round();
+    // The same configuration, in the turn of each revolute joint nearest the seed.
+    for ((q, seed), prismatic) in iterate.q_deg.iter_mut().zip(seed_deg).zip(prismatic) {
+        if !prismatic {
+            *q -= 360.0 * ((*q - seed) / 360.0).round();
+        }
     }
     iterate
 }
@@ -403,17 +418,23 @@ impl Iterate {
 }
 
 /// The geometric Jacobian (6×6) at the tool of a chain given in one frame, of
-/// the six `free` joints ([`free_joints`]): a joint's column is its axis's
-/// moment about the tool (mm/rad), then its axis scaled by [`RAD_AS_MM`], so
-/// position and orientation rows weigh alike.
+/// the six `free` joints ([`free_joints`]): a revolute joint's column is its
+/// axis's moment about the tool (mm/rad), then its axis scaled by
+/// [`RAD_AS_MM`], so position and orientation rows weigh alike; a prismatic
+/// joint's is its axis (mm/mm), then zero.
 pub(crate) fn scaled_geometric_jacobian(
     tool: &Frame,
     joints: &[Frame; MAX_JOINTS + 1],
     free: &[usize; 6],
+    prismatic: &[bool; MAX_JOINTS],
 ) -> Matrix6<f64> {
     let mut jacobian = Matrix6::zeros();
     for (column, &joint) in free.iter().enumerate() {
         let z = joints[joint + 1].axis(2);
+        if prismatic[joint] {
+            jacobian.fixed_view_mut::<3, 1>(0, column).copy_from(&z);
+            continue;
+        }
         let linear = z.cross(&(tool.origin_mm - joints[joint + 1].origin_mm));
         jacobian
             .fixed_view_mut::<3, 1>(0, column)
@@ -440,6 +461,7 @@ fn damped_least_squares(
     target: &Frame,
     seed_deg: &[f64; MAX_JOINTS],
     free: &[usize; 6],
+    prismatic: &[bool; MAX_JOINTS],
     options: &NumericOptions,
 ) -> Iterate {
     let residual = |q: &[f64; MAX_JOINTS]| {
@@ -479,7 +501,7 @@ fn damped_least_squares(
         {
             return stop(q, &position, &orientation, false, iteration);
         }
-        let jacobian = scaled_geometric_jacobian(&tool, &joints, free);
+        let jacobian = scaled_geometric_jacobian(&tool, &joints, free, prismatic);
         let error = stacked(&position, &orientation);
         let jtj = jacobian.transpose() * jacobian;
         let jte = jacobian.transpose() * error;
@@ -494,7 +516,12 @@ fn damped_least_squares(
             };
             let mut trial = q;
             for (column, &joint) in free.iter().enumerate() {
-                trial[joint] += step[column] / DEG;
+                // A revolute step is in radians, a prismatic one in mm.
+                trial[joint] += if prismatic[joint] {
+                    step[column]
+                } else {
+                    step[column] / DEG
+                };
             }
             let candidate = residual(&trial);
             if stacked(&candidate.2, &candidate.3).norm() < error.norm() {
@@ -637,18 +664,33 @@ pub fn numeric(
             start
         });
     let free = free_joints(robot);
+    let prismatic = robot.prismatic_joints();
+    // A revolute joint's value wrapped into one turn; a prismatic one's as it is.
+    let wrap = |joint: usize, value: f64| {
+        if prismatic[joint] {
+            value
+        } else {
+            wrap_deg(value)
+        }
+    };
     let mut configurations: Vec<[f64; MAX_JOINTS]> = Vec::new();
     for start in starts {
-        let Ok(q) = damped_least_squares(chain, flange_in_base, &start, &free, &options.solver)
-            .into_result(&options.solver)
-        else {
+        let Ok(q) = damped_least_squares(
+            chain,
+            flange_in_base,
+            &start,
+            &free,
+            &prismatic,
+            &options.solver,
+        )
+        .into_result(&options.solver) else {
             continue;
         };
-        let wrapped = q.map(wrap_deg);
+        let wrapped: [f64; MAX_JOINTS] = std::array::from_fn(|joint| wrap(joint, q[joint]));
         let known = configurations.iter().any(|c| {
-            c.iter()
-                .zip(&wrapped)
-                .all(|(a, b)| wrap_deg(a - b).abs() < options.same_configuration_deg)
+            (0..MAX_JOINTS).all(|joint| {
+                wrap(joint, c[joint] - wrapped[joint]).abs() < options.same_configuration_deg
+            })
         });
         if !known {
             configurations.push(wrapped);
@@ -678,14 +720,20 @@ pub fn numeric(
 }
 
 /// The first `count` points (from index 1) of the Halton sequence with bases
-/// 2, 3, 5, 7, 11, 13, scaled to one turn of each joint's range: `[lo, lo + 360]`
-/// clipped to the upper limit.
+/// 2, 3, 5, 7, 11, 13, scaled to one turn of each revolute joint's range:
+/// `[lo, lo + 360]` clipped to the upper limit (a prismatic joint's whole
+/// travel).
 fn start_points(robot: &Robot, count: usize) -> impl Iterator<Item = [f64; MAX_JOINTS]> + '_ {
     const BASES: [u64; MAX_JOINTS] = [2, 3, 5, 7, 11, 13, 17];
     (1..=count as u64).map(move |index| {
         robot.joint_vector(|i| {
-            let [lo, hi] = robot.limits_deg(i);
-            lo + radical_inverse(index, BASES[i]) * (hi.min(lo + 360.0) - lo)
+            let [lo, hi] = robot.joint_limits(i);
+            let span = if robot.is_prismatic(i) {
+                hi - lo
+            } else {
+                hi.min(lo + 360.0) - lo
+            };
+            lo + radical_inverse(index, BASES[i]) * span
         })
     })
 }
@@ -939,7 +987,7 @@ mod tests {
             joint.a_mm = a;
             joint.theta_offset_deg = offset;
             joint.d_mm = d;
-            joint.limits_deg = limits;
+            joint.limits_deg = Some(limits);
         }
         Robot::new(spec)
     }
@@ -1074,6 +1122,47 @@ mod tests {
             assert!(reached.angle_to(&target) < 1e-9);
         }
         assert!(solved >= 27, "{solved} of 30 converged");
+    }
+
+    /// A gantry (three prismatic joints, then a wrist): the closed form
+    /// refuses it, the numeric search finds the generating configuration,
+    /// and the loaded IK moves the slides by millimetres to reach a pose
+    /// under load.
+    #[test]
+    fn numeric_ik_of_a_gantry_finds_the_generating_configuration() {
+        let robot = crate::robot::test_support::gantry();
+        let refusal = closed_form_applies(&robot).unwrap_err().to_string();
+        assert!(refusal.contains("joint 1 is prismatic"), "{refusal}");
+        let (found, total) = check_numeric_round_trips(&robot, 23, 100);
+        assert!(found >= 99, "{found} of 100 generators found");
+        assert!(total >= 100, "{total}");
+
+        let mut p = ParamValues::nominal(robot.spec());
+        for joint in 0..3 {
+            p.set(crate::robot::ParamId::of_joint(crate::robot::JointParam::Compliance, joint), 2e-3);
+        }
+        let mut rng = StdRng::seed_from_u64(24);
+        for _ in 0..20 {
+            let q_true = random_q(&robot, &mut rng);
+            let wrench = Wrench::from_array([0.0, 0.0, 150.0, 0.0, 0.0, 0.0]);
+            let target = robot.tool_in_world(&p, &q_true, &wrench, &[0; MAX_JOINTS]);
+            let seed = robot.joint_vector(|joint| q_true[joint] + 2.0);
+            let q = solve_loaded(
+                &robot,
+                &p,
+                &wrench,
+                &[0; MAX_JOINTS],
+                &target,
+                &seed,
+                &NumericOptions::default(),
+            )
+            .unwrap();
+            let reached = robot.tool_in_world(&p, &q, &wrench, &[0; MAX_JOINTS]);
+            assert!((reached.origin_mm - target.origin_mm).norm() < 1e-6);
+            for joint in 0..6 {
+                assert!((q[joint] - q_true[joint]).abs() < 1e-6, "{q:?} {q_true:?}");
+            }
+        }
     }
 
     #[test]

@@ -146,6 +146,11 @@ impl PreparedRobot<'_> {
 /// origin) of bodies s..7. Summing over joints turns both into prefix and suffix
 /// sums over `i`, so each parameter column costs three 3×3 products instead of a
 /// loop over the joints.
+///
+/// A prismatic joint's load is the force `F_i = z_i·(m_i·g + f)` along its axis
+/// (`m_i` the mass of bodies i..7). At or after `s` its axis and the wrench turn
+/// together and only gravity stays put: `dF_i = m_i·(z_i×g)·ω`. Before `s` its
+/// axis is fixed and only the wrench's direction turns: `dF_i = (f×z_i)·ω`.
 struct DeflectionMaps {
     /// Coefficient of `ω` (without the `G_s` term), per first moved body.
     rotation: [Matrix3<f64>; MAX_JOINTS + 1],
@@ -158,12 +163,14 @@ struct DeflectionMaps {
 }
 
 impl DeflectionMaps {
-    /// `deflection_rates[i] = k_i·∂p/∂q_i` (mm per N·m) on the deflected chain.
+    /// `deflection_rates[i] = k_i·∂p/∂q_i` (mm per N·m, or per N for a
+    /// prismatic joint) on the deflected chain.
     fn new(
         undeflected: &Chain,
         loads: &Loads,
         gravity: &Vector3<f64>,
         deflection_rates: &[Vector3<f64>; MAX_JOINTS],
+        prismatic: &[bool; MAX_JOINTS],
     ) -> Self {
         let tool_m = undeflected.tool.origin_mm * MM;
         let f = &loads.force_base_n;
@@ -187,8 +194,13 @@ impl DeflectionMaps {
 
             let joint = &undeflected.joints[s];
             let z = joint.axis(2);
-            let o = joint.origin_mm * MM;
             let rate = &deflection_rates[i];
+            if prismatic[i] {
+                before[0] += rate * f.cross(&z).transpose();
+                after[i] = rate * (z.cross(gravity) * loads.suffix_mass_kg[s]).transpose();
+                continue;
+            }
+            let o = joint.origin_mm * MM;
             let wrench_arm = z.cross(&(tool_m - o));
             let rotation_coefficient =
                 tool_m.cross(&f.cross(&z)) + moment.cross(&z) + f.cross(&wrench_arm);
@@ -293,21 +305,42 @@ impl PreparedRobot<'_> {
         let tool_base = deflected.tool.origin_mm;
         let position_mm = world.transform_point(&tool_base);
 
-        // d(position in base)/d(joint angle i) per degree, on the deflected chain.
+        let robot = self.robot();
+        let prismatic: [bool; MAX_JOINTS] = std::array::from_fn(|i| robot.is_prismatic(i));
+        // d(position in base)/d(joint value i) per degree (per mm for a
+        // prismatic joint), on the deflected chain.
         let joint_rates: [Vector3<f64>; MAX_JOINTS] = std::array::from_fn(|i| {
             let joint = &deflected.joints[i + 1];
-            joint.axis(2).cross(&(tool_base - joint.origin_mm)) * DEG
+            if prismatic[i] {
+                joint.axis(2)
+            } else {
+                joint.axis(2).cross(&(tool_base - joint.origin_mm)) * DEG
+            }
+        });
+        // The tool's rotation per unit of joint i: one degree per degree about
+        // its axis; none for a prismatic joint.
+        let joint_turns: [Vector3<f64>; MAX_JOINTS] = std::array::from_fn(|i| {
+            if prismatic[i] {
+                Vector3::zeros()
+            } else {
+                deflected.joints[i + 1].axis(2)
+            }
         });
         let deflection_rates: [Vector3<f64>; MAX_JOINTS] =
             std::array::from_fn(|i| joint_rates[i] * self.compliance(i));
-        let gravity = Vector3::from(self.robot().spec().gravity_mps2);
-        let maps = DeflectionMaps::new(&undeflected, &loads, &gravity, &deflection_rates);
-        // The same maps for the tool's rotation: joint i turns it about its axis,
-        // one degree per degree.
+        let gravity = Vector3::from(robot.spec().gravity_mps2);
+        let maps = DeflectionMaps::new(
+            &undeflected,
+            &loads,
+            &gravity,
+            &deflection_rates,
+            &prismatic,
+        );
+        // The same maps for the tool's rotation.
         let angular_maps = angular.is_some().then(|| {
             let rates: [Vector3<f64>; MAX_JOINTS] =
-                std::array::from_fn(|i| deflected.joints[i + 1].axis(2) * self.compliance(i));
-            DeflectionMaps::new(&undeflected, &loads, &gravity, &rates)
+                std::array::from_fn(|i| joint_turns[i] * self.compliance(i));
+            DeflectionMaps::new(&undeflected, &loads, &gravity, &rates, &prismatic)
         });
 
         let joints = undeflected.joint_count;
@@ -332,8 +365,7 @@ impl PreparedRobot<'_> {
                     self.world_rotation_axes[r].cross(&position_mm) * DEG
                 }
                 ParamKind::Compliance(i) => {
-                    rotation_deg =
-                        world.rotation * deflected.joints[i + 1].axis(2) * loads.torques_nm[i];
+                    rotation_deg = world.rotation * joint_turns[i] * loads.torques_nm[i];
                     world.rotation * joint_rates[i] * loads.torques_nm[i]
                 }
                 ParamKind::ToolTranslation { target: other, .. } if other != *target => {
@@ -343,8 +375,8 @@ impl PreparedRobot<'_> {
                 // rate times the term's factor (the torques, on the readings'
                 // chain, do not see it).
                 ParamKind::Backlash(i) | ParamKind::Harmonic { joint: i, .. } => {
-                    let factor = joint_term_factor(id, q_deg[i], approach[i]);
-                    rotation_deg = world.rotation * deflected.joints[i + 1].axis(2) * factor;
+                    let factor = joint_term_factor(id, q_deg[i], approach[i], prismatic[i]);
+                    rotation_deg = world.rotation * joint_turns[i] * factor;
                     world.rotation * joint_rates[i] * factor
                 }
                 _ => {
@@ -436,10 +468,12 @@ impl PreparedRobot<'_> {
 }
 
 /// How much of a joint-error term's angle a row carries: the approach
-/// direction for a backlash, sin(n·q) or cos(n·q) for a harmonic.
-fn joint_term_factor(id: ParamId, q_deg: f64, approach: i8) -> f64 {
+/// direction for a backlash, sin(n·q) or cos(n·q) for a harmonic (none on a
+/// prismatic joint, which the model gives no harmonics).
+fn joint_term_factor(id: ParamId, q_deg: f64, approach: i8, prismatic: bool) -> f64 {
     match id.kind() {
         ParamKind::Backlash(_) => f64::from(approach),
+        ParamKind::Harmonic { .. } if prismatic => 0.0,
         ParamKind::Harmonic { order, cosine, .. } => {
             let (sine, cos) = (order as f64 * q_deg * DEG).sin_cos();
             if cosine { cos } else { sine }
@@ -609,7 +643,7 @@ mod tests {
         }
     }
     use crate::robot::test_support::{
-        irb1600, irb1600_in_full_cell, random_q, random_wrench, truth_params,
+        gantry, irb1600, irb1600_in_full_cell, random_q, random_wrench, truth_params,
     };
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
@@ -660,10 +694,24 @@ mod tests {
 
     #[test]
     fn analytic_jacobian_matches_central_differences_for_every_slot() {
-        let robot = irb1600_in_full_cell();
+        check_position_columns(&irb1600_in_full_cell(), 7, 1e-9);
+    }
+
+    /// A gantry's prismatic joints: their travel, deflection (mm/N of the
+    /// force along the axis) and backlash columns, and the changes every
+    /// other parameter makes to those forces.
+    #[test]
+    fn analytic_jacobian_matches_central_differences_on_prismatic_joints() {
+        // The gantry's tool reaches 3.6 m from its base: round-off in the
+        // differences is larger (1e-16 of 3.6e3 mm over a 2e-4 step).
+        check_position_columns(&gantry(), 17, 5e-9);
+    }
+
+    fn check_position_columns(robot: &Robot, seed: u64, absolute_mm: f64) {
+        let robot = robot.clone();
         let all = every_slot();
         assert_eq!(all.len(), PARAM_COUNT);
-        let mut rng = StdRng::seed_from_u64(7);
+        let mut rng = StdRng::seed_from_u64(seed);
         for trial in 0..40 {
             let p = params_for_trial(&robot, &all, trial, &mut rng);
             let row = random_row(&robot, trial, &mut rng);
@@ -680,7 +728,7 @@ mod tests {
                 let analytic = columns[id.index()];
                 let scale = analytic.norm().max(fd.norm());
                 assert!(
-                    (fd - analytic).norm() <= 1e-6 * scale + 1e-9,
+                    (fd - analytic).norm() <= 1e-6 * scale + absolute_mm,
                     "trial {trial} {id}: analytic {analytic:?} fd {fd:?}"
                 );
             }
@@ -694,9 +742,18 @@ mod tests {
     /// columns are those of `jacobian_row`, bit for bit.
     #[test]
     fn orientation_columns_match_central_differences_for_every_slot() {
-        let robot = irb1600_in_full_cell();
+        check_orientation_columns(&irb1600_in_full_cell(), 8, 1e-9);
+    }
+
+    #[test]
+    fn orientation_columns_match_central_differences_on_prismatic_joints() {
+        check_orientation_columns(&gantry(), 18, 5e-9);
+    }
+
+    fn check_orientation_columns(robot: &Robot, seed: u64, absolute: f64) {
+        let robot = robot.clone();
         let all = every_slot();
-        let mut rng = StdRng::seed_from_u64(8);
+        let mut rng = StdRng::seed_from_u64(seed);
         for trial in 0..40 {
             let mut p = params_for_trial(&robot, &all, trial, &mut rng);
             // Tool and world rotations far from zero, so their axes are not the
@@ -731,11 +788,11 @@ mod tests {
                 let analytic = angular[id.index()];
                 let scale = analytic.norm().max(fd.norm());
                 assert!(
-                    (fd - analytic).norm() <= 1e-6 * scale + 1e-9,
+                    (fd - analytic).norm() <= 1e-6 * scale + absolute,
                     "trial {trial} {id}: analytic {analytic:?} fd {fd:?}"
                 );
             }
-            if row.positioner_deg.is_some() {
+            if row.positioner_deg.is_some() || robot.has_prismatic_joint() {
                 continue;
             }
             // Every kind of parameter turns the tool somewhere, except translations.

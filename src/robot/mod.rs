@@ -63,6 +63,12 @@ pub(crate) mod test_support {
         Robot::new(RobotSpec::parse(text, Path::new("panda.toml")).unwrap())
     }
 
+    /// The shipped six-axis gantry: three prismatic joints, then a wrist.
+    pub fn gantry() -> Robot {
+        let text = include_str!("../../jobs/robots/gantry.toml");
+        Robot::new(RobotSpec::parse(text, Path::new("gantry.toml")).unwrap())
+    }
+
     /// The shipped UR10 file: an arm without a spherical wrist.
     pub fn ur10() -> Robot {
         let text = include_str!("../../jobs/robots/ur10.toml");
@@ -76,7 +82,7 @@ pub(crate) mod test_support {
 
     pub fn random_q(robot: &Robot, rng: &mut impl Rng) -> [f64; MAX_JOINTS] {
         robot.joint_vector(|i| {
-            let [lo, hi] = robot.limits_deg(i);
+            let [lo, hi] = robot.joint_limits(i);
             rng.random_range(lo..hi)
         })
     }

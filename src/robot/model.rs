@@ -7,6 +7,12 @@
 //! torques are computed with positions in metres (N·m), and compliances are
 //! deg/(N·m), so a deflection is in degrees like every other joint angle.
 //!
+//! A prismatic joint (`kind = "prismatic"`) carries millimetres where a
+//! revolute joint carries degrees, in every joint vector (the `q_deg`
+//! arrays), deflection and joint-error term: its value is added to the MDH
+//! offset d, its load is the force along its axis (N, in the `torques_nm`
+//! arrays) and its compliance is mm/N.
+//!
 //! Torques are evaluated on the undeflected chain with the current geometric
 //! parameters (first order, as in the paper); the position is evaluated on the
 //! deflected chain.
@@ -87,6 +93,10 @@ pub struct Robot {
     a_mm: [f64; MAX_JOINTS],
     theta_offset_rad: [f64; MAX_JOINTS],
     d_mm: [f64; MAX_JOINTS],
+    /// Which joints slide along their axis: their value is added to `d`
+    /// (mm), their θ is fixed, their compliance is mm/N and their load a
+    /// force (N) along the axis.
+    prismatic: [bool; MAX_JOINTS],
     /// Link masses 1..n, then the payload (at index `joint_count`).
     masses_kg: [f64; MAX_JOINTS + 1],
     /// Centres of gravity of links 1..n in their own frames, then the payload in the tool frame, mm.
@@ -151,6 +161,10 @@ impl Robot {
             a_mm: per_joint(|j| j.a_mm),
             theta_offset_rad: per_joint(|j| j.theta_offset_deg * DEG),
             d_mm: per_joint(|j| j.d_mm),
+            prismatic: std::array::from_fn(|i| {
+                j.get(i)
+                    .is_some_and(|j| j.kind == super::file::JointKind::Prismatic)
+            }),
             masses_kg,
             cogs_mm,
             gravity_mps2: Vector3::from(spec.gravity_mps2),
@@ -173,14 +187,31 @@ impl Robot {
         std::array::from_fn(|i| if i < self.joint_count { f(i) } else { 0.0 })
     }
 
-    /// Joint limits `[min, max]` in degrees.
-    pub fn limits_deg(&self, joint: usize) -> [f64; 2] {
-        self.spec.joints[joint].limits_deg
+    /// Joint limits `[min, max]` in the joint's unit: degrees, or
+    /// millimetres for a prismatic joint.
+    pub fn joint_limits(&self, joint: usize) -> [f64; 2] {
+        self.spec.joints[joint].limits()
+    }
+
+    /// Whether joint `joint` slides along its axis (its value in mm) rather
+    /// than turning about it.
+    pub fn is_prismatic(&self, joint: usize) -> bool {
+        self.prismatic[joint]
+    }
+
+    /// Which joints are prismatic, as a joint vector's mask.
+    pub fn prismatic_joints(&self) -> [bool; MAX_JOINTS] {
+        self.prismatic
+    }
+
+    /// Whether any joint of the arm is prismatic.
+    pub fn has_prismatic_joint(&self) -> bool {
+        self.prismatic.iter().any(|&p| p)
     }
 
     pub fn within_limits(&self, q_deg: &[f64; MAX_JOINTS]) -> bool {
         (0..self.joint_count).all(|i| {
-            let [lo, hi] = self.limits_deg(i);
+            let [lo, hi] = self.joint_limits(i);
             q_deg[i] >= lo && q_deg[i] <= hi
         })
     }
@@ -241,7 +272,11 @@ impl Robot {
             tool_rx,
             world_from_base: self.world_from_base(p),
             world_rotation_axes: world_rotation_axes(p),
-            joint_terms: JointTerms::of(p, self.joint_count),
+            joint_terms: JointTerms::of(p, self.joint_count, &self.prismatic),
+            theta_zero_sin_cos: std::array::from_fn(|i| {
+                (p.get(ParamId::of_joint(JointParam::Theta, i)) * DEG + self.theta_offset_rad[i])
+                    .sin_cos()
+            }),
             track: self.spec.track.map(|track| TrackErrors {
                 length_mm: track.length_mm(),
                 coefficients: std::array::from_fn(|slot| {
@@ -288,6 +323,10 @@ impl Robot {
             }
             let frame = &chain.joints[j + 1];
             let z = frame.axis(2);
+            if self.prismatic[j] {
+                // The force along the axis of everything the joint carries.
+                return z.dot(&(g * suffix_mass_kg[j + 1] + force_base_n));
+            }
             let o = frame.origin_mm * MM;
             let gravity_lever = suffix_moment_kgm[j + 1] - o * suffix_mass_kg[j + 1];
             z.dot(&(gravity_lever.cross(&g) + (tool_m - o).cross(&force_base_n) + moment_base_nm))
@@ -403,11 +442,13 @@ pub(crate) struct JointTerms {
 }
 
 impl JointTerms {
-    fn of(p: &ParamValues, joints: usize) -> Self {
+    /// A prismatic joint takes a backlash (mm) but no harmonics: a screw's
+    /// error repeats with its lead, not with a turn of the joint.
+    fn of(p: &ParamValues, joints: usize, prismatic: &[bool; MAX_JOINTS]) -> Self {
         let harmonics_deg: [[(f64, f64); MAX_HARMONIC_ORDER]; MAX_JOINTS] =
             std::array::from_fn(|joint| {
                 std::array::from_fn(|o| {
-                    if joint >= joints {
+                    if joint >= joints || prismatic[joint] {
                         return (0.0, 0.0);
                     }
                     (
@@ -472,6 +513,8 @@ pub struct PreparedRobot<'r> {
     d_mm: [f64; MAX_JOINTS],
     /// Joint angle at q_i = 0: offset error plus the nominal theta offset.
     theta_zero_rad: [f64; MAX_JOINTS],
+    /// Its (sin, cos): a prismatic joint's fixed angle.
+    theta_zero_sin_cos: [(f64, f64); MAX_JOINTS],
     /// Flange → tool of each target (one rotation, a translation per target).
     flange_from_tool: [Frame; MAX_TARGETS],
     /// Tool rotation about x, then about y, of eq. (4) (before the z rotation), in
@@ -527,7 +570,7 @@ impl<'r> PreparedRobot<'r> {
         Some((chain, nest_mm))
     }
 
-    /// Compliance of joint `i`, deg/(N·m).
+    /// Compliance of joint `i`, deg/(N·m), or mm/N for a prismatic joint.
     pub(crate) fn compliance(&self, joint: usize) -> f64 {
         self.values
             .get(ParamId::of_joint(JointParam::Compliance, joint))
@@ -536,12 +579,20 @@ impl<'r> PreparedRobot<'r> {
     /// Forward chain in the base frame for joint commands `q_deg` plus extra joint
     /// angles `extra_deg` (the compliance deflections, or zero), to target 0.
     pub(crate) fn chain(&self, q_deg: &[f64; MAX_JOINTS], extra_deg: &[f64; MAX_JOINTS]) -> Chain {
-        self.chain_at(
-            &std::array::from_fn(|i| {
-                ((q_deg[i] + extra_deg[i]) * DEG + self.theta_zero_rad[i]).sin_cos()
-            }),
-            0,
-        )
+        let values: [f64; MAX_JOINTS] = std::array::from_fn(|i| q_deg[i] + extra_deg[i]);
+        self.chain_at(&self.joint_sin_cos(&values), &values, 0)
+    }
+
+    /// (sin, cos) of each joint's MDH angle at joint values `q_deg`; a
+    /// prismatic joint's angle does not move.
+    fn joint_sin_cos(&self, q_deg: &[f64; MAX_JOINTS]) -> [(f64, f64); MAX_JOINTS] {
+        std::array::from_fn(|i| {
+            if self.robot.prismatic[i] {
+                self.theta_zero_sin_cos[i]
+            } else {
+                (q_deg[i] * DEG + self.theta_zero_rad[i]).sin_cos()
+            }
+        })
     }
 
     /// Tool frame (base frame, target 0) of the loaded robot: the compliance
@@ -558,17 +609,29 @@ impl<'r> PreparedRobot<'r> {
             .tool
     }
 
-    /// Forward chain for the (sin, cos) of each joint angle, to `target`'s tool frame.
-    fn chain_at(&self, joint_sin_cos: &[(f64, f64); MAX_JOINTS], target: usize) -> Chain {
+    /// Forward chain for the (sin, cos) of each joint angle and the travel
+    /// (mm) of each prismatic joint (read only for those), to `target`'s
+    /// tool frame.
+    fn chain_at(
+        &self,
+        joint_sin_cos: &[(f64, f64); MAX_JOINTS],
+        travel_mm: &[f64; MAX_JOINTS],
+        target: usize,
+    ) -> Chain {
         let n = self.robot.joint_count;
         let mut joints = [Frame::identity(); MAX_JOINTS + 1];
         for i in 0..n {
             let (sa, ca) = self.alpha_sin_cos[i];
             let (st, ct) = joint_sin_cos[i];
+            let d_mm = if self.robot.prismatic[i] {
+                self.d_mm[i] + travel_mm[i]
+            } else {
+                self.d_mm[i]
+            };
             // Rot(x, alpha) · Rot(z, theta) and Trans(x, a) · Rot(x, alpha) · Trans(z, d), expanded.
             let local = Frame {
                 rotation: Matrix3::new(ct, -st, 0.0, ca * st, ca * ct, -sa, sa * st, sa * ct, ca),
-                origin_mm: Vector3::new(self.a_mm[i], -sa * self.d_mm[i], ca * self.d_mm[i]),
+                origin_mm: Vector3::new(self.a_mm[i], -sa * d_mm, ca * d_mm),
             };
             joints[i + 1] = joints[i].compose(&local);
         }
@@ -594,20 +657,22 @@ impl<'r> PreparedRobot<'r> {
             ..
         } = row;
         let target = *target;
-        let undeflected_sin_cos: [(f64, f64); MAX_JOINTS] =
-            std::array::from_fn(|i| (q_deg[i] * DEG + self.theta_zero_rad[i]).sin_cos());
-        let undeflected = self.chain_at(&undeflected_sin_cos, target);
+        let undeflected_sin_cos = self.joint_sin_cos(q_deg);
+        let undeflected = self.chain_at(&undeflected_sin_cos, q_deg, target);
         let loads = self.robot.loads(&undeflected, wrench);
         let deflections_deg: [f64; MAX_JOINTS] =
             std::array::from_fn(|i| self.compliance(i) * loads.torques_nm[i]);
         let terms_deg = self.joint_terms.angles_deg(q_deg, approach);
+        let extra: [f64; MAX_JOINTS] = std::array::from_fn(|i| deflections_deg[i] + terms_deg[i]);
         let deflected = self.chain_at(
             &std::array::from_fn(|i| {
-                add_angle(
-                    undeflected_sin_cos[i],
-                    (deflections_deg[i] + terms_deg[i]) * DEG,
-                )
+                if self.robot.prismatic[i] {
+                    undeflected_sin_cos[i]
+                } else {
+                    add_angle(undeflected_sin_cos[i], extra[i] * DEG)
+                }
             }),
+            &std::array::from_fn(|i| q_deg[i] + extra[i]),
             target,
         );
         LoadedChains {
@@ -785,6 +850,79 @@ mod tests {
     /// The seventh joint's parameters move the seven-joint arm's SMR as the
     /// analytic Jacobian says (finite differences), and a six-joint arm's
     /// never: its seventh slots are outside its model.
+    /// jobs/robots/gantry.toml (MDH, three prismatic joints) against a
+    /// URDF-style chain written from the file's description, computed
+    /// independently by fixtures/tools/gantry_fk.py (its output pasted here).
+    #[test]
+    #[allow(clippy::excessive_precision)]
+    fn gantry_file_matches_its_urdf_style_chain() {
+        /// q (mm for joints 1–3, deg for 4–6), flange position (mm), rotation rows.
+        type Case = ([f64; 6], [f64; 3], [[f64; 3]; 3]);
+        let robot = crate::robot::test_support::gantry();
+        assert_eq!(
+            robot.prismatic_joints(),
+            [true, true, true, false, false, false, false]
+        );
+        #[rustfmt::skip]
+        let cases: [Case; 5] = [
+            ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+             [0.0, 200.0, -890.0],
+             [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]),
+            ([1500.0, 1000.0, 600.0, 0.0, 0.0, 0.0],
+             [1000.0, 1700.0, -1490.0],
+             [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]),
+            ([250.0, 1800.0, 1100.0, 90.0, 45.0, -30.0],
+             [1800.0, 351.005050633883, -1948.994949366117],
+             [[0.500000000000000, -0.866025403784439, 0.0],
+              [-0.612372435695795, -0.353553390593274, -0.707106781186547],
+              [0.612372435695794, 0.353553390593274, -0.707106781186548]]),
+            ([2900.0, 120.0, 35.0, -200.0, -100.0, 300.0],
+             [249.558320975765, 3147.155372436685, -760.689255126630],
+             [[0.377786088309291, -0.029695587306942, 0.925416578398323],
+              [-0.784102094042431, 0.521280576369176, 0.336824088833465],
+              [-0.492403876506104, -0.852868531952443, 0.173648177666930]]),
+            ([800.0, 640.0, 410.0, 30.0, 60.0, 90.0],
+             [745.0, 939.378221735089, -1230.0],
+             [[-0.5, -0.433012701892220, 0.75],
+              [-0.866025403784439, 0.25, -0.433012701892219],
+              [0.0, -0.866025403784439, -0.5]]),
+        ];
+        for (q, position, rows) in cases {
+            let flange = robot.nominal_flange_in_base(&crate::robot::joint_array(&q));
+            let error = (flange.origin_mm - Vector3::from(position)).norm();
+            assert!(error < 1e-9, "{q:?}: {:?}, {error:e} mm", flange.origin_mm);
+            let rotation = Matrix3::from_fn(|r, c| rows[r][c]);
+            assert!((flange.rotation - rotation).norm() < 1e-12, "{q:?}");
+        }
+    }
+
+    /// A prismatic joint's load is the force along its axis of everything it
+    /// carries, and its deflection `k·F` (mm) moves the tool along that axis:
+    /// the vertical ram (joint 3, axis down) carries its own 80 kg, the wrist's
+    /// 19.5 kg and the 10 kg payload; the horizontal bridge and carriage carry
+    /// no gravity force. Hand-computed.
+    #[test]
+    fn a_prismatic_joint_carries_the_force_along_its_axis_and_deflects_along_it() {
+        let robot = crate::robot::test_support::gantry();
+        let mut p = ParamValues([0.0; PARAM_COUNT]);
+        let k3_mm_per_n = 1e-3;
+        p.set(ParamId::of_joint(JointParam::Compliance, 2), k3_mm_per_n);
+        let q = crate::robot::joint_array(&[1000.0, 500.0, 300.0, 0.0, 0.0, 0.0]);
+        let pull_n = 200.0;
+        // In tool axes: the tool's z points down, so +z pulls the ram down.
+        let wrench = Wrench::from_array([0.0, 0.0, pull_n, 0.0, 0.0, 0.0]);
+        let prediction = robot.predict(&p, &q, &wrench);
+        let carried_kg = 80.0 + 12.0 + 6.0 + 1.5 + 10.0;
+        let force_n = carried_kg * 9.81 + pull_n;
+        assert!((prediction.torques_nm[2] - force_n).abs() < 1e-9);
+        assert!(prediction.torques_nm[0].abs() < 1e-9);
+        assert!(prediction.torques_nm[1].abs() < 1e-9);
+        assert!((prediction.deflections_deg[2] - k3_mm_per_n * force_n).abs() < 1e-12);
+        let unloaded = robot.predict(&p, &q, &Wrench::zero());
+        let drop_mm = unloaded.position_mm.z - prediction.position_mm.z;
+        assert!((drop_mm - k3_mm_per_n * pull_n).abs() < 1e-9, "{drop_mm}");
+    }
+
     #[test]
     fn a_seventh_joint_has_parameters_by_the_rule_of_the_42() {
         use crate::robot::params::JointParam;

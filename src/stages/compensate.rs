@@ -277,7 +277,7 @@ fn held_joint_problem(
             ),
         ));
     }
-    let [lo, hi] = ctx.robot.joints[held].limits_deg;
+    let [lo, hi] = ctx.robot.joints[held].limits();
     (!(lo..=hi).contains(&value)).then(|| {
         SettingsProblem::new(
             "held_joint_deg",

@@ -634,7 +634,7 @@ fn check_safety(
         .iter()
         .enumerate()
     {
-        let [lo, hi] = ctx.robot.limits_deg(i);
+        let [lo, hi] = ctx.robot.joint_limits(i);
         if !(row.q_deg[i] >= lo && row.q_deg[i] <= hi) {
             return Err(StageError::Failed(format!(
                 "safety stop before cw_id {cw_id} (input row {k} of {}): {name} = {} is outside the joint limits [{lo}, {hi}]",

@@ -137,12 +137,13 @@ impl Stage for NestPosesStage {
             ));
         }
         for (joint, (q, spec)) in settings.arm_park_deg.iter().zip(&robot.joints).enumerate() {
-            let [lo, hi] = spec.limits_deg;
+            let [lo, hi] = spec.limits();
             if !(q.is_finite() && (lo..=hi).contains(q)) {
+                let unit = spec.kind.unit();
                 problems.push(SettingsProblem::new(
                     "arm_park_deg",
                     format!(
-                        "joint {}: {q} deg is outside its limits [{lo}, {hi}] deg (robot file {})",
+                        "joint {}: {q} {unit} is outside its limits [{lo}, {hi}] {unit} (robot file {})",
                         joint + 1,
                         robot.path.display()
                     ),

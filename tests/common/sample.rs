@@ -23,7 +23,7 @@ pub fn random_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
     (0..n)
         .map(|_| ConfWrench {
             q_deg: robot.joint_vector(|i| {
-                let [lo, hi] = robot.limits_deg(i);
+                let [lo, hi] = robot.joint_limits(i);
                 rng.random_range(lo..hi)
             }),
             wrench: Wrench::from_array(std::array::from_fn(|i| {
