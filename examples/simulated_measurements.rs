@@ -32,7 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut values: Vec<Vec<f64>> = (0..15).map(|_| Vec::with_capacity(rows)).collect();
     for k in 0..rows {
         let q_deg: [f64; 6] = std::array::from_fn(|i| {
-            let [lo, hi] = robot.limits_deg(i);
+            let [lo, hi] = robot.joint_limits(i);
             rng.random_range(lo..hi)
         });
         let wrench: [f64; 6] = std::array::from_fn(|i| {

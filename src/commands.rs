@@ -684,7 +684,7 @@ pub fn sim_driver(
         None => (nominal, Vec::new()),
         Some(path) => {
             let model = truth_model.parse().map_err(CommandError::Usage)?;
-            let set = table::parameters::load_model(path, model, &nominal)?;
+            let set = table::parameters::load_model(path, model, robot.spec())?;
             (set.values, set.targets)
         }
     };

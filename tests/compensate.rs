@@ -27,7 +27,7 @@ fn robot() -> Robot {
 fn truth(robot: &Robot) -> ParamValues {
     let path = common::root().join("jobs/truth/irb1600_paper.parquet");
     let df = egcal::table::read_parquet(&path).unwrap();
-    from_frame(&df, &path, &ParamValues::nominal(robot.spec()))
+    from_frame(&df, &path, robot.spec())
         .unwrap()
         .into_iter()
         .find(|s| s.model == ModelName::Elastogeometric)
@@ -752,7 +752,7 @@ fn several_targets_each_row_aims_its_own_tool() {
     }
     let mut set = ParameterSet::fixed(ModelName::Elastogeometric, values);
     set.targets = nests.iter().map(|s| s.to_string()).collect();
-    let mut table = to_frame(&ParamValues::nominal(robot.spec()), &[set]);
+    let mut table = to_frame(robot.spec(), &[set]);
     let parameters = dir.path().join("parameters.parquet");
     egcal::table::write_parquet(&mut table, &parameters, None).unwrap();
 

@@ -769,13 +769,13 @@ fn on_failed_skip_names_the_rows_and_fail_refuses_them() {
 /// A parameters table with one elasto-geometric set of `values`, targets
 /// `targets` (several-target set when more than one).
 fn parameters_file(dir: &Path, robot: &Robot, values: ParamValues, targets: &[&str]) -> PathBuf {
-    let nominal = ParamValues::nominal(robot.spec());
     let mut set = ParameterSet::fixed(ModelName::Elastogeometric, values);
     if targets.len() > 1 {
         set.targets = targets.iter().map(|t| t.to_string()).collect();
     }
     let path = dir.join("parameters.parquet");
-    egcal::table::write_parquet(&mut parameters::to_frame(&nominal, &[set]), &path, None).unwrap();
+    egcal::table::write_parquet(&mut parameters::to_frame(robot.spec(), &[set]), &path, None)
+        .unwrap();
     path
 }
 
@@ -1160,12 +1160,11 @@ fn urdf_forward_kinematics_equals_the_rigid_calibrated_model() {
 /// asserts that it equals egcal's rigid model at 1000 random configurations to
 /// 1e-9 mm (positions) and 1e-12 (rotation elements). Returns the URDF text.
 fn urdf_matches_the_model(robot: &Robot, values: &ParamValues) -> String {
-    let nominal = ParamValues::nominal(robot.spec());
     let set = ParameterSet::fixed(ModelName::Elastogeometric, *values);
     let dir = tempfile::tempdir().unwrap();
     let parameters_file = dir.path().join("parameters.parquet");
     egcal::table::write_parquet(
-        &mut parameters::to_frame(&nominal, &[set]),
+        &mut parameters::to_frame(robot.spec(), &[set]),
         &parameters_file,
         None,
     )
@@ -1258,8 +1257,8 @@ fn urdf_limits_are_the_robot_file_s_or_marked_placeholders() {
     assert_eq!(limits.len(), 6);
     for (i, [lower, upper, effort, velocity]) in limits.iter().enumerate() {
         let joint = &robot.spec().joints[i];
-        assert_eq!(*lower, joint.limits_deg[0].to_radians());
-        assert_eq!(*upper, joint.limits_deg[1].to_radians());
+        assert_eq!(*lower, joint.limits()[0].to_radians());
+        assert_eq!(*upper, joint.limits()[1].to_radians());
         let speed = joint.max_velocity_deg_s.unwrap();
         assert!(
             (velocity - speed.to_radians()).abs() < 1e-12,
@@ -1449,7 +1448,7 @@ fn export_program_runs_in_a_job_and_publishes_its_files() {
     let nominal = ParamValues::nominal(robot.spec());
     let set = ParameterSet::fixed(ModelName::Elastogeometric, nominal);
     egcal::table::write_parquet(
-        &mut parameters::to_frame(&nominal, &[set]),
+        &mut parameters::to_frame(robot.spec(), &[set]),
         &dir.path().join("parameters.parquet"),
         None,
     )

@@ -499,12 +499,8 @@ loss = "huber"
 
     // Dependent parameters stay at nominal with status `dependent`.
     let parameters = table::read_parquet(&out.join("parameters.parquet")).unwrap();
-    let sets = egcal::table::parameters::from_frame(
-        &parameters,
-        Path::new("p"),
-        &ParamValues::nominal(robot.spec()),
-    )
-    .unwrap();
+    let sets =
+        egcal::table::parameters::from_frame(&parameters, Path::new("p"), robot.spec()).unwrap();
     let eg = sets
         .iter()
         .find(|s| s.model == ModelName::Elastogeometric)

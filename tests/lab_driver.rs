@@ -578,7 +578,7 @@ fn backed_emulator(seed: u64) -> Emulator {
     ]);
     // The controller's joint limits: the robot file's.
     let spec = egcal::robot::RobotSpec::load(&root.join("jobs/robots/irb1600_145.toml")).unwrap();
-    let limits: Vec<[f64; 2]> = spec.joints.iter().map(|j| j.limits_deg).collect();
+    let limits: Vec<[f64; 2]> = spec.joints.iter().map(|j| j.limits()).collect();
     Emulator::start_with(
         2,
         &[

@@ -733,8 +733,7 @@ fn write_campaign(dir: &Path, spec: &RobotSpec, rows: &[ConfWrench]) -> (PathBuf
         .chain(NESTS)
         .map(String::from)
         .collect();
-    let nominal = ParamValues::nominal(spec);
-    let mut table = egcal::table::parameters::to_frame(&nominal, &[set]);
+    let mut table = egcal::table::parameters::to_frame(spec, &[set]);
     let truth_path = dir.join("truth.parquet");
     egcal::table::write_parquet(&mut table, &truth_path, None).unwrap();
     (conf_wrenches, truth_path)
@@ -804,7 +803,7 @@ fn a_campaign_measures_the_nests_where_the_table_stands() {
     let set = egcal::table::parameters::load_model(
         &identified.join("parameters.parquet"),
         ModelName::Elastogeometric,
-        &ParamValues::nominal(&spec),
+        &spec,
     )
     .unwrap();
     for name in ["x_p", "gamma_p", "dalpha_p2", "da_p2"] {
@@ -961,7 +960,7 @@ fn a_one_axis_positioner_is_calibrated_with_the_arm() {
     let set = egcal::table::parameters::load_model(
         &out.join("parameters.parquet"),
         ModelName::Elastogeometric,
-        &ParamValues::nominal(&spec),
+        &spec,
     )
     .unwrap();
     let held_out = one_axis(nest_rows(44, 20));

@@ -27,7 +27,7 @@ const NESTS: [&str; 3] = ["table_a", "table_b", "table_c"];
 
 /// The elastogeometric set of a parameters table.
 fn elastogeometric(path: &Path, spec: &RobotSpec) -> ParameterSet {
-    from_frame(&read(path), path, &ParamValues::nominal(spec))
+    from_frame(&read(path), path, spec)
         .unwrap()
         .into_iter()
         .find(|s| s.model == ModelName::Elastogeometric)

@@ -459,13 +459,9 @@ fn rows_outside_the_joint_limits_or_absurd_are_dropped_and_named_or_fail() {
     let out = dir.path().join("out/identify");
     let read_eg = || {
         let df = table::read_parquet(&out.join("parameters.parquet")).unwrap();
-        parameters::from_frame(
-            &df,
-            std::path::Path::new("p"),
-            &ParamValues::nominal(robot.spec()),
-        )
-        .unwrap()
-        .remove(0)
+        parameters::from_frame(&df, std::path::Path::new("p"), robot.spec())
+            .unwrap()
+            .remove(0)
     };
     let clean = read_eg();
 

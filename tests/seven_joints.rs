@@ -20,7 +20,7 @@ use rand::{Rng, SeedableRng};
 use common::tables::{f64s, read, strings};
 
 fn set_of(path: &Path, spec: &RobotSpec, model: ModelName) -> ParameterSet {
-    from_frame(&read(path), path, &ParamValues::nominal(spec))
+    from_frame(&read(path), path, spec)
         .unwrap()
         .into_iter()
         .find(|s| s.model == model)

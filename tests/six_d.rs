@@ -254,12 +254,8 @@ inputs = {{ measurements = "{input}", selection = "split", parameters = "identif
 
     let out = dir.path().join("out");
     let parameters = table::read_parquet(&out.join("identify/parameters.parquet")).unwrap();
-    let sets = egcal::table::parameters::from_frame(
-        &parameters,
-        Path::new("p"),
-        &ParamValues::nominal(robot.spec()),
-    )
-    .unwrap();
+    let sets =
+        egcal::table::parameters::from_frame(&parameters, Path::new("p"), robot.spec()).unwrap();
     // The registered model (the nominal arm in fitted frames) has the mounting
     // too: fitted, or held at its closed-form registration where the arm's
     // own errors leave its standard error beyond `max_std_error_deg`.

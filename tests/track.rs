@@ -452,7 +452,7 @@ fn the_logs_of_a_robot_on_a_track_carry_the_carriage() {
     );
     let set =
         egcal::table::parameters::ParameterSet::fixed(ModelName::Elastogeometric, truth(&spec));
-    let mut truth_table = egcal::table::parameters::to_frame(&ParamValues::nominal(&spec), &[set]);
+    let mut truth_table = egcal::table::parameters::to_frame(&spec, &[set]);
     let truth_path = dir.path().join("truth.parquet");
     egcal::table::write_parquet(&mut truth_table, &truth_path, None).unwrap();
 
@@ -504,7 +504,7 @@ fn the_logs_of_a_robot_on_a_track_carry_the_carriage() {
     let fit = egcal::table::parameters::from_frame(
         &egcal::table::read_parquet(&parameters).unwrap(),
         &parameters,
-        &ParamValues::nominal(&spec),
+        &spec,
     )
     .unwrap()
     .remove(0);

@@ -142,20 +142,16 @@ fn the_track_campaign_designs_measures_and_calibrates_the_cell() {
 /// correction of the point (nominal inverse kinematics: a few mm), where the
 /// carriage left at 0 would miss by metres.
 fn the_accuracy_map_reaches_each_point_from_its_nearest_row_s_carriage(out: &Path) {
-    use egcal::robot::{ConfWrench, ParamValues, Robot, RobotSpec, Wrench};
+    use egcal::robot::{ConfWrench, Robot, RobotSpec, Wrench};
     use egcal::table::parameters::{ModelName, from_frame};
     let spec = RobotSpec::load(&common::root().join("jobs/robots/irb1600_145_track.toml")).unwrap();
     let robot = Robot::new(spec.clone());
     let parameters_path = out.join("identify/parameters.parquet");
-    let fit = from_frame(
-        &read(&parameters_path),
-        &parameters_path,
-        &ParamValues::nominal(&spec),
-    )
-    .unwrap()
-    .into_iter()
-    .find(|s| s.model == ModelName::Elastogeometric)
-    .unwrap();
+    let fit = from_frame(&read(&parameters_path), &parameters_path, &spec)
+        .unwrap()
+        .into_iter()
+        .find(|s| s.model == ModelName::Elastogeometric)
+        .unwrap();
     let map = read(&out.join("accuracy_map/accuracy_map.parquet"));
     let reachable: Vec<usize> = strings(&map, "status")
         .iter()
@@ -355,7 +351,7 @@ fn the_programs_move_the_carriage_to_each_target(out: &Path) {
     let truth = egcal::table::parameters::load_model(
         &common::root().join("jobs/truth/irb1600_track.parquet"),
         egcal::table::parameters::ModelName::Elastogeometric,
-        &egcal::robot::ParamValues::nominal(&spec),
+        &spec,
     )
     .unwrap()
     .values;

@@ -360,10 +360,8 @@ inputs = {{ targets = "{targets}", parameters = "identify.parameters", covarianc
     // Item 1: the covariance's diagonal is the squared standard errors.
     let parameters = read("identify", "parameters");
     let covariance = read("identify", "covariance");
-    let nominal = ParamValues::nominal(
-        &egcal::robot::RobotSpec::load(&root.join("jobs/robots/irb1600_145.toml")).unwrap(),
-    );
-    let sets = egcal::table::parameters::from_frame(&parameters, file, &nominal).unwrap();
+    let spec = egcal::robot::RobotSpec::load(&root.join("jobs/robots/irb1600_145.toml")).unwrap();
+    let sets = egcal::table::parameters::from_frame(&parameters, file, &spec).unwrap();
     let eg = sets
         .iter()
         .find(|s| s.model == ModelName::Elastogeometric)

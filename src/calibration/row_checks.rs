@@ -107,8 +107,14 @@ pub fn joints_problem(robot: &Robot, q_deg: &[f64; MAX_JOINTS]) -> Option<String
     for (joint, &q) in q_deg.iter().enumerate().take(robot.joint_count()) {
         let [lo, hi] = robot.joint_limits(joint);
         if !(q >= lo - JOINT_LIMIT_TOLERANCE_DEG && q <= hi + JOINT_LIMIT_TOLERANCE_DEG) {
+            // A prismatic joint's value, limits and tolerance are in mm.
+            let (unit, symbol) = if robot.is_prismatic(joint) {
+                ("mm", " mm")
+            } else {
+                ("deg", "°")
+            };
             return Some(format!(
-                "q{}_deg = {} is outside the joint limits [{lo}, {hi}] of the robot file (by more than {JOINT_LIMIT_TOLERANCE_DEG}°)",
+                "q{}_{unit} = {} is outside the joint limits [{lo}, {hi}] of the robot file (by more than {JOINT_LIMIT_TOLERANCE_DEG}{symbol})",
                 joint + 1,
                 compact(q)
             ));

@@ -147,7 +147,7 @@ pub fn frame_command(
             let wanted: table::parameters::ModelName =
                 model.parse().map_err(CommandError::Usage)?;
             let df = table::read_parquet(path)?;
-            let set = table::parameters::from_frame(&df, path, &nominal)?
+            let set = table::parameters::from_frame(&df, path, &spec)?
                 .into_iter()
                 .find(|s| s.model == wanted)
                 .ok_or_else(|| {

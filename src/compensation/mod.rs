@@ -415,15 +415,14 @@ pub fn compensate(
             let q = iterate.q_deg;
             let (tool, joints) =
                 deflected_tool_and_joints(robot, values, &q, &target.wrench, &options.approach);
-            let sigma_min_mm_per_rad =
-                ik::scaled_geometric_jacobian(
-                    &tool,
-                    &joints,
-                    &ik::free_joints(robot),
-                    &robot.prismatic_joints(),
-                )
-                    .singular_values()
-                    .min();
+            let sigma_min_mm_per_rad = ik::scaled_geometric_jacobian(
+                &tool,
+                &joints,
+                &ik::free_joints(robot),
+                &robot.prismatic_joints(),
+            )
+            .singular_values()
+            .min();
             let status = if iterate.converged {
                 if !robot.within_limits(&q) {
                     Status::JointLimit

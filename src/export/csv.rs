@@ -82,7 +82,7 @@ pub fn table(robot: &Robot, program: &Program) -> String {
     // The arm's joints: `q1_deg … q6_deg`, and `q7_deg` (`dir7`, `pre_q7_deg`)
     // for a seventh.
     let joints = robot.joint_count();
-    let joint_names = joint_column_names(joints);
+    let joint_names = joint_column_names(robot.spec());
     let mut out = format!("target_id,{},{COLUMNS_AFTER_JOINTS}", joint_names.join(","));
     for (present, name) in [
         (optional.tool_id, "tool_id"),

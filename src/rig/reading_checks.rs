@@ -20,8 +20,12 @@ use super::RigError;
 /// The bounds a row's readings must keep.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReadingBounds {
-    /// The robot file's joint limits `[min, max]` (deg).
+    /// The robot file's joint limits `[min, max]` (deg; mm for a prismatic
+    /// joint).
     pub limits_deg: [[f64; 2]; MAX_JOINTS],
+    /// Which joints are prismatic: their readings, limits and the two
+    /// bounds below are in mm.
+    pub prismatic: [bool; MAX_JOINTS],
     /// How far beyond a limit a joint reading may lie (deg).
     pub joint_tolerance_deg: f64,
     /// How far a joint reading may lie from its command (deg).
@@ -43,6 +47,9 @@ pub struct ReadingBounds {
 const JOINT_COLUMNS: [&str; MAX_JOINTS] = [
     "q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg", "q7_deg",
 ];
+const PRISMATIC_JOINT_COLUMNS: [&str; MAX_JOINTS] = [
+    "q1_mm", "q2_mm", "q3_mm", "q4_mm", "q5_mm", "q6_mm", "q7_mm",
+];
 const WRENCH_COLUMNS: [&str; 6] = ["fx_n", "fy_n", "fz_n", "mx_nm", "my_nm", "mz_nm"];
 
 /// Names of the settings the bounds come from, in messages.
@@ -59,7 +66,7 @@ const MAX_TRACK_ERROR: &str = "max_track_error_mm";
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ReadingFault {
     #[error(
-        "implausible reading: {column} = {} is outside the joint limits [{}, {}] by more than {JOINT_TOLERANCE} = {}°",
+        "implausible reading: {column} = {} is outside the joint limits [{}, {}] by more than {JOINT_TOLERANCE} = {}{unit}",
         compact(*value), limits_deg[0], limits_deg[1], compact(*tolerance_deg)
     )]
     BeyondJointLimit {
@@ -67,9 +74,11 @@ pub enum ReadingFault {
         value: f64,
         limits_deg: [f64; 2],
         tolerance_deg: f64,
+        /// `°`, or ` mm` for a prismatic joint.
+        unit: &'static str,
     },
     #[error(
-        "implausible reading: {column} = {} is {}° from the commanded {}, more than {MAX_JOINT_ERROR} = {}°",
+        "implausible reading: {column} = {} is {}{unit} from the commanded {}, more than {MAX_JOINT_ERROR} = {}{unit}",
         compact(*value), compact((value - commanded).abs()), compact(*commanded), compact(*bound_deg)
     )]
     JointError {
@@ -77,6 +86,7 @@ pub enum ReadingFault {
         value: f64,
         commanded: f64,
         bound_deg: f64,
+        unit: &'static str,
     },
     #[error(
         "implausible reading: {column} = {} is beyond the force/torque sensor's range ±{} ({setting})",
@@ -225,7 +235,12 @@ impl ReadingBounds {
                 });
             }
         }
-        for (i, column) in JOINT_COLUMNS.iter().enumerate() {
+        for i in 0..MAX_JOINTS {
+            let (column, unit) = if self.prismatic[i] {
+                (PRISMATIC_JOINT_COLUMNS[i], " mm")
+            } else {
+                (JOINT_COLUMNS[i], "°")
+            };
             let value = q_deg[i];
             let [lo, hi] = self.limits_deg[i];
             let tolerance_deg = self.joint_tolerance_deg;
@@ -235,6 +250,7 @@ impl ReadingBounds {
                     value,
                     limits_deg: [lo, hi],
                     tolerance_deg,
+                    unit,
                 });
             }
             if !at_most((value - commanded_q_deg[i]).abs(), self.max_joint_error_deg) {
@@ -243,6 +259,7 @@ impl ReadingBounds {
                     value,
                     commanded: commanded_q_deg[i],
                     bound_deg: self.max_joint_error_deg,
+                    unit,
                 });
             }
         }
@@ -289,6 +306,7 @@ mod tests {
     fn bounds(max_wrench_error: Option<f64>) -> ReadingBounds {
         ReadingBounds {
             limits_deg: ReadingBounds::limits_of(&irb1600()),
+            prismatic: [false; MAX_JOINTS],
             joint_tolerance_deg: 0.5,
             max_joint_error_deg: 1.0,
             sensor_range_n: 2500.0,

@@ -136,7 +136,10 @@ impl JointSpec {
         if wanted.is_none() {
             return Some((
                 self.limits_key(),
-                format!("expected the {} joint's limits [min, max]", self.kind_name()),
+                format!(
+                    "expected the {} joint's limits [min, max]",
+                    self.kind_name()
+                ),
             ));
         }
         if self.kind == JointKind::Prismatic {
@@ -525,6 +528,15 @@ impl RobotSpec {
             }
         }
         Ok(())
+    }
+
+    /// Which joints are prismatic, as a joint vector's mask.
+    pub fn prismatic_joints(&self) -> [bool; MAX_JOINTS] {
+        std::array::from_fn(|i| {
+            self.joints
+                .get(i)
+                .is_some_and(|j| j.kind == JointKind::Prismatic)
+        })
     }
 
     /// The joint values the controller shows for the robot-file command

@@ -1139,7 +1139,10 @@ mod tests {
 
         let mut p = ParamValues::nominal(robot.spec());
         for joint in 0..3 {
-            p.set(crate::robot::ParamId::of_joint(crate::robot::JointParam::Compliance, joint), 2e-3);
+            p.set(
+                crate::robot::ParamId::of_joint(crate::robot::JointParam::Compliance, joint),
+                2e-3,
+            );
         }
         let mut rng = StdRng::seed_from_u64(24);
         for _ in 0..20 {

@@ -161,10 +161,7 @@ impl Robot {
             a_mm: per_joint(|j| j.a_mm),
             theta_offset_rad: per_joint(|j| j.theta_offset_deg * DEG),
             d_mm: per_joint(|j| j.d_mm),
-            prismatic: std::array::from_fn(|i| {
-                j.get(i)
-                    .is_some_and(|j| j.kind == super::file::JointKind::Prismatic)
-            }),
+            prismatic: spec.prismatic_joints(),
             masses_kg,
             cogs_mm,
             gravity_mps2: Vector3::from(spec.gravity_mps2),

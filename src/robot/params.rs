@@ -414,7 +414,18 @@ impl ParamId {
         }
     }
 
-    /// The unit string of the parameters table.
+    /// The unit string of the parameters table on an arm whose joints
+    /// `prismatic` marks: a prismatic joint's compliance is mm/N and its
+    /// backlash mm; every other unit is [`Self::unit`]'s.
+    pub fn unit_on(self, prismatic: &[bool; crate::robot::MAX_JOINTS]) -> &'static str {
+        match self.kind() {
+            ParamKind::Compliance(i) if prismatic[i] => "mm/N",
+            ParamKind::Backlash(i) if prismatic[i] => "mm",
+            _ => self.unit(),
+        }
+    }
+
+    /// The unit string of the parameters table (an arm of revolute joints).
     pub fn unit(self) -> &'static str {
         match self.kind() {
             ParamKind::WorldTranslation(_)

@@ -214,7 +214,7 @@ impl Stage for AccuracyMapStage {
         let on_track = ctx.robot.spec().track.is_some();
         outputs.tables.insert(
             "accuracy_map".into(),
-            map_frame(&map, ctx.robot.joint_count(), on_track),
+            map_frame(&map, ctx.robot.spec(), on_track),
         );
         // Each calibration row's own SMR, unloaded.
         let unloaded: Vec<ConfWrench> = calibration_rows
@@ -329,7 +329,11 @@ fn median_u95(map: &[MapPoint], inside: bool) -> Option<f64> {
 
 /// The map's table (an arm's joint columns, `q7_deg` for a seventh joint); on
 /// a track each point's carriage position in `e1_mm`.
-fn map_frame(map: &[MapPoint], joints: usize, on_track: bool) -> polars::prelude::DataFrame {
+fn map_frame(
+    map: &[MapPoint],
+    robot: &crate::robot::RobotSpec,
+    on_track: bool,
+) -> polars::prelude::DataFrame {
     let mut columns = vec![
         Column::new("point_id".into(), (0..map.len() as i64).collect::<Vec<_>>()),
         Column::new(
@@ -349,7 +353,7 @@ fn map_frame(map: &[MapPoint], joints: usize, on_track: bool) -> polars::prelude
         "status".into(),
         map.iter().map(|p| p.status.as_str()).collect::<Vec<_>>(),
     ));
-    for (joint, name) in schema::joint_column_names(joints).iter().enumerate() {
+    for (joint, name) in schema::joint_column_names(robot).iter().enumerate() {
         let v: Vec<Option<f64>> = map.iter().map(|p| p.q_deg.map(|q| q[joint])).collect();
         columns.push(Column::new((*name).into(), v));
     }

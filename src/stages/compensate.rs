@@ -516,7 +516,7 @@ impl Stage for CompensateStage {
         let on_track = ctx.robot.spec().track.is_some();
         let positioner_axes = ctx.robot.spec().positioner.as_ref().map(|p| p.axes.len());
         let mut commands_table = commands_frame(
-            ctx.robot.joint_count(),
+            ctx.robot.spec(),
             &rows.ids,
             &commands,
             on_track.then_some(&targets),
@@ -572,7 +572,7 @@ impl Stage for CompensateStage {
         outputs.tables.insert(
             "conf_wrenches".into(),
             conf_wrenches_frame(
-                ctx.robot.joint_count(),
+                ctx.robot.spec(),
                 &rows.ids,
                 &targets,
                 &commands,
@@ -764,7 +764,7 @@ fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError
         .get("selection")
         .map(|s| ids_with_role(s, "calibration"))
         .transpose()?;
-    let (ids, rows) = conf_wrench_rows_of(table, ctx.robot.joint_count())?;
+    let (ids, rows) = conf_wrench_rows_of(table, ctx.robot.spec())?;
     // The carriage positions of the rows, on a track (zeros without one).
     let track_mm = super::track_positions(&table.df, &table.path, ctx.robot.spec())?;
     let nest_axes =
@@ -790,10 +790,10 @@ fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError
 /// cw_id and joint columns of an `envelope` table (any other columns play no part).
 fn conf_wrench_rows_of(
     table: &InputTable,
-    joints: usize,
+    robot: &crate::robot::RobotSpec,
 ) -> Result<(Vec<i64>, Vec<[f64; MAX_JOINTS]>), StageError> {
     let ids = i64_values(&table.df, "cw_id", &table.path)?;
-    let rows = schema::joint_vectors(&table.df, &table.path, joints)?;
+    let rows = schema::joint_vectors(&table.df, &table.path, robot)?;
     Ok((ids, rows))
 }
 
@@ -877,9 +877,9 @@ fn target_rows(
             .collect::<Result<Vec<_>, _>>()
     };
     let wrench = optional(&WRENCH_COLUMNS)?;
-    schema::refuse_seventh_joint_column(df, file, robot.joint_count())?;
-    let joint_names = schema::joint_column_names(robot.joint_count());
-    let hint = optional(joint_names)?;
+    schema::refuse_foreign_joint_columns(df, file, robot.spec())?;
+    let joint_names = schema::joint_column_names(robot.spec());
+    let hint = optional(&joint_names)?;
     let frame_column = optional_str(df, "frame", file)?;
     let tool_ids = optional_str(df, "tool_id", file)?;
     let track_mm = super::track_positions(df, file, robot.spec())?;
@@ -1110,7 +1110,7 @@ fn refuse_mostly_unreachable(
 /// The `commands` table; with `track_targets` (a robot on a track), each
 /// command's carriage position in `e1_mm`, its target's.
 fn commands_frame(
-    joints: usize,
+    robot: &crate::robot::RobotSpec,
     ids: &[i64],
     commands: &[Command],
     track_targets: Option<&[Target]>,
@@ -1120,7 +1120,7 @@ fn commands_frame(
     let float = |name: &str, f: &dyn Fn(&Command) -> f64| {
         Column::new(name.into(), commands.iter().map(f).collect::<Vec<f64>>())
     };
-    for (joint, name) in schema::joint_column_names(joints).iter().enumerate() {
+    for (joint, name) in schema::joint_column_names(robot).iter().enumerate() {
         columns.push(float(name, &|c| c.q_deg[joint]));
     }
     columns.push(Column::new(
@@ -1164,7 +1164,7 @@ fn commands_frame(
 /// reach them from (`dir1 … dir6`, when one was used; a `measure` stage
 /// pre-positions for it).
 fn conf_wrenches_frame(
-    joints: usize,
+    robot: &crate::robot::RobotSpec,
     ids: &[i64],
     targets: &[Target],
     commands: &[Command],
@@ -1178,7 +1178,7 @@ fn conf_wrenches_frame(
         "cw_id".into(),
         ok.iter().map(|&k| ids[k]).collect::<Vec<_>>(),
     )];
-    for (joint, name) in schema::joint_column_names(joints).iter().enumerate() {
+    for (joint, name) in schema::joint_column_names(robot).iter().enumerate() {
         columns.push(Column::new(
             (*name).into(),
             ok.iter()

@@ -436,7 +436,7 @@ impl Stage for ExportProgramStage {
         settings: &ExportProgramSettings,
     ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("commands")?;
-        let mut commands = read_commands(&input.df, &input.path, ctx.robot.joint_count())?;
+        let mut commands = read_commands(&input.df, &input.path, ctx.robot.spec())?;
         check_commands(ctx.robot, &commands, &input.path)?;
         // A robot on a track: each command's carriage position, required and
         // within the travel (and refused for a robot without one).
@@ -995,10 +995,10 @@ pub fn check_commands(
 pub fn read_commands(
     df: &polars::prelude::DataFrame,
     path: &std::path::Path,
-    joint_count: usize,
+    robot: &crate::robot::RobotSpec,
 ) -> Result<Vec<Command>, TableError> {
     let ids = i64_values(df, "target_id", path)?;
-    let joints = schema::joint_vectors(df, path, joint_count)?;
+    let joints = schema::joint_vectors(df, path, robot)?;
     let status = str_values(df, "status", path)?;
     let [residual, correction, elastic] =
         ["residual_mm", "correction_mm", "elastic_mm"].map(|c| f64_values(df, c, path));

@@ -25,7 +25,7 @@ use super::{
     StageOutputs, TableSlot, model_name_problem,
 };
 use crate::gate::{self, ChangePoint, Decision, Holdout, Rules};
-use crate::robot::{ConfWrench, ParamId, ParamValues, batch_predict};
+use crate::robot::{ConfWrench, ParamId, batch_predict};
 use crate::table::parameters::{self, ModelName, ParamStatus, ParameterSet};
 use crate::table::time::date_string;
 use crate::table::{frame, schema};
@@ -168,7 +168,7 @@ fn interrupted_publication(
 fn model_set(
     table: &InputTable,
     model: ModelName,
-    nominal: &ParamValues,
+    robot: &crate::robot::RobotSpec,
 ) -> Result<ParameterSet, StageError> {
     // The calibration in service is one parameters table; a residual model
     // beside it would not travel with it, and predictions without it are
@@ -180,7 +180,7 @@ fn model_set(
             ModelName::EgHarmonic
         )));
     }
-    let sets = parameters::from_frame(&table.df, &table.path, nominal)?;
+    let sets = parameters::from_frame(&table.df, &table.path, robot)?;
     let available: Vec<&str> = sets.iter().map(|s| s.model.as_str()).collect();
     sets.iter()
         .find(|s| s.model == model)
@@ -262,9 +262,8 @@ impl Stage for GateStage {
             .model
             .parse()
             .map_err(|e: String| StageError::Invalid(format!("setting `model`: {e}")))?;
-        let nominal = ParamValues::nominal(ctx.robot.spec());
         let candidate_table = ctx.input("candidate")?;
-        let candidate = model_set(candidate_table, model, &nominal)?;
+        let candidate = model_set(candidate_table, model, ctx.robot.spec())?;
         let publish_dir =
             (!settings.publish_dir.is_empty()).then(|| ctx.job_dir.join(&settings.publish_dir));
         let resumed = match &publish_dir {
@@ -277,9 +276,9 @@ impl Stage for GateStage {
                     "an earlier run of this night published the candidate and was interrupted; deciding again against the set it replaced, {}",
                     retired.path.display()
                 ));
-                model_set(retired, model, &nominal)?
+                model_set(retired, model, ctx.robot.spec())?
             }
-            None => model_set(ctx.input("in_service")?, model, &nominal)?,
+            None => model_set(ctx.input("in_service")?, model, ctx.robot.spec())?,
         };
 
         let measurements = ctx.input("measurements")?;

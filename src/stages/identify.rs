@@ -1167,9 +1167,10 @@ impl Stage for IdentifyStage {
         if !failures.is_empty() {
             return Err(StageError::Failed(failures.join("\n")));
         }
-        outputs
-            .tables
-            .insert("parameters".into(), parameters::to_frame(&nominal, &sets));
+        outputs.tables.insert(
+            "parameters".into(),
+            parameters::to_frame(ctx.robot.spec(), &sets),
+        );
         outputs
             .tables
             .insert("identification_trace".into(), trace.into_frame());

@@ -374,6 +374,7 @@ impl Stage for MeasureStage {
 
         let bounds = ReadingBounds {
             limits_deg: ReadingBounds::limits_of(ctx.robot),
+            prismatic: ctx.robot.prismatic_joints(),
             joint_tolerance_deg: settings.joint_tolerance_deg,
             max_joint_error_deg: settings.max_joint_error_deg,
             sensor_range_n: settings.sensor_range_n,
@@ -630,7 +631,7 @@ fn check_safety(
     k: usize,
     row: &ConfWrench,
 ) -> Result<(), StageError> {
-    for (i, name) in schema::joint_column_names(ctx.robot.joint_count())
+    for (i, name) in schema::joint_column_names(ctx.robot.spec())
         .iter()
         .enumerate()
     {

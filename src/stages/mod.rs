@@ -540,14 +540,13 @@ pub fn model_set(
     model: &str,
 ) -> Result<Option<crate::table::parameters::ParameterSet>, StageError> {
     use crate::table::parameters::{self, ModelName};
-    let nominal = crate::robot::ParamValues::nominal(ctx.robot.spec());
     let Some(table) = ctx.inputs.get(input) else {
         return Ok(None);
     };
     let model: ModelName = model
         .parse()
         .map_err(|m: String| StageError::Invalid(format!("setting `{setting}`: {m}")))?;
-    let set = parameters::from_frame(&table.df, &table.path, &nominal)?
+    let set = parameters::from_frame(&table.df, &table.path, ctx.robot.spec())?
         .into_iter()
         .find(|s| s.model == model)
         .ok_or_else(|| {
@@ -719,7 +718,7 @@ pub fn conf_wrench_rows(
     use crate::table::schema::{WRENCH_COLUMNS, f64_values, i64_values, joint_vectors};
     let path = &input.path;
     let ids = i64_values(&input.df, "cw_id", path)?;
-    let joints = joint_vectors(&input.df, path, robot.joints.len())?;
+    let joints = joint_vectors(&input.df, path, robot)?;
     let wrench = WRENCH_COLUMNS
         .iter()
         .map(|c| f64_values(&input.df, c, path))

@@ -426,7 +426,7 @@ impl Stage for PosesStage {
                 angles.iter().map(|a| a[axis]).collect::<Vec<_>>(),
             ));
         }
-        for (joint, name) in schema::joint_column_names(ctx.robot.joint_count())
+        for (joint, name) in schema::joint_column_names(ctx.robot.spec())
             .iter()
             .enumerate()
         {

@@ -112,6 +112,7 @@ fn command_status() -> TableSchema {
         unit,
         required,
         meaning,
+        alternative: None,
     };
     TableSchema {
         kind: "commands",

@@ -36,7 +36,7 @@ use super::{
 };
 use crate::calibration::fit::{MeasuredOrientation, Observations, orientation_residuals};
 use crate::calibration::uncertainty::{chi_squared_3_quantile, within_ellipsoid};
-use crate::robot::{ParamValues, batch_predict};
+use crate::robot::batch_predict;
 use crate::stats::{self, TestResult};
 use crate::table::parameters::{self, ModelName};
 use crate::table::{frame, schema};
@@ -146,8 +146,7 @@ impl Stage for ValidateStage {
             )));
         }
         let table = ctx.input("parameters")?;
-        let nominal = ParamValues::nominal(ctx.robot.spec());
-        let mut sets = parameters::from_frame(&table.df, &table.path, &nominal)?;
+        let mut sets = parameters::from_frame(&table.df, &table.path, ctx.robot.spec())?;
         sets.sort_by_key(|s| s.model);
 
         let mut e = ErrorColumns::default();

@@ -115,7 +115,7 @@ impl Stage for WrenchesStage {
     ) -> Result<StageOutputs, StageError> {
         let input = ctx.input("poses")?;
         let config_ids = i64_values(&input.df, "config_id", &input.path)?;
-        let joints = schema::joint_vectors(&input.df, &input.path, ctx.robot.joint_count())?;
+        let joints = schema::joint_vectors(&input.df, &input.path, ctx.robot.spec())?;
         // The carriage rides with the cable robot (both in the base frame):
         // each configuration's position passes through to its wrenches.
         let positions = super::track_positions(&input.df, &input.path, ctx.robot.spec())?;
@@ -232,10 +232,7 @@ impl Stage for WrenchesStage {
         }
         let kept = cw_id.len();
         let mut columns = vec![Column::new("cw_id".into(), cw_id)];
-        for (name, values) in schema::joint_column_names(ctx.robot.joint_count())
-            .iter()
-            .zip(q)
-        {
+        for (name, values) in schema::joint_column_names(ctx.robot.spec()).iter().zip(q) {
             columns.push(Column::new((*name).into(), values));
         }
         for (name, values) in WRENCH_COLUMNS.iter().zip(w) {

@@ -15,6 +15,7 @@ use std::str::FromStr;
 use polars::prelude::*;
 
 use super::schema::{self, TableError, f64_values, str_values};
+use crate::robot::RobotSpec;
 use crate::robot::params::{
     MAX_TARGETS, PARAM_COUNT, ParamId, ParamKind, ParamValues, TOOL_TRANSLATION_NAMES,
 };
@@ -298,6 +299,10 @@ pub fn target_id_problem(id: &str) -> Option<String> {
 /// turned a degree per newton-metre would not hold its own arm.
 pub const MAX_COMPLIANCE_DEG_PER_NM: f64 = 1.0;
 
+/// Largest prismatic compliance that is not a typo (mm/N): a slide that
+/// yields a millimetre per newton would not hold its own carriage.
+pub const MAX_COMPLIANCE_MM_PER_N: f64 = 1.0;
+
 /// The first row of a parameters table (already schema-checked) whose value or
 /// nominal no robot could have: a length beyond ±[`crate::robot::file::MAX_LENGTH_MM`],
 /// an angle beyond ±360°, a compliance beyond ±[`MAX_COMPLIANCE_DEG_PER_NM`];
@@ -326,6 +331,7 @@ pub fn implausible_row(
             "mm" => crate::robot::file::MAX_LENGTH_MM,
             "deg" => 360.0,
             "deg/(N·m)" => MAX_COMPLIANCE_DEG_PER_NM,
+            "mm/N" => MAX_COMPLIANCE_MM_PER_N,
             _ => continue,
         };
         for (column, value) in [("value", values[row]), ("nominal", nominals[row])] {
@@ -403,8 +409,11 @@ fn parse_target_name(name: &str) -> Option<(usize, &str)> {
     target_id_problem(id).is_none().then_some((axis, id))
 }
 
-/// The table for `sets`, with `nominal` in the `nominal` column.
-pub fn to_frame(nominal: &ParamValues, sets: &[ParameterSet]) -> DataFrame {
+/// The table for `sets` of the robot file's arm, with its nominal values in
+/// the `nominal` column and each parameter's unit on that arm.
+pub fn to_frame(robot: &RobotSpec, sets: &[ParameterSet]) -> DataFrame {
+    let nominal = ParamValues::nominal(robot);
+    let prismatic = robot.prismatic_joints();
     let mut model = Vec::new();
     let mut name = Vec::new();
     let mut unit = Vec::new();
@@ -417,7 +426,7 @@ pub fn to_frame(nominal: &ParamValues, sets: &[ParameterSet]) -> DataFrame {
         for id in set.ids() {
             model.push(set.model.as_str());
             name.push(set.name_of(id));
-            unit.push(id.unit());
+            unit.push(id.unit_on(&prismatic));
             nominal_col.push(nominal.get(id));
             value.push(set.values.get(id));
             std_error.push(set.std_errors[id.index()]);
@@ -441,9 +450,11 @@ pub fn to_frame(nominal: &ParamValues, sets: &[ParameterSet]) -> DataFrame {
 pub fn from_frame(
     df: &DataFrame,
     file: &Path,
-    nominal: &ParamValues,
+    robot: &RobotSpec,
 ) -> Result<Vec<ParameterSet>, TableError> {
     schema::parameters().check(df, file)?;
+    let nominal = &ParamValues::nominal(robot);
+    let prismatic = robot.prismatic_joints();
     let models = str_values(df, "model", file)?;
     let names = str_values(df, "name", file)?;
     let units = str_values(df, "unit", file)?;
@@ -528,11 +539,12 @@ pub fn from_frame(
                 )
             })?;
         let unit = units[row].as_deref().unwrap_or_default();
-        if unit != id.unit() {
+        let expected = id.unit_on(&prismatic);
+        if unit != expected {
             return Err(bad(
                 row,
                 "unit",
-                format!("`{name}` is in {}, found `{unit}`", id.unit()),
+                format!("`{name}` is in {expected}, found `{unit}`"),
             ));
         }
         let status_str = statuses[row].as_deref().unwrap_or_default();
@@ -728,10 +740,10 @@ pub fn covariance_of(
 pub fn load_model(
     path: &Path,
     model: ModelName,
-    nominal: &ParamValues,
+    robot: &RobotSpec,
 ) -> Result<ParameterSet, TableError> {
     let df = super::read_parquet(path)?;
-    let sets = from_frame(&df, path, nominal)?;
+    let sets = from_frame(&df, path, robot)?;
     let available: Vec<&str> = sets.iter().map(|s| s.model.as_str()).collect();
     sets.iter()
         .find(|s| s.model == model)
@@ -765,13 +777,17 @@ mod tests {
         let sets = vec![ParameterSet::fixed(ModelName::Nominal, nominal), eg];
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("parameters.parquet");
-        super::super::write_parquet(&mut to_frame(&nominal, &sets), &path, None).unwrap();
-        let back =
-            from_frame(&super::super::read_parquet(&path).unwrap(), &path, &nominal).unwrap();
+        super::super::write_parquet(&mut to_frame(robot.spec(), &sets), &path, None).unwrap();
+        let back = from_frame(
+            &super::super::read_parquet(&path).unwrap(),
+            &path,
+            robot.spec(),
+        )
+        .unwrap();
         assert_eq!(back, sets);
-        let loaded = load_model(&path, ModelName::Elastogeometric, &nominal).unwrap();
+        let loaded = load_model(&path, ModelName::Elastogeometric, robot.spec()).unwrap();
         assert_eq!(loaded, sets[1]);
-        let err = load_model(&path, ModelName::Kinematic, &nominal)
+        let err = load_model(&path, ModelName::Kinematic, robot.spec())
             .unwrap_err()
             .to_string();
         assert!(err.contains("no rows for model `kinematic`"), "{err}");
@@ -780,21 +796,20 @@ mod tests {
     #[test]
     fn several_targets_are_named_by_their_ids_and_read_back() {
         let robot = irb1600();
-        let nominal = ParamValues::nominal(robot.spec());
         let mut set = ParameterSet::fixed(ModelName::Elastogeometric, truth_params(&robot));
         set.targets = vec!["nest_a".into(), "nest_b".into(), "nest_c".into()];
         let z_b = ParamId::target_translation(1, 2);
         set.values.set(z_b, 131.5);
         set.status[z_b.index()] = ParamStatus::Identified;
         set.std_errors[z_b.index()] = Some(0.01);
-        let df = to_frame(&nominal, &[set.clone()]);
+        let df = to_frame(robot.spec(), &[set.clone()]);
         assert_eq!(df.height(), 42 + 6);
         let names = str_values(&df, "name", Path::new("p")).unwrap();
         for name in ["x_t[nest_a]", "z_t[nest_b]", "y_t[nest_c]"] {
             assert!(names.iter().any(|n| n.as_deref() == Some(name)), "{name}");
         }
         assert!(!names.iter().any(|n| n.as_deref() == Some("x_t")));
-        let back = from_frame(&df, Path::new("p.parquet"), &nominal).unwrap();
+        let back = from_frame(&df, Path::new("p.parquet"), robot.spec()).unwrap();
         assert_eq!(back, vec![set.clone()]);
         let rows = [Some("nest_c".to_string()), Some("nest_a".to_string())];
         assert_eq!(set.target_indices(Some(&rows), 2).unwrap(), vec![2, 0]);
@@ -864,7 +879,7 @@ mod tests {
         let robot = irb1600();
         let nominal = ParamValues::nominal(robot.spec());
         let good = to_frame(
-            &nominal,
+            robot.spec(),
             &[ParameterSet::fixed(ModelName::Kinematic, nominal)],
         );
         let mut names: Vec<String> = str_values(&good, "name", Path::new("p"))
@@ -875,7 +890,7 @@ mod tests {
         names[3] = "alpha_ww".into();
         let mut df = good.clone();
         df.with_column(Column::new("name".into(), names)).unwrap();
-        let err = from_frame(&df, Path::new("p.parquet"), &nominal)
+        let err = from_frame(&df, Path::new("p.parquet"), robot.spec())
             .unwrap_err()
             .to_string();
         assert!(
@@ -891,9 +906,46 @@ mod tests {
         units[0] = "m".into();
         let mut df = good;
         df.with_column(Column::new("unit".into(), units)).unwrap();
-        let err = from_frame(&df, Path::new("p.parquet"), &nominal)
+        let err = from_frame(&df, Path::new("p.parquet"), robot.spec())
             .unwrap_err()
             .to_string();
         assert!(err.contains("`x_w` is in mm, found `m`"), "{err}");
+    }
+
+    /// A prismatic joint's compliance is in mm/N and its backlash in mm; a
+    /// table giving one in a revolute joint's unit is another robot's.
+    #[test]
+    fn a_prismatic_joint_s_units_are_written_and_required() {
+        let robot = crate::robot::test_support::gantry();
+        let mut set =
+            ParameterSet::fixed(ModelName::EgBacklash, ParamValues::nominal(robot.spec()));
+        let k1 = ParamId::of_joint(crate::robot::JointParam::Compliance, 0);
+        set.values.set(k1, 0.002);
+        set.status[k1.index()] = ParamStatus::Identified;
+        for name in ["backlash3", "backlash4"] {
+            set.values.set(ParamId::from_name(name).unwrap(), 0.01);
+        }
+        let df = to_frame(robot.spec(), &[set.clone()]);
+        let names = str_values(&df, "name", Path::new("p")).unwrap();
+        let units = str_values(&df, "unit", Path::new("p")).unwrap();
+        let unit_of = |wanted: &str| {
+            let row = names
+                .iter()
+                .position(|n| n.as_deref() == Some(wanted))
+                .unwrap();
+            units[row].clone().unwrap()
+        };
+        assert_eq!(unit_of("k1"), "mm/N");
+        assert_eq!(unit_of("k4"), "deg/(N·m)");
+        assert_eq!(unit_of("backlash3"), "mm");
+        assert_eq!(unit_of("backlash4"), "deg");
+        assert_eq!(
+            from_frame(&df, Path::new("p.parquet"), robot.spec()).unwrap(),
+            vec![set]
+        );
+        let err = from_frame(&df, Path::new("p.parquet"), irb1600().spec())
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("`k1` is in deg/(N·m), found `mm/N`"), "{err}");
     }
 }

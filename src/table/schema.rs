@@ -11,6 +11,9 @@ use std::path::{Path, PathBuf};
 use polars::prelude::*;
 use serde::Serialize;
 
+use crate::robot::RobotSpec;
+use crate::robot::file::JointKind;
+
 /// Logical column type.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -67,6 +70,11 @@ pub struct ColumnSpec {
     pub unit: &'static str,
     pub required: bool,
     pub meaning: &'static str,
+    /// A column that stands for this one when it is absent: a prismatic
+    /// joint's `q{i}_mm` for `q{i}_deg` (the robot file says which a table
+    /// must carry; [`joint_vectors`] holds it to that).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub alternative: Option<&'static str>,
 }
 
 /// A table kind.
@@ -142,7 +150,11 @@ impl TableSchema {
     pub fn check(&self, df: &DataFrame, file: &Path) -> Result<(), TableError> {
         let present: Vec<&str> = df.get_column_names().iter().map(|s| s.as_str()).collect();
         for spec in &self.columns {
-            let Ok(column) = df.column(spec.name) else {
+            let name = match spec.alternative {
+                Some(alternative) if df.column(spec.name).is_err() => alternative,
+                _ => spec.name,
+            };
+            let Ok(column) = df.column(name) else {
                 if spec.required {
                     return Err(TableError::MissingColumn {
                         file: file.to_path_buf(),
@@ -157,7 +169,7 @@ impl TableSchema {
             if !spec.dtype.accepts(column.dtype()) {
                 return Err(TableError::WrongType {
                     file: file.to_path_buf(),
-                    column: spec.name.to_string(),
+                    column: name.to_string(),
                     found: column.dtype().to_string(),
                     expected: spec.dtype.polars().to_string(),
                 });
@@ -170,7 +182,7 @@ impl TableSchema {
                     .unwrap_or(0);
                 return Err(TableError::Null {
                     file: file.to_path_buf(),
-                    column: spec.name.to_string(),
+                    column: name.to_string(),
                     row,
                 });
             }
@@ -183,7 +195,7 @@ impl TableSchema {
                 {
                     return Err(TableError::NonFinite {
                         file: file.to_path_buf(),
-                        column: spec.name.to_string(),
+                        column: name.to_string(),
                         row,
                         value,
                     });
@@ -255,20 +267,34 @@ fn col(
         unit,
         required,
         meaning,
+        alternative: None,
+    }
+}
+
+/// A joint's column `q{i}_deg`, which a prismatic joint's `q{i}_mm` replaces.
+fn joint_col(joint: usize, required: bool, meaning: &'static str) -> ColumnSpec {
+    ColumnSpec {
+        alternative: Some(ALL_PRISMATIC_JOINT_COLUMNS[joint]),
+        ..col(
+            ALL_JOINT_COLUMNS[joint],
+            ColumnType::Float64,
+            "deg",
+            required,
+            meaning,
+        )
     }
 }
 
 /// `q1_deg … q6_deg`: the joint commands of a conf-wrench row, and
 /// `q7_deg`, a seventh joint's (required for a seven-joint robot file,
-/// refused otherwise).
+/// refused otherwise); a prismatic joint's `q{i}_mm` (mm) in place of its
+/// `q{i}_deg`.
 fn joint_columns(columns: &mut Vec<ColumnSpec>, meaning: &'static str) {
-    for name in JOINT_COLUMNS {
-        columns.push(col(name, ColumnType::Float64, "deg", true, meaning));
+    for joint in 0..JOINT_COLUMNS.len() {
+        columns.push(joint_col(joint, true, meaning));
     }
-    columns.push(col(
-        SEVENTH_JOINT_COLUMN,
-        ColumnType::Float64,
-        "deg",
+    columns.push(joint_col(
+        JOINT_COLUMNS.len(),
         false,
         "the seventh joint's value, for a seven-joint robot file (required there, refused for a six-joint one)",
     ));
@@ -292,42 +318,93 @@ pub const ALL_JOINT_COLUMNS: [&str; crate::robot::MAX_JOINTS] = [
     SEVENTH_JOINT_COLUMN,
 ];
 
-/// The joint columns of an arm with `joints` joints: `q1_deg … q6_deg`, and
-/// `q7_deg` for a seventh.
-pub fn joint_column_names(joints: usize) -> &'static [&'static str] {
-    &ALL_JOINT_COLUMNS[..joints.clamp(6, crate::robot::MAX_JOINTS)]
+/// Every prismatic joint's column a table may carry, `q1_mm … q7_mm`: its
+/// travel in millimetres, in place of `q{i}_deg`.
+pub const ALL_PRISMATIC_JOINT_COLUMNS: [&str; crate::robot::MAX_JOINTS] = [
+    "q1_mm", "q2_mm", "q3_mm", "q4_mm", "q5_mm", "q6_mm", "q7_mm",
+];
+
+/// Joint `joint`'s (0-based) column for a joint of `kind`.
+pub fn joint_column_name(joint: usize, kind: JointKind) -> &'static str {
+    match kind {
+        JointKind::Revolute => ALL_JOINT_COLUMNS[joint],
+        JointKind::Prismatic => ALL_PRISMATIC_JOINT_COLUMNS[joint],
+    }
 }
 
-/// A `q7_deg` column in a table for an arm of `joints` ≤ 6 joints is an
-/// error: it belongs to another robot's table, and reading it as six joints
-/// would drop a joint silently.
-pub fn refuse_seventh_joint_column(
+/// The joint columns of the robot file's arm, base to flange: `q{i}_deg`
+/// for a revolute joint, `q{i}_mm` for a prismatic one (`q1_deg … q6_deg`,
+/// and `q7_deg`, for a revolute arm).
+pub fn joint_column_names(robot: &RobotSpec) -> Vec<&'static str> {
+    robot
+        .joints
+        .iter()
+        .take(crate::robot::MAX_JOINTS)
+        .enumerate()
+        .map(|(joint, spec)| joint_column_name(joint, spec.kind))
+        .collect()
+}
+
+/// A joint column the robot file's arm does not have is an error: a
+/// `q7_deg` for a six-joint arm, a `q3_mm` for a revolute joint 3, a
+/// `q3_deg` for a prismatic one. It belongs to another robot's table, and
+/// reading the table without it would drop a joint or mix units silently.
+pub fn refuse_foreign_joint_columns(
     df: &DataFrame,
     file: &Path,
-    joints: usize,
+    robot: &RobotSpec,
 ) -> Result<(), TableError> {
-    if joints <= 6 && df.column(SEVENTH_JOINT_COLUMN).is_ok() {
-        return Err(TableError::BadValue {
-            file: file.to_path_buf(),
-            column: SEVENTH_JOINT_COLUMN.to_string(),
-            row: 0,
-            message: format!(
-                "a seventh joint's value, but the robot file has {joints} joints: use the table of this robot, or drop the column"
-            ),
-        });
-    }
-    Ok(())
+    let own = joint_column_names(robot);
+    let foreign = ALL_JOINT_COLUMNS
+        .iter()
+        .chain(&ALL_PRISMATIC_JOINT_COLUMNS)
+        .find(|name| !own.contains(name) && df.column(name).is_ok());
+    let Some(column) = foreign else {
+        return Ok(());
+    };
+    let joint = ALL_JOINT_COLUMNS
+        .iter()
+        .chain(&ALL_PRISMATIC_JOINT_COLUMNS)
+        .position(|name| name == column)
+        .unwrap_or_default()
+        % crate::robot::MAX_JOINTS;
+    let message = match robot.joints.get(joint) {
+        None => format!(
+            "a joint {}'s value, but the robot file {} has {} joints: use the table of this robot, or drop the column",
+            joint + 1,
+            robot.path.display(),
+            robot.joints.len()
+        ),
+        Some(spec) => format!(
+            "joint {} of the robot file {} is {}: its values are `{}` ({}); use the table of this robot, or rename the column",
+            joint + 1,
+            robot.path.display(),
+            match spec.kind {
+                JointKind::Revolute => "revolute",
+                JointKind::Prismatic => "prismatic",
+            },
+            own[joint],
+            spec.kind.unit()
+        ),
+    };
+    Err(TableError::BadValue {
+        file: file.to_path_buf(),
+        column: column.to_string(),
+        row: 0,
+        message,
+    })
 }
 
-/// Each row's joint vector from the columns of an arm with `joints` joints
-/// (zeros past them): a missing or null column is an error naming it.
+/// Each row's joint vector from the columns of the robot file's arm (zeros
+/// past its joints; a prismatic joint's value in mm): a missing or null
+/// column is an error naming it.
 pub fn joint_vectors(
     df: &DataFrame,
     file: &Path,
-    joints: usize,
+    robot: &RobotSpec,
 ) -> Result<Vec<[f64; crate::robot::MAX_JOINTS]>, TableError> {
-    refuse_seventh_joint_column(df, file, joints)?;
-    let columns = joint_column_names(joints)
+    refuse_foreign_joint_columns(df, file, robot)?;
+    let columns = joint_column_names(robot)
         .iter()
         .map(|c| f64_values(df, c, file))
         .collect::<Result<Vec<_>, _>>()?;
@@ -1668,13 +1745,11 @@ pub fn targets() -> TableSchema {
             "wrench on the robot at this target, tool axes, at the tool origin (0 when absent)",
         ));
     }
-    for name in ALL_JOINT_COLUMNS {
-        columns.push(col(
-            name,
-            ColumnType::Float64,
-            "deg",
+    for joint in 0..ALL_JOINT_COLUMNS.len() {
+        columns.push(joint_col(
+            joint,
             false,
-            "a configuration near the wanted one (branch hint; q7_deg only for a seven-joint robot file, whose held joint 3 the hint sets)",
+            "a configuration near the wanted one (branch hint; q7_deg only for a seven-joint robot file, whose held joint 3 the hint sets; a prismatic joint's q{i}_mm in place of its q{i}_deg)",
         ));
     }
     columns.push(col(
@@ -1710,19 +1785,15 @@ pub fn commands() -> TableSchema {
         true,
         "the target's id",
     )];
-    for name in JOINT_COLUMNS {
-        columns.push(col(
-            name,
-            ColumnType::Float64,
-            "deg",
+    for joint in 0..JOINT_COLUMNS.len() {
+        columns.push(joint_col(
+            joint,
             true,
-            "joint command that puts the calibrated, loaded robot's tool on the target (status ok); the solver's last iterate otherwise",
+            "joint command that puts the calibrated, loaded robot's tool on the target (status ok); the solver's last iterate otherwise (a prismatic joint's q{i}_mm, mm, in its place)",
         ));
     }
-    columns.push(col(
-        SEVENTH_JOINT_COLUMN,
-        ColumnType::Float64,
-        "deg",
+    columns.push(joint_col(
+        JOINT_COLUMNS.len(),
         false,
         "a seven-joint robot file's joint 7",
     ));
