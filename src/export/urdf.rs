@@ -50,6 +50,11 @@ const DEG: f64 = std::f64::consts::PI / 180.0;
 pub const UNKNOWN_VELOCITY_RAD_S: f64 = 0.5;
 /// `<limit effort>` of a joint whose robot file gives no `max_torque_nm`, N·m.
 pub const UNKNOWN_EFFORT_NM: f64 = 10_000.0;
+/// `<limit velocity>` of a prismatic joint (the robot file has no speed
+/// for one), m/s: slower than a gantry's axes.
+pub const UNKNOWN_SLIDE_VELOCITY_M_S: f64 = 0.1;
+/// `<limit effort>` of a prismatic joint, N: large, like [`UNKNOWN_EFFORT_NM`].
+pub const UNKNOWN_SLIDE_FORCE_N: f64 = 100_000.0;
 
 /// The fixed part of MDH link `i` (0-based) at parameter set `p`: `A(i−1←i)`
 /// at q = 0.
@@ -159,8 +164,19 @@ pub fn robot_urdf(robot: &Robot, p: &ParamValues, source: &UrdfSource) -> String
             .map(|i| format!("joint{}", i + 1))
             .collect()
     };
-    let no_velocity = missing(&|i| spec.joints[i].max_velocity_deg_s.is_some());
-    let no_effort = missing(&|i| spec.joints[i].max_torque_nm.is_some());
+    let prismatic = robot.prismatic_joints();
+    let slides = missing(&|i| !prismatic[i]);
+    if !slides.is_empty() {
+        comment.push(format!(
+            "Prismatic joints ({}): type prismatic along z, positions in metres (the robot file's",
+            slides.join(", ")
+        ));
+        comment.push(format!(
+            "q_mm / 1000), limits from its limits_mm, their compliances in mm/N; their velocity = {UNKNOWN_SLIDE_VELOCITY_M_S} m/s and effort = {UNKNOWN_SLIDE_FORCE_N} N are placeholders."
+        ));
+    }
+    let no_velocity = missing(&|i| !prismatic[i] && spec.joints[i].max_velocity_deg_s.is_none());
+    let no_effort = missing(&|i| !prismatic[i] && spec.joints[i].max_torque_nm.is_none());
     if !no_velocity.is_empty() {
         comment.push(format!(
             "WARNING: the robot file gives no max_velocity_deg_s for {}: their velocity = {UNKNOWN_VELOCITY_RAD_S} rad/s",
@@ -232,17 +248,31 @@ pub fn robot_urdf(robot: &Robot, p: &ParamValues, source: &UrdfSource) -> String
         };
         let joint = &spec.joints[i];
         let [lo, hi] = joint.limits();
-        let velocity = joint
-            .max_velocity_deg_s
-            .map_or(UNKNOWN_VELOCITY_RAD_S, |v| v * DEG);
-        let effort = joint.max_torque_nm.unwrap_or(UNKNOWN_EFFORT_NM);
+        // A revolute joint's limits in radians; a prismatic one's in metres.
+        let (kind, scale, velocity, effort) = if prismatic[i] {
+            (
+                "prismatic",
+                1e-3,
+                UNKNOWN_SLIDE_VELOCITY_M_S,
+                UNKNOWN_SLIDE_FORCE_N,
+            )
+        } else {
+            (
+                "revolute",
+                DEG,
+                joint
+                    .max_velocity_deg_s
+                    .map_or(UNKNOWN_VELOCITY_RAD_S, |v| v * DEG),
+                joint.max_torque_nm.unwrap_or(UNKNOWN_EFFORT_NM),
+            )
+        };
         out.push_str(&format!(
-            "  <joint name=\"joint{}\" type=\"revolute\">\n    <parent link=\"{parent}\"/>\n    <child link=\"link{}\"/>\n    {}\n    <axis xyz=\"0 0 1\"/>\n    <limit lower=\"{}\" upper=\"{}\" effort=\"{effort}\" velocity=\"{velocity}\"/>\n  </joint>\n",
+            "  <joint name=\"joint{}\" type=\"{kind}\">\n    <parent link=\"{parent}\"/>\n    <child link=\"link{}\"/>\n    {}\n    <axis xyz=\"0 0 1\"/>\n    <limit lower=\"{}\" upper=\"{}\" effort=\"{effort}\" velocity=\"{velocity}\"/>\n  </joint>\n",
             i + 1,
             i + 1,
             origin(&joint_origin(robot, p, i)),
-            lo * DEG,
-            hi * DEG
+            lo * scale,
+            hi * scale
         ));
     }
     let flange_link = format!("link{}", robot.joint_count());

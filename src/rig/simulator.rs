@@ -296,10 +296,20 @@ impl Simulator {
     /// of a rung compares its estimates with.
     pub fn joint_terms_truth(&self) -> Vec<(ParamId, f64)> {
         let joints = self.robot.joint_count();
+        let angular = |id: &ParamId| id.joint().is_none_or(|j| !self.robot.is_prismatic(j));
         let mut terms: Vec<(ParamId, f64)> = ParamId::backlashes(joints)
-            .map(|id| (id, self.settings.backlash_deg))
+            .map(|id| {
+                (
+                    id,
+                    if angular(&id) {
+                        self.settings.backlash_deg
+                    } else {
+                        0.0
+                    },
+                )
+            })
             .collect();
-        for joint in 0..joints {
+        for joint in (0..joints).filter(|&j| !self.robot.is_prismatic(j)) {
             for (order, amplitude, phase) in [
                 (
                     1,
@@ -347,9 +357,13 @@ impl Simulator {
 
     /// The joint-side errors of the settings at command `q` (deg): the
     /// transmission errors at twice, once and the motor's rate per turn, and
-    /// the backlash on the side of the current approach.
+    /// the backlash on the side of the current approach. The settings are
+    /// angles: a prismatic joint has none of them.
     fn joint_errors_deg(&self, q: &[f64; MAX_JOINTS]) -> [f64; MAX_JOINTS] {
         std::array::from_fn(|i| {
+            if self.robot.is_prismatic(i) {
+                return 0.0;
+            }
             let angle = q[i].to_radians();
             let motor = self.gear_ratios[i].map_or(0.0, |ratio| {
                 self.settings.transmission_error_motor_deg
@@ -368,7 +382,9 @@ impl Simulator {
         let errors = self.joint_errors_deg(q);
         let mut actual: [f64; MAX_JOINTS] = std::array::from_fn(|i| q[i] + errors[i]);
         for i in [1, 2] {
-            actual[i] += self.settings.quadratic_compliance * torques[i] * torques[i].abs();
+            if !self.robot.is_prismatic(i) {
+                actual[i] += self.settings.quadratic_compliance * torques[i] * torques[i].abs();
+            }
         }
         // Joint-error terms of the truth file itself (backlash3 = …) see the
         // same approach as the settings' backlash.

@@ -188,13 +188,17 @@ impl Default for ExportProgramSettings {
 
 impl ExportProgramSettings {
     /// The formats to write, given whether a parameters table is bound and
-    /// the arm's joint count (a seven-joint arm's default is the CSV, see
-    /// [`seven_joint_format_problem`]).
-    fn formats(&self, parameters_bound: bool, joints: usize) -> Vec<ProgramFormat> {
+    /// the arm (a seven-joint arm's or a gantry's default is the CSV, see
+    /// [`arm_format_problem`]).
+    fn formats(
+        &self,
+        parameters_bound: bool,
+        robot: &crate::robot::RobotSpec,
+    ) -> Vec<ProgramFormat> {
         match &self.formats {
             Some(formats) => formats.clone(),
             None => {
-                let mut all = if joints > 6 {
+                let mut all = if !six_revolute_joints(robot) {
                     vec![ProgramFormat::Csv]
                 } else {
                     vec![ProgramFormat::Rapid, ProgramFormat::Krl, ProgramFormat::Csv]
@@ -234,18 +238,34 @@ impl ExportProgramSettings {
 /// KUKA LBR on a KR C as `E1` between A2 and A3, Yaskawa's SIA as its `E`
 /// axis, FANUC has no seven-joint arm), and none is verified here, so they
 /// are refused rather than written with a guessed axis order.
-fn seven_joint_format_problem(
-    format: ProgramFormat,
-    robot: &crate::robot::RobotSpec,
-) -> Option<String> {
+///
+/// A gantry (an arm with a prismatic joint) likewise: the controller
+/// languages' joint targets here are six angles of a six-axis arm, so its
+/// programs are the CSV (`q{i}_mm` for the slides) and the URDF (prismatic
+/// joints).
+fn arm_format_problem(format: ProgramFormat, robot: &crate::robot::RobotSpec) -> Option<String> {
+    if six_revolute_joints(robot) || matches!(format, ProgramFormat::Csv | ProgramFormat::Urdf) {
+        return None;
+    }
     let joints = robot.joints.len();
-    (joints > 6 && !matches!(format, ProgramFormat::Csv | ProgramFormat::Urdf)).then(|| {
-        format!(
+    Some(match robot.prismatic_joints().iter().position(|&p| p) {
+        Some(joint) => format!(
+            "`{}` is written for six-axis arms of revolute joints, and joint {} of the robot file {} is prismatic: a gantry's programs are `csv` (q{{i}}_mm for its slides) and `urdf`",
+            format.key(),
+            joint + 1,
+            robot.path.display()
+        ),
+        None => format!(
             "`{}` is written for six-axis controllers, and the robot file {} has {joints} joints: a seven-joint arm's programs are `csv` (q1_deg … q7_deg) and `urdf`",
             format.key(),
             robot.path.display()
-        )
+        ),
     })
+}
+
+/// Six revolute joints: the arms the controller languages here are written for.
+fn six_revolute_joints(robot: &crate::robot::RobotSpec) -> bool {
+    robot.joints.len() == 6 && !robot.prismatic_joints().contains(&true)
 }
 
 static INFO: StageInfo = StageInfo {
@@ -287,9 +307,9 @@ impl Stage for ExportProgramStage {
             .into_iter()
             .collect();
         let parameters_bound = ctx.bound_inputs.contains(&"parameters");
-        let formats = settings.formats(parameters_bound, ctx.robot.joints.len());
+        let formats = settings.formats(parameters_bound, ctx.robot);
         for (i, format) in formats.iter().enumerate() {
-            if let Some(problem) = seven_joint_format_problem(*format, ctx.robot) {
+            if let Some(problem) = arm_format_problem(*format, ctx.robot) {
                 problems.push(SettingsProblem::new(&format!("formats[{i}]"), problem));
             }
         }
@@ -567,7 +587,7 @@ impl Stage for ExportProgramStage {
         }
         let mut outputs = StageOutputs::default();
         let name = &settings.module_name;
-        for format in settings.formats(parameters.is_some(), ctx.robot.joint_count()) {
+        for format in settings.formats(parameters.is_some(), ctx.robot.spec()) {
             match format {
                 ProgramFormat::Rapid => {
                     let text = rapid::module(

@@ -946,7 +946,7 @@ impl Stage for IdentifyStage {
                 measurements.path.display(),
                 suspicion.describe(),
                 schema::POSITION_COLUMNS.join(", "),
-                crate::table::schema::JOINT_COLUMNS.join(", "),
+                crate::table::schema::joint_column_names(ctx.robot.spec()).join(", "),
             )));
         }
         let registered = register(ctx, "robot file", &nominal, &observations, &mut outputs);
@@ -1125,6 +1125,11 @@ impl Stage for IdentifyStage {
                     .collect(),
             };
             if model.has_residual_model() {
+                super::refuse_prismatic_joints(
+                    ctx.robot.spec(),
+                    &format!("model {model}'s residual model"),
+                    "use eg_harmonic, eg_backlash or elastogeometric",
+                )?;
                 ctx.progress
                     .note(&format!("{model}: fitting the residual model"));
                 let options = ResidualOptions {

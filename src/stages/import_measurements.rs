@@ -496,6 +496,11 @@ impl Stage for ImportMeasurementsStage {
         ctx: &StageContext,
         settings: &ImportMeasurementsSettings,
     ) -> Result<StageOutputs, StageError> {
+        super::refuse_prismatic_joints(
+            ctx.robot.spec(),
+            "import_measurements (`columns.q1_deg` … `columns.q6_deg`, `joint_unit`)",
+            "write the gantry's measurements table with its `q{i}_mm` columns and read it as a file input",
+        )?;
         let imported = import_for(ctx.robot.spec(), settings, ctx.job_dir)?;
         for note in &imported.notes {
             ctx.progress.note(note);

@@ -274,6 +274,20 @@ fn seven_joint_hint_problem(
     let joints = robot.joints.len();
     let seventh = columns.q7_deg.is_some();
     let hinted = columns.q1_deg.is_some();
+    let prismatic = robot
+        .joints
+        .iter()
+        .position(|j| j.kind == crate::robot::file::JointKind::Prismatic);
+    if let Some(joint) = prismatic.filter(|_| hinted || seventh) {
+        return Some(SettingsProblem::new(
+            "columns.q1_deg",
+            format!(
+                "the robot file {} has a prismatic joint (joint {}): a branch hint maps joint angles only; leave `columns.q1_deg` … out (compensate then seeds from the nominal solution)",
+                robot.path.display(),
+                joint + 1
+            ),
+        ));
+    }
     let message = if seventh && joints <= 6 {
         format!(
             "the robot file {} has {joints} joints: a hint has no seventh joint (remove the key)",

@@ -32,7 +32,7 @@ use crate::rig::simulator::{Simulator, SimulatorSettings};
 use crate::rig::{Disposition, Rig, RigError, timeout_from_seconds};
 use crate::robot::{ConfWrench, MAX_JOINTS};
 use crate::table::parameters::ModelName;
-use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS, SIGMA_COLUMNS, WRENCH_COLUMNS};
+use crate::table::schema::{self, POSITION_COLUMNS, SIGMA_COLUMNS, WRENCH_COLUMNS};
 use crate::table::{content_hash, frame};
 
 pub struct MeasureStage;
@@ -411,6 +411,11 @@ impl Stage for MeasureStage {
                 )
             }
             DriverKind::External => {
+                super::refuse_prismatic_joints(
+                    ctx.robot.spec(),
+                    "the driver protocol (`move_joints`, `read_joints`)",
+                    "measure it on the simulator (`driver = \"simulator\"`)",
+                )?;
                 if ctx.robot.joint_count() > 6 {
                     return Err(StageError::Invalid(format!(
                         "the robot file {} has {} joints; the driver protocol moves six (`move_joints` and `read_joints` carry six values): a seven-joint arm is measured on the simulator (`driver = \"simulator\"`) or imported with `import_measurements`",
@@ -575,6 +580,7 @@ impl Stage for MeasureStage {
         drop(rig);
 
         let mut outputs = tables(
+            &schema::joint_column_names(ctx.robot.spec()),
             &ids,
             config_ids.as_deref(),
             &latest,
@@ -771,6 +777,7 @@ fn timestamps(name: &str, values: Vec<i64>) -> Column {
 /// The two output tables, rows in input order; the measurements with the
 /// campaign's approach directions (`approach`, by cw_id).
 fn tables(
+    joint_names: &[&'static str],
     ids: &[i64],
     config_ids: Option<&[Option<i64>]>,
     latest: &HashMap<i64, Entry>,
@@ -788,7 +795,8 @@ fn tables(
             None => {}
         }
     }
-    let mut measurements = measurements_frame(&measured, config_ids.is_some(), robot_id);
+    let mut measurements =
+        measurements_frame(&measured, joint_names, config_ids.is_some(), robot_id);
     for (joint, name) in schema::APPROACH_COLUMNS.iter().enumerate() {
         let directions: Vec<i8> = measured
             .iter()
@@ -832,9 +840,12 @@ fn tables(
 }
 
 /// The `measurements` table (spec §6) of readings in the given order, with their
-/// configuration ids when `with_config_id`, and the robot id when known.
+/// configuration ids when `with_config_id`, and the robot id when known;
+/// `joint_names` are the robot file's joint columns
+/// ([`schema::joint_column_names`]).
 pub(crate) fn measurements_frame(
     readings: &[(&Reading, Option<i64>)],
+    joint_names: &[&'static str],
     with_config_id: bool,
     robot_id: Option<&str>,
 ) -> DataFrame {
@@ -857,13 +868,15 @@ pub(crate) fn measurements_frame(
         config.push(*config_id);
     }
     let mut columns = vec![Column::new("cw_id".into(), cw)];
-    for (name, values) in JOINT_COLUMNS.iter().zip(q) {
+    for (name, values) in joint_names.iter().zip(q) {
         columns.push(Column::new((*name).into(), values));
     }
     // A seven-joint arm's readings carry the seventh joint.
-    if readings.iter().any(|(r, _)| r.q7_deg.is_some()) {
+    if let Some(name) = joint_names.get(6)
+        && readings.iter().any(|(r, _)| r.q7_deg.is_some())
+    {
         columns.push(Column::new(
-            schema::SEVENTH_JOINT_COLUMN.into(),
+            (*name).into(),
             readings.iter().map(|(r, _)| r.q7_deg).collect::<Vec<_>>(),
         ));
     }

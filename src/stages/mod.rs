@@ -214,6 +214,29 @@ impl SettingsProblem {
     }
 }
 
+/// Refuses a robot file with a prismatic joint for a stage or path that
+/// reads or writes joint values as six or seven angles (`what` names it,
+/// `instead` says what to use): a slide's millimetres in a degrees field
+/// would be a wrong result, not a refusal.
+pub fn refuse_prismatic_joints(
+    robot: &crate::robot::RobotSpec,
+    what: &str,
+    instead: &str,
+) -> Result<(), StageError> {
+    match robot
+        .joints
+        .iter()
+        .position(|j| j.kind == crate::robot::file::JointKind::Prismatic)
+    {
+        Some(joint) => Err(StageError::Invalid(format!(
+            "the robot file {} has a prismatic joint (joint {}); {what} carries joint angles only: {instead}",
+            robot.path.display(),
+            joint + 1
+        ))),
+        None => Ok(()),
+    }
+}
+
 /// A problem with a model name (`nominal`, `registered`, …) set under `key`.
 pub fn model_name_problem(key: &str, name: &str) -> Option<SettingsProblem> {
     name.parse::<crate::table::parameters::ModelName>()

@@ -22,7 +22,8 @@ use crate::robot::positioner::MAX_POSITIONER_AXES;
 use crate::robot::{MAX_JOINTS, ParamValues};
 use crate::table::parameters::target_id_problem;
 use crate::table::schema::{
-    self, ALL_JOINT_COLUMNS, POSITIONER_COLUMNS, WRENCH_COLUMNS, i64_values,
+    self, ALL_JOINT_COLUMNS, ALL_PRISMATIC_JOINT_COLUMNS, POSITIONER_COLUMNS, WRENCH_COLUMNS,
+    i64_values,
 };
 
 pub struct NestPosesStage;
@@ -267,7 +268,11 @@ fn with_nest_rows(
                 Column::new(c.name().clone(), numbered(first_cw))
             } else if name == "config_id" {
                 Column::new(c.name().clone(), numbered(first_config))
-            } else if let Some(joint) = ALL_JOINT_COLUMNS.iter().position(|j| *j == name) {
+            } else if let Some(joint) = ALL_JOINT_COLUMNS
+                .iter()
+                .position(|j| *j == name)
+                .or_else(|| ALL_PRISMATIC_JOINT_COLUMNS.iter().position(|j| *j == name))
+            {
                 Column::new(c.name().clone(), vec![park_deg[joint]; n])
             } else if WRENCH_COLUMNS.contains(&name) {
                 Column::new(c.name().clone(), vec![0.0; n])

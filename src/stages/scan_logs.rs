@@ -276,6 +276,11 @@ impl Stage for ScanLogsStage {
         ctx: &StageContext,
         settings: &ScanLogsSettings,
     ) -> Result<StageOutputs, StageError> {
+        super::refuse_prismatic_joints(
+            ctx.robot.spec(),
+            "scan_logs (the logged measurements' `q1_deg … q6_deg`)",
+            "calibrate a gantry from a measure stage's table",
+        )?;
         let query = LogQuery {
             on_track: ctx.robot.spec().track.is_some(),
             ..settings.query(ctx.job_dir, ctx.run_date)?

@@ -643,7 +643,10 @@ fn report_work(
             work.status.iter().map(|s| s.as_str()).collect::<Vec<_>>(),
         ),
     ];
-    for (joint, name) in schema::JOINT_COLUMNS.iter().enumerate() {
+    for (joint, name) in schema::joint_column_names(ctx.robot.spec())
+        .iter()
+        .enumerate()
+    {
         columns.push(Column::new(
             (*name).into(),
             (0..work.ids.len())

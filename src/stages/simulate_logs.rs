@@ -310,6 +310,11 @@ impl Stage for SimulateLogsStage {
         settings: &SimulateLogsSettings,
     ) -> Result<StageOutputs, StageError> {
         let invalid = |m: String| StageError::Invalid(m);
+        super::refuse_prismatic_joints(
+            ctx.robot.spec(),
+            "simulate_logs (the logged measurements' `q1_deg … q6_deg`)",
+            "simulate a gantry's campaign with a measure stage",
+        )?;
         let first_day = settings.first_day().map_err(|p| settings_error(&[p]))?;
         let changes = settings.changes().map_err(|p| settings_error(&p))?;
         let input = ctx.input("conf_wrenches")?;
@@ -348,7 +353,12 @@ impl Stage for SimulateLogsStage {
             .collect();
         outputs.tables.insert(
             "commissioning".into(),
-            measurements_frame(&with_pool_ids, true, Some(&settings.robot_id)),
+            measurements_frame(
+                &with_pool_ids,
+                &schema::JOINT_COLUMNS,
+                true,
+                Some(&settings.robot_id),
+            ),
         );
 
         ctx.progress.start(u64::from(settings.days), "days");
@@ -364,7 +374,12 @@ impl Stage for SimulateLogsStage {
                 .zip(&order)
                 .map(|(r, &k)| (r, Some(pool_ids[k])))
                 .collect();
-            let mut df = measurements_frame(&rows, true, Some(&settings.robot_id));
+            let mut df = measurements_frame(
+                &rows,
+                &schema::JOINT_COLUMNS,
+                true,
+                Some(&settings.robot_id),
+            );
             let mut bytes = Vec::new();
             ParquetWriter::new(&mut bytes)
                 .finish(&mut df)
