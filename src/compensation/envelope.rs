@@ -27,6 +27,11 @@
 //! how far a command's carriage position lies beyond the rows' range (mm),
 //! not its distance to the nearest row.
 //!
+//! **A gantry's slides** (prismatic joints) are left out of the distance:
+//! their MDH geometry is a straight line along the travel, the same wherever
+//! the rows were measured on it (a real slide's straightness error is not in
+//! the model, as a track's is), so the distance is the revolute joints'.
+//!
 //! Cost: `O(rows × 6)` per configuration with an early exit per row, in the
 //! caller's parallel loop; 10⁴ rows × 10³ targets is well under a second.
 
@@ -82,6 +87,8 @@ pub fn judged(status: Status, measures: &EnvelopeMeasures, limits: &EnvelopeLimi
 pub struct JointEnvelope {
     rows_deg: Vec<[f64; MAX_JOINTS]>,
     track_range_mm: Option<[f64; 2]>,
+    /// The prismatic joints, which the distance leaves out.
+    slides: [bool; MAX_JOINTS],
 }
 
 impl JointEnvelope {
@@ -90,7 +97,13 @@ impl JointEnvelope {
         (!rows_deg.is_empty()).then_some(JointEnvelope {
             rows_deg,
             track_range_mm: None,
+            slides: [false; MAX_JOINTS],
         })
+    }
+
+    /// The same rows of an arm whose prismatic joints `slides` marks.
+    pub fn with_slides(self, slides: [bool; MAX_JOINTS]) -> Self {
+        JointEnvelope { slides, ..self }
     }
 
     /// The same rows measured at the carriage positions `track_mm` (one per
@@ -125,7 +138,10 @@ impl JointEnvelope {
         let mut best = f64::INFINITY;
         for row in &self.rows_deg {
             let mut largest = 0.0_f64;
-            for (q, r) in q_deg.iter().zip(row) {
+            for ((q, r), slide) in q_deg.iter().zip(row).zip(&self.slides) {
+                if *slide {
+                    continue;
+                }
                 largest = largest.max(wrapped_difference_deg(*q, *r).abs());
                 if largest >= best {
                     break;

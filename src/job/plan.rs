@@ -509,7 +509,10 @@ fn expand(dir: &Path, pattern: &str) -> Result<Vec<PathBuf>, String> {
 fn check_footer(path: &Path, expected: &TableSchema) -> Result<(), String> {
     let footer = table::read_footer(path).map_err(|e| e.to_string())?;
     for column in expected.columns.iter() {
-        match footer.columns.iter().find(|(name, _)| name == column.name) {
+        let find = |wanted: &str| footer.columns.iter().find(|(name, _)| name == wanted);
+        // A prismatic joint's `q{i}_mm` stands for its `q{i}_deg`.
+        let found = find(column.name).or_else(|| column.alternative.and_then(find));
+        match found {
             None if column.required => {
                 return Err(format!(
                     "{}: missing required column `{}` for a {} table",
@@ -519,15 +522,14 @@ fn check_footer(path: &Path, expected: &TableSchema) -> Result<(), String> {
                 ));
             }
             None => {}
-            Some((_, dtype)) => {
+            Some((name, dtype)) => {
                 let wanted = column.dtype.polars().to_string();
                 let same = dtype == &wanted
                     || (wanted.starts_with("datetime") && dtype.starts_with("datetime"));
                 if !same {
                     return Err(format!(
-                        "{}: column `{}` has type {dtype}, expected {wanted}",
+                        "{}: column `{name}` has type {dtype}, expected {wanted}",
                         path.display(),
-                        column.name
                     ));
                 }
             }

@@ -421,7 +421,9 @@ impl Iterate {
 /// the six `free` joints ([`free_joints`]): a revolute joint's column is its
 /// axis's moment about the tool (mm/rad), then its axis scaled by
 /// [`RAD_AS_MM`], so position and orientation rows weigh alike; a prismatic
-/// joint's is its axis (mm/mm), then zero.
+/// joint's is its axis per [`RAD_AS_MM`] mm of travel, then zero, so that a
+/// slide's column weighs like a revolute joint's and the singular values
+/// (singularity margins, compensate's `singular` status) keep their meaning.
 pub(crate) fn scaled_geometric_jacobian(
     tool: &Frame,
     joints: &[Frame; MAX_JOINTS + 1],
@@ -432,7 +434,9 @@ pub(crate) fn scaled_geometric_jacobian(
     for (column, &joint) in free.iter().enumerate() {
         let z = joints[joint + 1].axis(2);
         if prismatic[joint] {
-            jacobian.fixed_view_mut::<3, 1>(0, column).copy_from(&z);
+            jacobian
+                .fixed_view_mut::<3, 1>(0, column)
+                .copy_from(&(z * RAD_AS_MM));
             continue;
         }
         let linear = z.cross(&(tool.origin_mm - joints[joint + 1].origin_mm));
@@ -516,9 +520,10 @@ fn damped_least_squares(
             };
             let mut trial = q;
             for (column, &joint) in free.iter().enumerate() {
-                // A revolute step is in radians, a prismatic one in mm.
+                // A revolute step is in radians, a prismatic one in
+                // units of RAD_AS_MM mm.
                 trial[joint] += if prismatic[joint] {
-                    step[column]
+                    step[column] * RAD_AS_MM
                 } else {
                     step[column] / DEG
                 };

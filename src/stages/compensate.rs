@@ -778,7 +778,10 @@ fn envelope_rows(ctx: &StageContext) -> Result<Option<JointEnvelope>, StageError
         Some(_) => kept.iter().map(|&k| track_mm[k]).collect(),
         None => Vec::new(),
     };
-    let envelope = JointEnvelope::new(configurations).map(|e| e.with_track(&positions));
+    let envelope = JointEnvelope::new(configurations).map(|e| {
+        e.with_track(&positions)
+            .with_slides(ctx.robot.prismatic_joints())
+    });
     envelope.map(Some).ok_or_else(|| {
         StageError::Invalid(format!(
             "{}: no calibration rows for the envelope (the table is empty, or the selection marks none of its cw_id as calibration)",

@@ -883,13 +883,22 @@ const REACH_FACTOR: f64 = 2.0;
 const MAX_ENVELOPE_DISTANCE_DEG: f64 = 180.0;
 
 /// An upper bound of the distance from the robot base to the robot file's
-/// tool: the sum of the MDH lengths `|a| + |d|` and the tool translation (mm).
+/// tool: the sum of the MDH lengths `|a| + |d|` (with a prismatic joint's
+/// farthest travel) and the tool translation (mm).
 pub fn reach_mm(robot: &Robot) -> f64 {
     let spec = robot.spec();
     let links: f64 = spec
         .joints
         .iter()
-        .map(|j| j.a_mm.abs() + j.d_mm.abs())
+        .map(|j| {
+            let travel = match j.kind {
+                crate::robot::file::JointKind::Prismatic => {
+                    j.limits().iter().fold(0.0_f64, |m, v| m.max(v.abs()))
+                }
+                crate::robot::file::JointKind::Revolute => 0.0,
+            };
+            j.a_mm.abs() + j.d_mm.abs() + travel
+        })
         .sum();
     let tool = &spec.tool;
     links + nalgebra::Vector3::new(tool.x_mm, tool.y_mm, tool.z_mm).norm()
