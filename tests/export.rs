@@ -13,6 +13,8 @@
 
 mod common;
 
+use common::urdf::{attribute, urdf_joints, urdf_transform};
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
@@ -1051,71 +1053,6 @@ fn approach_moves_go_back_along_the_tool_axis() {
         ["PTP XA_1", "LIN XP_1", "LIN XA_1 C_DIS", "LIN XA_2 C_DIS"]
     );
     assert_eq!(*krl_moves.last().unwrap(), format!("LIN XA_{}", rows.len()));
-}
-
-/// A 4×4 homogeneous transform from a URDF `xyz` (m) and `rpy` (rad).
-fn urdf_transform(xyz: [f64; 3], rpy: [f64; 3]) -> Matrix4<f64> {
-    let r = rz(rpy[2]) * ry(rpy[1]) * rx(rpy[0]);
-    let mut t = Matrix4::identity();
-    t.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-    t.fixed_view_mut::<3, 1>(0, 3)
-        .copy_from(&Vector3::from(xyz));
-    t
-}
-
-/// The value of attribute `name` in an XML element's text.
-fn attribute<'a>(element: &'a str, name: &str) -> &'a str {
-    let lead = format!("{name}=\"");
-    let start = element
-        .find(&lead)
-        .unwrap_or_else(|| panic!("{name} in {element}"))
-        + lead.len();
-    let end = element[start..].find('"').unwrap() + start;
-    &element[start..end]
-}
-
-fn three(text: &str) -> [f64; 3] {
-    let v: Vec<f64> = text
-        .split_whitespace()
-        .map(|s| s.parse().unwrap())
-        .collect();
-    [v[0], v[1], v[2]]
-}
-
-/// A URDF joint as read back.
-#[derive(Debug, Clone)]
-struct UrdfJoint {
-    kind: String,
-    parent: String,
-    child: String,
-    origin: Matrix4<f64>,
-    axis: Option<[f64; 3]>,
-}
-
-/// The URDF's joints in file order.
-fn urdf_joints(text: &str) -> Vec<UrdfJoint> {
-    text.split("<joint ")
-        .skip(1)
-        .map(|chunk| {
-            let element = &chunk[..chunk.find("</joint>").unwrap()];
-            let parent = attribute(&element[element.find("<parent").unwrap()..], "link");
-            let child = attribute(&element[element.find("<child").unwrap()..], "link");
-            let origin = &element[element.find("<origin").unwrap()..];
-            let axis = element
-                .find("<axis")
-                .map(|i| three(attribute(&element[i..], "xyz")));
-            UrdfJoint {
-                kind: attribute(element, "type").to_string(),
-                parent: parent.to_string(),
-                child: child.to_string(),
-                origin: urdf_transform(
-                    three(attribute(origin, "xyz")),
-                    three(attribute(origin, "rpy")),
-                ),
-                axis,
-            }
-        })
-        .collect()
 }
 
 #[test]

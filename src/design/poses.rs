@@ -371,7 +371,9 @@ fn generate_one(
 }
 
 /// The singularity limits, then the cell's collision and sight checks, of one
-/// configuration: its clearance (mm) or the first rejection.
+/// configuration: its clearance (mm) or the first rejection. A gantry (an arm
+/// with a prismatic joint) has its wrist's singularity only: its slides have
+/// no shoulder or elbow to stretch.
 fn check_configuration(
     robot: &Robot,
     problem: &PoseProblem,
@@ -380,10 +382,9 @@ fn check_configuration(
 ) -> Result<f64, Rejection> {
     let (wrist, shoulder, elbow) = singularity_margins(&ik::role_frames(robot, joints));
     let limits = &problem.singularity;
-    if wrist < limits.min_wrist_deg
-        || shoulder < limits.min_shoulder_mm
-        || elbow < limits.min_elbow_deg
-    {
+    let arm_singular = !robot.has_prismatic_joint()
+        && (shoulder < limits.min_shoulder_mm || elbow < limits.min_elbow_deg);
+    if wrist < limits.min_wrist_deg || arm_singular {
         return Err(Rejection::Singular);
     }
     problem.cell.check(joints, tool)

@@ -8,6 +8,7 @@ pub mod sample;
 pub mod tables;
 pub mod targets;
 pub mod ur10;
+pub mod urdf;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
