@@ -240,16 +240,15 @@ pub fn robot_urdf(robot: &Robot, p: &ParamValues, source: &UrdfSource) -> String
         "base_link",
         &robot.world_from_base(p),
     );
-    for i in 0..robot.joint_count() {
+    for (i, (joint, &slide)) in spec.joints.iter().zip(&prismatic).enumerate() {
         let parent = if i == 0 {
             "base_link".to_string()
         } else {
             format!("link{i}")
         };
-        let joint = &spec.joints[i];
         let [lo, hi] = joint.limits();
         // A revolute joint's limits in radians; a prismatic one's in metres.
-        let (kind, scale, velocity, effort) = if prismatic[i] {
+        let (kind, scale, velocity, effort) = if slide {
             (
                 "prismatic",
                 1e-3,

@@ -226,9 +226,9 @@ pub struct RobotSpec {
     /// Gravity in the base frame, m/s².
     #[serde(default = "default_gravity")]
     pub gravity_mps2: [f64; 3],
-    /// Six or seven revolute joints, base to flange (MDH). A seventh joint's
-    /// parameters are `dtheta7, dalpha7, da7, dd7, k7`, and its column
-    /// `q7_deg`.
+    /// Six or seven joints, base to flange (MDH), revolute or prismatic. A
+    /// seventh joint's parameters are `dtheta7, dalpha7, da7, dd7, k7`, and
+    /// its column `q7_deg`; a prismatic joint's column is `q{i}_mm`.
     #[schemars(length(min = 6, max = 7))]
     pub joints: Vec<JointSpec>,
     /// Nominal world (tracker) ← base transform. Optional: identification registers

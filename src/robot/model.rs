@@ -851,7 +851,8 @@ mod tests {
     /// URDF-style chain written from the file's description, computed
     /// independently by fixtures/tools/gantry_fk.py (its output pasted here).
     #[test]
-    #[allow(clippy::excessive_precision)]
+    // The script's output verbatim, digits and all.
+    #[allow(clippy::excessive_precision, clippy::approx_constant)]
     fn gantry_file_matches_its_urdf_style_chain() {
         /// q (mm for joints 1–3, deg for 4–6), flange position (mm), rotation rows.
         type Case = ([f64; 6], [f64; 3], [[f64; 3]; 3]);

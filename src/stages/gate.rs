@@ -443,12 +443,20 @@ impl Stage for GateStage {
         ]);
         outputs.files.insert(
             "decision.md".into(),
-            summary(decision, model, &reasons, &candidate, &in_service).into_bytes(),
+            summary(
+                decision,
+                model,
+                &reasons,
+                &candidate,
+                &in_service,
+                &ctx.robot.prismatic_joints(),
+            )
+            .into_bytes(),
         );
         outputs.tables.insert("decision".into(), decision_row);
         outputs.tables.insert(
             "parameter_changes".into(),
-            parameter_changes(&candidate, &in_service),
+            parameter_changes(&candidate, &in_service, &ctx.robot.prismatic_joints()),
         );
         outputs
             .tables
@@ -584,6 +592,7 @@ fn changed_parameters(
 fn parameter_changes(
     candidate: &ParameterSet,
     in_service: &ParameterSet,
+    prismatic: &[bool; crate::robot::MAX_JOINTS],
 ) -> polars::prelude::DataFrame {
     let rows = changed_parameters(candidate, in_service);
     frame(vec![
@@ -593,7 +602,9 @@ fn parameter_changes(
         ),
         Column::new(
             "unit".into(),
-            rows.iter().map(|r| r.0.unit()).collect::<Vec<_>>(),
+            rows.iter()
+                .map(|r| r.0.unit_on(prismatic))
+                .collect::<Vec<_>>(),
         ),
         Column::new(
             "in_service".into(),
@@ -634,6 +645,7 @@ fn summary(
     reasons: &[String],
     candidate: &ParameterSet,
     in_service: &ParameterSet,
+    prismatic: &[bool; crate::robot::MAX_JOINTS],
 ) -> String {
     let mut text = format!(
         "# Calibration gate: {}\n\nModel compared: {model}.\n\n",
@@ -655,7 +667,7 @@ fn summary(
             text.push_str(&format!(
                 "| {} | {change:+.5} {} | {z:+.1} |\n",
                 id.name(),
-                id.unit()
+                id.unit_on(prismatic)
             ));
         }
     }

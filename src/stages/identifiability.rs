@@ -86,13 +86,14 @@ impl Stage for IdentifiabilityStage {
             settings.rank_tolerance,
             stream::CHUNK_ROWS,
         );
+        let prismatic = ctx.robot.prismatic_joints();
         let mut names = Vec::new();
         let mut units = Vec::new();
         let mut identifiable = Vec::new();
         let mut combined = Vec::new();
         for id in &candidates {
             names.push(param_name(*id, &targets.ids));
-            units.push(id.unit());
+            units.push(id.unit_on(&prismatic));
             let partners = analysis.dependent.iter().find(|(d, _)| d == id);
             identifiable.push(partners.is_none());
             combined.push(partners.map(|(_, with)| {

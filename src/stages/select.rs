@@ -167,7 +167,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "DETMAX selection of calibration rows by an observability index (O1 by default)",
-    code_version: 6,
+    code_version: 7,
     inputs: &[
         TableSlot {
             name: "candidates",
