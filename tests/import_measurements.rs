@@ -308,12 +308,17 @@ fn as_tracker_writes(clean: &str, units: &str, separator: char) -> String {
     out
 }
 
+/// The six revolute joints the exports here carry.
+fn irb1600() -> egcal::robot::RobotSpec {
+    egcal::robot::RobotSpec::load(&common::root().join("jobs/robots/irb1600_145.toml")).unwrap()
+}
+
 /// Imports `text` written as `name` in `dir` with `settings` (TOML, without `path`).
 fn import_text(dir: &Path, name: &str, text: &str, settings: &str) -> DataFrame {
     std::fs::write(dir.join(name), text).unwrap();
     let settings: egcal::stages::import_measurements::ImportMeasurementsSettings =
         toml::from_str(&format!("path = \"{name}\"\n{settings}")).unwrap();
-    egcal::stages::import_measurements::import(&settings, dir)
+    egcal::stages::import_measurements::import_for(&irb1600(), &settings, dir)
         .unwrap_or_else(|e| panic!("{name}: {e}"))
         .measurements
 }
@@ -407,7 +412,7 @@ fn a_units_row_that_contradicts_the_settings_is_refused() {
 columns = { q1_deg = "a1", q2_deg = "a2", q3_deg = "a3", q4_deg = "a4", q5_deg = "a5", q6_deg = "a6", x_mm = "x", y_mm = "y", z_mm = "z" }"#,
         )
         .unwrap();
-    let message = egcal::stages::import_measurements::import(&settings, dir.path())
+    let message = egcal::stages::import_measurements::import_for(&irb1600(), &settings, dir.path())
         .unwrap_err()
         .to_string();
     for word in [

@@ -175,8 +175,9 @@ pub fn robot_urdf(robot: &Robot, p: &ParamValues, source: &UrdfSource) -> String
             "q_mm / 1000), limits from its limits_mm, their compliances in mm/N; their velocity = {UNKNOWN_SLIDE_VELOCITY_M_S} m/s and effort = {UNKNOWN_SLIDE_FORCE_N} N are placeholders."
         ));
     }
-    let no_velocity = missing(&|i| !prismatic[i] && spec.joints[i].max_velocity_deg_s.is_none());
-    let no_effort = missing(&|i| !prismatic[i] && spec.joints[i].max_torque_nm.is_none());
+    // A slide's placeholders are said above.
+    let no_velocity = missing(&|i| prismatic[i] || spec.joints[i].max_velocity_deg_s.is_some());
+    let no_effort = missing(&|i| prismatic[i] || spec.joints[i].max_torque_nm.is_some());
     if !no_velocity.is_empty() {
         comment.push(format!(
             "WARNING: the robot file gives no max_velocity_deg_s for {}: their velocity = {UNKNOWN_VELOCITY_RAD_S} rad/s",

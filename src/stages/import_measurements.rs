@@ -51,9 +51,12 @@ use crate::table::schema;
 
 pub struct ImportMeasurementsStage;
 
-/// Which source column holds each contract column. Required: `q1_deg … q6_deg`,
-/// `x_mm`, `y_mm`, `z_mm`. The names are the contract's; the units of the source
-/// are those of `joint_unit`, `length_unit`, `force_unit`, `moment_unit`.
+/// Which source column holds each contract column. Required: the robot
+/// file's joint columns (`q1_deg … q6_deg`; `q7_deg` for a seventh joint; a
+/// prismatic joint's `q{i}_mm` in place of its `q{i}_deg`), `x_mm`, `y_mm`,
+/// `z_mm`. The names are the contract's; the units of the source are those of
+/// `joint_unit` (angles), `length_unit` (positions, a prismatic joint's
+/// travel), `force_unit`, `moment_unit`.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ColumnMap {
@@ -72,6 +75,25 @@ pub struct ColumnMap {
     pub q5_deg: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub q6_deg: Option<String>,
+    /// A seven-joint robot file's seventh joint.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q7_deg: Option<String>,
+    /// A prismatic joint's travel (in `length_unit`), in place of its
+    /// `q{i}_deg`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q1_mm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q2_mm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q3_mm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q4_mm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q5_mm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q6_mm: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub q7_mm: Option<String>,
     /// Wrench on the robot, tool axes, at the tool origin: 0 where not mapped.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fx_n: Option<String>,
@@ -246,7 +268,7 @@ static INFO: StageInfo = StageInfo {
 };
 
 /// Every contract column a source column can be mapped to, in output order.
-const CONTRACT: [(&str, Kind); 38] = [
+const CONTRACT: [(&str, Kind); 46] = [
     ("cw_id", Kind::Integer),
     ("q1_deg", Kind::Joint),
     ("q2_deg", Kind::Joint),
@@ -254,6 +276,14 @@ const CONTRACT: [(&str, Kind); 38] = [
     ("q4_deg", Kind::Joint),
     ("q5_deg", Kind::Joint),
     ("q6_deg", Kind::Joint),
+    ("q7_deg", Kind::Joint),
+    ("q1_mm", Kind::Position),
+    ("q2_mm", Kind::Position),
+    ("q3_mm", Kind::Position),
+    ("q4_mm", Kind::Position),
+    ("q5_mm", Kind::Position),
+    ("q6_mm", Kind::Position),
+    ("q7_mm", Kind::Position),
     ("fx_n", Kind::Force),
     ("fy_n", Kind::Force),
     ("fz_n", Kind::Force),
@@ -287,9 +317,9 @@ const CONTRACT: [(&str, Kind); 38] = [
     ("measured_at", Kind::Time),
 ];
 
-const REQUIRED: [&str; 9] = [
-    "q1_deg", "q2_deg", "q3_deg", "q4_deg", "q5_deg", "q6_deg", "x_mm", "y_mm", "z_mm",
-];
+/// Required whatever the robot: the position. The joint columns the robot
+/// file needs are checked by [`ImportMeasurementsSettings::joint_map_problems`].
+const REQUIRED: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
 
 impl ColumnMap {
     fn get(&self, contract: &str) -> Option<&str> {
@@ -301,6 +331,14 @@ impl ColumnMap {
             "q4_deg" => &self.q4_deg,
             "q5_deg" => &self.q5_deg,
             "q6_deg" => &self.q6_deg,
+            "q7_deg" => &self.q7_deg,
+            "q1_mm" => &self.q1_mm,
+            "q2_mm" => &self.q2_mm,
+            "q3_mm" => &self.q3_mm,
+            "q4_mm" => &self.q4_mm,
+            "q5_mm" => &self.q5_mm,
+            "q6_mm" => &self.q6_mm,
+            "q7_mm" => &self.q7_mm,
             "fx_n" => &self.fx_n,
             "fy_n" => &self.fy_n,
             "fz_n" => &self.fz_n,
@@ -348,6 +386,41 @@ struct Checked {
 }
 
 impl ImportMeasurementsSettings {
+    /// The joint columns against the robot file's (`joints`, from
+    /// [`schema::joint_column_names`]): each of them mapped, and no other
+    /// joint column (a `q3_deg` for a prismatic joint 3, a `q7_deg` for a
+    /// six-joint arm), since its values would be dropped or read in the
+    /// wrong unit.
+    fn joint_map_problems(&self, joints: &[&'static str]) -> Vec<SettingsProblem> {
+        let mut problems = Vec::new();
+        for name in joints {
+            if self.columns.get(name).is_none() {
+                problems.push(SettingsProblem::new(
+                    &format!("columns.{name}"),
+                    format!(
+                        "required: the source column that holds `{name}` (the robot file's joints are {})",
+                        joints.join(", ")
+                    ),
+                ));
+            }
+        }
+        for name in schema::ALL_JOINT_COLUMNS
+            .iter()
+            .chain(&schema::ALL_PRISMATIC_JOINT_COLUMNS)
+        {
+            if self.columns.get(name).is_some() && !joints.contains(name) {
+                problems.push(SettingsProblem::new(
+                    &format!("columns.{name}"),
+                    format!(
+                        "the robot file has no such joint column: its joints are {}",
+                        joints.join(", ")
+                    ),
+                ));
+            }
+        }
+        problems
+    }
+
     /// The settings resolved against the job folder, or every problem with them
     /// (by key). Reads nothing: the file is only named.
     fn check(&self, job_dir: &Path) -> Result<Checked, Vec<SettingsProblem>> {
@@ -472,7 +545,9 @@ impl Stage for ImportMeasurementsStage {
         settings: &ImportMeasurementsSettings,
         ctx: &SettingsContext,
     ) -> Vec<SettingsProblem> {
-        settings.check(ctx.job_dir).err().unwrap_or_default()
+        let mut problems = settings.check(ctx.job_dir).err().unwrap_or_default();
+        problems.extend(settings.joint_map_problems(&schema::joint_column_names(ctx.robot)));
+        problems
     }
 
     /// The export read, converted and checked as `run` does it.
@@ -496,11 +571,6 @@ impl Stage for ImportMeasurementsStage {
         ctx: &StageContext,
         settings: &ImportMeasurementsSettings,
     ) -> Result<StageOutputs, StageError> {
-        super::refuse_prismatic_joints(
-            ctx.robot.spec(),
-            "import_measurements (`columns.q1_deg` … `columns.q6_deg`, `joint_unit`)",
-            "write the gantry's measurements table with its `q{i}_mm` columns and read it as a file input",
-        )?;
         let imported = import_for(ctx.robot.spec(), settings, ctx.job_dir)?;
         for note in &imported.notes {
             ctx.progress.note(note);
@@ -531,7 +601,7 @@ pub fn import_for(
     settings: &ImportMeasurementsSettings,
     job_dir: &Path,
 ) -> Result<Imported, StageError> {
-    let mut imported = import(settings, job_dir)?;
+    let mut imported = import(settings, job_dir, &schema::joint_column_names(robot))?;
     let file = job_dir.join(&settings.path);
     if super::import_source::joints_to_robot_file(
         &mut imported.measurements,
@@ -549,10 +619,16 @@ pub fn import_for(
 
 /// Reads, converts and checks the export the settings name (relative paths
 /// against `job_dir`). Reads the whole file into memory once.
-pub fn import(
+fn import(
     settings: &ImportMeasurementsSettings,
     job_dir: &Path,
+    joints: &[&'static str],
 ) -> Result<Imported, StageError> {
+    let mut problems = settings.check(job_dir).err().unwrap_or_default();
+    problems.extend(settings.joint_map_problems(joints));
+    if !problems.is_empty() {
+        return Err(settings_error(&problems));
+    }
     let checked = settings.check(job_dir).map_err(|p| settings_error(&p))?;
     let bytes = std::fs::read(&checked.file).map_err(|e| cannot_read(&checked.file, e))?;
     let source = read_source(
@@ -646,7 +722,7 @@ fn check_units(
     };
     let (columns, setting, unit) = match suspicion {
         crate::calibration::unit_checks::UnitSuspicion::JointsInRadians { .. } => (
-            sources(&schema::JOINT_COLUMNS),
+            sources(&schema::joint_column_names(robot.spec())),
             "joint_unit",
             match settings.joint_unit {
                 JointUnit::Deg => "deg",
@@ -738,8 +814,9 @@ fn build(
     };
     columns.push(Column::new("cw_id".into(), ids));
 
-    let float_names = schema::JOINT_COLUMNS
+    let float_names = schema::ALL_JOINT_COLUMNS
         .iter()
+        .chain(&schema::ALL_PRISMATIC_JOINT_COLUMNS)
         .chain(&schema::WRENCH_COLUMNS)
         .chain(&schema::POSITION_COLUMNS)
         .chain(&schema::SIGMA_COLUMNS)
@@ -857,6 +934,11 @@ mod tests {
     use super::*;
 
     /// Settings from a TOML block, as a job's stage table would give them.
+    /// [`super::import`] for the six revolute joints of the IRB 1600.
+    fn import(settings: &ImportMeasurementsSettings, dir: &Path) -> Result<Imported, StageError> {
+        super::import(settings, dir, &schema::JOINT_COLUMNS)
+    }
+
     fn settings(toml: &str) -> ImportMeasurementsSettings {
         toml::from_str(toml).unwrap()
     }
@@ -884,6 +966,70 @@ z_mm = "z"
 
     fn error(toml: &str, dir: &Path) -> String {
         import(&settings(toml), dir).unwrap_err().to_string()
+    }
+
+    /// A gantry's slides are mapped as `q{i}_mm` in `length_unit`, its wrist
+    /// as `q{i}_deg` in `joint_unit`; a seven-joint arm's `q7_deg` too. A
+    /// joint column the robot file does not have, or one of its own left
+    /// out, is refused naming the key.
+    #[test]
+    fn the_robot_file_says_which_joint_columns_an_export_maps() {
+        let dir = tempfile::tempdir().unwrap();
+        write(
+            dir.path(),
+            "g.csv",
+            "x1,x2,x3,a4,a5,a6,a7,x,y,z\n1.5,0.25,0.125,0.5,-1.0,0.25,0.1,1.0,2.0,3.0\n",
+        );
+        let gantry = crate::robot::test_support::gantry();
+        let toml = "path = \"g.csv\"\nlength_unit = \"m\"\njoint_unit = \"rad\"\n[columns]\nq1_mm = \"x1\"\nq2_mm = \"x2\"\nq3_mm = \"x3\"\nq4_deg = \"a4\"\nq5_deg = \"a5\"\nq6_deg = \"a6\"\nx_mm = \"x\"\ny_mm = \"y\"\nz_mm = \"z\"\n";
+        let df = import_for(gantry.spec(), &settings(toml), dir.path())
+            .unwrap()
+            .measurements;
+        assert_eq!(f64s(&df, "q1_mm"), [1500.0]);
+        assert_eq!(f64s(&df, "q3_mm"), [125.0]);
+        assert!((f64s(&df, "q4_deg")[0] - 0.5_f64.to_degrees()).abs() < 1e-12);
+        assert!(df.column("q1_deg").is_err());
+        schema::measurements().check(&df, Path::new("m")).unwrap();
+        let rows = schema::joint_vectors(&df, Path::new("m"), gantry.spec()).unwrap();
+        assert_eq!(rows[0][1], 250.0);
+
+        // The revolute IRB 1600 given the gantry's map; the gantry given a
+        // revolute map.
+        let irb = crate::robot::test_support::irb1600();
+        let error = import_for(irb.spec(), &settings(toml), dir.path())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.contains("columns.q1_deg") && error.contains("columns.q1_mm"),
+            "{error}"
+        );
+        let revolute = toml.replace("q1_mm", "q1_deg");
+        let error = import_for(gantry.spec(), &settings(&revolute), dir.path())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.contains("columns.q1_mm") && error.contains("q1_mm, q2_mm, q3_mm, q4_deg"),
+            "{error}"
+        );
+
+        // A seven-joint arm's seventh joint.
+        let panda = crate::robot::test_support::panda();
+        let seven = format!("path = \"g.csv\"\n{JOINTS_XYZ}q7_deg = \"a7\"\n")
+            .replace("\"a1\"", "\"x1\"")
+            .replace("\"a2\"", "\"x2\"")
+            .replace("\"a3\"", "\"x3\"");
+        let df = import_for(panda.spec(), &settings(&seven), dir.path())
+            .unwrap()
+            .measurements;
+        assert_eq!(f64s(&df, "q7_deg"), [0.1]);
+        let error = import_for(
+            panda.spec(),
+            &settings(&format!("path = \"g.csv\"\n{JOINTS_XYZ}")),
+            dir.path(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(error.contains("columns.q7_deg"), "{error}");
     }
 
     #[test]
