@@ -13,7 +13,7 @@
 
 mod common;
 
-use common::urdf::{attribute, urdf_joints, urdf_transform};
+use common::urdf::{attribute, chain, rx, ry, rz, urdf_joints, urdf_transform};
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -449,19 +449,6 @@ fn quat_matrix([w, x, y, z]: [f64; 4]) -> Matrix3<f64> {
         2.0 * (y * z + w * x),
         1.0 - 2.0 * (x * x + y * y),
     )
-}
-
-fn rx(a: f64) -> Matrix3<f64> {
-    let (s, c) = a.sin_cos();
-    Matrix3::new(1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c)
-}
-fn ry(a: f64) -> Matrix3<f64> {
-    let (s, c) = a.sin_cos();
-    Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c)
-}
-fn rz(a: f64) -> Matrix3<f64> {
-    let (s, c) = a.sin_cos();
-    Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
 }
 
 /// Quaternion of `Rot(z, a)·Rot(y, b)·Rot(x, c)` by the half-angle formula.
@@ -1119,13 +1106,7 @@ fn urdf_matches_the_model(robot: &Robot, values: &ParamValues) -> String {
     let joints = urdf_joints(&text);
     assert_eq!(joints.len(), 8);
     // The chain from `world` to `tool`, in order.
-    let mut link = "world".to_string();
-    let mut chain = Vec::new();
-    while let Some(j) = joints.iter().find(|j| j.parent == link) {
-        chain.push(j.clone());
-        link = j.child.clone();
-    }
-    assert_eq!(link, "tool");
+    let chain = chain(&joints, "world", "tool");
     assert_eq!(
         chain.iter().filter(|j| j.kind == "revolute").count(),
         robot.joint_count()

@@ -20,7 +20,7 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
 use common::tables::{f64s, read, strings};
-use common::urdf::{urdf_joints, urdf_transform};
+use common::urdf::{chain, urdf_joints, urdf_transform};
 
 fn set_of(path: &Path, spec: &RobotSpec, model: ModelName) -> ParameterSet {
     from_frame(&read(path), path, spec)
@@ -146,14 +146,7 @@ fn the_gantry_is_calibrated_compensated_and_programmed_in_millimetres_of_its_sli
 /// revolute one) equals egcal's rigid model of the fitted set at random
 /// configurations.
 fn urdf_is_the_calibrated_gantry(text: &str, robot: &Robot, fitted: &ParameterSet) {
-    let joints = urdf_joints(text);
-    let mut link = "world".to_string();
-    let mut chain = Vec::new();
-    while let Some(j) = joints.iter().find(|j| j.parent == link) {
-        chain.push(j.clone());
-        link = j.child.clone();
-    }
-    assert_eq!(link, "tool");
+    let chain = chain(&urdf_joints(text), "world", "tool");
     let kinds: Vec<&str> = chain
         .iter()
         .filter(|j| j.kind != "fixed")

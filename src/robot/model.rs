@@ -756,6 +756,17 @@ mod tests {
     use rand::SeedableRng;
     use rand::rngs::StdRng;
 
+    /// The nominal flange of `robot` at joint values `q` is at `position`
+    /// (mm, to 1e-9) with rotation `rows` (to 1e-12): an independent
+    /// script's output.
+    fn assert_flange_is(robot: &Robot, q: &[f64], position: [f64; 3], rows: [[f64; 3]; 3]) {
+        let flange = robot.nominal_flange_in_base(&crate::robot::joint_array(q));
+        let error = (flange.origin_mm - Vector3::from(position)).norm();
+        assert!(error < 1e-9, "{q:?}: {:?}, {error:e} mm", flange.origin_mm);
+        let rotation = Matrix3::from_fn(|r, c| rows[r][c]);
+        assert!((flange.rotation - rotation).norm() < 1e-12, "{q:?}");
+    }
+
     /// jobs/robots/ur10.toml (MDH) against UR's standard DH chain, computed
     /// independently by fixtures/tools/ur10_fk.py (its output pasted here).
     #[test]
@@ -790,11 +801,7 @@ mod tests {
               [0.321393804843270, -0.556670399226419, -0.766044443118978]]),
         ];
         for (q, position, rows) in cases {
-            let flange = robot.nominal_flange_in_base(&crate::robot::joint_array(&q));
-            let error = (flange.origin_mm - Vector3::from(position)).norm();
-            assert!(error < 1e-9, "{q:?}: {:?}, {error:e} mm", flange.origin_mm);
-            let rotation = Matrix3::from_fn(|r, c| rows[r][c]);
-            assert!((flange.rotation - rotation).norm() < 1e-12, "{q:?}");
+            assert_flange_is(&robot, &q, position, rows);
         }
     }
 
@@ -836,11 +843,7 @@ mod tests {
               [-0.714610177142756, 0.613092022379597, 0.336824088833465]]),
         ];
         for (q, position, rows) in cases {
-            let flange = robot.nominal_flange_in_base(&q);
-            let error = (flange.origin_mm - Vector3::from(position)).norm();
-            assert!(error < 1e-9, "{q:?}: {:?}, {error:e} mm", flange.origin_mm);
-            let rotation = Matrix3::from_fn(|r, c| rows[r][c]);
-            assert!((flange.rotation - rotation).norm() < 1e-12, "{q:?}");
+            assert_flange_is(&robot, &q, position, rows);
         }
     }
 
@@ -886,11 +889,7 @@ mod tests {
               [0.0, -0.866025403784439, -0.5]]),
         ];
         for (q, position, rows) in cases {
-            let flange = robot.nominal_flange_in_base(&crate::robot::joint_array(&q));
-            let error = (flange.origin_mm - Vector3::from(position)).norm();
-            assert!(error < 1e-9, "{q:?}: {:?}, {error:e} mm", flange.origin_mm);
-            let rotation = Matrix3::from_fn(|r, c| rows[r][c]);
-            assert!((flange.rotation - rotation).norm() < 1e-12, "{q:?}");
+            assert_flange_is(&robot, &q, position, rows);
         }
     }
 

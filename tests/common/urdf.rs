@@ -3,15 +3,15 @@
 
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
-fn rx(a: f64) -> Matrix3<f64> {
+pub fn rx(a: f64) -> Matrix3<f64> {
     let (s, c) = a.sin_cos();
     Matrix3::new(1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c)
 }
-fn ry(a: f64) -> Matrix3<f64> {
+pub fn ry(a: f64) -> Matrix3<f64> {
     let (s, c) = a.sin_cos();
     Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c)
 }
-fn rz(a: f64) -> Matrix3<f64> {
+pub fn rz(a: f64) -> Matrix3<f64> {
     let (s, c) = a.sin_cos();
     Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
 }
@@ -79,4 +79,16 @@ pub fn urdf_joints(text: &str) -> Vec<UrdfJoint> {
             }
         })
         .collect()
+}
+
+/// The joints from link `from` to link `to`, in chain order.
+pub fn chain(joints: &[UrdfJoint], from: &str, to: &str) -> Vec<UrdfJoint> {
+    let mut link = from.to_string();
+    let mut chain = Vec::new();
+    while let Some(j) = joints.iter().find(|j| j.parent == link) {
+        chain.push(j.clone());
+        link = j.child.clone();
+    }
+    assert_eq!(link, to, "the chain from {from} ends at {link}");
+    chain
 }
