@@ -303,3 +303,39 @@ fn poses_of_a_gantry_are_in_its_slides_millimetres() {
     // from the singular q5 = 0.
     assert!(f64s(&poses, "q5_deg").iter().all(|q| q.abs() >= 5.0));
 }
+
+/// `predict` names a slide's load and deflection in its units: the force
+/// along its axis (`force3_n`, N) and `dq3_mm`, which is `k3·force3_n`.
+#[test]
+fn predictions_name_a_slide_s_force_and_deflection_in_its_units() {
+    let dir = tempfile::tempdir().unwrap();
+    let gantry = common::root().join("jobs/robots/gantry.toml");
+    let campaign = common::root().join("jobs/campaigns/gantry_conf_wrenches.parquet");
+    let truth = common::root().join("jobs/truth/gantry_sim.parquet");
+    let (code, output, out) = common::stage(
+        dir.path(),
+        &gantry,
+        "predict",
+        "model = \"elastogeometric\"\n",
+        &[("conf_wrenches", &campaign), ("parameters", &truth)],
+    );
+    assert_eq!(code, 0, "{output}");
+    let predictions = read(&out.join("predictions.parquet"));
+    assert!(predictions.column("tau3_nm").is_err());
+    assert!(predictions.column("dq3_deg").is_err());
+    let k3 = set_of(&truth, &gantry_spec(), ModelName::Elastogeometric)
+        .values
+        .get(ParamId::from_name("k3").unwrap());
+    for (force, deflection) in f64s(&predictions, "force3_n")
+        .iter()
+        .zip(f64s(&predictions, "dq3_mm"))
+    {
+        assert!((deflection - k3 * force).abs() < 1e-12);
+    }
+    // The ram carries its 80 kg, the wrist's 19.5 kg and the payload's 10 kg
+    // (plus the rows' wrenches): about 1074 N on average.
+    let forces = f64s(&predictions, "force3_n");
+    let mean = forces.iter().sum::<f64>() / forces.len() as f64;
+    assert!((mean - 109.5 * 9.81).abs() < 30.0, "{mean}");
+    assert_eq!(f64s(&predictions, "tau4_nm").len(), forces.len());
+}

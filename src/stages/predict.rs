@@ -112,16 +112,31 @@ impl Stage for PredictStage {
             let v: Vec<f64> = predictions.iter().map(|p| p.position_mm[axis]).collect();
             columns.push(Column::new((*name).into(), v));
         }
-        for (joint, name) in TORQUE_COLUMNS.iter().enumerate() {
+        // A prismatic joint's load is a force (N) and its deflection mm.
+        let prismatic = ctx.robot.prismatic_joints();
+        let named = |joint: usize, revolute: &[&'static str; 6], slide: &[&'static str; 6]| {
+            if prismatic[joint] {
+                slide[joint]
+            } else {
+                revolute[joint]
+            }
+        };
+        for joint in 0..TORQUE_COLUMNS.len() {
+            let name = named(joint, &TORQUE_COLUMNS, &schema::FORCE_COLUMNS);
             let v: Vec<f64> = predictions.iter().map(|p| p.torques_nm[joint]).collect();
-            columns.push(Column::new((*name).into(), v));
+            columns.push(Column::new(name.into(), v));
         }
-        for (joint, name) in DEFLECTION_COLUMNS.iter().enumerate() {
+        for joint in 0..DEFLECTION_COLUMNS.len() {
+            let name = named(
+                joint,
+                &DEFLECTION_COLUMNS,
+                &schema::SLIDE_DEFLECTION_COLUMNS,
+            );
             let v: Vec<f64> = predictions
                 .iter()
                 .map(|p| p.deflections_deg[joint])
                 .collect();
-            columns.push(Column::new((*name).into(), v));
+            columns.push(Column::new(name.into(), v));
         }
         if let Some(set) = &set
             && let Some(covariance) = bound_covariance(ctx, set)?

@@ -1629,23 +1629,29 @@ pub fn predictions() -> TableSchema {
             "predicted SMR position in the world frame",
         ));
     }
-    for name in TORQUE_COLUMNS {
-        columns.push(col(
-            name,
-            ColumnType::Float64,
-            "N·m",
-            true,
-            "load torque on the joint (gravity and external wrench)",
-        ));
+    for (name, force) in TORQUE_COLUMNS.into_iter().zip(FORCE_COLUMNS) {
+        columns.push(ColumnSpec {
+            alternative: Some(force),
+            ..col(
+                name,
+                ColumnType::Float64,
+                "N·m",
+                true,
+                "load torque on the joint (gravity and external wrench); a prismatic joint's force{i}_n (N, along its axis) in its place",
+            )
+        });
     }
-    for name in DEFLECTION_COLUMNS {
-        columns.push(col(
-            name,
-            ColumnType::Float64,
-            "deg",
-            true,
-            "compliance deflection k_i·tau_i",
-        ));
+    for (name, slide) in DEFLECTION_COLUMNS.into_iter().zip(SLIDE_DEFLECTION_COLUMNS) {
+        columns.push(ColumnSpec {
+            alternative: Some(slide),
+            ..col(
+                name,
+                ColumnType::Float64,
+                "deg",
+                true,
+                "compliance deflection k_i·tau_i; a prismatic joint's dq{i}_mm (mm) in its place",
+            )
+        });
     }
     position_covariance_columns(&mut columns);
     TableSchema {
@@ -2233,6 +2239,14 @@ pub const TORQUE_COLUMNS: [&str; 6] = [
 pub const DEFLECTION_COLUMNS: [&str; 6] = [
     "dq1_deg", "dq2_deg", "dq3_deg", "dq4_deg", "dq5_deg", "dq6_deg",
 ];
+/// A prismatic joint's load (the force along its axis, N) in place of its
+/// `tau{i}_nm`.
+pub const FORCE_COLUMNS: [&str; 6] = [
+    "force1_n", "force2_n", "force3_n", "force4_n", "force5_n", "force6_n",
+];
+/// A prismatic joint's deflection (mm) in place of its `dq{i}_deg`.
+pub const SLIDE_DEFLECTION_COLUMNS: [&str; 6] =
+    ["dq1_mm", "dq2_mm", "dq3_mm", "dq4_mm", "dq5_mm", "dq6_mm"];
 
 /// Every table kind, for schema generation and `egcal show`.
 /// The nightly gate's decision: one row.
