@@ -42,12 +42,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         rig.move_joints(k as i64, egcal::robot::joint_array(&q_deg))?;
         rig.apply_wrench(wrench)?;
         let read_wrench = rig.read_wrench()?;
+        // Six joints: the rig reports MAX_JOINTS, zero beyond the arm's.
         let read_q = rig.read_joints()?;
         let position = rig.measure()?;
         rig.release_wrench()?;
         for (column, value) in values
             .iter_mut()
-            .zip(read_q.iter().chain(&read_wrench).chain(&position))
+            .zip(read_q[..6].iter().chain(&read_wrench).chain(&position))
         {
             column.push(*value);
         }

@@ -506,14 +506,13 @@ impl Point {
                 .filter(|k| data.orientation_of(*k).is_some())
                 .count();
             let equations = 3 * (range.len() + six_d);
-            let mut block = Mat::<f64>::zeros(equations, m + 1);
-            let mut plain = unweighted.then(|| Mat::<f64>::zeros(equations, m + 1));
+            let mut block = stream::EquationBlock::new(equations, m + 1);
+            let mut plain = unweighted.then(|| stream::EquationBlock::new(equations, m + 1));
             let mut columns = vec![Vector3::zeros(); m];
             let mut angular = vec![Vector3::zeros(); if six_d > 0 { m } else { 0 }];
             let (mut cost, mut weighted_rss, mut rss, mut max_mm, mut step_mm) =
                 (0.0, 0.0, 0.0, 0.0, 0.0);
             let (mut included, mut all_weights_one) = (0, true);
-            let mut first_equation = 0;
             for (k, (row, meas)) in rows[range.clone()]
                 .iter()
                 .zip(&measured[range.clone()])
@@ -546,34 +545,34 @@ impl Point {
                 let weight = options.loss.weight(norm);
                 let root_weight = weight.sqrt();
                 for axis in 0..3 {
-                    let equation = first_equation + axis;
-                    for (j, column) in columns.iter().enumerate() {
-                        block[(equation, j)] = root_weight * scale[axis] * column[axis];
+                    let equation = block.next_equation();
+                    for (value, column) in equation.iter_mut().zip(&columns) {
+                        *value = root_weight * scale[axis] * column[axis];
                     }
-                    block[(equation, m)] = root_weight * scaled[axis];
+                    equation[m] = root_weight * scaled[axis];
                     if let Some(plain) = plain.as_mut() {
-                        for (j, column) in columns.iter().enumerate() {
-                            plain[(equation, j)] = scale[axis] * column[axis];
+                        let equation = plain.next_equation();
+                        for (value, column) in equation.iter_mut().zip(&columns) {
+                            *value = scale[axis] * column[axis];
                         }
-                        plain[(equation, m)] = scaled[axis];
+                        equation[m] = scaled[axis];
                     }
                 }
-                first_equation += 3;
                 if let Some((r, s)) = residual_deg {
                     for axis in 0..3 {
-                        let equation = first_equation + axis;
-                        for (j, column) in angular.iter().enumerate() {
-                            block[(equation, j)] = root_weight * s * column[axis];
+                        let equation = block.next_equation();
+                        for (value, column) in equation.iter_mut().zip(&angular) {
+                            *value = root_weight * s * column[axis];
                         }
-                        block[(equation, m)] = root_weight * s * r[axis];
+                        equation[m] = root_weight * s * r[axis];
                         if let Some(plain) = plain.as_mut() {
-                            for (j, column) in angular.iter().enumerate() {
-                                plain[(equation, j)] = s * column[axis];
+                            let equation = plain.next_equation();
+                            for (value, column) in equation.iter_mut().zip(&angular) {
+                                *value = s * column[axis];
                             }
-                            plain[(equation, m)] = s * r[axis];
+                            equation[m] = s * r[axis];
                         }
                     }
-                    first_equation += 3;
                 }
                 let taking_part = scale.iter().any(|v| *v != 0.0);
                 if taking_part {
@@ -607,10 +606,10 @@ impl Point {
                 };
             }
             Sums {
-                factor: dense::triangular_factor(block),
+                factor: dense::triangular_factor(block.finish()),
                 unweighted: plain
                     .filter(|_| !all_weights_one)
-                    .map(dense::triangular_factor),
+                    .map(|plain| dense::triangular_factor(plain.finish())),
                 cost,
                 weighted_rss,
                 rss,
@@ -812,8 +811,54 @@ pub fn fit_identifiable(
     let free = analysis.independent.clone();
     check_sizes(data, free.len())?;
     let problem = Problem { free: &free, ..all };
-    let point = first.restricted(&ordered, &free);
+    let point = match warm_start(&problem, start) {
+        Some(values) => Point::at(&problem, values, None, false),
+        None => first.restricted(&ordered, &free),
+    };
     Ok((analysis, iterate(&problem, point)?))
+}
+
+/// Tables of at least this many rows start their iteration from a fit to a
+/// subsample ([`warm_start`]).
+pub const WARM_START_MIN_ROWS: usize = 100_000;
+
+/// Rows of that subsample, evenly strided over the table.
+pub const WARM_START_ROWS: usize = 20_000;
+
+/// The converged fit of `problem`'s free parameters to an evenly strided
+/// subsample of [`WARM_START_ROWS`] rows, from `start`; `None` below
+/// [`WARM_START_MIN_ROWS`] rows, for the paper's algorithm, or when that fit fails (a target or nest
+/// the subsample misses, say), and the iteration then starts from `start`.
+///
+/// Every step from `start` costs a pass over all rows; from the subsample's
+/// optimum the full problem needs one step and the pass that confirms it
+/// (plus one where that step still moved a prediction by more than
+/// `stop_step_mm`), where the start took three to five (issue #31). The
+/// optimum is the full problem's either way: only the path to it changes.
+fn warm_start(problem: &Problem<'_>, start: &ParamValues) -> Option<ParamValues> {
+    let data = problem.data;
+    let rows = data.rows.len();
+    // The paper's iteration stays the paper's, from the start.
+    if rows < WARM_START_MIN_ROWS || problem.options.algorithm == Algorithm::Paper {
+        return None;
+    }
+    let stride = rows.div_ceil(WARM_START_ROWS);
+    let sampled_rows: Vec<ConfWrench> = data.rows.iter().step_by(stride).copied().collect();
+    let sampled_mm: Vec<Vector3<f64>> = data.measured_mm.iter().step_by(stride).copied().collect();
+    let sampled_scale: Option<Vec<Vector3<f64>>> = data
+        .row_scale
+        .map(|scale| scale.iter().step_by(stride).copied().collect());
+    let sampled_orientations: Option<Vec<Option<MeasuredOrientation>>> = data
+        .orientations
+        .map(|orientations| orientations.iter().step_by(stride).copied().collect());
+    let sample = Observations {
+        rows: &sampled_rows,
+        measured_mm: &sampled_mm,
+        row_scale: sampled_scale.as_deref(),
+        orientations: sampled_orientations.as_deref(),
+    };
+    let fitted = fit(problem.robot, start, &sample, problem.free, problem.options).ok()?;
+    fitted.converged.then_some(fitted.values)
 }
 
 /// One measured position (and scale) per row, and more equations than free

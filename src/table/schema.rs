@@ -213,35 +213,42 @@ fn check_unique(df: &DataFrame, key: &str, file: &Path) -> Result<(), TableError
     let Ok(column) = df.column(key) else {
         return Ok(());
     };
-    let values: Vec<String> = match column.dtype() {
-        DataType::Int64 => column
-            .i64()
-            .map_err(|e| io_error(file, e))?
-            .iter()
-            .map(|v| format!("{v:?}"))
-            .collect(),
-        _ => column
-            .cast(&DataType::String)
-            .map_err(|e| io_error(file, e))?
-            .str()
-            .map_err(|e| io_error(file, e))?
-            .iter()
-            .map(|v| format!("{v:?}"))
-            .collect(),
+    let duplicate = |value: String, row: usize, first_row: usize| TableError::Duplicate {
+        file: file.to_path_buf(),
+        column: key.to_string(),
+        value,
+        row,
+        first_row,
     };
+    // Integer keys (ids) are compared as integers: formatting and hashing a
+    // million of them as text took a quarter of a second (issue #31).
+    if column.dtype() == &DataType::Int64 {
+        let values = column.i64().map_err(|e| io_error(file, e))?;
+        let mut seen = std::collections::HashMap::with_capacity(values.len());
+        for (row, value) in values.iter().enumerate() {
+            if let Some(first_row) = seen.insert(value, row) {
+                let shown = value.map_or_else(|| "None".to_string(), |v| v.to_string());
+                return Err(duplicate(shown, row, first_row));
+            }
+        }
+        return Ok(());
+    }
+    let values: Vec<String> = column
+        .cast(&DataType::String)
+        .map_err(|e| io_error(file, e))?
+        .str()
+        .map_err(|e| io_error(file, e))?
+        .iter()
+        .map(|v| format!("{v:?}"))
+        .collect();
     let mut seen = std::collections::HashMap::with_capacity(values.len());
     for (row, value) in values.iter().enumerate() {
         if let Some(first_row) = seen.insert(value.as_str(), row) {
-            return Err(TableError::Duplicate {
-                file: file.to_path_buf(),
-                column: key.to_string(),
-                value: value
-                    .trim_start_matches("Some(")
-                    .trim_end_matches(')')
-                    .to_string(),
-                row,
-                first_row,
-            });
+            let shown = value
+                .trim_start_matches("Some(")
+                .trim_end_matches(')')
+                .to_string();
+            return Err(duplicate(shown, row, first_row));
         }
     }
     Ok(())
