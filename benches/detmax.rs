@@ -98,7 +98,7 @@ fn large(c: &mut Criterion) {
     let (run_s, result) = timed(|| detmax::detmax(&cands, &fast).expect("selection"));
     println!(
         "summary: 100000 candidates, n = 100: fast {run_s:.2} s ({} exchanges, {} refactorisations, \
-         converged: {}); O1 start {:.6}, final {:.6}; building the candidates (batch_jacobian) {build_s:.2} s",
+         converged: {}); O1 start {:.6}, final {:.12}; building the candidates (batch_jacobian) {build_s:.2} s",
         result.trace.len(),
         result.refactorisations,
         result.converged,
