@@ -578,6 +578,9 @@ impl Stage for MeasureStage {
             ctx.progress.advance(done_count as u64 + 1);
         }
         drop(rig);
+        journal
+            .sync()
+            .map_err(|e| StageError::Failed(e.to_string()))?;
 
         let mut outputs = tables(
             &schema::joint_column_names(ctx.robot.spec()),
