@@ -377,7 +377,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 12,
+    code_version: 13,
     inputs: &[
         TableSlot {
             name: "measurements",
