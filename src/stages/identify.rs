@@ -23,7 +23,7 @@ use super::{
     StageOutputs, TableSlot, conf_wrench_rows, model_name_problem, settings_error,
 };
 use crate::calibration::fit::{
-    Algorithm, FitError, FitOptions, Loss, MeasuredOrientation, Observations,
+    Algorithm, FitError, FitOptions, Loss, MeasuredOrientation, Observations, WarmStart,
 };
 use crate::calibration::groups::Grouping;
 use crate::calibration::held::HoldOptions;
@@ -309,6 +309,7 @@ impl IdentifySettings {
             stop_step_mm: self.stop_step_mm,
             stop_relative_cost: self.stop_relative_cost,
             chunk_rows: stream::CHUNK_ROWS,
+            warm_start: Some(WarmStart::default()),
         }
     }
 
