@@ -1114,6 +1114,25 @@ mod tests {
     use rand::SeedableRng;
     use rand::rngs::StdRng;
 
+    /// The rows' positions under `truth` with Gaussian noise of `sigma_mm` per axis.
+    fn noisy_positions(
+        robot: &Robot,
+        truth: &ParamValues,
+        rows: &[ConfWrench],
+        sigma_mm: f64,
+        seed: u64,
+    ) -> Vec<Vector3<f64>> {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let normal = rand_distr::Normal::new(0.0, sigma_mm).unwrap();
+        batch_predict(robot, truth, rows)
+            .iter()
+            .map(|p| {
+                p.position_mm
+                    + Vector3::from_fn(|_, _| rand_distr::Distribution::sample(&normal, &mut rng))
+            })
+            .collect()
+    }
+
     fn random_rows(robot: &Robot, seed: u64, n: usize) -> Vec<ConfWrench> {
         let mut rng = StdRng::seed_from_u64(seed);
         (0..n)
@@ -1433,15 +1452,7 @@ mod tests {
         let truth = truth_params(&robot);
         let nominal = ParamValues::nominal(robot.spec());
         let rows = random_rows(&robot, 23, 3000);
-        let mut rng = StdRng::seed_from_u64(29);
-        let normal = rand_distr::Normal::new(0.0, 0.03).unwrap();
-        let measured: Vec<Vector3<f64>> = batch_predict(&robot, &truth, &rows)
-            .iter()
-            .map(|p| {
-                p.position_mm
-                    + Vector3::from_fn(|_, _| rand_distr::Distribution::sample(&normal, &mut rng))
-            })
-            .collect();
+        let measured = noisy_positions(&robot, &truth, &rows, 0.03, 29);
         let data = Observations::new(&rows, &measured);
         let candidates: Vec<ParamId> = ParamId::all().collect();
         let fit_with = |warm_start| {
@@ -1485,15 +1496,7 @@ mod tests {
         let truth = truth_params(&robot);
         let nominal = ParamValues::nominal(robot.spec());
         let rows = random_rows(&robot, 16, 300);
-        let mut rng = StdRng::seed_from_u64(17);
-        let normal = rand_distr::Normal::new(0.0, 0.02).unwrap();
-        let measured: Vec<Vector3<f64>> = batch_predict(&robot, &truth, &rows)
-            .iter()
-            .map(|p| {
-                p.position_mm
-                    + Vector3::from_fn(|_, _| rand_distr::Distribution::sample(&normal, &mut rng))
-            })
-            .collect();
+        let measured = noisy_positions(&robot, &truth, &rows, 0.02, 17);
         let options = FitOptions {
             algorithm: Algorithm::Paper,
             loss: Loss::Huber { threshold_mm: 0.5 },
