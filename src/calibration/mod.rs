@@ -462,7 +462,7 @@ fn robust_refit(
         },
         ..options.fit
     };
-    let huber = fit::fit(robot, &least_squares.values, data, free, &huber_options)?;
+    let huber = fit::refit(robot, &least_squares.values, data, free, &huber_options)?;
     trace.extend(huber.trace.iter().copied());
     let sigma = sigma_of(&huber);
     let threshold = robust.reject_sigmas * sigma;
@@ -486,7 +486,7 @@ fn robust_refit(
         row_scale: Some(&scales),
         ..*data
     };
-    let mut last = fit::fit(robot, &huber.values, &clean, free, &options.fit)?;
+    let mut last = fit::refit(robot, &huber.values, &clean, free, &options.fit)?;
     trace.extend(last.trace.iter().copied());
     last.trace = trace;
     Ok((
