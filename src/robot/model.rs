@@ -609,6 +609,7 @@ impl<'r> PreparedRobot<'r> {
     /// Forward chain for the (sin, cos) of each joint angle and the travel
     /// (mm) of each prismatic joint (read only for those), to `target`'s
     /// tool frame.
+    #[inline]
     fn chain_at(
         &self,
         joint_sin_cos: &[(f64, f64); MAX_JOINTS],

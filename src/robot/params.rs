@@ -357,6 +357,8 @@ impl ParamId {
         }
     }
 
+    // Inlined: the Jacobian asks for it several times per column and row.
+    #[inline]
     pub fn kind(self) -> ParamKind {
         let i = self.index();
         match i {
@@ -401,6 +403,7 @@ impl ParamId {
 
     /// The joint (0-based) an MDH error, compliance or joint-error term
     /// belongs to; `None` for frames, tracks and positioners.
+    #[inline]
     pub fn joint(self) -> Option<usize> {
         match self.kind() {
             ParamKind::Theta(i)
