@@ -854,15 +854,7 @@ pub fn fit(
     free: &[ParamId],
     options: &FitOptions,
 ) -> Result<Fit, FitError> {
-    check_sizes(data, free.len())?;
-    let problem = Problem {
-        robot,
-        data,
-        free,
-        options,
-    };
-    let point = Point::at(&problem, *start, None, false);
-    iterate(&problem, point, INITIAL_DAMPING)
+    fit_from(robot, start, data, free, options, false)
 }
 
 /// [`fit`] from the optimum of a nearby problem (the robust refits: the same
@@ -877,6 +869,18 @@ pub fn refit(
     free: &[ParamId],
     options: &FitOptions,
 ) -> Result<Fit, FitError> {
+    fit_from(robot, nearby_optimum, data, free, options, true)
+}
+
+/// [`fit`], or with `near_optimum` [`refit`].
+fn fit_from(
+    robot: &Robot,
+    start: &ParamValues,
+    data: &Observations<'_>,
+    free: &[ParamId],
+    options: &FitOptions,
+    near_optimum: bool,
+) -> Result<Fit, FitError> {
     check_sizes(data, free.len())?;
     let problem = Problem {
         robot,
@@ -884,8 +888,8 @@ pub fn refit(
         free,
         options,
     };
-    let point = Point::at(&problem, *nearby_optimum, None, false);
-    let damping = if problem.is_large() {
+    let point = Point::at(&problem, *start, None, false);
+    let damping = if near_optimum && problem.is_large() {
         0.0
     } else {
         INITIAL_DAMPING
