@@ -48,10 +48,12 @@
 //! ([`refit`]) start undamped there too. The optimum is the same; only the
 //! path to it changes.
 //!
-//! The rank analysis stays at the start even then: at a fitted point the
-//! exact dependencies of the nominal model (parallel axes) become near ones,
-//! and a 3 000-row table's 32 identifiable parameters became 37 there, five of
-//! them fitted to noise.
+//! The rank analysis stays at the start even then, but runs on the
+//! subsample ([`Subsample`], which holds every kind of row the table does):
+//! at a fitted point the exact dependencies of the nominal model (parallel
+//! axes) become near ones, and a 3 000-row table's 32 identifiable parameters
+//! became 37 there, five of them fitted to noise. So a large table's fit
+//! makes no pass over every row at the start at all.
 //!
 //! An optional Huber loss on each row's residual norm is minimised by iteratively
 //! reweighted least squares (the weights are recomputed from the residuals at
@@ -80,6 +82,7 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
 use super::rank::{self, RankAnalysis};
+use super::subsample::Subsample;
 use super::{dense, stream};
 use crate::robot::frame::rotation_vector;
 use crate::robot::{ConfWrench, PARAM_COUNT, ParamId, ParamValues, Robot};
@@ -147,7 +150,7 @@ pub struct FitOptions {
 }
 
 /// When and from how many rows [`fit_identifiable`] starts from a subsample's
-/// optimum ([`warm_start`]).
+/// optimum ([`warm_start_sample`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WarmStart {
     /// Tables of at least this many rows.
@@ -900,11 +903,16 @@ fn fit_from(
 /// Rank analysis of `candidates` at `start` ([`rank`]) and the fit of the
 /// identifiable ones from there, as [`fit`] does.
 ///
-/// The first pass serves both: it factors the Jacobian of every candidate with the
-/// residuals, unweighted for the rank analysis (and weighted, where the loss
-/// down-weights rows, for the fit), and the start point of the fit takes the
-/// identifiable columns of that factor (`Point::restricted`). So the rank
-/// analysis costs no pass of its own.
+/// On a small table the first pass serves both: it factors the Jacobian of
+/// every candidate with the residuals, unweighted for the rank analysis (and
+/// weighted, where the loss down-weights rows, for the fit), and the start
+/// point of the fit takes the identifiable columns of that factor
+/// (`Point::restricted`). So the rank analysis costs no pass of its own.
+///
+/// On a large one ([`WarmStart`]) both the rank analysis and a first fit run
+/// on a subsample that holds every kind of row the table does
+/// ([`Subsample`]), and the full iteration starts at the subsample's optimum:
+/// no pass over every row at the start at all (issue #31).
 pub fn fit_identifiable(
     robot: &Robot,
     start: &ParamValues,
@@ -921,24 +929,64 @@ pub fn fit_identifiable(
         free: &ordered,
         options,
     };
-    let first = Point::at(&all, *start, None, true);
-    let unweighted = first.sums.unweighted.as_ref().unwrap_or(&first.sums.factor);
-    let analysis = rank::analyse_factor(
-        unweighted.as_ref().subcols(0, ordered.len()),
-        &ordered,
-        rank_tolerance,
-    );
+    if let Some(subsample) = warm_start_sample(&all) {
+        let sample = subsample.observations();
+        let on_sample = Problem {
+            data: &sample,
+            ..all
+        };
+        let (analysis, first) = analyse_at_start(&on_sample, &ordered, start, rank_tolerance);
+        let free = analysis.independent.clone();
+        check_sizes(data, free.len())?;
+        let problem = Problem { free: &free, ..all };
+        // A fit that fails on the subsample (too few of its rows for the
+        // free parameters, say) leaves the whole table's iteration to start
+        // from `start`, damped, as on a small table.
+        let sample_fit = iterate(
+            &Problem {
+                free: &free,
+                ..on_sample
+            },
+            first.restricted(&ordered, &free),
+            INITIAL_DAMPING,
+        );
+        // From the subsample's optimum the Gauss–Newton step is the one to
+        // take: Marquardt's damping there only shortens it, and each
+        // shortened step costs a pass (the kinematic model of a loaded arm
+        // took four).
+        let (values, damping) = match sample_fit {
+            Ok(fitted) if fitted.converged => (fitted.values, 0.0),
+            _ => (*start, INITIAL_DAMPING),
+        };
+        let point = Point::at(&problem, values, None, false);
+        return Ok((analysis, iterate(&problem, point, damping)?));
+    }
+    let (analysis, first) = analyse_at_start(&all, &ordered, start, rank_tolerance);
     let free = analysis.independent.clone();
     check_sizes(data, free.len())?;
     let problem = Problem { free: &free, ..all };
-    // From the subsample's optimum the Gauss–Newton step is the one to take:
-    // Marquardt's damping there only shortens it, and each shortened step
-    // costs a pass (the kinematic model of a loaded arm took four).
-    let (point, damping) = match warm_start(&problem, start) {
-        Some(values) => (Point::at(&problem, values, None, false), 0.0),
-        None => (first.restricted(&ordered, &free), INITIAL_DAMPING),
-    };
-    Ok((analysis, iterate(&problem, point, damping)?))
+    Ok((
+        analysis,
+        iterate(&problem, first.restricted(&ordered, &free), INITIAL_DAMPING)?,
+    ))
+}
+
+/// The pass at `start` over `all`'s rows with every column of `ordered`,
+/// and the rank analysis of its unweighted factor.
+fn analyse_at_start(
+    all: &Problem<'_>,
+    ordered: &[ParamId],
+    start: &ParamValues,
+    rank_tolerance: f64,
+) -> (RankAnalysis, Point) {
+    let first = Point::at(all, *start, None, true);
+    let unweighted = first.sums.unweighted.as_ref().unwrap_or(&first.sums.factor);
+    let analysis = rank::analyse_factor(
+        unweighted.as_ref().subcols(0, ordered.len()),
+        ordered,
+        rank_tolerance,
+    );
+    (analysis, first)
 }
 
 /// Marquardt's λ at a cold start, relative to the unit diagonal of the scaled
@@ -946,42 +994,23 @@ pub fn fit_identifiable(
 /// rejected step.
 const INITIAL_DAMPING: f64 = 1e-3;
 
-/// The converged fit of `problem`'s free parameters to an evenly strided
-/// subsample of the options' [`WarmStart::sample_rows`] rows, from `start`;
-/// `None` without a warm start, below its `min_rows`, for the paper's
-/// algorithm, or when that fit fails (a target or nest the subsample misses,
-/// say), and the iteration then starts from `start`.
+/// The subsample of [`WarmStart::sample_rows`] rows that `problem`'s rank
+/// analysis and first fit run on; `None` without a warm start, below its
+/// `min_rows`, or for the paper's algorithm, whose iteration stays the
+/// paper's from the start.
 ///
 /// Every step from `start` costs a pass over all rows; from the subsample's
 /// optimum the full problem needs one step and the pass that confirms it
 /// (plus one where that step still moved a prediction by more than
 /// `stop_step_mm`), where the start took three to five (issue #31). The
 /// optimum is the full problem's either way: only the path to it changes.
-fn warm_start(problem: &Problem<'_>, start: &ParamValues) -> Option<ParamValues> {
-    let data = problem.data;
-    let rows = data.rows.len();
+fn warm_start_sample(problem: &Problem<'_>) -> Option<Subsample> {
     let settings = problem.options.warm_start?;
-    // The paper's iteration stays the paper's, from the start.
-    if rows < settings.min_rows || problem.options.algorithm == Algorithm::Paper {
+    if problem.data.rows.len() < settings.min_rows || problem.options.algorithm == Algorithm::Paper
+    {
         return None;
     }
-    let stride = rows.div_ceil(settings.sample_rows.max(1));
-    let sampled_rows: Vec<ConfWrench> = data.rows.iter().step_by(stride).copied().collect();
-    let sampled_mm: Vec<Vector3<f64>> = data.measured_mm.iter().step_by(stride).copied().collect();
-    let sampled_scale: Option<Vec<Vector3<f64>>> = data
-        .row_scale
-        .map(|scale| scale.iter().step_by(stride).copied().collect());
-    let sampled_orientations: Option<Vec<Option<MeasuredOrientation>>> = data
-        .orientations
-        .map(|orientations| orientations.iter().step_by(stride).copied().collect());
-    let sample = Observations {
-        rows: &sampled_rows,
-        measured_mm: &sampled_mm,
-        row_scale: sampled_scale.as_deref(),
-        orientations: sampled_orientations.as_deref(),
-    };
-    let fitted = fit(problem.robot, start, &sample, problem.free, problem.options).ok()?;
-    fitted.converged.then_some(fitted.values)
+    Some(Subsample::of(problem.data, settings.sample_rows))
 }
 
 /// One measured position (and scale) per row, and more equations than free
@@ -1595,6 +1624,40 @@ mod tests {
             );
         }
         assert!((warm.residual_rms_mm - cold.residual_rms_mm).abs() < 1e-9);
+    }
+
+    /// On a large table the rank analysis runs on the subsample: a second
+    /// target measured on five rows only, all between the stride's rows, is
+    /// still found identifiable, as the whole table's analysis finds it.
+    #[test]
+    fn the_subsample_s_rank_analysis_keeps_a_target_measured_on_few_rows() {
+        let robot = irb1600();
+        let truth = truth_params(&robot);
+        let nominal = ParamValues::nominal(robot.spec());
+        let mut rows = random_rows(&robot, 31, 3000);
+        for k in [1, 2, 3, 4, 5] {
+            rows[k].target = 1;
+        }
+        let measured = noisy_positions(&robot, &truth, &rows, 0.03, 37);
+        let data = Observations::new(&rows, &measured);
+        let candidates: Vec<ParamId> = ParamId::all_with_targets(6, 2).collect();
+        let fit_with = |warm_start| {
+            let options = FitOptions {
+                warm_start,
+                ..FitOptions::default()
+            };
+            fit_identifiable(&robot, &nominal, &data, &candidates, 1e-6, &options).unwrap()
+        };
+        let (whole_rank, whole) = fit_with(None);
+        let (sample_rank, sampled) = fit_with(Some(WarmStart {
+            min_rows: 1000,
+            sample_rows: 500,
+        }));
+        let second_target = ParamId::all_with_targets(6, 2).last().unwrap();
+        assert!(whole_rank.independent.contains(&second_target));
+        assert_eq!(whole_rank.independent, sample_rank.independent);
+        assert!(whole.converged && sampled.converged);
+        assert!((sampled.residual_rms_mm - whole.residual_rms_mm).abs() < 1e-9);
     }
 
     /// A Huber refit from the least-squares optimum (a few gross rows among

@@ -17,6 +17,7 @@ pub mod robust;
 pub mod row_checks;
 pub mod selection;
 pub mod stream;
+mod subsample;
 pub mod uncertainty;
 pub mod unit_checks;
 
