@@ -129,7 +129,7 @@ pub fn write_parquet(
 /// Two runs that produce the same table give the same hash even though their
 /// provenance (creation time, cache key) differs; downstream cache keys use this.
 pub fn content_hash(df: &DataFrame) -> String {
-    let mut hasher = blake3::Hasher::new();
+    let mut hasher = BufferedHasher::default();
     hasher.update(&(df.height() as u64).to_le_bytes());
     for column in df.columns() {
         hasher.update(column.name().as_bytes());
@@ -175,7 +175,45 @@ pub fn content_hash(df: &DataFrame) -> String {
     hasher.finalize().to_hex().to_string()
 }
 
-fn hash_option(hasher: &mut blake3::Hasher, value: Option<u64>) {
+/// Blake3 fed in 64 KiB pieces: the hash of a stream does not depend on how
+/// it is cut, and an `update` per 8-byte value cost 0.6 s for a
+/// million-row table (issue #31).
+struct BufferedHasher {
+    hasher: blake3::Hasher,
+    pending: Vec<u8>,
+}
+
+impl Default for BufferedHasher {
+    fn default() -> Self {
+        BufferedHasher {
+            hasher: blake3::Hasher::new(),
+            pending: Vec::with_capacity(Self::PIECE_BYTES),
+        }
+    }
+}
+
+impl BufferedHasher {
+    const PIECE_BYTES: usize = 64 * 1024;
+
+    fn update(&mut self, bytes: &[u8]) {
+        if self.pending.len() + bytes.len() > Self::PIECE_BYTES {
+            self.hasher.update(&self.pending);
+            self.pending.clear();
+        }
+        if bytes.len() > Self::PIECE_BYTES {
+            self.hasher.update(bytes);
+        } else {
+            self.pending.extend_from_slice(bytes);
+        }
+    }
+
+    fn finalize(mut self) -> blake3::Hash {
+        self.hasher.update(&self.pending);
+        self.hasher.finalize()
+    }
+}
+
+fn hash_option(hasher: &mut BufferedHasher, value: Option<u64>) {
     match value {
         Some(v) => {
             hasher.update(&[1]);
@@ -231,6 +269,29 @@ mod tests {
         assert_eq!(content_hash(&a), content_hash(&a.clone()));
         assert_ne!(content_hash(&a), content_hash(&b));
         assert_ne!(content_hash(&a), content_hash(&c));
+    }
+
+    /// Buffering changes nothing: small pieces, pieces across the buffer's
+    /// edge and pieces larger than it hash as the whole stream does.
+    #[test]
+    fn the_buffered_hasher_hashes_the_stream() {
+        let stream: Vec<u8> = (0..300_000_u32).map(|i| (i * 7 % 251) as u8).collect();
+        let mut buffered = BufferedHasher::default();
+        let mut at = 0;
+        for (k, piece) in [1, 8, 9, 70_000, 3, 100_000, 65_536]
+            .iter()
+            .cycle()
+            .enumerate()
+        {
+            if at == stream.len() || k > 100 {
+                break;
+            }
+            let end = (at + piece).min(stream.len());
+            buffered.update(&stream[at..end]);
+            at = end;
+        }
+        buffered.update(&stream[at..]);
+        assert_eq!(buffered.finalize(), blake3::hash(&stream));
     }
 
     #[test]
