@@ -609,7 +609,9 @@ impl<'r> PreparedRobot<'r> {
     /// Forward chain for the (sin, cos) of each joint angle and the travel
     /// (mm) of each prismatic joint (read only for those), to `target`'s
     /// tool frame.
-    #[inline]
+    // Always inlined, as `loaded_chains` is: returned through memory, each
+    // chain's 800 bytes of frames were copied twice per row (issue #31).
+    #[inline(always)]
     fn chain_at(
         &self,
         joint_sin_cos: &[(f64, f64); MAX_JOINTS],
@@ -646,6 +648,7 @@ impl<'r> PreparedRobot<'r> {
     /// angles reuse the undeflected sines and cosines through the angle-sum
     /// formula, which halves the trigonometry. The row's tool frame carries the
     /// payload and the wrench.
+    #[inline(always)]
     pub(crate) fn loaded_chains(&self, row: &ConfWrench) -> LoadedChains {
         let ConfWrench {
             q_deg,
