@@ -334,21 +334,28 @@ impl PreparedRobot<'_> {
         let deflection_rates: [Vector3<f64>; MAX_JOINTS] =
             std::array::from_fn(|i| joint_rates[i] * self.compliance(i));
         let gravity = Vector3::from(robot.spec().gravity_mps2);
-        let maps = DeflectionMaps::new(
-            &undeflected,
-            &loads,
-            &gravity,
-            &deflection_rates,
-            &prismatic,
-        );
+        let joints = undeflected.joint_count;
+        // Without compliance (the kinematic model, nominal values) every map
+        // is zero: a geometric column is its screw's velocity alone, and
+        // neither the maps nor the screws on the undeflected chain are needed
+        // (a quarter of the kinematic model's pass, issue #31).
+        let compliant = (0..joints).any(|i| self.compliance(i) != 0.0);
+        let maps = compliant.then(|| {
+            DeflectionMaps::new(
+                &undeflected,
+                &loads,
+                &gravity,
+                &deflection_rates,
+                &prismatic,
+            )
+        });
         // The same maps for the tool's rotation.
-        let angular_maps = angular.is_some().then(|| {
+        let angular_maps = (compliant && angular.is_some()).then(|| {
             let rates: [Vector3<f64>; MAX_JOINTS] =
                 std::array::from_fn(|i| joint_turns[i] * self.compliance(i));
             DeflectionMaps::new(&undeflected, &loads, &gravity, &rates, &prismatic)
         });
 
-        let joints = undeflected.joint_count;
         for (j, (column, &id)) in columns.iter_mut().zip(selected).enumerate() {
             let mut rotation_deg = Vector3::zeros();
             *column = match id.kind() {
@@ -388,20 +395,30 @@ impl PreparedRobot<'_> {
                     let (screw, _) = self
                         .chain_screw(id, &deflected)
                         .expect("geometric parameter has a screw");
-                    let (torque_screw, first_body) = self
-                        .chain_screw(id, &undeflected)
-                        .expect("geometric parameter has a screw");
-                    let twist = torque_screw.twist_si();
-                    if let Some(angular_maps) = angular_maps.as_ref() {
-                        let own = match screw {
-                            Screw::Rotation { axis, .. } => axis,
-                            Screw::Translation { .. } => Vector3::zeros(),
-                        };
-                        rotation_deg =
-                            world.rotation * (own + angular_maps.velocity(first_body, &twist));
-                    }
-                    let rate = screw.velocity_at(&tool_base) * screw.per_unit()
-                        + maps.velocity(first_body, &twist);
+                    let own_turn = || match screw {
+                        Screw::Rotation { axis, .. } => axis,
+                        Screw::Translation { .. } => Vector3::zeros(),
+                    };
+                    let own_rate = screw.velocity_at(&tool_base) * screw.per_unit();
+                    let rate = match &maps {
+                        Some(maps) => {
+                            let (torque_screw, first_body) = self
+                                .chain_screw(id, &undeflected)
+                                .expect("geometric parameter has a screw");
+                            let twist = torque_screw.twist_si();
+                            if let Some(angular_maps) = angular_maps.as_ref() {
+                                rotation_deg = world.rotation
+                                    * (own_turn() + angular_maps.velocity(first_body, &twist));
+                            }
+                            own_rate + maps.velocity(first_body, &twist)
+                        }
+                        None => {
+                            if angular.is_some() {
+                                rotation_deg = world.rotation * own_turn();
+                            }
+                            own_rate
+                        }
+                    };
                     world.rotation * rate
                 }
             };
