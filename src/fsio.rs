@@ -39,6 +39,38 @@ pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
     write_atomic(path, |f| f.write_all(bytes))
 }
 
+/// Puts a durable file's bytes at `path` atomically: a hard link to `source`
+/// where both are on one file system (no copy, no second fsync of the data:
+/// a million-row table's was 0.3 s a stage, issue #31), else a copy. The
+/// two names then share the bytes, so `source` must never be written in
+/// place (cache entries never are: they are verified by hash before reuse).
+pub fn link_or_copy_atomic(source: &Path, path: &Path) -> io::Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    fs::create_dir_all(dir)?;
+    let tmp = temp_path(path);
+    if fs::hard_link(source, &tmp).is_err() {
+        return write_bytes_atomic(path, &fs::read(source)?);
+    }
+    let result = fs::rename(&tmp, path).and_then(|()| sync_dir(dir));
+    if result.is_err() {
+        let _ = fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// Whether two paths name the same file (one inode, as after
+/// [`link_or_copy_atomic`]).
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (fs::metadata(a), fs::metadata(b)) {
+        (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+        _ => false,
+    }
+}
+
 /// Makes a rename or a new file in `dir` durable.
 pub fn sync_dir(dir: &Path) -> io::Result<()> {
     File::open(dir)?.sync_all()
@@ -67,6 +99,23 @@ pub fn hash_file(path: &Path) -> io::Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_link_replaces_the_target_shares_the_bytes_and_leaves_no_temp() {
+        let dir = tempfile::tempdir().unwrap();
+        let source = dir.path().join("cache.bin");
+        let target = dir.path().join("out").join("published.bin");
+        write_bytes_atomic(&source, b"new").unwrap();
+        write_bytes_atomic(&target, b"old").unwrap();
+        link_or_copy_atomic(&source, &target).unwrap();
+        assert_eq!(fs::read(&target).unwrap(), b"new");
+        assert!(same_file(&source, &target));
+        assert_eq!(fs::read_dir(target.parent().unwrap()).unwrap().count(), 1);
+        // Replacing the target later (atomically) leaves the source alone.
+        write_bytes_atomic(&target, b"other").unwrap();
+        assert_eq!(fs::read(&source).unwrap(), b"new");
+        assert!(!same_file(&source, &target));
+    }
 
     #[test]
     fn atomic_write_replaces_and_leaves_no_temp() {

@@ -644,7 +644,8 @@ fn load_inputs(
     Ok(inputs)
 }
 
-/// Copies a cache entry's tables and files to `<output>/<stage>/`, unless already identical.
+/// Links (or copies) a cache entry's tables and files to `<output>/<stage>/`,
+/// unless already identical.
 fn publish(layout: &Layout, stage: &str, key: &str, manifest: &Manifest) -> Result<(), TableError> {
     let tables = manifest.tables.iter().map(|(name, t)| {
         (
@@ -661,11 +662,11 @@ fn publish(layout: &Layout, stage: &str, key: &str, manifest: &Manifest) -> Resu
         )
     });
     for (target, source, hash) in tables.chain(files) {
-        if fsio::hash_file(&target).ok().as_ref() == Some(hash) {
+        if fsio::same_file(&source, &target) || fsio::hash_file(&target).ok().as_ref() == Some(hash)
+        {
             continue;
         }
-        let bytes = std::fs::read(&source).map_err(|e| table::schema::io_error(&target, e))?;
-        fsio::write_bytes_atomic(&target, &bytes)
+        fsio::link_or_copy_atomic(&source, &target)
             .map_err(|e| table::schema::io_error(&target, e))?;
     }
     Ok(())
