@@ -284,9 +284,15 @@ impl Stage for GateStage {
         let measurements = ctx.input("measurements")?;
         let mut window = measured_rows(measurements, ctx.robot.spec(), None)?;
         let holdout_ids = ids_with_role(ctx.input("selection")?, "validation")?;
-        let mut holdout = measured_rows(measurements, ctx.robot.spec(), Some(&holdout_ids))?;
-        holdout.leave_out_bad_rows(ctx.robot, &measurements.path);
         let left_out = window.leave_out_bad_rows(ctx.robot, &measurements.path);
+        // The hold-out rows are window rows: taken from the converted and
+        // checked window rather than converting the table again.
+        let in_holdout: Vec<bool> = window
+            .ids
+            .iter()
+            .map(|id| holdout_ids.contains(id))
+            .collect();
+        let holdout = window.subset(&in_holdout);
         if let Some(summary) = &left_out {
             ctx.progress.note(&format!("warning: {summary}"));
         }

@@ -2596,14 +2596,30 @@ pub fn all() -> Vec<TableSchema> {
 pub fn f64_values(df: &DataFrame, name: &str, file: &Path) -> Result<Vec<f64>, TableError> {
     let column = df.column(name).map_err(|e| io_error(file, e))?;
     let values = column.f64().map_err(|e| io_error(file, e))?;
-    Ok(values.iter().map(|v| v.unwrap_or(f64::NAN)).collect())
+    Ok(values_or(values, f64::NAN))
+}
+
+/// A column's values with nulls as `null`: without nulls, copied as slices (a value at a time through `Option`s, a million-row table's
+/// columns took a tenth of a second each, issue #31).
+fn values_or<T>(values: &ChunkedArray<T>, null: T::Native) -> Vec<T::Native>
+where
+    T: PolarsNumericType,
+{
+    if values.null_count() > 0 {
+        return values.iter().map(|v| v.unwrap_or(null)).collect();
+    }
+    let mut out = Vec::with_capacity(values.len());
+    for chunk in values.downcast_iter() {
+        out.extend_from_slice(chunk.values().as_slice());
+    }
+    out
 }
 
 /// Values of a required i64 column (after [`TableSchema::check`]).
 pub fn i64_values(df: &DataFrame, name: &str, file: &Path) -> Result<Vec<i64>, TableError> {
     let column = df.column(name).map_err(|e| io_error(file, e))?;
     let values = column.i64().map_err(|e| io_error(file, e))?;
-    Ok(values.iter().map(|v| v.unwrap_or_default()).collect())
+    Ok(values_or(values, 0))
 }
 
 /// Values of an optional column the schema does not declare: `None` when the
