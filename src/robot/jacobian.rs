@@ -294,12 +294,14 @@ impl PreparedRobot<'_> {
         if let Some((chain, nest_mm)) = self.positioner_nest(row) {
             return self.positioner_jacobian_row(row, &chain, &nest_mm, selected, columns, angular);
         }
+        // Borrowed, not destructured: moving the chains out copied 2 kB a row.
+        let chains = self.loaded_chains(row);
         let LoadedChains {
             undeflected,
             loads,
             deflections_deg,
             deflected,
-        } = self.loaded_chains(row);
+        } = &chains;
         // The chain hangs from the world frame through the carriage (the
         // world frame alone without a track); the world parameters move
         // both, the chain's move what hangs from the carriage.
@@ -430,7 +432,7 @@ impl PreparedRobot<'_> {
             Prediction {
                 position_mm,
                 torques_nm: loads.torques_nm,
-                deflections_deg,
+                deflections_deg: *deflections_deg,
             },
             world.rotation * deflected.tool.rotation,
         )
