@@ -343,19 +343,13 @@ impl PreparedRobot<'_> {
         // (a quarter of the kinematic model's pass, issue #31).
         let compliant = (0..joints).any(|i| self.compliance(i) != 0.0);
         let maps = compliant.then(|| {
-            DeflectionMaps::new(
-                &undeflected,
-                &loads,
-                &gravity,
-                &deflection_rates,
-                &prismatic,
-            )
+            DeflectionMaps::new(undeflected, loads, &gravity, &deflection_rates, &prismatic)
         });
         // The same maps for the tool's rotation.
         let angular_maps = (compliant && angular.is_some()).then(|| {
             let rates: [Vector3<f64>; MAX_JOINTS] =
                 std::array::from_fn(|i| joint_turns[i] * self.compliance(i));
-            DeflectionMaps::new(&undeflected, &loads, &gravity, &rates, &prismatic)
+            DeflectionMaps::new(undeflected, loads, &gravity, &rates, &prismatic)
         });
 
         for (j, (column, &id)) in columns.iter_mut().zip(selected).enumerate() {
@@ -395,7 +389,7 @@ impl PreparedRobot<'_> {
                 }
                 _ => {
                     let (screw, _) = self
-                        .chain_screw(id, &deflected)
+                        .chain_screw(id, deflected)
                         .expect("geometric parameter has a screw");
                     let own_turn = || match screw {
                         Screw::Rotation { axis, .. } => axis,
@@ -405,7 +399,7 @@ impl PreparedRobot<'_> {
                     let rate = match &maps {
                         Some(maps) => {
                             let (torque_screw, first_body) = self
-                                .chain_screw(id, &undeflected)
+                                .chain_screw(id, undeflected)
                                 .expect("geometric parameter has a screw");
                             let twist = torque_screw.twist_si();
                             if let Some(angular_maps) = angular_maps.as_ref() {
