@@ -14,12 +14,7 @@ pub fn write_atomic<F>(path: &Path, write: F) -> io::Result<()>
 where
     F: FnOnce(&mut File) -> io::Result<()>,
 {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    fs::create_dir_all(dir)?;
-    let tmp = temp_path(path);
+    let (dir, tmp) = prepare_dir_and_temp(path)?;
     let result = (|| {
         let mut file = File::create(&tmp)?;
         write(&mut file)?;
@@ -45,12 +40,7 @@ pub fn write_bytes_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
 /// two names then share the bytes, so `source` must never be written in
 /// place (cache entries never are: they are verified by hash before reuse).
 pub fn link_or_copy_atomic(source: &Path, path: &Path) -> io::Result<()> {
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    fs::create_dir_all(dir)?;
-    let tmp = temp_path(path);
+    let (dir, tmp) = prepare_dir_and_temp(path)?;
     if fs::hard_link(source, &tmp).is_err() {
         return write_bytes_atomic(path, &fs::read(source)?);
     }
@@ -69,6 +59,16 @@ pub fn same_file(a: &Path, b: &Path) -> bool {
         (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
         _ => false,
     }
+}
+
+/// The folder of `path` (created) and a temporary sibling to rename over it.
+fn prepare_dir_and_temp(path: &Path) -> io::Result<(&Path, PathBuf)> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    fs::create_dir_all(dir)?;
+    Ok((dir, temp_path(path)))
 }
 
 /// Makes a rename or a new file in `dir` durable.
