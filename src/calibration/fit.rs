@@ -929,46 +929,40 @@ pub fn fit_identifiable(
         free: &ordered,
         options,
     };
-    if let Some(subsample) = warm_start_sample(&all) {
-        let sample = subsample.observations();
-        let on_sample = Problem {
-            data: &sample,
-            ..all
-        };
-        let (analysis, first) = analyse_at_start(&on_sample, &ordered, start, rank_tolerance);
-        let free = analysis.independent.clone();
-        check_sizes(data, free.len())?;
-        let problem = Problem { free: &free, ..all };
-        // A fit that fails on the subsample (too few of its rows for the
-        // free parameters, say) leaves the whole table's iteration to start
-        // from `start`, damped, as on a small table.
-        let sample_fit = iterate(
-            &Problem {
-                free: &free,
-                ..on_sample
-            },
-            first.restricted(&ordered, &free),
-            INITIAL_DAMPING,
-        );
-        // From the subsample's optimum the Gauss–Newton step is the one to
-        // take: Marquardt's damping there only shortens it, and each
-        // shortened step costs a pass (the kinematic model of a loaded arm
-        // took four).
-        let (values, damping) = match sample_fit {
-            Ok(fitted) if fitted.converged => (fitted.values, 0.0),
-            _ => (*start, INITIAL_DAMPING),
-        };
-        let point = Point::at(&problem, values, None, false);
-        return Ok((analysis, iterate(&problem, point, damping)?));
-    }
-    let (analysis, first) = analyse_at_start(&all, &ordered, start, rank_tolerance);
+    let subsample = warm_start_sample(&all);
+    let sample = subsample.as_ref().map(Subsample::observations);
+    let analysed = Problem {
+        data: sample.as_ref().unwrap_or(data),
+        ..all
+    };
+    let (analysis, first) = analyse_at_start(&analysed, &ordered, start, rank_tolerance);
     let free = analysis.independent.clone();
     check_sizes(data, free.len())?;
     let problem = Problem { free: &free, ..all };
-    Ok((
-        analysis,
-        iterate(&problem, first.restricted(&ordered, &free), INITIAL_DAMPING)?,
-    ))
+    let first = first.restricted(&ordered, &free);
+    let (point, damping) = match &sample {
+        // A small table: the first pass is the fit's start.
+        None => (first, INITIAL_DAMPING),
+        // A large one: fit the subsample from its first pass, then start the
+        // whole table's iteration at its optimum with the Gauss–Newton step
+        // (Marquardt's damping there only shortens it, and each shortened
+        // step costs a pass: the kinematic model of a loaded arm took four).
+        // A fit that fails on the subsample leaves the whole table to start
+        // from `start`, damped, as a small table does.
+        Some(_) => {
+            let sample_problem = Problem {
+                free: &free,
+                ..analysed
+            };
+            match iterate(&sample_problem, first, INITIAL_DAMPING) {
+                Ok(fitted) if fitted.converged => {
+                    (Point::at(&problem, fitted.values, None, false), 0.0)
+                }
+                _ => (Point::at(&problem, *start, None, false), INITIAL_DAMPING),
+            }
+        }
+    };
+    Ok((analysis, iterate(&problem, point, damping)?))
 }
 
 /// The pass at `start` over `all`'s rows with every column of `ordered`,
