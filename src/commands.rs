@@ -12,10 +12,11 @@ use std::path::{Path, PathBuf};
 use polars::prelude::*;
 
 use crate::cdpr::CableRobotSpec;
-use crate::gate::Decision;
+use crate::exit_code::{self, Finished};
 use crate::job::{InputSource, JobOverrides, JobProblems, Plan};
+use crate::job_run;
 use crate::robot::{Robot, RobotSpec};
-use crate::runner::{self, RunError, RunOptions, progress::Reporter};
+use crate::runner::{self, RunError, RunOptions};
 use crate::stages::{self, InputTable, StageContext, StageError};
 use crate::table::{self, Provenance, TableError};
 
@@ -43,67 +44,6 @@ pub enum CommandError {
     Fixture(Box<crate::fixture_cases::FixtureError>),
 }
 
-/// Exit codes (documented in the README).
-pub mod exit {
-    pub const OK: u8 = 0;
-    pub const INTERNAL: u8 = 1;
-    /// Bad job file, robot file, table or arguments: fix the input.
-    pub const BAD_INPUT: u8 = 2;
-    /// A stage failed while running.
-    pub const STAGE_FAILED: u8 = 3;
-    /// Another run holds the output folder's lock.
-    pub const LOCKED: u8 = 5;
-    /// A gate stage published a new calibration (the run itself succeeded).
-    pub const GATE_PUBLISHED: u8 = 10;
-    /// A gate stage refused a candidate that should have replaced the calibration
-    /// in service: a person should look (the run itself succeeded).
-    pub const GATE_REFUSED: u8 = 11;
-}
-
-/// What a successful command prints, and its exit code: [`exit::OK`], or a gate
-/// stage's decision.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Finished {
-    pub message: String,
-    pub code: u8,
-}
-
-impl From<String> for Finished {
-    fn from(message: String) -> Self {
-        Finished {
-            message,
-            code: exit::OK,
-        }
-    }
-}
-
-/// The exit code of gate decisions, the most urgent first: refused, published, kept.
-fn gate_code(decisions: &[Decision]) -> u8 {
-    if decisions.contains(&Decision::Refused) {
-        exit::GATE_REFUSED
-    } else if decisions.contains(&Decision::Published) {
-        exit::GATE_PUBLISHED
-    } else {
-        exit::OK
-    }
-}
-
-/// The decision a gate stage wrote into `dir/decision.parquet`.
-fn gate_decision(dir: &Path) -> Result<Decision, CommandError> {
-    let path = dir.join("decision.parquet");
-    let df = table::read_checked(&path, &table::schema::gate_decision())?;
-    let values = table::schema::str_values(&df, "decision", &path)?;
-    let text = values.first().cloned().flatten().unwrap_or_default();
-    Decision::parse(&text).ok_or_else(|| {
-        CommandError::Table(Box::new(TableError::BadValue {
-            file: path,
-            column: "decision".into(),
-            row: 0,
-            message: format!("expected kept, published or refused, found `{text}`"),
-        }))
-    })
-}
-
 impl From<TableError> for CommandError {
     fn from(e: TableError) -> Self {
         CommandError::Table(Box::new(e))
@@ -122,27 +62,12 @@ impl CommandError {
             CommandError::Usage(_)
             | CommandError::Job(_)
             | CommandError::Table(_)
-            | CommandError::Robot(_) => exit::BAD_INPUT,
-            CommandError::Stage { source, .. } => stage_code(source),
+            | CommandError::Robot(_) => exit_code::BAD_INPUT,
+            CommandError::Stage { source, .. } => exit_code::of_stage_error(source),
             CommandError::Fleet(e) => e.exit_code(),
             CommandError::Fixture(e) => e.exit_code(),
-            CommandError::Run(e) => match e.as_ref() {
-                RunError::Lock(runner::lock::LockError::Held { .. }) => exit::LOCKED,
-                RunError::Lock(_) | RunError::Io { .. } => exit::INTERNAL,
-                RunError::UnknownStage(..)
-                | RunError::MissingUpstream { .. }
-                | RunError::Table { .. } => exit::BAD_INPUT,
-                RunError::InputChanged { .. } => exit::STAGE_FAILED,
-                RunError::Stage { source, .. } => stage_code(source),
-            },
+            CommandError::Run(e) => exit_code::of_run_error(e),
         }
-    }
-}
-
-fn stage_code(e: &StageError) -> u8 {
-    match e {
-        StageError::Table(_) | StageError::Invalid(_) => exit::BAD_INPUT,
-        StageError::Failed(_) => exit::STAGE_FAILED,
     }
 }
 
@@ -154,47 +79,7 @@ pub fn run(
     quiet: bool,
 ) -> Result<Finished, CommandError> {
     let plan = Plan::load_with(job, overrides)?;
-    run_plan(plan, options, quiet)
-}
-
-/// Runs a loaded plan (`egcal run`, and each robot-night of a fleet); the exit code
-/// is the most urgent of its gate stages' decisions.
-pub fn run_plan(
-    mut plan: Plan,
-    options: &RunOptions,
-    quiet: bool,
-) -> Result<Finished, CommandError> {
-    if let Some(day) = options.run_date {
-        plan.run_date = day;
-    }
-    let reporter = Reporter::new(quiet);
-    let outcomes = runner::run(&plan, options, &reporter)?;
-    let ran = outcomes
-        .iter()
-        .filter(|(_, o)| matches!(o, runner::Outcome::Ran { .. }))
-        .count();
-    let mut message = format!(
-        "{}: {} stage(s), {ran} ran, {} cached; outputs in {}",
-        plan.name,
-        outcomes.len(),
-        outcomes.len() - ran,
-        plan.output_dir.display()
-    );
-    let mut decisions = Vec::new();
-    for (id, _) in &outcomes {
-        let is_gate = plan
-            .stage_index(id)
-            .is_some_and(|i| plan.stages[i].kind.info().kind == "gate");
-        if is_gate {
-            let decision = gate_decision(&plan.output_dir.join(id))?;
-            write!(message, "\n{id}: {}", decision.as_str()).expect("write to string");
-            decisions.push(decision);
-        }
-    }
-    Ok(Finished {
-        message,
-        code: gate_code(&decisions),
-    })
+    Ok(job_run::run_plan(plan, options, quiet)?)
 }
 
 /// `egcal status`.
@@ -423,9 +308,9 @@ pub fn stage(
         .map(|(name, value)| format!("\n  {name} = {value}"))
         .collect();
     let code = if kind == "gate" {
-        gate_code(&[gate_decision(out_dir)?])
+        job_run::gate_code(&[job_run::gate_decision(out_dir)?])
     } else {
-        exit::OK
+        exit_code::OK
     };
     Ok(Finished {
         message: format!("{kind}: wrote {}{facts}", written.join(", ")),

@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use egcal::commands::{self, CommandError, Finished};
+use egcal::commands::{self, CommandError};
+use egcal::exit_code::Finished;
 use egcal::job::JobOverrides;
 use egcal::runner::RunOptions;
 

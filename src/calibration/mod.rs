@@ -10,6 +10,7 @@ mod dense;
 pub mod fit;
 pub mod groups;
 pub mod held;
+pub mod parameter_set;
 pub mod rank;
 pub mod registration;
 pub mod residual;
@@ -24,9 +25,9 @@ pub mod unit_checks;
 use nalgebra::Vector3;
 
 use crate::robot::{Frame, ParamId, ParamValues, Robot};
-use crate::table::parameters::{ModelName, ParamStatus, ParameterSet};
 use fit::{FitError, FitOptions, Iteration, Loss, Observations, Stop};
 use held::{Hold, HoldOptions};
+use parameter_set::{ModelName, ParamStatus, ParameterSet};
 use rank::RankAnalysis;
 use robust::RobustOptions;
 use selection::SelectionRule;

@@ -39,9 +39,9 @@ pub enum FixtureError {
 impl FixtureError {
     pub fn exit_code(&self) -> u8 {
         match self {
-            FixtureError::Usage(_) => crate::commands::exit::BAD_INPUT,
-            FixtureError::Record(_) => crate::commands::exit::STAGE_FAILED,
-            FixtureError::Write { .. } => crate::commands::exit::INTERNAL,
+            FixtureError::Usage(_) => crate::exit_code::BAD_INPUT,
+            FixtureError::Record(_) => crate::exit_code::STAGE_FAILED,
+            FixtureError::Write { .. } => crate::exit_code::INTERNAL,
         }
     }
 }

@@ -443,8 +443,8 @@ fn check_expectations(case: &Case, ran: &Ran, out: &Path) -> Result<(), String> 
     }
     if let Some(error) = &expect.error {
         let decided = [
-            i32::from(crate::commands::exit::GATE_PUBLISHED),
-            i32::from(crate::commands::exit::GATE_REFUSED),
+            i32::from(crate::exit_code::GATE_PUBLISHED),
+            i32::from(crate::exit_code::GATE_REFUSED),
         ];
         if code == 0 || (expect.exit.is_none() && decided.contains(&code)) {
             return Err(format!(

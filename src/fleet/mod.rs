@@ -59,12 +59,12 @@ impl FleetError {
 
     /// Exit code: bad fleet file or arguments 2, Slurm or storage trouble 3.
     pub fn exit_code(&self) -> u8 {
-        use crate::commands::exit;
+        use crate::exit_code;
         match self {
             FleetError::File { .. } | FleetError::Usage(_) | FleetError::Table(_) => {
-                exit::BAD_INPUT
+                exit_code::BAD_INPUT
             }
-            FleetError::Io { .. } | FleetError::Slurm(_) => exit::STAGE_FAILED,
+            FleetError::Io { .. } | FleetError::Slurm(_) => exit_code::STAGE_FAILED,
         }
     }
 }

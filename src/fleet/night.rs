@@ -7,8 +7,9 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::{Fleet, FleetError};
-use crate::commands::{self, CommandError, exit};
+use crate::exit_code::{self, Finished};
 use crate::job::Plan;
+use crate::job_run;
 use crate::runner::RunOptions;
 use crate::table::{self, time::date_string};
 
@@ -127,23 +128,23 @@ pub fn run_night(
             .cloned()
             .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
             .unwrap_or_default();
-        Err((exit::INTERNAL, format!("internal error: {what}")))
+        Err((exit_code::INTERNAL, format!("internal error: {what}")))
     });
-    let (exit_code, message, gates) = match ran {
+    let (code, message, gates) = match ran {
         Ok((finished, gates)) => (finished.code, finished.message, gates),
         Err((code, message)) => (code, message, Vec::new()),
     };
-    let outcome = match exit_code {
-        exit::OK => Outcome::Kept,
-        exit::GATE_PUBLISHED => Outcome::Published,
-        exit::GATE_REFUSED => Outcome::Refused,
+    let outcome = match code {
+        exit_code::OK => Outcome::Kept,
+        exit_code::GATE_PUBLISHED => Outcome::Published,
+        exit_code::GATE_REFUSED => Outcome::Refused,
         _ => Outcome::Failed,
     };
     let record = NightRecord {
         robot_id: robot.to_string(),
         run_date: date_string(run_date),
         outcome,
-        exit_code,
+        exit_code: code,
         task_index,
         message,
         gates,
@@ -197,12 +198,11 @@ pub fn check_template(fleet: &Fleet) -> Result<(), FleetError> {
     }
 }
 
-type JobRun = Result<(commands::Finished, Vec<GateRecord>), (u8, String)>;
+type JobRun = Result<(Finished, Vec<GateRecord>), (u8, String)>;
 
 fn run_job(fleet: &Fleet, robot: &str, run_date: i64, jobs: usize) -> JobRun {
-    let failed = |e: CommandError| (e.exit_code(), e.to_string());
-    let mut plan =
-        Plan::load_with(&fleet.job, &fleet.job_overrides(robot)).map_err(|e| failed(e.into()))?;
+    let mut plan = Plan::load_with(&fleet.job, &fleet.job_overrides(robot))
+        .map_err(|e| (exit_code::BAD_INPUT, e.to_string()))?;
     plan.output_dir = fleet.robot_output(robot);
     let gate_dirs: Vec<(String, PathBuf)> = plan
         .stages
@@ -215,12 +215,13 @@ fn run_job(fleet: &Fleet, robot: &str, run_date: i64, jobs: usize) -> JobRun {
         run_date: Some(run_date),
         ..RunOptions::default()
     };
-    let finished = commands::run_plan(plan, &options, true).map_err(failed)?;
+    let finished = job_run::run_plan(plan, &options, true)
+        .map_err(|e| (exit_code::of_run_error(&e), e.to_string()))?;
     let gates = gate_dirs
         .iter()
         .map(|(stage, dir)| gate_record(stage, dir))
         .collect::<Result<_, _>>()
-        .map_err(|e| failed(e.into()))?;
+        .map_err(|e| (exit_code::BAD_INPUT, e.to_string()))?;
     Ok((finished, gates))
 }
 

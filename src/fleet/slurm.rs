@@ -16,7 +16,7 @@ use super::gather::{self, Gathered};
 use super::manifest::{ArraySubmission, Manifest};
 use super::night::{self, Outcome, night_line};
 use super::{Fleet, FleetError};
-use crate::commands::{Finished, exit};
+use crate::exit_code::{self, Finished};
 use crate::table::time::date_string;
 
 /// How `fleet submit` submits.
@@ -297,10 +297,10 @@ pub fn task(fleet: &Fleet, run_date: i64, index: usize) -> Result<Finished, Flee
         lines.join("\n")
     );
     let code = if failed.is_empty() {
-        exit::OK
+        exit_code::OK
     } else {
         message += &format!("\nfailed: {}", failed.join(", "));
-        exit::STAGE_FAILED
+        exit_code::STAGE_FAILED
     };
     Ok(Finished { message, code })
 }
