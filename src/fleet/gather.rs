@@ -12,7 +12,7 @@ use polars::prelude::*;
 use super::manifest::Manifest;
 use super::night::{self, NightRecord, Outcome, first_line};
 use super::{Fleet, FleetError};
-use crate::commands::exit;
+use crate::exit_code;
 use crate::report::escape;
 use crate::table::time::date_string;
 
@@ -53,13 +53,13 @@ pub fn gather(fleet: &Fleet, run_date: i64) -> Result<Gathered, FleetError> {
     };
     let count = |o: Outcome| rows.iter().filter(|r| outcome(r) == o).count();
     let code = if count(Outcome::Failed) + count(Outcome::Missing) > 0 {
-        exit::STAGE_FAILED
+        exit_code::STAGE_FAILED
     } else if count(Outcome::Refused) > 0 {
-        exit::GATE_REFUSED
+        exit_code::GATE_REFUSED
     } else if count(Outcome::Published) > 0 {
-        exit::GATE_PUBLISHED
+        exit_code::GATE_PUBLISHED
     } else {
-        exit::OK
+        exit_code::OK
     };
     let mut summary = format!(
         "fleet {}, night {}: {} robot(s): {} published, {} kept, {} refused, {} failed, {} missing",
