@@ -28,8 +28,8 @@ fn crate_paths(source: &str) -> Vec<String> {
         let mut rest = code;
         while let Some(at) = rest.find("crate::") {
             rest = &rest[at + "crate::".len()..];
-            if rest.starts_with('{') {
-                let group = rest[1..].split('}').next().unwrap_or_default();
+            if let Some(group) = rest.strip_prefix('{') {
+                let group = group.split('}').next().unwrap_or_default();
                 names.extend(group.split(',').filter_map(|item| {
                     let name = item.trim().split("::").next()?.trim();
                     (!name.is_empty()).then(|| name.to_string())
