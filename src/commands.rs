@@ -2,8 +2,10 @@
 //! only parses arguments, dispatches here and maps errors to exit codes.
 
 pub mod frame;
+pub mod pose;
 
 pub use frame::frame_command as frame;
+pub use pose::pose_command as pose;
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;

@@ -189,6 +189,22 @@ enum Command {
     /// A world (tracker ← base) and tool frame in both conventions: egcal's
     /// Rot·Trans numbers (x_w … gamma_w) and the base origin in the tracker frame
     /// with its XYZ angles (Trans·Rot).
+    /// The flange and tool pose at joint values as the controller shows them
+    /// (unloaded): check a new robot file against the teach pendant.
+    Pose {
+        /// Robot file.
+        #[arg(long)]
+        robot: PathBuf,
+        /// Parameters table: a calibrated model instead of the robot file's nominal one.
+        #[arg(long)]
+        params: Option<PathBuf>,
+        /// Model of the parameters table.
+        #[arg(long, default_value = "elastogeometric")]
+        model: String,
+        /// Joint values in the controller's numbering: deg (mm for a prismatic joint).
+        #[arg(long, num_args = 1.., required = true, allow_negative_numbers = true, value_delimiter = ',')]
+        joints: Vec<f64>,
+    },
     Frame {
         /// Robot file: its [world] and [tool].
         #[arg(long, required_unless_present = "origin_in_tracker")]
@@ -432,6 +448,12 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
             None => test_command(dirs, only, junit, jobs, timeout_s, cli.quiet),
         },
         Command::Schemas { out } => commands::write_schemas(&out).map(Finished::from),
+        Command::Pose {
+            robot,
+            params,
+            model,
+            joints,
+        } => commands::pose(&robot, params.as_deref(), &model, &joints).map(Finished::from),
         Command::Frame {
             robot,
             params,

@@ -140,27 +140,7 @@ pub fn frame_command(
     let robot_file = robot_file
         .ok_or_else(|| CommandError::Usage("give --robot, or --origin-in-tracker".into()))?;
     let spec = RobotSpec::load(robot_file)?;
-    let nominal = crate::robot::ParamValues::nominal(&spec);
-    let (values, source) = match params {
-        None => (nominal, format!("robot file {}", robot_file.display())),
-        Some(path) => {
-            let wanted: table::parameters::ModelName =
-                model.parse().map_err(CommandError::Usage)?;
-            let df = table::read_parquet(path)?;
-            let set = table::parameters::from_frame(&df, path, &spec)?
-                .into_iter()
-                .find(|s| s.model == wanted)
-                .ok_or_else(|| {
-                    CommandError::Table(Box::new(TableError::BadValue {
-                        file: path.to_path_buf(),
-                        column: "model".into(),
-                        row: 0,
-                        message: format!("no rows for model `{wanted}`"),
-                    }))
-                })?;
-            (set.values, format!("model {wanted} of {}", path.display()))
-        }
-    };
+    let (values, source) = parameter_values(&spec, robot_file, params, model)?;
     let six = |start: usize| -> SixNumbers { std::array::from_fn(|k| values.0[start + k]) };
     Ok(format!(
         "{}\n{}",
@@ -179,6 +159,39 @@ pub fn frame_command(
             six(6),
         )
     ))
+}
+
+/// The parameter values of a robot file (nominal), or of one model of a
+/// parameters table, and words naming which.
+pub(super) fn parameter_values(
+    spec: &RobotSpec,
+    robot_file: &Path,
+    params: Option<&Path>,
+    model: &str,
+) -> Result<(crate::robot::ParamValues, String), CommandError> {
+    match params {
+        None => Ok((
+            crate::robot::ParamValues::nominal(spec),
+            format!("robot file {}", robot_file.display()),
+        )),
+        Some(path) => {
+            let wanted: table::parameters::ModelName =
+                model.parse().map_err(CommandError::Usage)?;
+            let df = table::read_parquet(path)?;
+            let set = table::parameters::from_frame(&df, path, spec)?
+                .into_iter()
+                .find(|s| s.model == wanted)
+                .ok_or_else(|| {
+                    CommandError::Table(Box::new(TableError::BadValue {
+                        file: path.to_path_buf(),
+                        column: "model".into(),
+                        row: 0,
+                        message: format!("no rows for model `{wanted}`"),
+                    }))
+                })?;
+            Ok((set.values, format!("model {wanted} of {}", path.display())))
+        }
+    }
 }
 
 #[cfg(test)]
