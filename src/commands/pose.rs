@@ -44,13 +44,13 @@ pub fn pose_command(
     let mut controller = [0.0; MAX_JOINTS];
     controller[..joint_count].copy_from_slice(controller_joints);
     let q = robot.spec().robot_file_joints_deg(&controller);
-    for i in 0..joint_count {
+    for (i, value) in q.iter().take(joint_count).enumerate() {
         let [low, high] = robot.joint_limits(i);
-        if !q[i].is_finite() || q[i] < low || q[i] > high {
+        if !value.is_finite() || *value < low || *value > high {
             return Err(CommandError::Usage(format!(
                 "--joints: joint {} is {} in the robot file's numbering, outside its limits [{low}, {high}] in {}",
                 i + 1,
-                crate::calibration::row_checks::compact(q[i]),
+                crate::calibration::row_checks::compact(*value),
                 robot_file.display()
             )));
         }
