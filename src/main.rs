@@ -202,7 +202,7 @@ enum Command {
         #[arg(long, default_value = "elastogeometric")]
         model: String,
         /// Joint values in the controller's numbering: deg (mm for a prismatic joint).
-        #[arg(long, num_args = 1.., required = true, allow_negative_numbers = true, value_delimiter = ',')]
+        #[arg(long, num_args = 1.., required = true, allow_hyphen_values = true, value_delimiter = ',')]
         joints: Vec<f64>,
     },
     Frame {

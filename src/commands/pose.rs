@@ -92,6 +92,16 @@ pub fn pose_command(
         "    Z-Y-X angles: A = {a}°, B = {b}°, C = {c}°  (KUKA A, B, C; FANUC and Yaskawa W = C, P = B, R = A)"
     )
     .expect("write to string");
+    let rotation_vector = crate::robot::frame::rotation_vector(&flange.rotation)
+        .iter()
+        .map(|v| fixed(*v, 6))
+        .collect::<Vec<_>>()
+        .join(", ");
+    writeln!(
+        out,
+        "    rotation vector = [{rotation_vector}] rad  (Universal Robots RX, RY, RZ)"
+    )
+    .expect("write to string");
     let t = tool.origin_mm;
     writeln!(
         out,
