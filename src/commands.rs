@@ -3,9 +3,11 @@
 
 pub mod frame;
 pub mod pose;
+pub mod reference;
 
 pub use frame::frame_command as frame;
 pub use pose::pose_command as pose;
+pub use reference::list_stages;
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -658,89 +660,6 @@ pub fn lab_driver(cell_file: &Path) -> Result<String, CommandError> {
     Ok(String::new())
 }
 
-/// `egcal list-stages`: every kind with inputs, outputs and settings with defaults.
-pub fn list_stages() -> String {
-    let mut out = String::new();
-    for kind in stages::registry() {
-        let info = kind.info();
-        writeln!(
-            out,
-            "{} (code version {}): {}",
-            info.kind, info.code_version, info.summary
-        )
-        .expect("write");
-        for slot in info.inputs {
-            let req = if slot.required {
-                "required"
-            } else {
-                "optional"
-            };
-            writeln!(
-                out,
-                "  input  {:<16} {} table, {req}: {}",
-                slot.name,
-                (slot.schema)().kind,
-                slot.meaning
-            )
-            .expect("write");
-        }
-        for slot in info.outputs {
-            writeln!(
-                out,
-                "  output {:<16} {} table: {}",
-                slot.name,
-                (slot.schema)().kind,
-                slot.meaning
-            )
-            .expect("write");
-        }
-        let schema = kind.settings_schema();
-        list_settings(&mut out, &schema, &schema, &kind.defaults(), "");
-        out.push('\n');
-    }
-    out
-}
-
-/// One `set` line per setting of `schema` (an object schema), with its default and
-/// range; a nested settings struct (`simulator`) lists its own settings as
-/// `simulator.<name>`.
-fn list_settings(
-    out: &mut String,
-    schema: &serde_json::Value,
-    root: &serde_json::Value,
-    defaults: &serde_json::Value,
-    prefix: &str,
-) {
-    let Some(props) = schema["properties"].as_object() else {
-        return;
-    };
-    for (name, prop) in props {
-        let key = format!("{prefix}{name}");
-        let nested = prop["$ref"]
-            .as_str()
-            .and_then(|r| r.strip_prefix('#'))
-            .and_then(|pointer| root.pointer(pointer))
-            .filter(|s| s["properties"].is_object());
-        if let Some(nested) = nested {
-            list_settings(out, nested, root, &defaults[name], &format!("{key}."));
-            continue;
-        }
-        let description = prop["description"]
-            .as_str()
-            .unwrap_or("")
-            .replace('\n', " ");
-        let range = stages::settings_check::range_text(prop, root)
-            .map(|r| format!(" Range: {r}."))
-            .unwrap_or_default();
-        writeln!(
-            out,
-            "  set    {key:<16} = {:<12} {description}{range}",
-            defaults[name]
-        )
-        .expect("write");
-    }
-}
-
 /// `egcal cache gc`.
 pub fn cache_gc(job: &Path) -> Result<String, CommandError> {
     let plan = Plan::load(job)?;
@@ -756,19 +675,32 @@ pub fn cache_gc(job: &Path) -> Result<String, CommandError> {
     Ok(message)
 }
 
-/// `egcal schemas`: (re)writes the generated schema files into `dir`.
-pub fn write_schemas(dir: &Path) -> Result<String, CommandError> {
+/// `egcal schemas`: (re)writes the generated schema files into `dir`, and the
+/// guide's generated reference pages into `guide_dir` when given.
+pub fn write_schemas(dir: &Path, guide_dir: Option<&Path>) -> Result<String, CommandError> {
     let files = generated_schemas();
     for (name, text) in &files {
         let path = dir.join(name);
         crate::fsio::write_bytes_atomic(&path, text.as_bytes())
             .map_err(|e| table::schema::io_error(&path, e))?;
     }
-    Ok(format!(
-        "wrote {} schema files to {}",
-        files.len(),
-        dir.display()
-    ))
+    let mut message = format!("wrote {} schema files to {}", files.len(), dir.display());
+    if let Some(guide_dir) = guide_dir {
+        let pages = reference::generated_guide_pages();
+        for (name, text) in &pages {
+            let path = guide_dir.join(name);
+            crate::fsio::write_bytes_atomic(&path, text.as_bytes())
+                .map_err(|e| table::schema::io_error(&path, e))?;
+        }
+        write!(
+            message,
+            "\nwrote {} guide pages to {}",
+            pages.len(),
+            guide_dir.display()
+        )
+        .expect("write to string");
+    }
+    Ok(message)
 }
 
 /// Every generated schema file: (path relative to `schemas/`, content).

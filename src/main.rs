@@ -185,10 +185,11 @@ enum Command {
     Schemas {
         #[arg(long, default_value = "schemas")]
         out: PathBuf,
+        /// Also write the user guide's generated reference pages (stage kinds,
+        /// tables) into this folder (`docs/reference`).
+        #[arg(long)]
+        guide: Option<PathBuf>,
     },
-    /// A world (tracker ← base) and tool frame in both conventions: egcal's
-    /// Rot·Trans numbers (x_w … gamma_w) and the base origin in the tracker frame
-    /// with its XYZ angles (Trans·Rot).
     /// The flange and tool pose at joint values as the controller shows them
     /// (unloaded): check a new robot file against the teach pendant.
     Pose {
@@ -205,6 +206,9 @@ enum Command {
         #[arg(long, num_args = 1.., required = true, allow_hyphen_values = true, value_delimiter = ',')]
         joints: Vec<f64>,
     },
+    /// A world (tracker ← base) and tool frame in both conventions: egcal's
+    /// Rot·Trans numbers (x_w … gamma_w) and the base origin in the tracker frame
+    /// with its XYZ angles (Trans·Rot).
     Frame {
         /// Robot file: its [world] and [tool].
         #[arg(long, required_unless_present = "origin_in_tracker")]
@@ -447,7 +451,9 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
             Some(action) => record_command(action),
             None => test_command(dirs, only, junit, jobs, timeout_s, cli.quiet),
         },
-        Command::Schemas { out } => commands::write_schemas(&out).map(Finished::from),
+        Command::Schemas { out, guide } => {
+            commands::write_schemas(&out, guide.as_deref()).map(Finished::from)
+        }
         Command::Pose {
             robot,
             params,

@@ -20,6 +20,22 @@ fn committed_schemas_match_the_code() {
 }
 
 #[test]
+fn committed_guide_reference_pages_match_the_code() {
+    let dir = common::root().join("docs/reference");
+    let mut stale = Vec::new();
+    for (name, text) in egcal::commands::reference::generated_guide_pages() {
+        let committed = std::fs::read_to_string(dir.join(&name)).unwrap_or_default();
+        if committed != text {
+            stale.push(name);
+        }
+    }
+    assert!(
+        stale.is_empty(),
+        "stale guide pages {stale:?}: run `cargo run -- schemas --out schemas --guide docs/reference` and commit them"
+    );
+}
+
+#[test]
 fn the_job_schema_accepts_the_shipped_jobs_stage_kinds() {
     let schema: serde_json::Value =
         serde_json::from_str(&egcal::job::schema::job_schema_json()).unwrap();
