@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Robot-nights per hour with `egcal fleet run` (README, "A fleet's nights").
+# Robot-nights per hour with `egcal fleet run` (docs/fleet.md).
 #
 #   benches/fleet_capacity.sh ROWS_PER_NIGHT ROBOTS [JOBS] [slurm]
 #

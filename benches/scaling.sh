@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Wall time and peak memory against size, whole process (README, performance):
+# Wall time and peak memory against size, whole process (docs/performance.md):
 #
 #   benches/scaling.sh [OUT.csv]          (default assets/scaling.csv)
 #

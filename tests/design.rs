@@ -339,7 +339,7 @@ fn segment_box_distance(
 }
 
 /// Smallest clearance (mm) of a configuration over the pairs the cell checks
-/// (README and `design::collision`): non-adjacent links; the platform against
+/// (docs/paper-campaign.md and `design::collision`): non-adjacent links; the platform against
 /// links 1–3; every pulley against the platform and every link; every cable
 /// against links 1–4; the tracker's beam (to the SMR's surface) against every
 /// link and cable. Computed with the closed forms above, not parry3d. Also

@@ -2,7 +2,7 @@
 //! a stage kind run on the case's files and checked against its `[expect]`),
 //! run by the same library function as `egcal test`, so the project's fixtures
 //! and a lab's own cannot drift apart. The format is documented in
-//! `src/fixture_cases/case.rs`, `schemas/fixture-case.schema.json` and the README.
+//! `src/fixture_cases/case.rs`, `schemas/fixture-case.schema.json` and docs/fixture-cases.md.
 //!
 //! Expected tables and strings come from independent sources (see `fixtures/tools/`).
 

@@ -485,7 +485,7 @@ fn bad_fleet_files_name_the_file_and_key() {
     );
 }
 
-/// The README's fleet commands on the shipped files: jobs/fleet.toml over the logs
+/// The guide's fleet commands (docs/fleet.md) on the shipped files: jobs/fleet.toml over the logs
 /// of jobs/make_logs.toml.
 #[test]
 fn the_shipped_fleet_runs_on_the_shipped_logs() {

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use polars::prelude::*;
 
-/// The Series C settings as the README shows them (the path relative to the
+/// The Series C settings as the guide shows them (docs/tracker-exports.md) (the path relative to the
 /// folder egcal runs in: the repository root).
 const SERIES_C: &str = r#"
 path = "../shared/realdata/ur10-ipa/Series_C/measurements_random_poses.csv"
@@ -92,7 +92,7 @@ fn ur10_series_c_imports_every_row_with_joints_in_degrees() {
     );
     let df = egcal::table::read_parquet(&out.join("measurements.parquet")).unwrap();
     assert_eq!(df.height(), data_rows);
-    assert_eq!(data_rows, 2773, "the README's row count of Series C");
+    assert_eq!(data_rows, 2773, "the guide's row count of Series C");
 
     // Row 0 of the file (line 2), as written:
     // shoulder_pan_joint … wrist_3_joint = -3,14159;-1,5708;0;-1,5708;0;0
@@ -239,7 +239,7 @@ z_mm = "z"
 /// The guide's import example (`docs/tracker-exports.md`), run as written (issue #26: followed
 /// literally, it once gave a fit that had not converged, with exit 0): every
 /// model converges, dtheta5 and dalpha6 are held with their reason, and the
-/// validation error is the README's.
+/// validation error is the guide's.
 #[test]
 fn the_guide_s_import_example_calibrates_as_it_says() {
     if series_c().is_none() {

@@ -27,7 +27,7 @@ fn paper_campaign_reproduces_the_qualitative_result() {
     let out = dir.path().join("out/paper_sim");
     let candidates = table::read_parquet(&out.join("wrenches/candidates.parquet")).unwrap();
     // The default cable robot cannot apply every drawn wrench at every pose (see
-    // the README), but the campaign keeps enough rows for DETMAX and validation.
+    // docs/paper-campaign.md), but the campaign keeps enough rows for DETMAX and validation.
     assert!(
         candidates.height() >= 400,
         "{} candidates",

@@ -42,7 +42,7 @@ fn the_ur10_job_calibrates_series_c_and_carries_it_to_b_and_d() {
     // Issue #28: series C carried to the other halves of B and D (only the
     // frames refitted on their first halves): measured 0.556 and 0.551 mm
     // mean with the job's settings (the issue's targets, 0.48 and 0.40, are
-    // not met: README, held-out validation).
+    // not met: docs/real-cells.md, held-out validation).
     let carried_b = mean_mm(&out, "validate_b_eg", "reregistered");
     let carried_d = mean_mm(&out, "validate_d_eg", "reregistered");
     assert!(
@@ -225,7 +225,7 @@ fn the_ur10_job_calibrates_series_c_and_carries_it_to_b_and_d() {
         "the verdict comes first"
     );
     assert!(html.contains("Model in service: <strong>elastogeometric</strong>"));
-    // 1 mm on the largest of 1,387 validation errors (README: max 1.49 mm).
+    // 1 mm on the largest of 1,387 validation errors (docs/real-cells.md: max 1.49 mm).
     assert!(
         html.contains("<span class=\"badge\">FAIL</span>"),
         "the verdict against 1 mm"

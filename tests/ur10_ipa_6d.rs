@@ -2,7 +2,7 @@
 //! the T-Mac probe's measured orientation used as well (spec §8). The probe's
 //! mounting on the flange (about −90° about its axis) comes out of the data,
 //! orientations make the calibrated arm's orientation error smaller than the
-//! registered nominal arm's, and the held-out position figures the README
+//! registered nominal arm's, and the held-out position figures docs/real-cells.md
 //! gives hold within a margin. Skipped, with a message, where the data are not
 //! beside the checkout.
 
@@ -52,7 +52,7 @@ fn the_6d_ur10_job_finds_the_probe_mounting_and_validates_orientations() {
         "{calibrated} vs {registered}"
     );
     assert!(common::ur10::stat(&out, "validate_c", "elastogeometric", "mean_mm") < 0.44);
-    // Carried to B and D with only the frames refitted (README: 0.535 and
+    // Carried to B and D with only the frames refitted (docs/real-cells.md: 0.535 and
     // 0.509 mm; 0.556 and 0.551 without orientations).
     assert!(common::ur10::stat(&out, "validate_b_eg", "reregistered", "mean_mm") < 0.55);
     assert!(common::ur10::stat(&out, "validate_d_eg", "reregistered", "mean_mm") < 0.53);

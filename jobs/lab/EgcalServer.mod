@@ -1,5 +1,5 @@
 MODULE EgcalServer
-  ! The server loop egcal's lab driver moves an ABB robot with (README, "Lab
+  ! The server loop egcal's lab driver moves an ABB robot with (docs/lab-devices.md, "Lab
   ! devices"). Load it into task T_ROB1, run main in AUTO with the motors on.
   ! The driver writes egc_target and egc_cw_id, then egc_cmd := egc_done + 1
   ! (holding RAPID mastership for the writes) and polls egc_done; egc_err <> 0

@@ -38,7 +38,7 @@
 //! and 10 folds and gives D 0.524 mm (standard errors: 0.567), but on the
 //! simulated drilling cell, whose truth moves every parameter, holding what
 //! C-like rows cannot tell from nominal costs the targets 0.119 → 0.139 mm,
-//! where elimination gains (0.106). No rule wins on both; the README has the
+//! where elimination gains (0.106). No rule wins on both; docs/real-cells.md has the
 //! figures.
 //!
 //! **Cost.** Refitting every fold for every trial would take `m²·k` fits. The

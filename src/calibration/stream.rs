@@ -10,7 +10,7 @@
 //! rows would give, with the accuracy of QR: errors grow with the condition
 //! number κ of the scaled Jacobian, not κ² as with the normal equations `JᵀJ`,
 //! which lose the 1e-9 agreement with a dense QR once κ passes ~1e4 (measured:
-//! README, design notes). The price: on one core faer factorises a million rows'
+//! DESIGN.md). The price: on one core faer factorises a million rows'
 //! blocks (3·10⁶ × 33) in 0.67 s where it forms `AᵀA` in 0.15 s, a third of a
 //! pass whose Jacobian rows take 1.25 s.
 //!

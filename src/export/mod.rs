@@ -23,7 +23,7 @@
 //! never moves a frame other than the one its targets were computed for
 //! ([`cartesian`]).
 //!
-//! Printed precision (documented in each header and the README): joint angles 6
+//! Printed precision (documented in each header and in docs/programs.md): joint angles 6
 //! decimals in degrees, positions 4 decimals in mm, quaternions 9 decimals, Euler
 //! angles 6 decimals in degrees. The controllers store these as 32-bit floats,
 //! so the printed digits are never what limits them.

@@ -213,7 +213,7 @@ fn check(
             ))
         }
     };
-    // An input is a file of the case: inside its folder (README: "a folder
+    // An input is a file of the case: inside its folder (the guide, docs/fixture-cases.md: "a folder
     // holding case.toml and the files it names"), so that the case, copied
     // elsewhere, still tests what it tested. The robot and cable-robot files
     // may be shared between cases (`../../robots/cell7.toml`) or absolute.

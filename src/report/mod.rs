@@ -621,7 +621,7 @@ fn world_offset(data: &ReportData) -> Option<(f64, f64)> {
     ))
 }
 
-/// What a model name means, as the README defines the terms; `None` for a
+/// What a model name means, as the guide defines the terms (docs/report.md); `None` for a
 /// name egcal does not write.
 fn model_meaning(model: &str) -> Option<&'static str> {
     Some(match model {
@@ -2297,7 +2297,7 @@ mod tests {
         ] {
             assert!(!html.contains(paper), "{paper}");
         }
-        // The terms, as the README defines them.
+        // The terms, as the guide defines them (docs/report.md).
         assert!(html.contains(
             "<li><strong>registered</strong>: the nominal robot with the world frame and the tool translation fitted"
         ));

@@ -10,7 +10,7 @@
 //! This is the one stage with an effect outside its output folder: publishing is
 //! its purpose. A cached gate does not publish again, which is right: a cache hit
 //! means the same candidate against the same in-service file, already decided.
-//! The decision also sets the exit code of `egcal run` (see the README).
+//! The decision also sets the exit code of `egcal run` (the guide's exit codes, docs/reference/commands.md).
 
 use std::collections::{BTreeMap, HashSet};
 use std::path::{Path, PathBuf};

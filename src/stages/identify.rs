@@ -203,7 +203,7 @@ pub struct IdentifySettings {
     /// one at a time, a parameter whose leave-group-out estimates do not tell
     /// it from nominal (`held_out_min_t`); `held_out` keeps a parameter only
     /// if freeing it lowers the error on the groups left out (backward
-    /// elimination). Neither is the default: README, held-out validation.
+    /// elimination). Neither is the default: the guide, docs/real-cells.md, held-out accuracy.
     pub parameter_choice: ParameterChoice,
     /// parameter_choice = held_out or grouped_jackknife: how the rows are
     /// grouped: configuration (clusters in joint space, default), region (of

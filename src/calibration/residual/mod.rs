@@ -23,7 +23,7 @@
 //!   box-constrained L-BFGS from several seeded starts, on at most
 //!   [`ResidualOptions::optimisation_rows`] rows drawn with the seed; the
 //!   posterior then uses every row. Hand-written on faer rather than taken from
-//!   a GP crate: see the README's design notes.
+//!   a GP crate: see DESIGN.md.
 //!
 //! Everything random (the optimisation rows, the inducing points, the starts)
 //! comes from [`ResidualOptions::seed`], and parallel work runs in fixed chunks
@@ -231,7 +231,7 @@ pub struct ResidualOptions {
 
 impl Default for ResidualOptions {
     /// 256 inducing points, 2000 optimisation rows, 3 starts of at most 100
-    /// iterations, seed 0: 10 000 rows fit in a few seconds (README).
+    /// iterations, seed 0: 10 000 rows fit in a few seconds (docs/model-ladder.md).
     fn default() -> Self {
         ResidualOptions {
             inducing_points: 256,
