@@ -5,7 +5,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
 use egcal::commands::{self, CommandError};
 use egcal::exit_code::Finished;
 use egcal::job::JobOverrides;
@@ -94,14 +94,8 @@ enum Command {
     },
     /// Predict positions, load torques and deflections for conf-wrench rows.
     Predict {
-        #[arg(long)]
-        robot: PathBuf,
-        /// Parameters table; nominal values when absent.
-        #[arg(long)]
-        params: Option<PathBuf>,
-        /// Model of the parameters table to use.
-        #[arg(long, default_value = "elastogeometric")]
-        model: String,
+        #[command(flatten)]
+        arm: ArmModel,
         #[arg(long)]
         input: PathBuf,
         #[arg(long)]
@@ -193,15 +187,8 @@ enum Command {
     /// The flange and tool pose at joint values as the controller shows them
     /// (unloaded): check a new robot file against the teach pendant.
     Pose {
-        /// Robot file.
-        #[arg(long)]
-        robot: PathBuf,
-        /// Parameters table: a calibrated model instead of the robot file's nominal one.
-        #[arg(long)]
-        params: Option<PathBuf>,
-        /// Model of the parameters table.
-        #[arg(long, default_value = "elastogeometric")]
-        model: String,
+        #[command(flatten)]
+        arm: ArmModel,
         /// Joint values in the controller's numbering: deg (mm for a prismatic joint).
         #[arg(long, num_args = 1.., required = true, allow_hyphen_values = true, value_delimiter = ',')]
         joints: Vec<f64>,
@@ -225,6 +212,21 @@ enum Command {
         #[arg(long, num_args = 6, allow_negative_numbers = true, value_names = ["X_MM", "Y_MM", "Z_MM", "RX_DEG", "RY_DEG", "RZ_DEG"], conflicts_with_all = ["robot", "params"])]
         origin_in_tracker: Option<Vec<f64>>,
     },
+}
+
+/// The arm a command evaluates: a robot file, nominal or with one model of a
+/// parameters table.
+#[derive(Args)]
+struct ArmModel {
+    /// Robot file.
+    #[arg(long)]
+    robot: PathBuf,
+    /// Parameters table; the robot file's nominal values when absent.
+    #[arg(long)]
+    params: Option<PathBuf>,
+    /// Model of the parameters table to use.
+    #[arg(long, default_value = "elastogeometric")]
+    model: String,
 }
 
 #[derive(Subcommand)]
@@ -400,14 +402,14 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
             stage.settings.as_deref(),
             &out,
         ),
-        Command::Predict {
-            robot,
-            params,
-            model,
-            input,
-            output,
-        } => commands::predict(&robot, params.as_deref(), &model, &input, &output)
-            .map(Finished::from),
+        Command::Predict { arm, input, output } => commands::predict(
+            &arm.robot,
+            arm.params.as_deref(),
+            &arm.model,
+            &input,
+            &output,
+        )
+        .map(Finished::from),
         Command::SimDriver {
             robot,
             truth,
@@ -454,12 +456,10 @@ fn dispatch(cli: Cli) -> Result<Finished, CommandError> {
         Command::Schemas { out, guide } => {
             commands::write_schemas(&out, guide.as_deref()).map(Finished::from)
         }
-        Command::Pose {
-            robot,
-            params,
-            model,
-            joints,
-        } => commands::pose(&robot, params.as_deref(), &model, &joints).map(Finished::from),
+        Command::Pose { arm, joints } => {
+            commands::pose(&arm.robot, arm.params.as_deref(), &arm.model, &joints)
+                .map(Finished::from)
+        }
         Command::Frame {
             robot,
             params,

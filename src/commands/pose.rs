@@ -21,6 +21,16 @@ fn fixed(value: f64, decimals: usize) -> String {
     }
 }
 
+/// `  what: x = … mm, y = … mm, z = … mm`, to the micrometre.
+fn position_line(what: &str, p_mm: &nalgebra::Vector3<f64>) -> String {
+    format!(
+        "  {what}: x = {} mm, y = {} mm, z = {} mm\n",
+        fixed(p_mm.x, 3),
+        fixed(p_mm.y, 3),
+        fixed(p_mm.z, 3)
+    )
+}
+
 /// `egcal pose`: `controller_joints` in the controller's numbering (deg, or mm
 /// for a prismatic joint), unloaded.
 pub fn pose_command(
@@ -71,15 +81,10 @@ pub fn pose_command(
         joints_text(&q[..joint_count])
     )
     .expect("write to string");
-    let p = flange.origin_mm;
-    writeln!(
-        out,
-        "  flange in the base frame: x = {} mm, y = {} mm, z = {} mm",
-        fixed(p.x, 3),
-        fixed(p.y, 3),
-        fixed(p.z, 3)
-    )
-    .expect("write to string");
+    out.push_str(&position_line(
+        "flange in the base frame",
+        &flange.origin_mm,
+    ));
     let quaternion = quaternion_wxyz(&flange).map(|v| fixed(v, 6)).join(", ");
     writeln!(
         out,
@@ -102,27 +107,17 @@ pub fn pose_command(
         "    rotation vector = [{rotation_vector}] rad  (Universal Robots RX, RY, RZ)"
     )
     .expect("write to string");
-    let t = tool.origin_mm;
-    writeln!(
-        out,
-        "  tool (SMR) in the base frame: x = {} mm, y = {} mm, z = {} mm",
-        fixed(t.x, 3),
-        fixed(t.y, 3),
-        fixed(t.z, 3)
-    )
-    .expect("write to string");
+    out.push_str(&position_line(
+        "tool (SMR) in the base frame",
+        &tool.origin_mm,
+    ));
     if has_track {
         out.push_str("  (the arm rides a track: the tracker frame depends on the carriage; base frame only)\n");
     } else {
-        let world = robot.world_from_base(&values).transform_point(&t);
-        writeln!(
-            out,
-            "  tool (SMR) in the tracker frame: x = {} mm, y = {} mm, z = {} mm",
-            fixed(world.x, 3),
-            fixed(world.y, 3),
-            fixed(world.z, 3)
-        )
-        .expect("write to string");
+        let world = robot
+            .world_from_base(&values)
+            .transform_point(&tool.origin_mm);
+        out.push_str(&position_line("tool (SMR) in the tracker frame", &world));
     }
     Ok(out)
 }
