@@ -680,7 +680,7 @@ mod tests {
                 "{}",
                 s.id
             );
-            assert!(html.contains(&escape(&s.title(true))), "{}", s.heading);
+            assert!(html.contains(&s.title(true)), "{}", s.heading);
         }
         assert!(html.contains("(Table III)") && html.contains("(Fig. 7)"));
         // Stats rows with the paper beside them.
@@ -1146,6 +1146,25 @@ mod tests {
              <td class=\"num\">0.300</td><td>elastogeometric</td><td class=\"num\">1.0e-9</td><td class=\"num\"></td>\
              <td>chosen: held-out mean &#60;lower&#62;</td></tr>"
         ));
+    }
+
+    /// `errors.html` has the words for each model page.rs lists as defined.
+    #[test]
+    fn every_defined_model_has_its_meaning() {
+        let mut data = sample();
+        data.stats = page::DEFINED_MODELS
+            .iter()
+            .map(|m| stats_row(m, 1.0))
+            .collect();
+        let html = render(&data).expect("render");
+        for model in page::DEFINED_MODELS {
+            let term = format!("<li><strong>{model}</strong>: ");
+            let at = html.find(&term).unwrap_or_else(|| panic!("{model}")) + term.len();
+            assert!(
+                html[at..].len() > 20 && !html[at..].starts_with(".</li>"),
+                "{model}"
+            );
+        }
     }
 
     #[test]

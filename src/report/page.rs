@@ -210,7 +210,7 @@ pub(super) struct Gain {
 }
 
 /// Models whose meaning `errors.html` states, as the README defines the terms.
-const DEFINED_MODELS: [&str; 5] = [
+pub(super) const DEFINED_MODELS: [&str; 5] = [
     "nominal",
     "registered",
     "reregistered",
