@@ -171,7 +171,7 @@ fn report_renders_in_a_headless_browser() {
 
     // The page itself: escaped title, the verdict first, Table III beside this
     // run, every section, the charts.
-    assert!(html.contains("<title>Small &lt;campaign&gt; report</title>"));
+    assert!(html.contains("<title>Small &#60;campaign&#62; report</title>"));
     assert!(
         html.find("<section id=\"verdict\">") < html.find("<nav>"),
         "the verdict comes before the table of contents"

@@ -3,9 +3,7 @@
 //! percentile and maximum, the paired tests against the rung chosen so far,
 //! and which model was chosen.
 
-use std::fmt::Write;
-
-use super::{escape, mm};
+use super::mm;
 
 /// A row of `crossvalidate`'s `ladder` table.
 #[derive(Debug, Clone, PartialEq)]
@@ -22,49 +20,55 @@ pub struct LadderRow {
     pub reason: String,
 }
 
-/// The part under the held-out accuracy; nothing without the input.
-pub fn render(out: &mut String, rows: Option<&[LadderRow]>) {
-    let Some(rows) = rows.filter(|r| !r.is_empty()) else {
-        return;
-    };
-    let chosen = rows
-        .iter()
-        .find(|r| r.chosen)
-        .map_or("none", |r| r.model.as_str());
-    let _ = write!(
-        out,
-        "<h3 id=\"ladder\">Model ladder</h3>\n<p>From the simplest model up, on the {} folds: \
-         a richer model is chosen only when its held-out errors, row by row on the same folds, \
-         are lower by the minimum gain, both paired tests say so and its 99.7th percentile is \
-         not worse beyond that share. Chosen: <strong>{}</strong>.</p>\n\
-         <div class=\"wide\"><table class=\"stats\">\n<thead>\n<tr><th>model</th>\
-         <th class=\"num\">mean</th><th class=\"num\">p99.7</th><th class=\"num\">max</th>\
-         <th>against</th><th class=\"num\">paired t p</th><th class=\"num\">Wilcoxon p</th>\
-         <th>decision</th></tr>\n</thead>\n<tbody>\n",
-        escape(&rows[0].protocol),
-        escape(chosen)
-    );
+/// The ladder as `ladder.html` lays it out.
+pub(super) struct LadderView {
+    /// The folds the ladder climbed on.
+    pub protocol: String,
+    /// The model chosen, or `none`.
+    pub chosen: String,
+    pub rungs: Vec<RungView>,
+}
+
+pub(super) struct RungView {
+    pub model: String,
+    pub mean: String,
+    pub p99_7: String,
+    pub max: String,
+    /// The rung compared with; empty for the first.
+    pub compared_with: String,
+    /// Empty where not tested.
+    pub paired_t_p: String,
+    pub wilcoxon_p: String,
+    pub chosen: bool,
+    pub reason: String,
+}
+
+/// The part under the held-out accuracy; `None` without rows.
+pub(super) fn view(rows: &[LadderRow]) -> Option<LadderView> {
+    let first = rows.first()?;
     let p = |p: Option<f64>| p.map_or_else(String::new, |p| format!("{p:.1e}"));
-    for r in rows {
-        let _ = writeln!(
-            out,
-            "<tr{}><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td><td class=\"num\">{}</td><td class=\"num\">{}</td><td>{}</td></tr>",
-            if r.chosen { " class=\"chosen\"" } else { "" },
-            escape(&r.model),
-            mm(r.mean_mm),
-            mm(r.p997_mm),
-            mm(r.max_mm),
-            escape(r.compared_with.as_deref().unwrap_or("")),
-            p(r.paired_t_p),
-            p(r.wilcoxon_p),
-            escape(&if r.chosen {
-                format!("chosen: {}", r.reason)
-            } else {
-                r.reason.clone()
+    Some(LadderView {
+        protocol: first.protocol.clone(),
+        chosen: rows
+            .iter()
+            .find(|r| r.chosen)
+            .map_or("none", |r| r.model.as_str())
+            .to_string(),
+        rungs: rows
+            .iter()
+            .map(|r| RungView {
+                model: r.model.clone(),
+                mean: mm(r.mean_mm),
+                p99_7: mm(r.p997_mm),
+                max: mm(r.max_mm),
+                compared_with: r.compared_with.clone().unwrap_or_default(),
+                paired_t_p: p(r.paired_t_p),
+                wilcoxon_p: p(r.wilcoxon_p),
+                chosen: r.chosen,
+                reason: r.reason.clone(),
             })
-        );
-    }
-    out.push_str("</tbody>\n</table></div>\n");
+            .collect(),
+    })
 }
 
 #[cfg(test)]
@@ -85,22 +89,15 @@ mod tests {
             chosen,
             reason: "held-out mean".into(),
         };
-        let mut out = String::new();
-        render(
-            &mut out,
-            Some(&[
-                row("elastogeometric", 0.1, false),
-                row("eg_backlash", 0.04, true),
-            ]),
-        );
-        assert!(
-            out.contains("Chosen: <strong>eg_backlash</strong>"),
-            "{out}"
-        );
-        assert!(out.contains("0.040") && out.contains("1.0e-9"), "{out}");
-        assert!(out.contains("configuration folds"), "{out}");
-        let mut empty = String::new();
-        render(&mut empty, None);
-        assert!(empty.is_empty());
+        let view = view(&[
+            row("elastogeometric", 0.1, false),
+            row("eg_backlash", 0.04, true),
+        ])
+        .expect("rows");
+        assert_eq!(view.chosen, "eg_backlash");
+        assert_eq!(view.protocol, "configuration");
+        assert_eq!(view.rungs[1].mean, "0.040");
+        assert_eq!(view.rungs[0].paired_t_p, "1.0e-9");
+        assert!(super::view(&[]).is_none());
     }
 }

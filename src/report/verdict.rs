@@ -18,9 +18,9 @@
 //! those figures beyond the validation rows.
 
 use std::collections::BTreeMap;
-use std::fmt::Write as _;
 
-use super::{ReportData, escape, mm};
+use super::page::Heading;
+use super::{ReportData, mm};
 
 /// Which figure is compared with the tolerance.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -321,244 +321,224 @@ fn warnings(data: &ReportData, model: &str) -> Warnings {
 /// Targets not `ok` listed one by one on the first screen; the rest are counted.
 const TARGETS_LISTED: usize = 20;
 
-/// The verdict block: outcome, figures, tolerance, then the warnings.
-pub fn render(out: &mut String, v: &Verdict) {
+/// The verdict block as `verdict.html` lays it out.
+pub(super) struct VerdictView {
+    pub heading: Heading,
+    /// CSS class of the block: `pass`, `fail` or `none`.
+    pub class: &'static str,
+    pub word: &'static str,
+    pub model: String,
+    pub model_from_setting: bool,
+    /// `None`: the model has no validation rows.
+    pub figures: Option<FiguresView>,
+    pub warnings: WarningsView,
+}
+
+/// The judged figures, formatted.
+pub(super) struct FiguresView {
+    /// `None` without a tolerance.
+    pub judgement: Option<Judgement>,
+    pub rows: usize,
+    pub mean: String,
+    pub p99_7: String,
+    pub max: String,
+    /// CSS classes of the two judged columns: the one the criterion names is bold.
+    pub p99_7_class: &'static str,
+    pub max_class: &'static str,
+    pub tolerance: String,
+    pub criterion: &'static str,
+    /// Fewer than 333 rows: p99.7 lies between the two largest errors.
+    pub few_rows: bool,
+}
+
+/// The figure compared with the tolerance, and how it compares.
+pub(super) struct Judgement {
+    pub criterion: &'static str,
+    pub value: String,
+    pub tolerance: String,
+    pub exceeds: bool,
+}
+
+/// The warnings, formatted; `count` is the number of items listed.
+pub(super) struct WarningsView {
+    pub count: usize,
+    pub held: Option<HeldWarning>,
+    pub not_converged: Vec<(String, String)>,
+    /// `(row checks, robust exclusions)`, when any row was left out.
+    pub rows_left_out: Option<(usize, usize)>,
+    pub targets_not_ok: Option<TargetsWarning>,
+    pub beyond_default_envelope: Option<EnvelopeWarning>,
+    /// Rows of the `commands` input.
+    pub targets: usize,
+    pub held_elsewhere: usize,
+    /// No `excluded_rows` input: said, so "none" is not read as "all checked".
+    pub rows_unchecked: bool,
+    /// No `commands` input.
+    pub targets_unchecked: bool,
+}
+
+/// Held parameters of the model in service: `(name, reason)`.
+pub(super) struct HeldWarning {
+    pub model: String,
+    pub parameters: Vec<(String, String)>,
+}
+
+/// Targets whose command is not `ok`.
+pub(super) struct TargetsWarning {
+    pub count: usize,
+    /// `(status, count)` in status order.
+    pub by_status: Vec<(String, usize)>,
+    pub with_distance: bool,
+    pub with_u95: bool,
+    /// The first [`TARGETS_LISTED`].
+    pub rows: Vec<TargetView>,
+    /// Targets not listed.
+    pub more: usize,
+}
+
+pub(super) struct TargetView {
+    pub id: i64,
+    pub status: String,
+    pub distance: String,
+    pub u95: String,
+}
+
+/// `ok` targets beyond compensate's default envelope.
+pub(super) struct EnvelopeWarning {
+    pub count: usize,
+    pub limit_deg: String,
+    pub farthest_deg: String,
+}
+
+/// The verdict's view: outcome, figures, tolerance, then the warnings.
+pub(super) fn view(v: &Verdict, heading: Heading) -> VerdictView {
     let (class, word) = match v.outcome {
         Outcome::Pass => ("pass", "PASS"),
         Outcome::Fail => ("fail", "FAIL"),
         Outcome::NoVerdict => ("none", "NO VERDICT"),
     };
-    let chosen = if v.model_from_setting {
-        "the report's setting <code>model</code>"
-    } else {
-        "the most complete calibration validated; setting <code>model</code> names another"
-    };
-    let _ = writeln!(
-        out,
-        "<div class=\"verdict {class}\">\n<p class=\"outcome\"><span class=\"badge\">{word}</span> \
-         Model in service: <strong>{}</strong> ({chosen}).</p>",
-        escape(&v.model)
-    );
-    let Some(f) = v.figures else {
-        let _ = writeln!(
-            out,
-            "<p>The errors table has no validation rows of model <code>{}</code>, so there is nothing to judge.</p>\n</div>",
-            escape(&v.model)
-        );
-        render_warnings(out, &v.warnings);
-        return;
-    };
-    let judged = f.judged(v.criterion);
-    let sentence = match (v.outcome, v.tolerance_mm) {
-        (Outcome::Pass, Some(t)) => format!(
-            "Its {} validation error, {} mm, is within the tolerance of {} mm.",
-            v.criterion.label(),
-            mm(judged),
-            mm(t)
-        ),
-        (Outcome::Fail, Some(t)) => format!(
-            "Its {} validation error, {} mm, exceeds the tolerance of {} mm.",
-            v.criterion.label(),
-            mm(judged),
-            mm(t)
-        ),
-        _ => "No tolerance is set, so there is no PASS or FAIL: set the report's <code>tolerance_mm</code> \
-              (and <code>criterion</code>, <code>max</code> or <code>p99_7</code>) to the accuracy the \
-              application needs."
-            .to_string(),
-    };
-    let _ = writeln!(out, "<p>{sentence}</p>");
-    let mark = |c: Criterion| {
+    let class_of = |c: Criterion| {
         if v.tolerance_mm.is_some() && c == v.criterion {
-            " class=\"num judged\""
+            "num judged"
         } else {
-            " class=\"num\""
+            "num"
         }
     };
-    let _ = writeln!(
-        out,
-        "<table class=\"figures\">\n<thead><tr><th class=\"num\">validation rows</th><th class=\"num\">mean (mm)</th>\
-         <th{}>p99.7 (mm)</th><th{}>max (mm)</th><th class=\"num\">tolerance (mm)</th><th>criterion</th></tr></thead>\n\
-         <tbody><tr><td class=\"num\">{}</td><td class=\"num\">{}</td><td{}>{}</td><td{}>{}</td><td class=\"num\">{}</td><td>{}</td></tr></tbody>\n</table>",
-        mark(Criterion::P99_7),
-        mark(Criterion::Max),
-        f.n,
-        mm(f.mean),
-        mark(Criterion::P99_7),
-        mm(f.p99_7),
-        mark(Criterion::Max),
-        mm(f.max),
-        v.tolerance_mm.map_or_else(|| "not set".to_string(), mm),
-        if v.tolerance_mm.is_some() {
+    let figures = v.figures.map(|f| FiguresView {
+        judgement: match (v.outcome, v.tolerance_mm) {
+            (Outcome::Pass | Outcome::Fail, Some(t)) => Some(Judgement {
+                criterion: v.criterion.label(),
+                value: mm(f.judged(v.criterion)),
+                tolerance: mm(t),
+                exceeds: v.outcome == Outcome::Fail,
+            }),
+            _ => None,
+        },
+        rows: f.n,
+        mean: mm(f.mean),
+        p99_7: mm(f.p99_7),
+        max: mm(f.max),
+        p99_7_class: class_of(Criterion::P99_7),
+        max_class: class_of(Criterion::Max),
+        tolerance: v.tolerance_mm.map_or_else(|| "not set".to_string(), mm),
+        criterion: if v.tolerance_mm.is_some() {
             v.criterion.as_str()
         } else {
             "—"
         },
-    );
-    let _ = write!(
-        out,
-        "<p class=\"note\">Error norm ‖predicted − measured‖ of each validation row (rows the calibration did not use). \
-         p99.7: the 99.7th percentile (linear interpolation), the distribution-free counterpart of a datasheet's \"3σ\""
-    );
-    if f.n < 333 {
-        out.push_str("; with fewer than 333 rows it lies between the two largest errors");
+        few_rows: f.n < 333,
+    });
+    VerdictView {
+        heading,
+        class,
+        word,
+        model: v.model.clone(),
+        model_from_setting: v.model_from_setting,
+        figures,
+        warnings: warnings_view(&v.warnings),
     }
-    out.push_str(".</p>\n</div>\n");
-    render_warnings(out, &v.warnings);
 }
 
-fn render_warnings(out: &mut String, w: &Warnings) {
-    let count = w.count();
-    let _ = writeln!(
-        out,
-        "<h3 id=\"warnings\">Warnings ({count})</h3>\n<p>They do not change PASS or FAIL, which is about the measured \
-         rows; they say where the calibration is less certain than those rows suggest.</p>"
-    );
-    let mut items: Vec<String> = Vec::new();
-    if !w.held.is_empty() {
-        let list: Vec<String> = w
+fn warnings_view(w: &Warnings) -> WarningsView {
+    let held = w.held.first().map(|first| HeldWarning {
+        model: first.model.clone(),
+        parameters: w
             .held
             .iter()
             .map(|h| {
-                format!(
-                    "<li><code>{}</code>: {}</li>",
-                    escape(&h.name),
+                (
+                    h.name.clone(),
                     h.reason
-                        .as_deref()
-                        .map_or_else(|| "no reason recorded".to_string(), escape)
+                        .clone()
+                        .unwrap_or_else(|| "no reason recorded".to_string()),
                 )
             })
-            .collect();
-        items.push(format!(
-            "{} parameter{} of <strong>{}</strong> held at nominal: the data did not determine {} \
-             (<a href=\"#parameters\">parameters</a>).<ul>{}</ul>",
-            w.held.len(),
-            if w.held.len() == 1 { "" } else { "s" },
-            escape(&w.held[0].model),
-            if w.held.len() == 1 { "it" } else { "them" },
-            list.join("")
-        ));
-    }
-    for (model, text) in &w.not_converged {
-        // identify's text starts with the model's name, said already.
-        let text = text
-            .strip_prefix(model.as_str())
-            .and_then(|t| t.strip_prefix(": "))
-            .unwrap_or(text);
-        items.push(format!(
-            "<strong>{}</strong>: the fit did not converge and was used anyway ({}); its parameters may fall short \
-             of the best the data allow (<a href=\"#convergence\">convergence</a>).",
-            escape(model),
-            escape(text)
-        ));
-    }
-    if let Some((checks, robust)) = w.rows_left_out
-        && checks + robust > 0
-    {
-        items.push(format!(
-            "Rows left out of the calibration: {checks} by the row checks (every model), {robust} by the robust fit \
-             of this model (<a href=\"#excluded-rows\">rows left out</a>)."
-        ));
-    }
-    if let Some(targets) = w.targets_not_ok.as_ref().filter(|t| !t.is_empty()) {
-        let mut by_status: BTreeMap<&str, usize> = BTreeMap::new();
-        for t in targets {
-            *by_status.entry(t.status.as_str()).or_default() += 1;
-        }
-        let counts: Vec<String> = by_status
-            .iter()
-            .map(|(s, n)| format!("{n} {}", escape(s)))
-            .collect();
-        let mut item = format!(
-            "{} of {} targets have a command whose status is not <code>ok</code> ({}): the validation figures above do \
-             not vouch for them.",
-            targets.len(),
-            w.targets,
-            counts.join(", ")
-        );
-        let with = |f: fn(&CommandRow) -> Option<f64>| targets.iter().any(|t| f(t).is_some());
-        let (distance, u95) = (with(|t| t.envelope_distance), with(|t| t.u95_mm));
-        item.push_str(
-            "<table class=\"targets\">\n<thead><tr><th class=\"num\">target_id</th><th>status</th>",
-        );
-        if distance {
-            item.push_str("<th class=\"num\">envelope_distance</th>");
-        }
-        if u95 {
-            item.push_str("<th class=\"num\">u95 (mm)</th>");
-        }
-        item.push_str("</tr></thead>\n<tbody>\n");
-        let cell = |v: Option<f64>| v.map_or_else(|| "—".to_string(), |v| format!("{v:.3}"));
-        for t in targets.iter().take(TARGETS_LISTED) {
-            let _ = write!(
-                item,
-                "<tr><td class=\"num\">{}</td><td>{}</td>",
-                t.target_id,
-                escape(&t.status)
-            );
-            if distance {
-                let _ = write!(item, "<td class=\"num\">{}</td>", cell(t.envelope_distance));
+            .collect(),
+    });
+    let not_converged = w
+        .not_converged
+        .iter()
+        .map(|(model, text)| {
+            // identify's text starts with the model's name, said already.
+            let text = text
+                .strip_prefix(model.as_str())
+                .and_then(|t| t.strip_prefix(": "))
+                .unwrap_or(text);
+            (model.clone(), text.to_string())
+        })
+        .collect();
+    let targets_not_ok = w
+        .targets_not_ok
+        .as_ref()
+        .filter(|t| !t.is_empty())
+        .map(|targets| {
+            let mut by_status: BTreeMap<&str, usize> = BTreeMap::new();
+            for t in targets {
+                *by_status.entry(t.status.as_str()).or_default() += 1;
             }
-            if u95 {
-                let _ = write!(item, "<td class=\"num\">{}</td>", cell(t.u95_mm));
+            let cell = |v: Option<f64>| v.map_or_else(|| "—".to_string(), |v| format!("{v:.3}"));
+            TargetsWarning {
+                count: targets.len(),
+                by_status: by_status
+                    .into_iter()
+                    .map(|(s, n)| (s.to_string(), n))
+                    .collect(),
+                with_distance: targets.iter().any(|t| t.envelope_distance.is_some()),
+                with_u95: targets.iter().any(|t| t.u95_mm.is_some()),
+                rows: targets
+                    .iter()
+                    .take(TARGETS_LISTED)
+                    .map(|t| TargetView {
+                        id: t.target_id,
+                        status: t.status.clone(),
+                        distance: cell(t.envelope_distance),
+                        u95: cell(t.u95_mm),
+                    })
+                    .collect(),
+                more: targets.len().saturating_sub(TARGETS_LISTED),
             }
-            item.push_str("</tr>\n");
-        }
-        item.push_str("</tbody>\n</table>");
-        if targets.len() > TARGETS_LISTED {
-            let _ = write!(
-                item,
-                "… and {} more (the commands table has them all).",
-                targets.len() - TARGETS_LISTED
-            );
-        }
-        items.push(item);
-    }
-    if !w.targets_beyond_default_envelope.is_empty() {
-        let farthest = w
-            .targets_beyond_default_envelope
-            .iter()
-            .filter_map(|t| t.envelope_distance)
-            .fold(0.0, f64::max);
-        items.push(format!(
-            "{} of {} targets have an <code>ok</code> command more than {}° (compensate's default envelope) from the \
-             nearest calibration row, up to {farthest:.1}°: the job raised <code>max_envelope_distance_deg</code>, but \
-             no row was measured there, so the validation figures above do not vouch for them.",
-            w.targets_beyond_default_envelope.len(),
-            w.targets,
-            crate::compensation::envelope::DEFAULT_MAX_DISTANCE_DEG
-        ));
-    }
-    if items.is_empty() {
-        out.push_str("<p class=\"clear\">None.</p>\n");
-    } else {
-        out.push_str("<ul class=\"warnings\">\n");
-        for item in items {
-            let _ = writeln!(out, "<li>{item}</li>");
-        }
-        out.push_str("</ul>\n");
-    }
-    // What was looked at, so "none" is not read as "all checked".
-    let mut unchecked = Vec::new();
-    if w.rows_left_out.is_none() {
-        unchecked.push("rows left out (no <code>excluded_rows</code> input)");
-    }
-    if w.targets_not_ok.is_none() {
-        unchecked.push("targets (no <code>commands</code> input)");
-    }
-    if w.held_elsewhere > 0 {
-        let _ = writeln!(
-            out,
-            "<p class=\"note\">Other models hold {} parameter{} (see the parameters table).</p>",
-            w.held_elsewhere,
-            if w.held_elsewhere == 1 { "" } else { "s" }
-        );
-    }
-    if !unchecked.is_empty() {
-        let _ = writeln!(
-            out,
-            "<p class=\"note\">Not checked: {}.</p>",
-            unchecked.join("; ")
-        );
+        });
+    let beyond = &w.targets_beyond_default_envelope;
+    WarningsView {
+        count: w.count(),
+        held,
+        not_converged,
+        rows_left_out: w.rows_left_out.filter(|(c, r)| c + r > 0),
+        targets_not_ok,
+        beyond_default_envelope: (!beyond.is_empty()).then(|| EnvelopeWarning {
+            count: beyond.len(),
+            limit_deg: crate::compensation::envelope::DEFAULT_MAX_DISTANCE_DEG.to_string(),
+            farthest_deg: format!(
+                "{:.1}",
+                beyond
+                    .iter()
+                    .filter_map(|t| t.envelope_distance)
+                    .fold(0.0, f64::max)
+            ),
+        }),
+        targets: w.targets,
+        held_elsewhere: w.held_elsewhere,
+        rows_unchecked: w.rows_left_out.is_none(),
+        targets_unchecked: w.targets_not_ok.is_none(),
     }
 }

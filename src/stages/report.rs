@@ -139,7 +139,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Self-contained HTML report (report.html): verdict (PASS/FAIL against tolerance_mm, warnings), error statistics (Table III with compare_with_paper), histograms, poses, accuracy map, ISO 9283, parameters, traces, tests, provenance",
-    code_version: 10,
+    code_version: 11,
     inputs: &[
         TableSlot {
             name: "stats",
@@ -327,7 +327,7 @@ impl Stage for ReportStage {
                 .map(|(name, table)| source(name, table, ctx.job_dir))
                 .collect(),
         };
-        let html = report::render(&data);
+        let html = report::render(&data).map_err(|e| StageError::Failed(e.to_string()))?;
         let mut outputs = StageOutputs::default();
         outputs
             .facts
