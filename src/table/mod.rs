@@ -116,11 +116,14 @@ pub fn write_parquet(
         )])
     });
     crate::fsio::write_atomic(path, |file| {
-        ParquetWriter::new(file)
+        // The writer emits each page header and column chunk as its own small
+        // write: unbuffered, a 10 000-row table took 2 800 system calls.
+        let mut buffered = std::io::BufWriter::with_capacity(1 << 20, file);
+        ParquetWriter::new(&mut buffered)
             .with_key_value_metadata(metadata)
             .finish(df)
-            .map(|_| ())
-            .map_err(std::io::Error::other)
+            .map_err(std::io::Error::other)?;
+        std::io::Write::flush(&mut buffered)
     })
     .map_err(|e| io_error(path, format!("cannot write: {e}")))
 }
