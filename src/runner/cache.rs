@@ -8,6 +8,7 @@
 
 use std::collections::BTreeMap;
 use std::fs;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use polars::prelude::DataFrame;
@@ -148,22 +149,28 @@ impl Cache {
             facts: facts.clone(),
             created_at: provenance.created_at.clone(),
         };
+        // The entry's folder is private until it is renamed into place, so its
+        // files need no temporaries of their own: each is fsynced, then every
+        // folder they were made in once, then the rename publishes them all.
+        let mut written = Vec::new();
         for (name, df) in tables.iter_mut() {
             let file = format!("{name}.parquet");
             let path = tmp_dir.join(&file);
-            table::write_parquet(df, &path, Some(provenance))?;
+            let bytes_hash = table::write_parquet_unpublished(df, &path, Some(provenance))?;
             manifest.tables.insert(
                 name.clone(),
                 CachedTable {
-                    bytes_hash: fsio::hash_file(&path).map_err(io)?,
+                    bytes_hash,
                     content_hash: table::content_hash(df),
                     rows: df.height(),
                     file,
                 },
             );
+            written.push(path);
         }
         for (name, bytes) in files {
-            fsio::write_bytes_atomic(&tmp_dir.join(name), bytes).map_err(io)?;
+            let path = tmp_dir.join(name);
+            fsio::write_unpublished(&path, |f| f.write_all(bytes)).map_err(io)?;
             manifest.files.insert(
                 name.clone(),
                 CachedFile {
@@ -171,9 +178,18 @@ impl Cache {
                     bytes_hash: blake3::hash(bytes).to_hex().to_string(),
                 },
             );
+            written.push(path);
         }
         let json = serde_json::to_vec_pretty(&manifest).expect("manifest serialises");
-        fsio::write_bytes_atomic(&tmp_dir.join(MANIFEST), &json).map_err(io)?;
+        fsio::write_unpublished(&tmp_dir.join(MANIFEST), |f| f.write_all(&json)).map_err(io)?;
+        // Each folder a file was made in, and the folders between it and the
+        // entry's (a file's own path may have folders: `robot_id=…/date=…/`).
+        let folders = written.iter().flat_map(|path| {
+            path.ancestors()
+                .skip(1)
+                .take_while(|dir| dir.starts_with(&tmp_dir))
+        });
+        fsio::sync_dirs(folders.chain([tmp_dir.as_path()])).map_err(io)?;
         if final_dir.exists() {
             fs::remove_dir_all(&final_dir).map_err(io)?;
         }

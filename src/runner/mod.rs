@@ -661,15 +661,20 @@ fn publish(layout: &Layout, stage: &str, key: &str, manifest: &Manifest) -> Resu
             &f.bytes_hash,
         )
     });
+    // Each file is replaced atomically; the folders they are in are synced
+    // once at the end rather than after each (one fsync a folder, issue #31).
+    let mut folders = Vec::new();
     for (target, source, hash) in tables.chain(files) {
         if fsio::same_file(&source, &target) || fsio::hash_file(&target).ok().as_ref() == Some(hash)
         {
             continue;
         }
-        fsio::link_or_copy_atomic(&source, &target)
+        let folder = fsio::link_or_copy_unsynced(&source, &target)
             .map_err(|e| table::schema::io_error(&target, e))?;
+        folders.push(folder);
     }
-    Ok(())
+    fsio::sync_dirs(folders.iter().map(PathBuf::as_path))
+        .map_err(|e| table::schema::io_error(&layout.output.join(stage), e))
 }
 
 fn write_state(layout: &Layout, stage: &str, key: &str, parts: &KeyParts) -> Result<(), RunError> {

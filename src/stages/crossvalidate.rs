@@ -85,7 +85,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Held-out accuracy: identify on all folds but one, validate on it, for grouped (region, configuration, load, time) and random folds",
-    code_version: 9,
+    code_version: 10,
     inputs: &[
         TableSlot {
             name: "measurements",

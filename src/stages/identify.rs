@@ -379,7 +379,7 @@ static INFO: StageInfo = StageInfo {
     uses_cable_robot: false,
     updates_input: None,
     summary: "Kinematic and elasto-geometric identification with rank analysis and standard errors",
-    code_version: 15,
+    code_version: 16,
     inputs: &[
         TableSlot {
             name: "measurements",

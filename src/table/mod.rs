@@ -109,23 +109,75 @@ pub fn write_parquet(
     path: &Path,
     provenance: Option<&Provenance>,
 ) -> Result<(), TableError> {
+    crate::fsio::write_atomic(path, |file| encode_parquet(df, provenance, file))
+        .map_err(|e| io_error(path, format!("cannot write: {e}")))
+}
+
+/// Writes `df` with provenance in the footer as a new file in a folder that
+/// is renamed into place as a whole ([`crate::fsio::write_unpublished`]: one
+/// fsync, no temporary), and returns the blake3 of the bytes written, hashed
+/// on the way out rather than read back.
+pub fn write_parquet_unpublished(
+    df: &mut DataFrame,
+    path: &Path,
+    provenance: Option<&Provenance>,
+) -> Result<String, TableError> {
+    let mut hasher = blake3::Hasher::new();
+    crate::fsio::write_unpublished(path, |file| {
+        encode_parquet(
+            df,
+            provenance,
+            &mut HashingWriter {
+                inner: file,
+                hasher: &mut hasher,
+            },
+        )
+    })
+    .map_err(|e| io_error(path, format!("cannot write: {e}")))?;
+    Ok(hasher.finalize().to_hex().to_string())
+}
+
+/// `df` as Parquet into `out`, through a buffer: the writer emits each page
+/// header and column chunk as its own small write (unbuffered, a 10 000-row
+/// table took 2 800 system calls). Snappy, the Parquet readers' common
+/// default, rather than polars' zstd: a 10 000-row night's residual table
+/// encodes in 3 ms instead of 9, for files 10–25 % larger (issue #31).
+fn encode_parquet(
+    df: &mut DataFrame,
+    provenance: Option<&Provenance>,
+    out: &mut impl std::io::Write,
+) -> std::io::Result<()> {
     let metadata = provenance.map(|p| {
         KeyValueMetadata::from_static(vec![(
             PROVENANCE_KEY.to_string(),
             serde_json::to_string(p).expect("provenance serialises"),
         )])
     });
-    crate::fsio::write_atomic(path, |file| {
-        // The writer emits each page header and column chunk as its own small
-        // write: unbuffered, a 10 000-row table took 2 800 system calls.
-        let mut buffered = std::io::BufWriter::with_capacity(1 << 20, file);
-        ParquetWriter::new(&mut buffered)
-            .with_key_value_metadata(metadata)
-            .finish(df)
-            .map_err(std::io::Error::other)?;
-        std::io::Write::flush(&mut buffered)
-    })
-    .map_err(|e| io_error(path, format!("cannot write: {e}")))
+    let mut buffered = std::io::BufWriter::with_capacity(1 << 20, out);
+    ParquetWriter::new(&mut buffered)
+        .with_compression(ParquetCompression::Snappy)
+        .with_key_value_metadata(metadata)
+        .finish(df)
+        .map_err(std::io::Error::other)?;
+    std::io::Write::flush(&mut buffered)
+}
+
+/// Passes writes through to `inner` and hashes them.
+struct HashingWriter<'a, W> {
+    inner: W,
+    hasher: &'a mut blake3::Hasher,
+}
+
+impl<W: std::io::Write> std::io::Write for HashingWriter<'_, W> {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        let written = self.inner.write(bytes)?;
+        self.hasher.update(&bytes[..written]);
+        Ok(written)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
 }
 
 /// Blake3 of a table's data: column names, types and values, not its metadata.
@@ -262,6 +314,31 @@ mod tests {
             vec![("cw_id".to_string(), "i64".to_string())]
         );
         assert_eq!(read_parquet(&path).unwrap(), df);
+    }
+
+    /// The hash taken on the way out is the file's, the bytes are those an
+    /// atomic write gives, and no temporary is left beside the file.
+    #[test]
+    fn an_unpublished_write_hashes_what_it_wrote() {
+        let dir = tempfile::tempdir().unwrap();
+        let rows: Vec<i64> = (0..50_000).collect();
+        let mut df = frame(vec![Column::new("cw_id".into(), rows)]);
+        let unpublished = dir.path().join("entry").join("t.parquet");
+        let hash = write_parquet_unpublished(&mut df, &unpublished, None).unwrap();
+        assert_eq!(hash, crate::fsio::hash_file(&unpublished).unwrap());
+        let atomic = dir.path().join("atomic.parquet");
+        write_parquet(&mut df, &atomic, None).unwrap();
+        assert_eq!(
+            std::fs::read(&unpublished).unwrap(),
+            std::fs::read(&atomic).unwrap()
+        );
+        assert_eq!(
+            std::fs::read_dir(unpublished.parent().unwrap())
+                .unwrap()
+                .count(),
+            1
+        );
+        assert_eq!(read_parquet(&unpublished).unwrap(), df);
     }
 
     #[test]
