@@ -29,6 +29,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use polars::prelude::*;
+use rayon::prelude::*;
 
 use crate::table::schema::{self, JOINT_COLUMNS, POSITION_COLUMNS, WRENCH_COLUMNS};
 use crate::table::time::date_string;
@@ -600,8 +601,16 @@ pub fn scan(query: &LogQuery, found: &Discovered) -> Result<LogScan, LogError> {
         }
         report.bad_files.push((file.clone(), message.clone()));
     }
-    for file in &found.files {
-        match open(file, partition_robot(&file.relative), cloud.clone()) {
+    // Opened on the threads; a robot's own local files are read whole there
+    // (`open`): polars' lazy scans of a 10 000-row night's 14 small files
+    // took 20 ms of its 26, reading them 7 ms (issue #31).
+    let frames: Vec<Result<LazyFrame, String>> = found
+        .files
+        .par_iter()
+        .map(|file| open(file, partition_robot(&file.relative), cloud.clone()))
+        .collect();
+    for (file, frame) in found.files.iter().zip(frames) {
+        match frame {
             Ok(frame) => {
                 opened.push(frame);
                 report.files_read += 1;
@@ -659,28 +668,45 @@ pub fn scan(query: &LogQuery, found: &Discovered) -> Result<LogScan, LogError> {
 }
 
 /// A lazy frame of one file's measurement columns (`measured_at` as µs, `robot_id`
-/// from the data or else the partition folder's). Reads only the footer.
+/// from the data or else the partition folder's). Reads only the footer, but
+/// for a local file of one robot's partition, which it reads whole.
 fn open(
     file: &LogFile,
     partition_robot: Option<String>,
     cloud_options: Option<cloud::CloudOptions>,
 ) -> Result<LazyFrame, String> {
-    let path = match cloud_options {
-        Some(_) => PlRefPath::new(file.address.as_str()),
-        None => PlRefPath::try_from_path(Path::new(&file.address)).map_err(|e| e.to_string())?,
+    let not_parquet = |e: PolarsError| format!("not a readable Parquet file: {e}");
+    let (frame, schema) = match cloud_options {
+        // A local file in a robot's partition folder holds that robot's rows
+        // only: read whole, without a query's overhead. Other files (several
+        // robots' rows, objects in S3) are scanned, the filter pushed down.
+        None if partition_robot.is_some() => {
+            let opened =
+                std::fs::File::open(&file.address).map_err(|e| format!("cannot open: {e}"))?;
+            let df = ParquetReader::new(opened).finish().map_err(not_parquet)?;
+            let schema = df.schema().clone();
+            (df.lazy(), schema)
+        }
+        cloud_options => {
+            let args = ScanArgsParquet {
+                hive_options: HiveOptions {
+                    enabled: Some(false),
+                    ..HiveOptions::default()
+                },
+                cloud_options,
+                ..ScanArgsParquet::default()
+            };
+            let path = match &args.cloud_options {
+                Some(_) => PlRefPath::new(file.address.as_str()),
+                None => {
+                    PlRefPath::try_from_path(Path::new(&file.address)).map_err(|e| e.to_string())?
+                }
+            };
+            let mut frame = LazyFrame::scan_parquet(path, args).map_err(|e| e.to_string())?;
+            let schema = frame.collect_schema().map_err(not_parquet)?;
+            (frame, schema)
+        }
     };
-    let args = ScanArgsParquet {
-        hive_options: HiveOptions {
-            enabled: Some(false),
-            ..HiveOptions::default()
-        },
-        cloud_options,
-        ..ScanArgsParquet::default()
-    };
-    let mut frame = LazyFrame::scan_parquet(path, args).map_err(|e| e.to_string())?;
-    let schema = frame
-        .collect_schema()
-        .map_err(|e| format!("not a readable Parquet file: {e}"))?;
     let contract = schema::measurements();
     let mut columns = vec![col("cw_id")];
     for name in std::iter::once("cw_id").chain(float_columns()) {
