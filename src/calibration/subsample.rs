@@ -1,5 +1,6 @@
 //! The subsample a large table's fit starts from (issue #31): its rank
-//! analysis and a fit to it cost a fiftieth of a pass over every row.
+//! analysis and a fit to it cost about a pass over every row on 5 000 rows,
+//! a fiftieth of one on 10⁶.
 //!
 //! Rows are taken evenly strided over the table, then topped up so that every
 //! kind of row the whole table holds is there: each target (SMR or nest), on
