@@ -165,7 +165,8 @@ pub fn run_night(
 /// left to their nights, which record it.
 pub fn check_template(fleet: &Fleet) -> Result<(), FleetError> {
     // A robot whose own settings load proves the template works for one robot:
-    // the second loop would only load a plan again (about 5 ms each).
+    // the second loop would only load its plan again (the robot file, the
+    // job's input tables), which each night then loaded three times.
     let mut one_loaded = false;
     for robot in fleet.robots_with_overrides() {
         if let Err(problems) = Plan::load_with(&fleet.job, &fleet.job_overrides(robot)) {
