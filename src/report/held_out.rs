@@ -72,20 +72,27 @@ pub(super) fn view(rows: &[HeldOutRow]) -> Option<HeldOutView> {
     })
 }
 
+/// An elasto-geometric row of `protocol` with a mean of `mean_mm` (and a
+/// p99.7 and maximum of 2× and 3× it), for the report's tests.
+#[cfg(test)]
+pub(crate) fn test_row(protocol: &str, mean_mm: f64) -> HeldOutRow {
+    HeldOutRow {
+        protocol: protocol.into(),
+        model: "elastogeometric".into(),
+        rows: 10,
+        mean_mm,
+        p997_mm: 2.0 * mean_mm,
+        max_mm: 3.0 * mean_mm,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn random_folds_come_first_beside_the_grouped_ones() {
-        let row = |protocol: &str, mean_mm: f64| HeldOutRow {
-            protocol: protocol.into(),
-            model: "elastogeometric".into(),
-            rows: 10,
-            mean_mm,
-            p997_mm: 2.0 * mean_mm,
-            max_mm: 3.0 * mean_mm,
-        };
+        let row = test_row;
         let view = view(&[row("configuration", 0.47), row("random", 0.43)]).expect("rows");
         assert_eq!(view.protocols, ["random", "configuration"]);
         let figures = view.rows[0].cells.iter().flatten();

@@ -1102,14 +1102,7 @@ mod tests {
     #[test]
     fn held_out_figures_and_the_ladder_follow_the_statistics() {
         let mut data = sample();
-        let held_out = |protocol: &str, mean_mm: f64| held_out::HeldOutRow {
-            protocol: protocol.into(),
-            model: "elastogeometric".into(),
-            rows: 10,
-            mean_mm,
-            p997_mm: 2.0 * mean_mm,
-            max_mm: 3.0 * mean_mm,
-        };
+        let held_out = held_out::test_row;
         data.held_out = Some(vec![
             held_out("configuration", 0.47),
             held_out("random", 0.43),
