@@ -54,7 +54,7 @@ fn householder_in_place(a: &mut Mat<f64>, block_size: usize) -> Mat<f64> {
 /// After each chunk's QR, the next chunk's Jacobian rows took 1.97 µs a row
 /// instead of 0.87 (kinematic model, 1 024-row chunks, 26 columns; 1.40
 /// instead of 1.31 for the elasto-geometric one): issue #31.
-fn clear_upper_vector_state() {
+pub(crate) fn clear_upper_vector_state() {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx") {
         // SAFETY: `zero_upper` needs AVX, which the CPU has (checked above).

@@ -26,6 +26,7 @@ use faer::{Accum, Mat, Par};
 use rayon::prelude::*;
 
 use super::kernel::{CHUNK, Kernel, Rows};
+use crate::calibration::dense::clear_upper_vector_state;
 
 /// Residual axes (outputs).
 pub(super) const AXES: usize = 3;
@@ -74,6 +75,7 @@ pub(super) fn cholesky(mut a: Mat<f64>) -> Option<Mat<f64>> {
         Default::default(),
     )
     .ok()?;
+    clear_upper_vector_state();
     Some(Mat::from_fn(
         n,
         n,
@@ -83,12 +85,14 @@ pub(super) fn cholesky(mut a: Mat<f64>) -> Option<Mat<f64>> {
 
 fn lower_solve(l: &Mat<f64>, mut rhs: Mat<f64>) -> Mat<f64> {
     solve_lower_triangular_in_place(l.as_ref(), rhs.as_mut(), Par::Seq);
+    clear_upper_vector_state();
     rhs
 }
 
 /// `L⁻ᵀ rhs`.
 fn upper_solve(l: &Mat<f64>, mut rhs: Mat<f64>) -> Mat<f64> {
     solve_upper_triangular_in_place(l.transpose(), rhs.as_mut(), Par::Seq);
+    clear_upper_vector_state();
     rhs
 }
 
@@ -101,6 +105,7 @@ fn inverse_from_factor(l: &Mat<f64>) -> Mat<f64> {
 fn product(a: faer::MatRef<'_, f64>, b: faer::MatRef<'_, f64>) -> Mat<f64> {
     let mut out = Mat::zeros(a.nrows(), b.ncols());
     matmul(out.as_mut(), Accum::Replace, a, b, 1.0, Par::Seq);
+    clear_upper_vector_state();
     out
 }
 
@@ -364,6 +369,7 @@ impl Sparse {
                         1.0,
                         Par::Seq,
                     );
+                    clear_upper_vector_state();
                     let ell =
                         kernel.log_length_scale_gradient(z, x.slice(*start, *end), &g_u, &pass.u);
                     (elementwise_dot(&g_u, &pass.u), fitted_squared, ell)
